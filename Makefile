@@ -1,0 +1,35 @@
+# depthguard: everything from a fresh clone. `make demo`, `make test`, `make bench`.
+PYTHON ?= python3
+VENV   := .venv
+PY     := $(VENV)/bin/python
+STAMP  := $(VENV)/.installed
+OUT    ?= out
+
+.PHONY: venv demo test test-fast bench clean
+
+venv: $(STAMP)
+
+$(STAMP): pyproject.toml
+	test -x $(PY) || $(PYTHON) -m venv $(VENV)
+	$(PY) -m pip install --quiet --upgrade pip
+	$(PY) -m pip install --quiet -e '.[test,bench]'
+	touch $(STAMP)
+
+## The main job on the built-in simulated cell.
+demo: $(STAMP)
+	$(VENV)/bin/depthguard demo --out $(OUT)/demo
+
+## Every test (slow and multi-process ones included).
+test: $(STAMP)
+	$(PY) -m pytest -q -p no:cacheprovider
+
+## Everything but the tests marked slow.
+test-fast: $(STAMP)
+	$(PY) -m pytest -q -m "not slow" -p no:cacheprovider
+
+## Benchmarks: a table beside the papers' numbers and a peer measured in the same run.
+bench: $(STAMP)
+	$(VENV)/bin/depthguard bench --json $(OUT)/bench.json
+
+clean:
+	rm -rf $(VENV) $(OUT) build *.egg-info src/*.egg-info

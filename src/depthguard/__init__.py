@@ -1,0 +1,53 @@
+"""depthguard: safe human-robot workspace sharing from several depth cameras.
+
+The public surface (SPEC §9)::
+
+    import depthguard as dg
+    cam = dg.Camera(...); rig = dg.Rig.load("cell.yaml")
+    depth = dg.read_depth("cam0.png"); img = dg.render_depth(cam, meshes)
+    res = dg.depth_space_distance(cam, depth, points, rho=0.4, method="hybrid")
+    grid = dg.DepthGridMap(rig.cameras, principal="cam0", d_min=0.3, d_max=3.7, delta_d=0.01)
+    fs = dg.FreeSpaceMap(rig.cameras, bounds=(lo, hi), voxel_size=0.05)
+
+Names are imported lazily so that ``import depthguard`` stays fast and the
+numba kernels compile only when they are used.
+"""
+
+from __future__ import annotations
+
+import importlib
+
+__version__ = "0.1.0"
+
+_EXPORTS = {
+    "Camera": "depthguard.camera",
+    "CameraError": "depthguard.camera",
+    "read_depth": "depthguard.depth_io",
+    "write_depth": "depthguard.depth_io",
+    "Rig": "depthguard.rig",
+    "RigError": "depthguard.rig",
+    "Mesh": "depthguard.geometry.mesh",
+    "render_depth": "depthguard.render",
+    "Renderer": "depthguard.render",
+    "RobotModel": "depthguard.robot",
+    "load_robot": "depthguard.robot",
+    "depth_space_distance": "depthguard.distance",
+    "DistanceResult": "depthguard.distance",
+    "DepthGridMap": "depthguard.fusion.depth_grid",
+    "FreeSpaceMap": "depthguard.fusion.free_space",
+}
+
+__all__ = sorted(_EXPORTS)
+
+
+def __getattr__(name: str):
+    mod = _EXPORTS.get(name)
+    if mod is None:
+        raise AttributeError(f"module 'depthguard' has no attribute {name!r}")
+    value = getattr(importlib.import_module(mod), name)
+    globals()[name] = value
+    return value
+
+
+def __dir__():
+    return sorted(list(globals()) + __all__)

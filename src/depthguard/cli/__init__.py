@@ -1,0 +1,27 @@
+"""The ``depthguard`` command. Each module in ``_COMMAND_MODULES`` adds its commands."""
+
+from __future__ import annotations
+
+import importlib
+import sys
+
+from depthguard.cli.app import app
+
+_COMMAND_MODULES = [
+    "depthguard.cli.reproduce",
+    "depthguard.cli.scenes",
+    "depthguard.cli.bench",
+    "depthguard.cli.demo",
+]
+
+for _m in _COMMAND_MODULES:
+    importlib.import_module(_m)
+
+
+def main() -> None:
+    """Entry point: user errors (ValueError, FileNotFoundError) print one clear line, exit 2."""
+    try:
+        app()
+    except (ValueError, FileNotFoundError) as exc:
+        print(f"depthguard: error: {exc}", file=sys.stderr)
+        sys.exit(2)

@@ -1,0 +1,90 @@
+"""The benchmark harness behind ``depthguard bench``.
+
+Each area has a module here that registers a *group* of rows with
+:func:`group`. A group is a function ``(ctx: BenchContext) -> list[BenchRow]``.
+Rows carry the figure, the paper's figure where there is one, and a peer
+(Embree, k-d tree, OctoMap ...) measured in the same run. Timing is by
+median / worst over repetitions after a warm-up (numba compiles first).
+"""
+
+from __future__ import annotations
+
+import importlib
+import time
+from dataclasses import asdict, dataclass, field
+from typing import Callable
+
+import numpy as np
+
+__all__ = ["BenchRow", "BenchContext", "group", "GROUPS", "run", "time_call"]
+
+# Modules that register groups; each area adds its module name here.
+_MODULES = [
+    "depthguard.evaluation.bench.render",
+]
+
+
+@dataclass
+class BenchRow:
+    name: str
+    value: float
+    unit: str
+    paper: float | None = None
+    peer: str | None = None
+    peer_value: float | None = None
+    note: str = ""
+
+    def as_dict(self) -> dict:
+        return asdict(self)
+
+
+@dataclass
+class BenchContext:
+    quick: bool = False          # fewer repetitions (used by the tests)
+    repeats: int = 30
+    seed: int = 0
+    log: Callable[[str], None] = field(default=lambda msg: None)
+
+
+GROUPS: dict[str, Callable[[BenchContext], list[BenchRow]]] = {}
+
+
+def group(name: str):
+    """Register a bench group under ``name`` (a prefix of its row names)."""
+    def deco(fn):
+        GROUPS[name] = fn
+        return fn
+    return deco
+
+
+def load_groups() -> dict[str, Callable[[BenchContext], list[BenchRow]]]:
+    for mod in _MODULES:
+        importlib.import_module(mod)
+    return GROUPS
+
+
+def run(only: list[str] | None = None, ctx: BenchContext | None = None) -> list[BenchRow]:
+    """Run every group (or those whose name starts with one of ``only``)."""
+    ctx = ctx or BenchContext()
+    rows: list[BenchRow] = []
+    for name, fn in load_groups().items():
+        if only and not any(name.startswith(o) or o.startswith(name) for o in only):
+            continue
+        ctx.log(f"bench group {name}")
+        got = fn(ctx)
+        if only:
+            got = [r for r in got if any(r.name.startswith(o) or name.startswith(o) for o in only)]
+        rows.extend(got)
+    return rows
+
+
+def time_call(fn: Callable[[], object], repeats: int, warmup: int = 2) -> np.ndarray:
+    """Wall-clock seconds of ``repeats`` calls of ``fn`` after ``warmup`` calls."""
+    for _ in range(warmup):
+        fn()
+    out = np.empty(repeats)
+    for i in range(repeats):
+        t0 = time.perf_counter()
+        fn()
+        out[i] = time.perf_counter() - t0
+    return out

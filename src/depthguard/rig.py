@@ -1,0 +1,446 @@
+"""Rig files: cameras, workspace, robot and static CAD of a cell (R2).
+
+A rig is YAML (format in ``docs/ARCHITECTURE.md``). It is validated once, on
+load, with pydantic; every problem becomes a :class:`RigError` whose message
+names the file, the field (``cameras[1].fx``) and what is wrong. After
+loading, a :class:`Rig` holds only validated, immutable objects.
+"""
+
+from __future__ import annotations
+
+from dataclasses import dataclass, field
+from pathlib import Path
+from typing import Any, Literal, Optional, Union
+
+import numpy as np
+import yaml
+from pydantic import BaseModel, ConfigDict, Field, ValidationError, field_validator, model_validator
+
+from depthguard.camera import Camera, CameraError
+from depthguard.geometry.mesh import Mesh, load_mesh
+from depthguard.geometry.primitives import Box, Capsule, Cylinder, Primitive, Sphere
+from depthguard.transforms import as_rigid, look_at, pose, quat_to_matrix
+
+__all__ = ["Rig", "RigError", "Workspace", "StaticObject", "RIG_SCHEMA_VERSION"]
+
+RIG_SCHEMA_VERSION = 1
+
+
+class RigError(ValueError):
+    """A rig file is missing, unreadable or invalid; the message names file and field."""
+
+
+# --------------------------------------------------------------------- schema
+_Vec3 = tuple[float, float, float]
+
+
+class _Strict(BaseModel):
+    model_config = ConfigDict(extra="forbid", frozen=True)
+
+
+class LookAtSpec(_Strict):
+    eye: _Vec3
+    target: _Vec3
+    up: _Vec3 = (0.0, 0.0, 1.0)
+
+
+class PoseSpec(_Strict):
+    """One of: ``translation`` (+ ``quaternion`` xyzw), ``matrix`` (4x4), ``look_at``."""
+
+    translation: Optional[_Vec3] = None
+    quaternion: Optional[tuple[float, float, float, float]] = None
+    matrix: Optional[list[list[float]]] = None
+    look_at: Optional[LookAtSpec] = None
+
+    @model_validator(mode="after")
+    def _one_form(self) -> "PoseSpec":
+        forms = [self.matrix is not None, self.look_at is not None,
+                 self.translation is not None or self.quaternion is not None]
+        if sum(forms) > 1:
+            raise ValueError("give exactly one of translation/quaternion, matrix or look_at")
+        if self.quaternion is not None:
+            quat_to_matrix(np.asarray(self.quaternion))  # raises on a non-unit quaternion
+        if self.matrix is not None:
+            as_rigid(np.asarray(self.matrix, dtype=float))  # raises: shape, orthonormality, bottom row
+        if self.look_at is not None:
+            e, t = np.asarray(self.look_at.eye), np.asarray(self.look_at.target)
+            if np.allclose(e, t):
+                raise ValueError("look_at: eye and target coincide")
+        return self
+
+    def matrix4(self) -> np.ndarray:
+        if self.matrix is not None:
+            return as_rigid(np.asarray(self.matrix, dtype=float))
+        if self.look_at is not None:
+            return look_at(self.look_at.eye, self.look_at.target, self.look_at.up)
+        R = quat_to_matrix(np.asarray(self.quaternion)) if self.quaternion is not None else None
+        return pose(R, self.translation)
+
+
+class CameraSpec(_Strict):
+    id: str = Field(min_length=1)
+    sensor: Optional[str] = None
+    width: Optional[int] = None
+    height: Optional[int] = None
+    fx: Optional[float] = None
+    fy: Optional[float] = None
+    cx: Optional[float] = None
+    cy: Optional[float] = None
+    range: Optional[tuple[float, float]] = None
+    pose: PoseSpec
+
+    @field_validator("sensor")
+    @classmethod
+    def _known_sensor(cls, v: Optional[str]) -> Optional[str]:
+        if v is not None:
+            from depthguard.sources.sensors import sensor_model
+            sensor_model(v)  # raises with the list of known models
+        return v
+
+    @field_validator("fx", "fy")
+    @classmethod
+    def _positive_focal(cls, v: Optional[float]) -> Optional[float]:
+        if v is not None and not v > 0:
+            raise ValueError(f"focal length must be > 0 (got {v})")
+        return v
+
+    @field_validator("width", "height")
+    @classmethod
+    def _positive_size(cls, v: Optional[int]) -> Optional[int]:
+        if v is not None and v <= 0:
+            raise ValueError(f"image size must be > 0 (got {v})")
+        return v
+
+    @field_validator("range")
+    @classmethod
+    def _range(cls, v):
+        if v is not None and not (0 <= v[0] < v[1]):
+            raise ValueError(f"range must be [min, max] with 0 <= min < max (got {list(v)})")
+        return v
+
+    @model_validator(mode="after")
+    def _intrinsics(self) -> "CameraSpec":
+        given = {k: getattr(self, k) for k in ("fx", "fy", "cx", "cy")}
+        if any(v is not None for v in given.values()):
+            missing = [k for k, v in given.items() if v is None]
+            if self.width is None or self.height is None:
+                missing = ["width/height"] + missing
+            if missing:
+                raise ValueError(f"intrinsics incomplete: missing {', '.join(missing)}")
+            if not (-0.5 <= self.cx <= self.width - 0.5 and -0.5 <= self.cy <= self.height - 0.5):
+                raise ValueError(f"principal point ({self.cx}, {self.cy}) lies outside the "
+                                 f"{self.width}x{self.height} image")
+        elif self.sensor is None:
+            raise ValueError("give the intrinsics (width, height, fx, fy, cx, cy) or a sensor preset")
+        elif (self.width is None) != (self.height is None):
+            raise ValueError("give both width and height, or neither")
+        return self
+
+    def to_camera(self) -> Camera:
+        from depthguard.sources.sensors import intrinsics_for
+
+        if self.fx is not None:
+            intr = dict(width=self.width, height=self.height, fx=self.fx, fy=self.fy, cx=self.cx, cy=self.cy)
+            rng = (0.4, 6.0)
+            if self.sensor is not None:
+                p = intrinsics_for(self.sensor, self.width, self.height) if self._has_mode() else None
+                if p is not None:
+                    rng = (p["min_range"], p["max_range"])
+        else:
+            p = intrinsics_for(self.sensor, self.width, self.height)
+            intr = {k: p[k] for k in ("width", "height", "fx", "fy", "cx", "cy")}
+            rng = (p["min_range"], p["max_range"])
+        if self.range is not None:
+            rng = self.range
+        return Camera(id=self.id, world_from_camera=self.pose.matrix4(), min_range=rng[0],
+                      max_range=rng[1], sensor=self.sensor, **intr)
+
+    def _has_mode(self) -> bool:
+        from depthguard.sources.sensors import sensor_model
+        m = sensor_model(self.sensor)
+        return m.kind == "ideal" or (self.width, self.height) in m.resolutions
+
+
+class WorkspaceSpec(_Strict):
+    min: _Vec3
+    max: _Vec3
+
+    @model_validator(mode="after")
+    def _ordered(self) -> "WorkspaceSpec":
+        if not all(a < b for a, b in zip(self.min, self.max)):
+            raise ValueError(f"workspace min must be < max on every axis (got min={list(self.min)}, max={list(self.max)})")
+        return self
+
+
+class ControlPointSpec(_Strict):
+    name: str
+    link: Union[str, int]
+    offset: _Vec3 = (0.0, 0.0, 0.0)
+    radius: float = Field(default=0.0, ge=0.0)
+
+
+class RobotSpec(_Strict):
+    name: Optional[str] = None
+    urdf: Optional[str] = None
+    base: Optional[PoseSpec] = None
+    joints: Optional[list[float]] = None
+    control_points: Optional[list[ControlPointSpec]] = None
+
+    @model_validator(mode="after")
+    def _one_source(self) -> "RobotSpec":
+        if (self.name is None) == (self.urdf is None):
+            raise ValueError("give exactly one of name (a built-in robot) or urdf (a file)")
+        return self
+
+
+class _Shape(_Strict):
+    pass
+
+
+class BoxShape(_Shape):
+    size: _Vec3
+
+    @field_validator("size")
+    @classmethod
+    def _pos(cls, v):
+        if min(v) <= 0:
+            raise ValueError(f"box size must be > 0 on every axis (got {list(v)})")
+        return v
+
+
+class SphereShape(_Shape):
+    radius: float = Field(gt=0)
+
+
+class CylinderShape(_Shape):
+    radius: float = Field(gt=0)
+    length: float = Field(gt=0)
+
+
+class ObjectSpec(_Strict):
+    name: str = Field(min_length=1)
+    pose: Optional[PoseSpec] = None
+    mesh: Optional[str] = None
+    scale: Union[float, _Vec3] = 1.0
+    box: Optional[BoxShape] = None
+    sphere: Optional[SphereShape] = None
+    cylinder: Optional[CylinderShape] = None
+    capsule: Optional[CylinderShape] = None
+
+    @model_validator(mode="after")
+    def _one_shape(self) -> "ObjectSpec":
+        shapes = [k for k in ("mesh", "box", "sphere", "cylinder", "capsule") if getattr(self, k) is not None]
+        if len(shapes) != 1:
+            raise ValueError(f"give exactly one shape of mesh, box, sphere, cylinder, capsule (got {shapes or 'none'})")
+        return self
+
+
+class RigSpec(_Strict):
+    version: int = RIG_SCHEMA_VERSION
+    name: str = "rig"
+    description: str = ""
+    workspace: WorkspaceSpec
+    cameras: list[CameraSpec] = Field(min_length=1)
+    robot: Optional[RobotSpec] = None
+    objects: list[ObjectSpec] = Field(default_factory=list)
+
+    @field_validator("version")
+    @classmethod
+    def _version(cls, v: int) -> int:
+        if v != RIG_SCHEMA_VERSION:
+            raise ValueError(f"unsupported rig version {v} (this depthguard reads version {RIG_SCHEMA_VERSION})")
+        return v
+
+    @field_validator("cameras")
+    @classmethod
+    def _unique_ids(cls, v: list[CameraSpec]) -> list[CameraSpec]:
+        ids = [c.id for c in v]
+        dup = sorted({i for i in ids if ids.count(i) > 1})
+        if dup:
+            raise ValueError(f"camera ids must be unique (repeated: {', '.join(dup)})")
+        return v
+
+
+# ------------------------------------------------------------------ the rig
+@dataclass(frozen=True)
+class Workspace:
+    """Axis-aligned box of interest, world frame, metres."""
+    lo: np.ndarray
+    hi: np.ndarray
+
+    def contains(self, points: np.ndarray) -> np.ndarray:
+        p = np.asarray(points, dtype=float).reshape(-1, 3)
+        return np.all((p >= self.lo) & (p <= self.hi), axis=1)
+
+
+@dataclass(frozen=True, eq=False)
+class StaticObject:
+    """A piece of known CAD: its world mesh, and its primitive when it is one (exact ground truth)."""
+    name: str
+    mesh: Mesh
+    primitive: Optional[Primitive] = None
+
+
+@dataclass(frozen=True, eq=False)
+class Rig:
+    """A validated cell description (R2). Build with :meth:`load` or :meth:`from_dict`."""
+
+    name: str
+    cameras: list[Camera]
+    workspace: Workspace
+    robot: Any = None                  # depthguard.robot.RobotModel or None
+    robot_q0: Optional[np.ndarray] = None
+    objects: list[StaticObject] = field(default_factory=list)
+    path: Optional[Path] = None
+    description: str = ""
+
+    def camera(self, camera_id: str) -> Camera:
+        for c in self.cameras:
+            if c.id == camera_id:
+                return c
+        raise ValueError(f"rig {self.name!r} has no camera {camera_id!r}; cameras: "
+                         f"{', '.join(c.id for c in self.cameras)}")
+
+    @property
+    def camera_ids(self) -> list[str]:
+        return [c.id for c in self.cameras]
+
+    def static_meshes(self) -> list[Mesh]:
+        return [o.mesh for o in self.objects]
+
+    def key(self) -> str:
+        """Hash of every camera (for caches keyed by the rig's geometry)."""
+        import hashlib
+        return hashlib.sha256("".join(c.key() for c in self.cameras).encode()).hexdigest()[:16]
+
+    # ---------------------------------------------------------------- load
+    @classmethod
+    def load(cls, path: str | Path) -> "Rig":
+        """Load and validate a rig YAML file; :class:`RigError` names the file, field and problem."""
+        p = Path(path)
+        if not p.is_file():
+            raise RigError(f"{p}: rig file not found")
+        try:
+            data = yaml.safe_load(p.read_text())
+        except yaml.YAMLError as exc:
+            raise RigError(f"{p}: not valid YAML: {exc}") from None
+        except UnicodeDecodeError:
+            raise RigError(f"{p}: not a text file") from None
+        return cls.from_dict(data, source=p)
+
+    @classmethod
+    def from_dict(cls, data: Any, source: str | Path = "<rig>") -> "Rig":
+        src = str(source)
+        base_dir = Path(source).parent if isinstance(source, Path) else Path.cwd()
+        if not isinstance(data, dict):
+            raise RigError(f"{src}: a rig must be a mapping with workspace and cameras (got {type(data).__name__})")
+        try:
+            spec = RigSpec.model_validate(data)
+        except ValidationError as exc:
+            raise RigError(_format_errors(src, exc)) from None
+
+        cameras = []
+        for i, cs in enumerate(spec.cameras):
+            try:
+                cameras.append(cs.to_camera())
+            except (CameraError, ValueError) as exc:
+                raise RigError(f"{src}: cameras[{i}] ({cs.id}): {exc}") from None
+        ws = Workspace(np.asarray(spec.workspace.min, float), np.asarray(spec.workspace.max, float))
+
+        objects = []
+        for i, o in enumerate(spec.objects):
+            try:
+                objects.append(_make_object(o, base_dir))
+            except (FileNotFoundError, ValueError) as exc:
+                field_name = "mesh" if o.mesh is not None else "pose"
+                raise RigError(f"{src}: objects[{i}].{field_name} ({o.name}): {exc}") from None
+
+        robot, q0 = None, None
+        if spec.robot is not None:
+            robot, q0 = _make_robot(spec.robot, base_dir, src)
+        return cls(name=spec.name, cameras=cameras, workspace=ws, robot=robot, robot_q0=q0,
+                   objects=objects, path=Path(source) if isinstance(source, Path) else None,
+                   description=spec.description)
+
+
+def _make_object(o: ObjectSpec, base_dir: Path) -> StaticObject:
+    T = o.pose.matrix4() if o.pose is not None else np.eye(4)
+    prim: Optional[Primitive] = None
+    if o.box is not None:
+        prim = Box(size=o.box.size, world_from_local=T, name=o.name)
+    elif o.sphere is not None:
+        prim = Sphere(radius=o.sphere.radius, world_from_local=T, name=o.name)
+    elif o.cylinder is not None:
+        prim = Cylinder(radius=o.cylinder.radius, length=o.cylinder.length, world_from_local=T, name=o.name)
+    elif o.capsule is not None:
+        prim = Capsule(radius=o.capsule.radius, length=o.capsule.length, world_from_local=T, name=o.name)
+    if prim is not None:
+        return StaticObject(o.name, prim.mesh(), prim)
+    mpath = Path(o.mesh)
+    if not mpath.is_absolute():
+        mpath = base_dir / mpath
+    if not mpath.is_file():
+        raise FileNotFoundError(f"mesh file not found: {mpath}")
+    return StaticObject(o.name, load_mesh(mpath, scale=o.scale).transformed(T), None)
+
+
+def _make_robot(rs: RobotSpec, base_dir: Path, src: str):
+    from depthguard.robot import load_robot
+
+    base = rs.base.matrix4() if rs.base is not None else np.eye(4)
+    target = rs.name
+    if rs.urdf is not None:
+        up = Path(rs.urdf)
+        target = str(up if up.is_absolute() else base_dir / up)
+        if not Path(target).is_file():
+            raise RigError(f"{src}: robot.urdf: file not found: {target}")
+    try:
+        robot = load_robot(target, base=base)
+    except (ValueError, FileNotFoundError) as exc:
+        fld = "robot.name" if rs.name is not None else "robot.urdf"
+        raise RigError(f"{src}: {fld}: {exc}") from None
+    if rs.control_points is not None:
+        from depthguard.robot import ControlPoint
+        cps = []
+        for i, c in enumerate(rs.control_points):
+            link = c.link
+            if isinstance(link, str) and link not in robot.link_names:
+                raise RigError(f"{src}: robot.control_points[{i}].link: unknown link {link!r}; "
+                               f"links: {', '.join(robot.link_names)}")
+            if isinstance(link, int) and not (0 <= link < len(robot.link_names)):
+                raise RigError(f"{src}: robot.control_points[{i}].link: index {link} out of range "
+                               f"[0, {len(robot.link_names)})")
+            cps.append(ControlPoint(c.name, link, np.asarray(c.offset, float), c.radius))
+        robot = robot.with_control_points(cps)
+    q0 = np.asarray(robot.q_home, dtype=float).copy()
+    if rs.joints is not None:
+        q = np.asarray(rs.joints, dtype=float)
+        if q.shape != (robot.dof,):
+            raise RigError(f"{src}: robot.joints: expected {robot.dof} joint values for {robot.name}, got {q.size}")
+        bad = np.nonzero((q < robot.q_min - 1e-9) | (q > robot.q_max + 1e-9))[0]
+        if bad.size:
+            j = int(bad[0])
+            raise RigError(f"{src}: robot.joints[{j}]: {q[j]:.4f} rad is outside the joint limits "
+                           f"[{robot.q_min[j]:.4f}, {robot.q_max[j]:.4f}]")
+        q0 = q
+    return robot, q0
+
+
+def _format_errors(src: str, exc: ValidationError) -> str:
+    lines = []
+    for err in exc.errors():
+        loc = ""
+        for part in err["loc"]:
+            if isinstance(part, int):
+                loc += f"[{part}]"
+            else:
+                loc += ("." if loc else "") + str(part)
+        msg = err["msg"]
+        if msg.startswith("Value error, "):
+            msg = msg[len("Value error, "):]
+        if err["type"] == "extra_forbidden":
+            msg = "unknown field (check the spelling)"
+        if err["type"] == "missing":
+            msg = "required field is missing"
+        lines.append(f"{src}: {loc or '<top>'}: {msg}")
+    return "\n".join(lines)

@@ -1,0 +1,79 @@
+"""Depth sensor models: intrinsics presets, valid range and noise (R1, issue 2 §6).
+
+A :class:`SensorModel` says what a simulated camera of that kind produces:
+image size and field of view (so a rig may name the sensor instead of
+writing intrinsics), the valid range, and its noise. The noise itself is
+applied by :mod:`depthguard.sources.noise`.
+"""
+
+from __future__ import annotations
+
+import math
+from dataclasses import dataclass
+
+__all__ = ["SensorModel", "SENSOR_MODELS", "sensor_model", "intrinsics_for"]
+
+
+@dataclass(frozen=True)
+class SensorModel:
+    name: str
+    resolutions: tuple[tuple[int, int], ...]   # (width, height), first = default
+    hfov_deg: float
+    vfov_deg: float
+    min_range: float
+    max_range: float
+    kind: str                 # "structured_light", "stereo", "tof", "ideal"
+    sigma_a: float = 0.0      # constant noise term, metres
+    sigma_z2: float = 0.0     # noise term growing with z^2: sigma = sigma_a + sigma_z2 * z^2
+    disparity_bits: int = 0   # Kinect v1: disparity quantisation (1/8 pixel units)
+    baseline: float = 0.0     # stereo / structured light baseline, metres
+    edge_dropout: float = 0.0 # probability of a missing return at a depth edge
+    flying_pixels: bool = False
+    description: str = ""
+
+
+SENSOR_MODELS: dict[str, SensorModel] = {
+    m.name: m
+    for m in (
+        SensorModel("ideal", ((640, 480), (424, 240), (1280, 720)), 60.0, 45.0, 0.05, 10.0, "ideal",
+                    description="noiseless pinhole: exact rendered depth within range"),
+        SensorModel("kinect_v1", ((640, 480),), 57.0, 43.0, 0.4, 4.0, "structured_light",
+                    sigma_a=0.0, sigma_z2=0.0012, disparity_bits=3, baseline=0.075, edge_dropout=0.3,
+                    description="Microsoft Kinect v1: 640x480, 57x43 deg, 0.4-4 m, disparity quantised to 1/8 px, "
+                                "noise growing with z^2"),
+        SensorModel("realsense_d435", ((640, 480), (424, 240), (1280, 720)), 87.0, 58.0, 0.2, 6.0, "stereo",
+                    sigma_a=0.0005, sigma_z2=0.002, baseline=0.05, edge_dropout=0.2,
+                    description="Intel RealSense D435: 87x58 deg, 0.2-6 m (~10 m max), noise proportional to z^2"),
+        SensorModel("tof", ((320, 240), (640, 480)), 70.0, 55.0, 0.3, 8.0, "tof",
+                    sigma_a=0.01, flying_pixels=True, edge_dropout=0.05,
+                    description="generic time-of-flight: sigma about 1 cm, flying pixels at depth edges"),
+    )
+}
+
+
+def sensor_model(name: str) -> SensorModel:
+    """The sensor model called ``name``; ``ValueError`` listing the known ones otherwise."""
+    try:
+        return SENSOR_MODELS[name]
+    except KeyError:
+        raise ValueError(f"unknown sensor model {name!r}; known: {', '.join(sorted(SENSOR_MODELS))}") from None
+
+
+def intrinsics_for(name: str, width: int | None = None, height: int | None = None) -> dict:
+    """``width, height, fx, fy, cx, cy, min_range, max_range`` of a sensor preset.
+
+    Focal lengths come from the field of view: ``fx = (W/2) / tan(hfov/2)``;
+    the principal point is the image centre ``((W-1)/2, (H-1)/2)``.
+    """
+    m = sensor_model(name)
+    if width is None and height is None:
+        width, height = m.resolutions[0]
+    elif width is None or height is None:
+        raise ValueError(f"sensor {name!r}: give both width and height or neither")
+    if (width, height) not in m.resolutions and m.kind != "ideal":
+        res = ", ".join(f"{w}x{h}" for w, h in m.resolutions)
+        raise ValueError(f"sensor {name!r} has no {width}x{height} mode; modes: {res}")
+    fx = (width / 2) / math.tan(math.radians(m.hfov_deg) / 2)
+    fy = (height / 2) / math.tan(math.radians(m.vfov_deg) / 2)
+    return dict(width=width, height=height, fx=fx, fy=fy, cx=(width - 1) / 2, cy=(height - 1) / 2,
+                min_range=m.min_range, max_range=m.max_range)
