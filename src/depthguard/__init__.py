@@ -31,6 +31,8 @@ _EXPORTS = {
     "Renderer": "depthguard.render",
     "RobotModel": "depthguard.robot",
     "load_robot": "depthguard.robot",
+    "ControlPoint": "depthguard.robot",
+    "available_robots": "depthguard.robot",
     "depth_space_distance": "depthguard.distance",
     "DistanceResult": "depthguard.distance",
     "DepthGridMap": "depthguard.fusion.depth_grid",

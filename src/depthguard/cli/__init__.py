@@ -9,9 +9,14 @@ from depthguard.cli.app import app
 
 _COMMAND_MODULES = [
     "depthguard.cli.reproduce",
+    "depthguard.cli.distance",
+    "depthguard.cli.depthgrid",
     "depthguard.cli.scenes",
     "depthguard.cli.bench",
+    "depthguard.cli.distributed",
     "depthguard.cli.demo",
+    "depthguard.cli.run",
+    "depthguard.cli.freespace",
 ]
 
 for _m in _COMMAND_MODULES:

@@ -27,13 +27,13 @@ import numba as nb
 import numpy as np
 
 __all__ = [
-    "filter_voxelize", "filter_voxelize_numpy", "keep_mask_numpy", "density_max_count",
+    "filter_voxelize", "filter_voxelize_numpy", "keep_mask_numpy", "combine_expected_numpy", "density_max_count",
     "vote_free", "vote_free_numpy",
 ]
 
 
 @nb.njit(cache=True, nogil=True)
-def filter_voxelize(depth, expected, fx, fy, cx, cy, Rwc, twc, min_range, max_range,
+def filter_voxelize(depth, expected, robot_depth, fx, fy, cx, cy, Rwc, twc, min_range, max_range,
                     offset_const, offset_k, key_lo, dims, voxel_size, lo, hi,
                     cam_pos, ang_u, ang_v, threshold,
                     grid, touched, out_keys, out_counts):
@@ -41,7 +41,9 @@ def filter_voxelize(depth, expected, fx, fy, cx, cy, Rwc, twc, min_range, max_ra
 
     Parameters
     ----------
-    depth, expected : (H, W) float32, metres.
+    depth, expected : (H, W) float32, metres (expected: the static CAD, 0 = nothing).
+    robot_depth : (H, W) float32 rendered robot (0 = nothing); the expected depth of a pixel
+        is the nearer of the two (R16) — fused here to save a pass over the image.
     fx, fy, cx, cy : intrinsics (pixels).  Rwc (3, 3), twc (3,): world_from_camera.
     min_range, max_range : valid measured range (m).
     offset_const, offset_k : keep offset ``offset_const + offset_k·e²`` (m, 1/m).
@@ -72,6 +74,9 @@ def filter_voxelize(depth, expected, fx, fy, cx, cy, Rwc, twc, min_range, max_ra
                 n_invalid += 1
                 continue
             e = np.float64(expected[v, u])
+            r = np.float64(robot_depth[v, u])
+            if r > 0.0 and (e <= 0.0 or r < e):
+                e = r
             if e > 0.0 and not (d < e - (offset_const + offset_k * e * e)):
                 continue
             n_kept += 1
@@ -120,6 +125,13 @@ def filter_voxelize(depth, expected, fx, fy, cx, cy, Rwc, twc, min_range, max_ra
     return n_out, n_kept, n_invalid
 
 
+def combine_expected_numpy(static, robot):
+    """(H, W) expected depth: the nearer of static CAD and robot where either is known (R16)."""
+    st = np.asarray(static, dtype=np.float32)
+    rd = np.asarray(robot, dtype=np.float32)
+    return np.where((rd > 0) & ((st <= 0) | (rd < st)), rd, st)
+
+
 def keep_mask_numpy(cam, depth, expected, offset_const, offset_k):
     """(H, W) bool: valid measured pixels in front of the expected depth by the offset (R17)."""
     d = np.asarray(depth, dtype=np.float64)
@@ -155,52 +167,117 @@ def filter_voxelize_numpy(cam, depth, expected, offset_const, offset_k, lo, hi,
 
 
 @nb.njit(cache=True, nogil=True)
-def vote_free(centres, depths, cams, margin, out_free):
-    """Multi-camera voting: for each voxel centre, how many cameras see through it.
+def _to_cam(cams, c, x, y, z):
+    xc = cams[c, 8] * x + cams[c, 9] * y + cams[c, 10] * z + cams[c, 17]
+    yc = cams[c, 11] * x + cams[c, 12] * y + cams[c, 13] * z + cams[c, 18]
+    zc = cams[c, 14] * x + cams[c, 15] * y + cams[c, 16] * z + cams[c, 19]
+    return xc, yc, zc
+
+
+@nb.njit(cache=True, nogil=True)
+def vote_free(lows, voxel_size, depths, cams, margin, footprint, out_free):
+    """Multi-camera voting: which cameras see through each voxel.
 
     Parameters
     ----------
-    centres : (N, 3) float64 voxel centres (world, m).
+    lows : (N, 3) float64 lowest corners of the voxels (world, m); voxel_size s (m).
     depths : (C, Hmax, Wmax) float32 measured images (padded; invalid = 0).
     cams : (C, 20) float64 rows ``[fx, fy, cx, cy, W, H, min_range, max_range,
         R (9, camera_from_world row-major), t (3)]``.
-    margin : (N,) float64; camera ``c`` sees voxel ``i`` as free when its valid
-        measured depth at the centre's pixel exceeds the centre's depth + margin[i].
+    margin : (N,) float64 (m).
+    footprint : False — *centre* rule: camera c sees voxel i through when its valid
+        measured depth at the pixel of the centre exceeds the centre's depth + margin[i];
+        True — *footprint* rule: every pixel of the bounding box of the projected 8
+        corners lies in the image and measures beyond the farthest corner + margin[i].
     out_free : (N, C) bool, written.
     """
-    N = centres.shape[0]
+    N = lows.shape[0]
     C = cams.shape[0]
     for i in range(N):
         for c in range(C):
             out_free[i, c] = False
             fx = cams[c, 0]
             fy = cams[c, 1]
-            x = cams[c, 8] * centres[i, 0] + cams[c, 9] * centres[i, 1] + cams[c, 10] * centres[i, 2] + cams[c, 17]
-            y = cams[c, 11] * centres[i, 0] + cams[c, 12] * centres[i, 1] + cams[c, 13] * centres[i, 2] + cams[c, 18]
-            z = cams[c, 14] * centres[i, 0] + cams[c, 15] * centres[i, 1] + cams[c, 16] * centres[i, 2] + cams[c, 19]
-            if z <= 0.0:
+            cx = cams[c, 2]
+            cy = cams[c, 3]
+            if not footprint:
+                h = 0.5 * voxel_size
+                x, y, z = _to_cam(cams, c, lows[i, 0] + h, lows[i, 1] + h, lows[i, 2] + h)
+                if z <= 0.0:
+                    continue
+                u = math.floor(x * fx / z + cx + 0.5)
+                v = math.floor(y * fy / z + cy + 0.5)
+                if u < 0 or v < 0 or u >= cams[c, 4] or v >= cams[c, 5]:
+                    continue
+                d = depths[c, int(v), int(u)]
+                if d >= cams[c, 6] and d <= cams[c, 7] and d > z + margin[i]:
+                    out_free[i, c] = True
                 continue
-            u = math.floor(x * fx / z + cams[c, 2] + 0.5)
-            v = math.floor(y * fy / z + cams[c, 3] + 0.5)
-            if u < 0 or v < 0 or u >= cams[c, 4] or v >= cams[c, 5]:
+            umin = 1e18
+            umax = -1e18
+            vmin = 1e18
+            vmax = -1e18
+            zmax = 0.0
+            behind = False
+            for corner in range(8):
+                x, y, z = _to_cam(cams, c, lows[i, 0] + voxel_size * (corner & 1),
+                                  lows[i, 1] + voxel_size * ((corner >> 1) & 1),
+                                  lows[i, 2] + voxel_size * ((corner >> 2) & 1))
+                if z <= 0.0:
+                    behind = True
+                    break
+                pu = x * fx / z + cx
+                pv = y * fy / z + cy
+                umin = min(umin, pu)
+                umax = max(umax, pu)
+                vmin = min(vmin, pv)
+                vmax = max(vmax, pv)
+                zmax = max(zmax, z)
+            if behind:
                 continue
-            d = depths[c, int(v), int(u)]
-            if d >= cams[c, 6] and d <= cams[c, 7] and d > z + margin[i]:
-                out_free[i, c] = True
+            u0 = math.floor(umin + 0.5)
+            u1 = math.floor(umax + 0.5)
+            v0 = math.floor(vmin + 0.5)
+            v1 = math.floor(vmax + 0.5)
+            if u0 < 0 or v0 < 0 or u1 >= cams[c, 4] or v1 >= cams[c, 5]:
+                continue
+            free = True
+            lim = zmax + margin[i]
+            for v in range(int(v0), int(v1) + 1):
+                for u in range(int(u0), int(u1) + 1):
+                    d = depths[c, v, u]
+                    if not (d >= cams[c, 6] and d <= cams[c, 7] and d > lim):
+                        free = False
+                        break
+                if not free:
+                    break
+            out_free[i, c] = free
 
 
-def vote_free_numpy(cameras, depths, centres, margin):
-    """Twin of :func:`vote_free`: (N, C) bool, camera c's measurement lies beyond the centre."""
-    centres = np.asarray(centres, dtype=np.float64)
-    out = np.zeros((len(centres), len(cameras)), dtype=bool)
+def vote_free_numpy(cameras, depths, lows, voxel_size, margin, footprint=False):
+    """Twin of :func:`vote_free`: (N, C) bool, camera c sees through voxel i."""
+    lows = np.asarray(lows, dtype=np.float64)
+    N = len(lows)
+    out = np.zeros((N, len(cameras)), dtype=bool)
+    corners = np.array([[(k >> a) & 1 for a in range(3)] for k in range(8)], dtype=np.float64)
     for c, cam in enumerate(cameras):
-        ds = cam.world_to_depth_space(centres)
-        with np.errstate(invalid="ignore"):
-            u, v = cam.pixel_of(np.nan_to_num(ds[:, 0], nan=-1.0), np.nan_to_num(ds[:, 1], nan=-1.0))
-            inside = (ds[:, 2] > 0) & (u >= 0) & (v >= 0) & (u < cam.width) & (v < cam.height)
-        d = np.zeros(len(centres))
         img = np.asarray(depths[c], dtype=np.float64)
-        d[inside] = img[v[inside], u[inside]]
-        valid = np.isfinite(d) & (d >= cam.min_range) & (d <= cam.max_range)
-        out[:, c] = inside & valid & (d > ds[:, 2] + margin)
+        valid_img = np.isfinite(img) & (img >= cam.min_range) & (img <= cam.max_range)
+        if not footprint:
+            ds = cam.world_to_depth_space(lows + voxel_size / 2)
+            with np.errstate(invalid="ignore"):
+                u, v = cam.pixel_of(np.nan_to_num(ds[:, 0], nan=-1.0), np.nan_to_num(ds[:, 1], nan=-1.0))
+                inside = (ds[:, 2] > 0) & (u >= 0) & (v >= 0) & (u < cam.width) & (v < cam.height)
+            for i in np.nonzero(inside)[0]:
+                out[i, c] = valid_img[v[i], u[i]] and img[v[i], u[i]] > ds[i, 2] + margin[i]
+            continue
+        for i in range(N):
+            ds = cam.world_to_depth_space(lows[i] + voxel_size * corners)      # (8, 3)
+            if np.any(ds[:, 2] <= 0):
+                continue
+            u, v = cam.pixel_of(ds[:, 0], ds[:, 1])
+            if u.min() < 0 or v.min() < 0 or u.max() >= cam.width or v.max() >= cam.height:
+                continue
+            win = (slice(v.min(), v.max() + 1), slice(u.min(), u.max() + 1))
+            out[i, c] = bool(np.all(valid_img[win] & (img[win] > ds[:, 2].max() + margin[i])))
     return out

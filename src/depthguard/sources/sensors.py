@@ -23,12 +23,14 @@ class SensorModel:
     min_range: float
     max_range: float
     kind: str                 # "structured_light", "stereo", "tof", "ideal"
+    # Noise (applied by depthguard.sources.noise):
     sigma_a: float = 0.0      # constant noise term, metres
     sigma_z2: float = 0.0     # noise term growing with z^2: sigma = sigma_a + sigma_z2 * z^2
     disparity_bits: int = 0   # Kinect v1: disparity quantisation (1/8 pixel units)
     baseline: float = 0.0     # stereo / structured light baseline, metres
     edge_dropout: float = 0.0 # probability of a missing return at a depth edge
     flying_pixels: bool = False
+    flying_fraction: float = 0.0  # share of the edge pixels between two surfaces that fly (ToF)
     description: str = ""
 
 
@@ -45,7 +47,7 @@ SENSOR_MODELS: dict[str, SensorModel] = {
                     sigma_a=0.0005, sigma_z2=0.002, baseline=0.05, edge_dropout=0.2,
                     description="Intel RealSense D435: 87x58 deg, 0.2-6 m (~10 m max), noise proportional to z^2"),
         SensorModel("tof", ((320, 240), (640, 480)), 70.0, 55.0, 0.3, 8.0, "tof",
-                    sigma_a=0.01, flying_pixels=True, edge_dropout=0.05,
+                    sigma_a=0.01, flying_pixels=True, flying_fraction=0.5, edge_dropout=0.05,
                     description="generic time-of-flight: sigma about 1 cm, flying pixels at depth edges"),
     )
 }

@@ -21,6 +21,13 @@ __all__ = ["BenchRow", "BenchContext", "group", "GROUPS", "run", "time_call"]
 # Modules that register groups; each area adds its module name here.
 _MODULES = [
     "depthguard.evaluation.bench.render",
+    "depthguard.evaluation.bench.distance",
+    "depthguard.evaluation.bench.depthgrid",
+    "depthguard.evaluation.bench.loop",
+    "depthguard.evaluation.bench.freespace",
+    "depthguard.evaluation.bench.robot",
+    "depthguard.evaluation.bench.voxels",
+    "depthguard.evaluation.bench.sim",
 ]
 
 

@@ -1,0 +1,85 @@
+"""Free-space commands: ``depthguard reproduce hamersma2011`` and ``depthguard placement``."""
+
+from __future__ import annotations
+
+from pathlib import Path
+from typing import Optional
+
+import typer
+
+from depthguard.cli.app import app
+from depthguard.cli.reproduce import reproduce_app
+
+
+@reproduce_app.command("hamersma2011")
+def hamersma2011(
+    out: Path = typer.Option(Path("out/hamersma2011"), "--out", help="Directory for report.md, results.json and the pictures."),
+    voxel: Optional[list[float]] = typer.Option(None, "--voxel", help="Voxel size in metres (repeatable); default 0.05 and 0.10."),
+    seed: int = typer.Option(0, "--seed", help="Seed of the simulated sensor noise."),
+    quick: bool = typer.Option(False, "--quick", help="Two setups, no approach series: a smoke run, not figures to quote."),
+    no_placement: bool = typer.Option(False, "--no-placement", help="Skip the sensor placement study (R23)."),
+    no_calibration: bool = typer.Option(False, "--no-calibration", help="Skip the calibration study."),
+) -> None:
+    """Hamersma 2011 on the c-arm-room cell: free-space accuracy (tables 1-2), motion verdicts
+    (table 4), calibration study, sensor placement (fig. 4) and pictures (fig. 9)."""
+    from depthguard.evaluation.hamersma2011 import run
+    from depthguard.progress import log
+
+    voxels = voxel or [0.05, 0.10]
+    for v in voxels:
+        if not (0.01 <= v <= 0.5):
+            raise typer.BadParameter(f"voxel size must lie in [0.01, 0.5] m, got {v}", param_hint="--voxel")
+    res = run(out, voxels=voxels, seed=seed, quick=quick, log=log, placement=not no_placement,
+              calibration=not no_calibration)
+    typer.echo((out / "report.md").read_text())
+    n_u = sum(r["verdict"] == "u" for rows in res["verdicts"].values() for r in rows)
+    typer.echo(f"unsafe verdicts: {n_u}; report: {out / 'report.md'}")
+
+
+@app.command("placement")
+def placement(
+    cell: str = typer.Option("c-arm-room", "--cell", help="Built-in cell whose rig is checked."),
+    voxel: float = typer.Option(0.10, "--voxel", help="Voxel size of the space of interest, metres."),
+    min_separation: float = typer.Option(100.0, "--min-separation", help="Pairwise horizontal angle in degrees."),
+    improve: bool = typer.Option(True, "--improve/--no-improve", help="Also run the greedy improver over wall and ceiling positions."),
+    spacing: float = typer.Option(0.5, "--spacing", help="Spacing of the improver's candidate positions, metres."),
+) -> None:
+    """R23: share of the (empty) workspace seen by >= 3 cameras pairwise >= 100° apart, and how
+    many cameras a greedy placement along the walls and ceiling needs."""
+    import numpy as np
+
+    from depthguard.evaluation.placement import (azimuths, candidate_cameras, greedy_placement,
+                                                 passes_criterion, share_vs_cameras, visibility)
+    from depthguard.fusion.free_space import VoxelGrid
+    from depthguard.sim import load_cell
+
+    if not (0.02 <= voxel <= 1.0):
+        raise typer.BadParameter(f"voxel must lie in [0.02, 1.0] m, got {voxel}", param_hint="--voxel")
+    if not (0 < min_separation <= 120):
+        raise typer.BadParameter(f"must lie in (0, 120] degrees, got {min_separation}", param_hint="--min-separation")
+    c = load_cell(cell)
+    rig = c.rig
+    lo, hi = np.asarray(rig.workspace.lo, float), np.asarray(rig.workspace.hi, float)
+    pts = VoxelGrid(lo, hi, voxel).centres()
+    shell = [o.mesh() for o in c.scene.static
+             if np.any(np.asarray(o.bounds())[1] <= lo + 0.01) or np.any(np.asarray(o.bounds())[0] >= hi - 0.01)]
+    seen = visibility(rig.cameras, pts, shell)
+    az = azimuths(rig.cameras, pts)
+    ok = passes_criterion(seen, az, min_separation_deg=min_separation)
+    typer.echo(f"{cell}: {len(rig.cameras)} cameras, {len(pts)} voxels of {voxel * 100:.0f} cm: "
+               f"{100 * ok.mean():.1f} % pass (>= 3 views pairwise >= {min_separation:g} deg apart)")
+    g = greedy_placement(seen, az, rig.cameras, target_share=1.0, max_cameras=len(rig.cameras), prune=False,
+                         min_separation_deg=min_separation)
+    curve = share_vs_cameras(seen, az, g.chosen, min_separation_deg=min_separation)
+    typer.echo("share vs cameras (best first): " + ", ".join(f"{i + 1}:{100 * v:.1f}" for i, v in enumerate(curve)))
+    if improve:
+        cands = candidate_cameras(lo, hi, target=(lo + hi) / 2 - [0, 0, (hi[2] - lo[2]) * 0.15],
+                                  template=rig.cameras[0], spacing=spacing, wall_height=hi[2] - 0.2)
+        sc, ac = visibility(cands, pts, shell), azimuths(cands, pts)
+        reach = float(passes_criterion(sc, ac, min_separation_deg=min_separation).mean())
+        r = greedy_placement(sc, ac, cands, target_share=reach, max_cameras=60, min_separation_deg=min_separation)
+        typer.echo(f"greedy improver: {len(r.chosen)} cameras reach {100 * r.final_share:.1f} % "
+                   f"(all {len(cands)} candidates: {100 * reach:.1f} %; paper: 21 cameras)")
+        for cam in r.cameras:
+            p = cam.position
+            typer.echo(f"  {cam.id} at ({p[0]:.2f}, {p[1]:.2f}, {p[2]:.2f})")

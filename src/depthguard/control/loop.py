@@ -1,0 +1,469 @@
+"""The closed loop in simulated time: cameras, distances, reactions, robot (R13–R15, R26, R27).
+
+One control cycle (500 Hz, ``dt = 2 ms``) at time ``t``:
+
+1. **Vision** (30 Hz per camera, cameras not synchronised): when a camera's
+   next frame is due and it still delivers, the scene at ``t`` with the
+   robot at its *current* joints is rendered and passed through the
+   camera's noise model (the robot occludes); the robot alone is rendered at
+   the same joints for self removal (R9). The frame's stamp is ``t``.
+2. **Distances** of the 9 control points at the *current* joints from the
+   latest frames (the robot has moved since them): the depth grid map over
+   all cameras (R12), or one camera's depth-space distance (R3–R9).
+3. **Supervision** (R26, R27), the speed override ``k ∈ [0, 1]`` ramps to 0
+   in ``stop_time`` while any of these holds, and back to 1 in
+   ``resume_time`` once none does; each episode is logged with its reason:
+   * a camera's frame age exceeds ``stale_periods`` frame periods (R27);
+   * a control point is unobserved (``observed = False``, R26: "cannot
+     judge" is treated as the worst case);
+   * a control point lies inside an obstacle frustum (``D = 0`` — no
+     direction to flee, and R14 gives no limit without one).
+4. **Reaction**: EE task ``ẋ_d = k·ṗ_d(τ) + K_p (p_d(τ) − x)``, repulsion
+   ``ẋ_rep = −v(D_ee)·V_ee`` (R13), ``ẋ_c = ẋ_d + ẋ_rep``; joint box =
+   R14 limits of the other control points ∩ joint position/speed limits,
+   times ``k``; SNS gives ``q̇`` with task scale ``s`` and a low-priority
+   posture term; ``τ += s·k·dt``; ``q += q̇·dt``.
+5. **Ground truth** (not part of the system): the robot's collision capsules
+   against the true obstacles (``scene.true_distance`` + the scenario's
+   scripted primitives), sampled along each capsule axis every
+   ``gt_step`` m (overestimates by at most ``gt_step/2``).
+"""
+
+from __future__ import annotations
+
+import time
+from dataclasses import dataclass, field
+from typing import Callable
+
+import numpy as np
+
+from depthguard.control.joint_limits import combine_limits, constraint_limits, position_limits
+from depthguard.control.repulsion import repulsive_velocity
+from depthguard.control.sns import SNSWorkspace, sns_velocity
+from depthguard.control.trajectory import Hexagon
+
+__all__ = ["LoopConfig", "LoopResult", "ClosedLoop", "SafetySupervisor", "solve_ik"]
+
+
+@dataclass(frozen=True)
+class LoopConfig:
+    """Parameters of the closed loop (defaults: Flacco 2014 §5.3, 2015 §VIII)."""
+    rho: float = 0.4                 # m, radius of surveillance
+    v_max: float = 1.5               # m/s, largest repulsive speed (R13)
+    alpha: float = 5.0               # shape factor (R13, R14)
+    control_hz: float = 500.0
+    camera_hz: float = 30.0
+    stale_periods: float = 3.0       # R27: frame age limit in camera periods
+    stop_time: float = 0.5           # s, override ramp 1 -> 0
+    resume_time: float = 1.0         # s, override ramp 0 -> 1
+    k_p: float = 5.0                 # 1/s, CLIK gain on the EE position error
+    k_posture: float = 1.0           # 1/s, null-space pull to the start posture
+    method: str = "hybrid"
+    fusion: str = "grid"             # "grid" (all cameras, R12) | "single" (principal camera only)
+    principal: str | None = None     # default: the rig's first camera
+    cameras: tuple[str, ...] | None = None   # subset of the rig's cameras (default all)
+    noise: bool = True               # the cameras' noise models
+    robot_offset: float = 0.08       # m, R9 self-removal margin (Kinect v1: ~2.7 cm disparity step at 3 m)
+    robot_padding: float = 0.05      # m, robot volume padding: grid cells inside are never obstacles (R12)
+    invalid: str = "far"             # R28 policy for invalid pixels, see ClosedLoop
+    threads: int = 1                 # numba threads while the loop runs (9-point kernels: serial is faster)
+    distance_hz: float | None = None  # None: distances at every control cycle (R15); else this rate
+    grid_delta_d: float = 0.01       # m, depth slice of the grid (R10)
+    gt_step: float = 0.01            # m, ground-truth sampling along capsule axes
+    hexagon: Hexagon = field(default_factory=Hexagon)
+
+    def __post_init__(self):
+        for name in ("rho", "v_max", "alpha", "control_hz", "camera_hz", "stale_periods",
+                     "stop_time", "resume_time", "gt_step", "grid_delta_d"):
+            v = getattr(self, name)
+            if not (np.isfinite(v) and v > 0):
+                raise ValueError(f"LoopConfig.{name} must be > 0, got {v!r}")
+        if self.invalid not in ("far", "unknown"):
+            raise ValueError(f"LoopConfig.invalid must be 'far' or 'unknown', got {self.invalid!r}")
+        if self.fusion not in ("grid", "single"):
+            raise ValueError(f"LoopConfig.fusion must be 'grid' or 'single', got {self.fusion!r}")
+        if self.method not in ("min", "mean", "hybrid"):
+            raise ValueError(f"LoopConfig.method must be min, mean or hybrid, got {self.method!r}")
+
+    @property
+    def dt(self) -> float:
+        return 1.0 / self.control_hz
+
+
+class SafetySupervisor:
+    """Speed override ``k``: ramps to 0 while a stop reason holds, back to 1 after (R26, R27).
+
+    ``update(t, reasons)`` with ``reasons`` a dict ``key -> message`` of the
+    conditions that hold now; returns ``k``. ``episodes`` lists each
+    condition's first/last time and message.
+    """
+
+    def __init__(self, dt: float, stop_time: float, resume_time: float):
+        self.dt = dt
+        self.down = dt / stop_time
+        self.up = dt / resume_time
+        self.k = 1.0
+        self.episodes: list[dict] = []
+        self._open: dict[str, dict] = {}
+
+    def update(self, t: float, reasons: dict[str, str]) -> float:
+        for key, msg in reasons.items():
+            ep = self._open.get(key)
+            if ep is None:
+                ep = {"reason": msg, "key": key, "t_start": round(t, 4), "t_end": None, "t_stopped": None}
+                self._open[key] = ep
+                self.episodes.append(ep)
+        for key in [k for k in self._open if k not in reasons]:
+            self._open.pop(key)["t_end"] = round(t, 4)
+        if reasons:
+            self.k = max(0.0, self.k - self.down)
+            if self.k == 0.0:
+                for ep in self._open.values():
+                    if ep["t_stopped"] is None:
+                        ep["t_stopped"] = round(t, 4)
+        else:
+            self.k = min(1.0, self.k + self.up)
+        return self.k
+
+
+def solve_ik(robot, target: np.ndarray, q0: np.ndarray, iters: int = 500, tol: float = 1e-6) -> np.ndarray:
+    """Joints that put control point 0 (the EE) at ``target`` (3,), from ``q0``: damped least squares
+    with a small pull towards ``q0``; raises ``ValueError`` if the target is not reached."""
+    q = np.array(q0, dtype=np.float64)
+    data = robot.create_data()
+    lam = 1e-2
+    for _ in range(iters):
+        robot.forward(q, data)
+        e = target - data.cp_positions[0]
+        if np.linalg.norm(e) < tol:
+            return np.clip(q, robot.q_min, robot.q_max)
+        J = data.cp_jacobians[0]
+        dq = J.T @ np.linalg.solve(J @ J.T + lam ** 2 * np.eye(3), e)
+        N = np.eye(robot.dof) - np.linalg.pinv(J) @ J
+        q = np.clip(q + dq + 0.05 * N @ (q0 - q), robot.q_min, robot.q_max)
+    raise ValueError(f"end effector cannot reach {np.round(target, 3).tolist()} (IK residual "
+                     f"{np.linalg.norm(e):.3f} m); choose another hexagon centre/radius")
+
+
+@dataclass
+class LoopResult:
+    """Time series of one run (T samples, one per control cycle) and the timing."""
+    t: np.ndarray                 # (T,) s
+    q: np.ndarray                 # (T, n) rad
+    qd: np.ndarray                # (T, n) rad/s
+    ee: np.ndarray                # (T, 3) m, actual EE
+    ee_des: np.ndarray            # (T, 3) m, p_d(tau)
+    D: np.ndarray                 # (T, m) sensed distance per control point (inf = none within rho)
+    observed: np.ndarray          # (T, m) bool
+    rep: np.ndarray               # (T, 3) m/s, EE repulsive velocity
+    scale: np.ndarray             # (T,) SNS task scale
+    override: np.ndarray          # (T,) safety override k
+    gt_cp: np.ndarray             # (T, m) true distance of each control point to the obstacles
+    gt_robot: np.ndarray          # (T,) true distance robot capsules <-> obstacles
+    frame_age: np.ndarray         # (T, n_cam) s
+    control_point_names: list[str]
+    camera_ids: list[str]
+    episodes: list[dict]
+    timing: dict[str, float]      # wall seconds per stage
+    n_frames: dict[str, int]
+    excluded_capsules: list[str]
+    snapshots: list = field(default_factory=list)   # (t, camera id, depth (H, W)) of the principal
+
+
+class ClosedLoop:
+    """The closed loop of one scenario on a simulated cell (module docstring).
+
+    ``cell``: from :func:`depthguard.sim.load_cell` (``.rig`` with cameras and
+    robot, ``.scene``); ``extra_obstacles``: ``t -> list[Primitive]`` scripted
+    by the scenario (rendered and in the ground truth); ``dropout``: camera id
+    -> time after which it delivers no more frames.
+    """
+
+    def __init__(self, cell, config: LoopConfig | None = None,
+                 extra_obstacles: Callable[[float], list] | None = None,
+                 dropout: dict[str, float] | None = None, seed: int = 0):
+        from depthguard.sources import SimulatedCamera
+
+        self.cfg = cfg = config or LoopConfig()
+        self.cell = cell
+        rig = cell.rig
+        if rig.robot is None:
+            raise ValueError("the cell's rig has no robot")
+        self.robot = rig.robot
+        self.scene = cell.scene
+        cams = list(rig.cameras)
+        if cfg.cameras is not None:
+            cams = [rig.camera(c) for c in cfg.cameras]
+        principal = cfg.principal or cams[0].id
+        if principal not in [c.id for c in cams]:
+            raise ValueError(f"principal camera {principal!r} is not among {[c.id for c in cams]}")
+        cams.sort(key=lambda c: c.id != principal)           # principal first
+        if cfg.fusion == "single":
+            cams = cams[:1]
+        self.cams = cams
+        self.principal = principal
+        self.extra = extra_obstacles or (lambda t: [])
+        self.dropout = dict(dropout or {})
+        for cid in self.dropout:
+            if cid not in [c.id for c in cams]:
+                raise ValueError(f"dropout names unknown camera {cid!r}")
+        self.sims = {c.id: SimulatedCamera(c, seed=seed, noiseless=not cfg.noise) for c in cams}
+        from depthguard.render import Renderer
+        self.robot_renderers = {c.id: Renderer(c) for c in cams}
+        self._setup_distance()
+        self.data = self.robot.create_data()
+        self.sns_ws = SNSWorkspace(3, self.robot.dof)
+        self.hexagon = cfg.hexagon
+        q_start = np.asarray(getattr(rig, "robot_q0", None) if getattr(rig, "robot_q0", None) is not None
+                             else self.robot.q_home, dtype=np.float64)
+        p0, _ = self.hexagon.at(0.0)
+        self.q_start = solve_ik(self.robot, p0, q_start)
+        self.cp_names = [c.name for c in self.robot.control_points]
+        self._setup_ground_truth()
+
+    # ------------------------------------------------------------ set-up
+    def _setup_distance(self):
+        cfg = self.cfg
+        if len(self.cams) > 1:
+            from depthguard.fusion.depth_grid import DepthGridMap
+            principal = self.cams[0]
+            d_min, d_max = _depth_span(principal, self.cell.rig.workspace)
+            self.grid = DepthGridMap(self.cams, principal=principal.id, d_min=d_min, d_max=d_max,
+                                     delta_d=cfg.grid_delta_d)
+            self.single = None
+        else:
+            from depthguard.distance.api import DistanceWorkspace
+            self.grid = None
+            self.single = DistanceWorkspace(self.cams[0], max_points=16)
+
+    def _setup_ground_truth(self):
+        """Capsules that never move and touch the static scene (the base on its mount) are left out
+        of the ground truth; every other capsule counts (reported in the summary)."""
+        q = self.q_start
+        ab0, r0 = self.robot.collision_segments(q)
+        rng = np.random.default_rng(1)
+        moved = np.zeros(len(ab0), dtype=bool)
+        for _ in range(3):
+            q2 = np.clip(q + rng.uniform(-0.5, 0.5, q.shape), self.robot.q_min, self.robot.q_max)
+            ab2, _ = self.robot.collision_segments(q2)
+            moved |= np.abs(ab2 - ab0).reshape(len(ab0), -1).max(axis=1) > 1e-9
+        lengths = np.linalg.norm(ab0[:, 1] - ab0[:, 0], axis=1)
+        self.gt_n = np.maximum(2, np.ceil(lengths / self.cfg.gt_step).astype(int) + 1)
+        touching = np.zeros(len(ab0), dtype=bool)
+        for i in range(len(ab0)):
+            u = np.linspace(0.0, 1.0, self.gt_n[i])[:, None]
+            pts = ab0[i, 0] * (1 - u) + ab0[i, 1] * u
+            touching[i] = np.min(np.asarray(self.scene.true_distance(pts, 0.0)) - r0[i]) <= 0.005
+        keep = moved | ~touching
+        self.gt_caps = np.nonzero(keep)[0]
+        self._gt_u = [np.linspace(0.0, 1.0, k)[:, None] for k in self.gt_n]
+        names = [c.name or c.link for c in self.robot.capsules]
+        self.excluded_caps = [names[i] for i in range(len(names)) if not keep[i]]
+
+    # ------------------------------------------------------------ pieces
+    def obstacles_at(self, t: float) -> list:
+        return list(self.scene.obstacles_at(t)) + list(self.extra(t))
+
+    def ground_truth(self, P: np.ndarray, q: np.ndarray, t: float) -> tuple[np.ndarray, float]:
+        """True distances at ``t``: (m,) control points ``P`` to the obstacles (0 inside) and the
+        robot's capsules (all but ``excluded_caps``) to the obstacles: the distance of points on
+        each capsule axis (every ``gt_step``) minus the radius, so an overestimate by at most
+        ``gt_step/2``; ``<= 0`` = collision (an axis point inside an obstacle reads ``-radius``)."""
+        from depthguard.sim.ground_truth import true_distance
+        ab, r = self.robot.collision_segments(q)
+        pts, rad = [P], [np.zeros(len(P))]
+        for i in self.gt_caps:
+            u = self._gt_u[i]
+            pts.append(ab[i, 0] * (1 - u) + ab[i, 1] * u)
+            rad.append(np.full(len(u), r[i]))
+        X = np.concatenate(pts)
+        sd = np.asarray(true_distance(self.obstacles_at(t), X), dtype=np.float64)   # 0 inside
+        d = sd - np.concatenate(rad)
+        m = len(P)
+        return np.maximum(d[:m], 0.0), float(d[m:].min())
+
+    def _env_meshes(self, t: float) -> list:
+        meshes, _names = self.scene.meshes_at(t, robot=False)
+        return list(meshes) + [p.mesh() for p in self.extra(t)]
+
+    # ------------------------------------------------------------ run
+    def run(self, duration: float, progress: Callable | None = None,
+            snapshot_times: tuple[float, ...] = ()) -> LoopResult:
+        """Simulate ``duration`` seconds; ``progress(iterable, total)`` wraps the cycle loop (e.g. track);
+        the principal camera's first frame at or after each of ``snapshot_times`` is kept."""
+        cfg, robot = self.cfg, self.robot
+        if not (np.isfinite(duration) and duration > 0):
+            raise ValueError(f"duration must be > 0 s, got {duration!r}")
+        dt = cfg.dt
+        T = int(round(duration / dt))
+        n, m = robot.dof, len(self.cp_names)
+        cam_ids = [c.id for c in self.cams]
+        nc = len(cam_ids)
+        period = 1.0 / cfg.camera_hz
+        next_frame = np.zeros(nc)          # every camera delivers at t = 0, then unsynchronised:
+        phase = np.array([i * 0.37 * period for i in range(nc)])   # camera i at phase_i + j * period
+        stamps = np.full(nc, -np.inf)
+        depths: dict[str, np.ndarray] = {}
+        rdepths: dict[str, np.ndarray] = {}
+        n_frames = {c: 0 for c in cam_ids}
+        age_limit = cfg.stale_periods * period
+        sup = SafetySupervisor(dt, cfg.stop_time, cfg.resume_time)
+
+        R = {k: np.zeros(s) for k, s in dict(q=(T, n), qd=(T, n), ee=(T, 3), ee_des=(T, 3), D=(T, m),
+                                               rep=(T, 3), gt_cp=(T, m), frame_age=(T, nc)).items()}
+        R["observed"] = np.zeros((T, m), dtype=bool)
+        for k in ("scale", "override", "gt_robot", "t"):
+            R[k] = np.zeros(T)
+        timing = dict(camera_sim=0.0, self_removal=0.0, distance=0.0, reaction=0.0, ground_truth=0.0)
+
+        q = self.q_start.copy()
+        tau = 0.0
+        data = self.data
+        rho, alpha = cfg.rho, cfg.alpha
+        steps = range(T)
+        if progress is not None:
+            steps = progress(steps, T)
+        import numba
+        threads_before = numba.get_num_threads()
+        numba.set_num_threads(max(1, min(int(self.cfg.threads), numba.config.NUMBA_NUM_THREADS)))
+        try:
+            return self._run(T, steps, locals())
+        finally:
+            numba.set_num_threads(threads_before)
+
+    def _run(self, T, steps, env) -> LoopResult:
+        snapshot_times = env["snapshot_times"]
+        cfg, robot, dt = self.cfg, self.robot, self.cfg.dt
+        n, m, cam_ids, nc, period = env["n"], env["m"], env["cam_ids"], env["nc"], env["period"]
+        next_frame, phase, stamps = env["next_frame"], env["phase"], env["stamps"]
+        depths, rdepths, n_frames, age_limit, sup = (env["depths"], env["rdepths"], env["n_frames"],
+                                                     env["age_limit"], env["sup"])
+        R, timing = env["R"], env["timing"]
+        q, tau, data, rho, alpha = env["q"], env["tau"], env["data"], env["rho"], env["alpha"]
+        wall0 = time.perf_counter()
+        snaps_todo = sorted(float(x) for x in snapshot_times)
+        snapshots = []
+        n_distance, next_distance = 0, 0.0
+        for k in steps:
+            t = k * dt
+            # 1. vision
+            new_frame = False
+            for i, cid in enumerate(cam_ids):
+                if t + 1e-9 < next_frame[i]:
+                    continue
+                next_frame[i] = phase[i] + (np.floor((t - phase[i]) / period + 1e-9) + 1) * period
+                if cid in self.dropout and t >= self.dropout[cid]:
+                    continue
+                t0 = time.perf_counter()
+                robot_meshes = robot.link_meshes(q)
+                env = self._env_meshes(t)
+                d = self.sims[cid].capture(env + robot_meshes, stamp=t)
+                if cfg.invalid == "far":
+                    cam = self.cams[i]
+                    d = np.where(d > 0, d, np.float32(cam.max_range - 1e-3)).astype(np.float32)
+                depths[cid] = d
+                t1 = time.perf_counter()
+                rd, _ = self.robot_renderers[cid].render(robot_meshes)
+                rdepths[cid] = np.array(rd, copy=True)
+                t2 = time.perf_counter()
+                timing["camera_sim"] += t1 - t0
+                timing["self_removal"] += t2 - t1
+                stamps[i] = t
+                n_frames[cid] += 1
+                new_frame = True
+                if i == 0 and snaps_todo and t >= snaps_todo[0] - 1e-9:
+                    snaps_todo.pop(0)
+                    snapshots.append((t, cid, depths[cid].copy()))
+            # 2. distances at the current pose
+            t0 = time.perf_counter()
+            robot.forward(q, data)
+            P = data.cp_positions
+            due = k == 0 or new_frame or cfg.distance_hz is None or t + 1e-9 >= next_distance
+            if not due:
+                pass                                   # hold D, V, obs of the last distance cycle
+            elif self.grid is not None:
+                if new_frame:
+                    self.grid.set_frames(depths, rdepths, robot_offset=cfg.robot_offset)
+                self.grid.set_robot_capsules(robot.collision_segments(q, cfg.robot_padding))
+                res = self.grid.query(P, rho=rho, method=cfg.method)
+            else:
+                if new_frame:
+                    cid = cam_ids[0]
+                    self.single.set_depth(depths[cid], robot_depth=rdepths[cid], robot_offset=cfg.robot_offset)
+                res = self.single.query(P, rho=rho, method=cfg.method)
+            if due:
+                D = np.array(res.distance, dtype=np.float64)
+                V = np.array(res.direction, dtype=np.float64)
+                obs = np.array(res.observed, dtype=bool)
+                n_distance += 1
+                if cfg.distance_hz is not None:
+                    next_distance = t + 1.0 / cfg.distance_hz
+            t1 = time.perf_counter()
+            timing["distance"] += t1 - t0
+            # 3. supervision
+            ages = t - stamps
+            reasons = {}
+            for i, cid in enumerate(cam_ids):
+                if ages[i] > age_limit + 1e-9:
+                    reasons[f"stale:{cid}"] = (f"camera {cid}: no frame for more than {age_limit * 1e3:.0f} ms "
+                                               f"({cfg.stale_periods:g} frame periods) - stale data (R27)")
+            for j in np.nonzero(~obs)[0]:
+                reasons[f"unobserved:{self.cp_names[j]}"] = (
+                    f"control point {self.cp_names[j]} is not observed by any camera (R26)")
+            inside = np.isfinite(D) & ((D <= 0.0) | (np.linalg.norm(V, axis=1) == 0.0))
+            for j in np.nonzero(inside)[0]:
+                reasons[f"inside:{self.cp_names[j]}"] = (
+                    f"control point {self.cp_names[j]} lies inside an obstacle frustum (D = 0, no direction)")
+            kov = sup.update(t, reasons)
+            # 4. reaction
+            x = P[0]
+            p_d, v_d = self.hexagon.at(tau)
+            xd = kov * v_d + cfg.k_p * (p_d - x)
+            rep = repulsive_velocity(D[0], V[0], rho, cfg.v_max, alpha)
+            xc = xd + rep
+            lo_c, hi_c = constraint_limits(data.cp_jacobians[1:], D[1:], V[1:], robot.qd_max, rho, alpha)
+            lo_p, hi_p = position_limits(q, robot.q_min, robot.q_max, robot.qd_max, dt)
+            lo, hi = combine_limits((lo_c, hi_c), (lo_p, hi_p))
+            lo, hi = kov * lo, kov * hi
+            r = sns_velocity(data.cp_jacobians[0], xc, lo, hi, qd0=cfg.k_posture * (self.q_start - q),
+                             workspace=self.sns_ws)
+            t2 = time.perf_counter()
+            timing["reaction"] += t2 - t1
+            # record (before integrating: state at t)
+            R["t"][k] = t
+            R["q"][k] = q
+            R["qd"][k] = r.qd
+            R["ee"][k] = x
+            R["ee_des"][k] = p_d
+            R["D"][k] = D
+            R["observed"][k] = obs
+            R["rep"][k] = rep
+            R["scale"][k] = r.scale
+            R["override"][k] = kov
+            R["frame_age"][k] = ages
+            # 5. ground truth
+            R["gt_cp"][k], R["gt_robot"][k] = self.ground_truth(P, q, t)
+            timing["ground_truth"] += time.perf_counter() - t2
+            # integrate
+            q = q + r.qd * dt
+            tau += r.scale * kov * dt
+        timing["total"] = time.perf_counter() - wall0
+        timing["distance_cycles"] = n_distance
+        return LoopResult(t=R["t"], q=R["q"], qd=R["qd"], ee=R["ee"], ee_des=R["ee_des"], D=R["D"],
+                          observed=R["observed"], rep=R["rep"], scale=R["scale"], override=R["override"],
+                          gt_cp=R["gt_cp"], gt_robot=R["gt_robot"], frame_age=R["frame_age"],
+                          control_point_names=list(self.cp_names), camera_ids=cam_ids,
+                          episodes=sup.episodes, timing=timing, n_frames=n_frames,
+                          excluded_capsules=list(self.excluded_caps), snapshots=snapshots)
+
+
+def _depth_span(cam, workspace) -> tuple[float, float]:
+    """Depth range of the workspace box in ``cam`` (clipped to the camera's range) for the grid (R10)."""
+    lo, hi = np.asarray(workspace.lo, float), np.asarray(workspace.hi, float)
+    corners = np.array([[x, y, z] for x in (lo[0], hi[0]) for y in (lo[1], hi[1]) for z in (lo[2], hi[2])])
+    d = corners @ np.asarray(cam.R).T[:, 2] + cam.t[2]
+    d_min = max(float(cam.min_range), float(d.min()))
+    d_max = min(float(cam.max_range), float(d.max()))
+    if d_max <= d_min:
+        raise ValueError(f"camera {cam.id}: the workspace lies outside its depth range")
+    return d_min, d_max

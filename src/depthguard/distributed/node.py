@@ -1,0 +1,324 @@
+"""A camera node (processing unit) of the distributed camera subsystem (Oščádal 2022, R20).
+
+One node per camera: it holds a liveliness token ``<prefix>/alive/<camera>``,
+initialises with the server (camera id + address → unit id + settings), then for
+every frame filters locally (:class:`depthguard.fusion.voxels.VoxelFilter`,
+R16–R19) and sends only its voxels (UPDATE_REQ); every reply carries the current
+settings (voxel size, threshold, robot joints), applied from the next frame on.
+
+Sources (``frame_source``): any callable returning ``(depth (H, W) float32 m, stamp s)``;
+:func:`pattern_source` (a synthetic patch, for tests) and :func:`sim_source`
+(the simulated camera of a built-in cell) are provided.
+
+``python -m depthguard.distributed.node`` is the process entry used by tests and
+benchmarks (the user command is ``depthguard node``).
+"""
+
+from __future__ import annotations
+
+import argparse
+import math
+import os
+import socket
+import sys
+import threading
+import time
+from typing import Callable, Sequence
+
+import numpy as np
+
+from depthguard.camera import Camera
+from depthguard.distributed import wire as W
+from depthguard.distributed.client import ServerClient, ServerRefused, ServerUnavailable
+from depthguard.distributed.settings import DEFAULT_ENDPOINT, DEFAULT_LEASE_MS
+from depthguard.fusion.voxels import FilterOffset, VoxelFilter, regrid
+
+__all__ = ["CameraNode", "pattern_source", "sim_source", "with_resolution", "build_node", "fit_to_wire", "main"]
+
+FrameSource = Callable[[], tuple[np.ndarray, float]]
+
+
+def pattern_source(cam: Camera, workspace, fraction: float = 0.3) -> FrameSource:
+    """A synthetic frame: a fronto-parallel patch (the central ``fraction`` of the image)
+    at the depth of the workspace centre, nothing valid elsewhere."""
+    lo, hi = (np.asarray(w, dtype=float) for w in workspace)
+    centre = (lo + hi) / 2
+    dp = float(cam.world_to_camera(centre)[0, 2])
+    if not (cam.min_range <= dp <= cam.max_range):
+        raise ValueError(f"camera {cam.id}: workspace centre at depth {dp:.2f} m is outside its range")
+    depth = np.zeros(cam.shape, dtype=np.float32)
+    H, W_ = cam.shape
+    h0, w0 = int(H * (1 - fraction) / 2), int(W_ * (1 - fraction) / 2)
+    depth[h0:H - h0, w0:W_ - w0] = dp
+
+    def capture():
+        return depth, time.time()
+    return capture
+
+
+def sim_source(cell, camera: Camera, t: float = 0.0, seed: int = 0) -> FrameSource:
+    """The noisy simulated ``camera`` looking at a built-in cell's scene at time ``t`` (captured once).
+
+    The frame is reused (a real camera delivers frames at no CPU cost to the node);
+    the stamp is the wall-clock time of each call.
+    """
+    from dataclasses import replace
+
+    from depthguard.sources import SimSource
+
+    src = SimSource(rig=replace(cell.rig, cameras=[camera]), scene=cell.scene, seed=seed)
+    depth = src.frames(t)[camera.id].depth
+
+    def capture():
+        return depth, time.time()
+    return capture
+
+
+def with_resolution(cam: Camera, width: int, height: int) -> Camera:
+    """The camera at another resolution mode of its sensor (same pose)."""
+    from depthguard.sources.sensors import intrinsics_for
+
+    if cam.sensor is None:
+        raise ValueError(f"camera {cam.id} has no sensor preset; cannot change its resolution")
+    k = intrinsics_for(cam.sensor, width, height)
+    return Camera(cam.id, k["width"], k["height"], k["fx"], k["fy"], k["cx"], k["cy"],
+                  world_from_camera=cam.world_from_camera, min_range=cam.min_range,
+                  max_range=cam.max_range, sensor=cam.sensor)
+
+
+def fit_to_wire(keys: np.ndarray, counts: np.ndarray, voxel_size: float):
+    """Make a voxel set fit one message: while it has more than ``wire.MAX_VOXELS``,
+    coarsen the voxel size (×2) conservatively (:func:`regrid`; counts become 1)."""
+    s = voxel_size
+    while len(keys) > W.MAX_VOXELS:
+        keys = regrid(keys, s, 2 * s)
+        s *= 2
+        counts = np.ones(len(keys), np.int32)
+    return keys, counts, s
+
+
+class CameraNode:
+    """One processing unit: filter locally, send voxels, obey the server's settings.
+
+    Parameters
+    ----------
+    cam : the node's Camera (from the rig). workspace : (lo, hi) box.
+    source : ``() -> (depth, stamp)``.
+    static_meshes, robot, robot_q0 : the known scene for the expected depth (R16).
+    connect : server endpoint(s). fps : frame rate limit (0 = as fast as possible).
+    trigger : wait for a message on ``<prefix>/trigger`` before each frame (benchmarks).
+    """
+
+    def __init__(self, cam: Camera, workspace, source: FrameSource, *, static_meshes: Sequence = (),
+                 robot=None, robot_q0=None, connect: Sequence[str] = (DEFAULT_ENDPOINT,),
+                 listen: Sequence[str] = ("tcp/127.0.0.1:0",), prefix: str = "depthguard",
+                 fps: float = 15.0, trigger: bool = False, multicast: bool = False,
+                 lease_ms: int = DEFAULT_LEASE_MS, log: Callable[[str], None] | None = None):
+        self.cam = cam
+        self.source = source
+        self.filter = VoxelFilter(cam, workspace, static_meshes=static_meshes, robot=robot)
+        self._default_offset = self.filter.offset
+        self.robot = robot
+        self.q = None if robot_q0 is None else np.asarray(robot_q0, dtype=float)
+        self.fps = float(fps)
+        self.trigger = trigger
+        self._log = log or (lambda m: None)
+        self.client = ServerClient(connect, listen, prefix, multicast, lease_ms)
+        self.keys = self.client.keys
+        self.unit_id: int | None = None
+        self.settings: W.Settings | None = None
+        self.seq = 0
+        self._token = None
+        self._trigger_ev = threading.Event()
+        self._trigger_seq = 0
+        self._sub = None
+        self.sent_bytes = 0
+
+    @property
+    def address(self) -> str:
+        return f"{socket.gethostname()}/pid{os.getpid()}/zid{self.client.session.info.zid()}"
+
+    # -------------------------------------------------------------- protocol
+    def _apply(self, s: W.Settings) -> None:
+        if self.settings is not None and s.epoch == self.settings.epoch:
+            return
+        self.filter.configure(voxel_size=s.voxel_size, threshold=s.threshold)
+        if math.isnan(s.offset_const) or math.isnan(s.offset_k):
+            self.filter.offset = self._default_offset
+        else:
+            self.filter.offset = FilterOffset(s.offset_const, s.offset_k)
+        if s.joints and self.robot is not None:
+            if len(s.joints) != self.robot.dof:
+                self._log(f"ignoring {len(s.joints)} joints from the server (robot has {self.robot.dof})")
+            else:
+                self.q = np.asarray(s.joints, dtype=float)
+        self.settings = s
+
+    def declare_token(self) -> None:
+        if self._token is not None:
+            try:
+                self._token.undeclare()
+            except Exception:  # noqa: BLE001
+                pass
+        self._token = self.client.session.liveliness().declare_token(self.keys.alive(self.cam.id))
+
+    def initialize(self, timeout: float = 30.0) -> int:
+        """INIT until the server answers; the unit id. ``ServerRefused`` if refused."""
+        t_end = time.monotonic() + timeout
+        while True:
+            try:
+                m = self.client.request(self.keys.init, W.init_request(self.cam.id, self.address), 0.5,
+                                        W.MsgType.INIT_REP)
+                break
+            except ServerUnavailable:
+                if time.monotonic() > t_end:
+                    raise
+                time.sleep(0.05)
+        self.unit_id = m.unit_id
+        self._apply(m.settings)
+        self._log(f"camera {self.cam.id}: unit id {self.unit_id}, voxel size {m.settings.voxel_size} m")
+        return self.unit_id
+
+    def step(self) -> int:
+        """Capture, filter, send one update; the number of voxels sent."""
+        depth, stamp = self.source()
+        vs = self.filter.filter(depth, q=self.q)
+        keys, counts, s = fit_to_wire(vs.keys, vs.counts, vs.voxel_size)
+        self.seq = self._trigger_seq if self.trigger else self.seq + 1
+        msg = W.update_request(self.unit_id, self.seq, stamp, s, keys, counts)
+        self.sent_bytes += len(msg)
+        try:
+            rep = self.client.request(self.keys.update, msg, 1.0, W.MsgType.UPDATE_REP)
+        except ServerRefused as exc:
+            if exc.code == 3:                  # server restarted: unknown unit → initialise again
+                self._log(f"camera {self.cam.id}: {exc}; re-initialising")
+                self.initialize()
+                return len(keys)
+            raise
+        if rep.flags & 1:                       # the server does not see our token: declare again
+            self.declare_token()
+        self._apply(rep.settings)
+        return len(keys)
+
+    def run(self, stop: threading.Event | None = None, max_updates: int | None = None) -> None:
+        """Token, initialise, then update at ``fps`` (or on each trigger) until ``stop``."""
+        stop = stop or threading.Event()
+        self.declare_token()
+        self.initialize()
+        if self.trigger:
+            self._sub = self.client.session.declare_subscriber(self.keys.trigger, self._on_trigger)
+        n = 0
+        period = 1.0 / self.fps if self.fps > 0 else 0.0
+        next_t = time.monotonic()
+        while not stop.is_set() and (max_updates is None or n < max_updates):
+            if self.trigger:
+                if not self._trigger_ev.wait(0.2):
+                    continue
+                self._trigger_ev.clear()
+            try:
+                self.step()
+                n += 1
+            except ServerUnavailable as exc:
+                self._log(f"camera {self.cam.id}: {exc}")
+            if period and not self.trigger:
+                next_t += period
+                delay = next_t - time.monotonic()
+                if delay > 0:
+                    stop.wait(delay)
+                else:
+                    next_t = time.monotonic()
+
+    def _on_trigger(self, sample) -> None:
+        try:
+            self._trigger_seq = int.from_bytes(sample.payload.to_bytes()[:4], "little")
+        except Exception:  # noqa: BLE001 - a bad trigger still triggers
+            self._trigger_seq += 1
+        self._trigger_ev.set()
+
+    def close(self) -> None:
+        try:
+            if self._token is not None:
+                self._token.undeclare()
+        except Exception:  # noqa: BLE001
+            pass
+        self.client.close()
+
+
+def build_node(rig_path: str | None, camera: str, source: str = "pattern", cell: str | None = None,
+               sim_time: float = 0.0, seed: int = 0, resolution: tuple[int, int] | None = None,
+               **kw) -> CameraNode:
+    """A node from a rig file, or from a built-in cell with ``source='sim'``."""
+    from depthguard.rig import Rig
+
+    c = None
+    if source == "sim":
+        if cell is None:
+            raise ValueError("--source sim needs --cell NAME (a built-in cell)")
+        from depthguard.sim import load_cell
+        c = load_cell(cell)
+        rig = Rig.load(rig_path) if rig_path is not None else c.rig
+        q0 = c.scene.robot_q(sim_time) if rig.robot is not None else None
+    elif source == "pattern":
+        if rig_path is None:
+            raise ValueError("--rig is required with --source pattern")
+        rig = Rig.load(rig_path)
+        q0 = rig.robot_q0
+    else:
+        raise ValueError(f"unknown source {source!r}; use 'sim' or 'pattern'")
+    cam = rig.camera(camera)
+    if resolution is not None:
+        cam = with_resolution(cam, *resolution)
+    ws = (rig.workspace.lo, rig.workspace.hi)
+    src = sim_source(c, cam, sim_time, seed) if c is not None else pattern_source(cam, ws)
+    return CameraNode(cam, ws, src, static_meshes=rig.static_meshes(), robot=rig.robot, robot_q0=q0, **kw)
+
+
+def _resolution(text: str | None) -> tuple[int, int] | None:
+    if text is None:
+        return None
+    try:
+        w, h = (int(x) for x in text.lower().split("x"))
+    except ValueError:
+        raise ValueError(f"resolution must look like 640x480 (got {text!r})") from None
+    return w, h
+
+
+def main(argv: list[str] | None = None) -> int:
+    """Process entry: ``python -m depthguard.distributed.node --rig R --camera ID ...``."""
+    ap = argparse.ArgumentParser(prog="depthguard-node", description="A camera node (see `depthguard node`).")
+    ap.add_argument("--rig")
+    ap.add_argument("--camera", required=True)
+    ap.add_argument("--source", default="pattern", choices=["pattern", "sim"])
+    ap.add_argument("--cell")
+    ap.add_argument("--sim-time", type=float, default=0.0)
+    ap.add_argument("--connect", action="append", default=None)
+    ap.add_argument("--listen", action="append", default=None)
+    ap.add_argument("--prefix", default="depthguard")
+    ap.add_argument("--fps", type=float, default=15.0)
+    ap.add_argument("--trigger", action="store_true")
+    ap.add_argument("--resolution")
+    ap.add_argument("--quiet", action="store_true")
+    a = ap.parse_args(argv)
+    from depthguard.progress import log
+
+    try:
+        node = build_node(a.rig, a.camera, a.source, a.cell, a.sim_time, resolution=_resolution(a.resolution),
+                          connect=a.connect or [DEFAULT_ENDPOINT], listen=a.listen or ["tcp/127.0.0.1:0"],
+                          prefix=a.prefix, fps=a.fps, trigger=a.trigger, log=None if a.quiet else log)
+    except ValueError as exc:
+        print(f"depthguard node: error: {exc}", file=sys.stderr)
+        return 2
+    try:
+        node.run()
+    except ServerRefused as exc:
+        print(f"depthguard node: error: {exc}", file=sys.stderr)
+        return 2
+    except KeyboardInterrupt:
+        pass
+    finally:
+        node.close()
+    return 0
+
+
+if __name__ == "__main__":
+    sys.exit(main())

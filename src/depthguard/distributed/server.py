@@ -1,0 +1,317 @@
+"""The fusion server (main unit) of the distributed camera subsystem (Oščádal 2022, R20).
+
+Zenoh queryables under ``<prefix>/``:
+
+* ``init``    INIT_REQ(camera id, address) → INIT_REP(unit id, settings). A camera
+  seen before (a restarted node) gets its old id and keeps its storage; a camera id
+  that is not in the rig is refused (ERROR_REP) and logged.
+* ``update``  UPDATE_REQ(unit id, voxels, capture stamp) → UPDATE_REP(settings):
+  replaces that unit's voxels and records the receive time ``T_update``.
+* ``status``  STATUS_REQ → STATUS_REP (JSON, see :meth:`FusionServer.status`).
+* ``settings`` SETTINGS_REQ(JSON changes) → STATUS_REP; the new settings reach every
+  node in its next reply.
+
+Join and leave: each node holds the liveliness token ``<prefix>/alive/<camera>``;
+its disappearance (a killed process at once, a frozen one after the 1 s lease) marks
+the unit *left* and drops its voxels. The global map is the union of the voxels of
+units whose data are fresh, ``T_now − T_update < stale_s``; stale and departed
+units are left out and reported (R20, R27).
+
+Malformed, oversized or unexpected messages are answered with ERROR_REP and counted
+(``rejected``); the server keeps running.
+"""
+
+from __future__ import annotations
+
+import json
+import threading
+import time
+from collections import deque
+from dataclasses import dataclass, field, replace
+from typing import Callable, Sequence
+
+import numpy as np
+
+from depthguard.distributed import wire as W
+from depthguard.distributed.settings import DEFAULT_ENDPOINT, DEFAULT_LEASE_MS, Keys, zenoh_config
+from depthguard.fusion.voxels import VoxelSet, union
+
+__all__ = ["FusionServer", "Unit", "ERR_REFUSED", "ERR_MALFORMED", "ERR_UNKNOWN_UNIT", "ERR_BAD_SETTINGS"]
+
+ERR_MALFORMED = 1
+ERR_REFUSED = 2
+ERR_UNKNOWN_UNIT = 3
+ERR_BAD_SETTINGS = 4
+_RATE_WINDOW_S = 5.0
+
+
+@dataclass
+class Unit:
+    """Storage of one processing unit (one camera)."""
+    id: int
+    camera: str
+    address: str
+    alive: bool = False
+    keys: np.ndarray = field(default_factory=lambda: np.zeros((0, 3), np.int32))
+    counts: np.ndarray = field(default_factory=lambda: np.zeros(0, np.int32))
+    voxel_size: float = 0.02
+    stamp: float = float("nan")      # capture time sent by the node (its clock)
+    t_update: float | None = None    # server monotonic receive time
+    seq: int = 0
+    updates: int = 0
+    inits: int = 1
+
+
+class FusionServer:
+    """Main unit: node registry, voxel storage, freshness, global map (R20).
+
+    Parameters
+    ----------
+    cameras : camera ids allowed to join (the rig's cameras).
+    settings : initial :class:`~depthguard.distributed.wire.Settings`.
+    listen / connect : zenoh endpoints (default ``tcp/127.0.0.1:7447``).
+    multicast : enable zenoh multicast scouting (off by default).
+    log : ``str -> None`` for refused / rejected messages and joins / leaves.
+    """
+
+    def __init__(self, cameras: Sequence[str], settings: W.Settings | None = None, *,
+                 listen: Sequence[str] = (DEFAULT_ENDPOINT,), connect: Sequence[str] = (),
+                 prefix: str = "depthguard", multicast: bool = False, lease_ms: int = DEFAULT_LEASE_MS,
+                 log: Callable[[str], None] | None = None):
+        self.cameras = list(cameras)
+        if not self.cameras:
+            raise ValueError("the server needs at least one camera id (from the rig)")
+        self.settings = (settings or W.Settings()).check()
+        self.keys = Keys(prefix)
+        self._conf = zenoh_config(listen, connect, multicast, lease_ms)
+        self._log = log or (lambda m: None)
+        self._lock = threading.RLock()
+        self.units: dict[str, Unit] = {}
+        self._alive: set[str] = set()
+        self._next_id = 1
+        self.rejected = 0
+        self.refused = 0
+        self._bytes: deque[tuple[float, int]] = deque()
+        self._session = None
+        self._decls: list = []
+        self.on_update: Callable[[Unit], None] | None = None   # hook (bench: refresh timing)
+
+    # -------------------------------------------------------------- lifecycle
+    def start(self) -> "FusionServer":
+        import zenoh
+
+        self._session = zenoh.open(self._conf)
+        s, k = self._session, self.keys
+        self._decls = [
+            s.liveliness().declare_subscriber(k.alive("*"), self._on_liveliness, history=True),
+            s.declare_queryable(k.init, self._guard(self._on_init)),
+            s.declare_queryable(k.update, self._guard(self._on_update)),
+            s.declare_queryable(k.status, self._guard(self._on_status)),
+            s.declare_queryable(k.settings, self._guard(self._on_settings)),
+        ]
+        return self
+
+    def close(self) -> None:
+        for d in self._decls:
+            try:
+                d.undeclare()
+            except Exception:  # noqa: BLE001 - closing anyway
+                pass
+        self._decls = []
+        if self._session is not None:
+            self._session.close()
+            self._session = None
+
+    def __enter__(self):
+        return self.start()
+
+    def __exit__(self, *exc):
+        self.close()
+
+    @property
+    def session(self):
+        return self._session
+
+    # ---------------------------------------------------------------- settings
+    def set_settings(self, **changes) -> W.Settings:
+        """Change settings (voxel_size, threshold, stale_s, offset_const, offset_k, joints);
+        the epoch increases and the new values go out with every following reply."""
+        allowed = {"voxel_size", "threshold", "stale_s", "offset_const", "offset_k", "joints"}
+        bad = set(changes) - allowed
+        if bad:
+            raise ValueError(f"unknown settings {sorted(bad)}; allowed: {sorted(allowed)}")
+        clean = {}
+        for name, v in changes.items():
+            if name == "joints":
+                clean[name] = tuple(float(q) for q in v)
+            else:
+                if isinstance(v, bool) or not isinstance(v, (int, float)):
+                    raise ValueError(f"setting {name} must be a number (got {v!r})")
+                clean[name] = float(v)
+        with self._lock:
+            new = replace(self.settings, epoch=self.settings.epoch + 1, **clean)
+            try:
+                new.check()
+            except W.WireError as exc:
+                raise ValueError(str(exc)) from None
+            self.settings = new
+        self._log(f"settings epoch {new.epoch}: {clean}")
+        return new
+
+    # ---------------------------------------------------------------- queries
+    def _guard(self, fn):
+        """Wrap a queryable callback: bad input → ERROR_REP + counted; never raises."""
+        def cb(query):
+            payload = query.payload
+            data = payload.to_bytes() if payload is not None else b""
+            try:
+                reply = fn(data)
+            except W.WireError as exc:
+                with self._lock:
+                    self.rejected += 1
+                self._log(f"rejected message on {query.key_expr}: {exc}")
+                reply = W.error_reply(ERR_MALFORMED, str(exc))
+            except Exception as exc:  # noqa: BLE001 - the server must keep running
+                with self._lock:
+                    self.rejected += 1
+                self._log(f"error handling {query.key_expr}: {type(exc).__name__}: {exc}")
+                reply = W.error_reply(ERR_MALFORMED, f"{type(exc).__name__}: {exc}")
+            try:
+                query.reply(query.key_expr, reply)
+            except Exception as exc:  # noqa: BLE001
+                self._log(f"reply failed on {query.key_expr}: {exc}")
+        return cb
+
+    def _on_init(self, data: bytes) -> bytes:
+        m = W.decode(data, expect=W.MsgType.INIT_REQ)
+        with self._lock:
+            if m.camera not in self.cameras:
+                self.refused += 1
+                self._log(f"refused unknown camera {m.camera!r} from {m.address!r}")
+                return W.error_reply(ERR_REFUSED, f"camera {m.camera!r} is not in the rig")
+            u = self.units.get(m.camera)
+            if u is None:
+                u = Unit(self._next_id, m.camera, m.address, alive=m.camera in self._alive,
+                         voxel_size=self.settings.voxel_size)
+                self._next_id += 1
+                self.units[m.camera] = u
+                self._log(f"unit {u.id} joined: camera {m.camera} at {m.address}")
+            else:
+                u.inits += 1
+                u.address = m.address
+                u.alive = m.camera in self._alive
+                self._log(f"unit {u.id} re-initialised: camera {m.camera} at {m.address}")
+            return W.init_reply(u.id, self.settings)
+
+    def _unit_by_id(self, uid: int) -> Unit | None:
+        for u in self.units.values():
+            if u.id == uid:
+                return u
+        return None
+
+    def _on_update(self, data: bytes) -> bytes:
+        now = time.monotonic()
+        m = W.decode(data, expect=W.MsgType.UPDATE_REQ)
+        with self._lock:
+            u = self._unit_by_id(m.unit_id)
+            if u is None:
+                self.refused += 1
+                self._log(f"refused update from unknown unit id {m.unit_id}")
+                return W.error_reply(ERR_UNKNOWN_UNIT, f"unit id {m.unit_id} is not initialised")
+            u.keys, u.counts, u.voxel_size = m.keys, m.counts, m.voxel_size
+            u.stamp, u.seq, u.t_update = m.stamp, m.seq, now
+            u.updates += 1
+            self._bytes.append((now, len(data)))
+            token_missing = not u.alive
+            reply = W.update_reply(self.settings, token_missing=token_missing)
+        if self.on_update is not None:
+            self.on_update(u)
+        return reply
+
+    def _on_status(self, data: bytes) -> bytes:
+        W.decode(data, expect=W.MsgType.STATUS_REQ)
+        return W.status_reply(self.status())
+
+    def _on_settings(self, data: bytes) -> bytes:
+        m = W.decode(data, expect=W.MsgType.SETTINGS_REQ)
+        try:
+            changes = json.loads(m.text)
+            self.set_settings(**changes)
+        except (ValueError, TypeError) as exc:
+            with self._lock:
+                self.rejected += 1
+            self._log(f"rejected settings {m.text[:200]!r}: {exc}")
+            return W.error_reply(ERR_BAD_SETTINGS, str(exc))
+        return W.status_reply(self.status())
+
+    def _on_liveliness(self, sample) -> None:
+        import zenoh
+
+        key = str(sample.key_expr)
+        cam = key.rsplit("/", 1)[-1]
+        with self._lock:
+            if sample.kind == zenoh.SampleKind.PUT:
+                self._alive.add(cam)
+                u = self.units.get(cam)
+                if u is not None:
+                    u.alive = True
+                self._log(f"liveliness: camera {cam} present")
+            else:
+                self._alive.discard(cam)
+                u = self.units.get(cam)
+                if u is not None:
+                    u.alive = False
+                    u.keys = np.zeros((0, 3), np.int32)      # drop a departed unit's voxels
+                    u.counts = np.zeros(0, np.int32)
+                self._log(f"liveliness: camera {cam} left")
+
+    # ---------------------------------------------------------------- merging
+    def unit_state(self, u: Unit, now: float | None = None) -> str:
+        """``"fresh"`` | ``"stale"`` | ``"left"`` (R20: ``T_now − T_update < stale_s``)."""
+        now = time.monotonic() if now is None else now
+        if not u.alive:
+            return "left"
+        if u.t_update is None or now - u.t_update >= self.settings.stale_s:
+            return "stale"
+        return "fresh"
+
+    def global_map(self) -> tuple[np.ndarray, float]:
+        """(M, 3) int64 keys of the union of the fresh units' voxels, and the voxel size (m)."""
+        now = time.monotonic()
+        with self._lock:
+            s = self.settings.voxel_size
+            sets = [VoxelSet(u.keys, u.counts, u.voxel_size) for u in self.units.values()
+                    if self.unit_state(u, now) == "fresh"]
+        return union(sets, s), s
+
+    def bytes_per_s(self, now: float | None = None) -> float:
+        now = time.monotonic() if now is None else now
+        with self._lock:
+            while self._bytes and now - self._bytes[0][0] > _RATE_WINDOW_S:
+                self._bytes.popleft()
+            return sum(b for _, b in self._bytes) / _RATE_WINDOW_S
+
+    def status(self) -> dict:
+        """The server's view: ``{"nodes": [{"camera", "id", "state", "age_s", "voxels", ...}],
+        "voxels_total", "bytes_per_s", "rejected", "refused", "settings"}``."""
+        now = time.monotonic()
+        keys, s = self.global_map()
+        with self._lock:
+            nodes = []
+            for u in sorted(self.units.values(), key=lambda u: u.id):
+                state = self.unit_state(u, now)
+                nodes.append({
+                    "camera": u.camera, "id": u.id, "state": state,
+                    "age_s": None if u.t_update is None else round(now - u.t_update, 4),
+                    "voxels": int(len(u.keys)) if state == "fresh" else 0,
+                    "voxel_size": u.voxel_size, "address": u.address,
+                    "updates": u.updates, "inits": u.inits,
+                })
+            st = self.settings
+            return {
+                "nodes": nodes, "voxels_total": int(len(keys)), "voxel_size": s,
+                "bytes_per_s": round(self.bytes_per_s(now), 1),
+                "rejected": self.rejected, "refused": self.refused,
+                "settings": {"epoch": st.epoch, "voxel_size": st.voxel_size, "threshold": st.threshold,
+                             "stale_s": st.stale_s, "joints": list(st.joints)},
+            }

@@ -1,0 +1,81 @@
+"""Bench group ``sim``: simulated frames and ground truth (issue 2 §6–7).
+
+Rows (median milliseconds, one core, after a warm-up):
+
+- ``sim.noise.kinect_640x480_ms``: the Kinect v1 model (disparity noise and
+  quantisation, edge dropout, range) on one 640x480 image. Peer: drawing the
+  standard normals of that image with numpy (the floor of any noise model).
+- ``sim.ur3_cell.frames_4x640x480_ms``: ``SimSource.frames(t)`` of the
+  ur3-cell — the scene's meshes at t, four D435 renders and their noise.
+  Peer: the four renders alone (``Renderer.render``) on the same meshes.
+- ``sim.c_arm_room.occupancy_5cm_ms``: ground-truth occupancy (R24) of the
+  4 x 4 x 2.5 m room at 5 cm (80 x 80 x 50 voxels, centre rule), robot included.
+  Peer: the same grid by brute force, every primitive's SDF on every voxel centre.
+
+No paper quotes a figure for these steps.
+"""
+
+from __future__ import annotations
+
+import numpy as np
+
+from depthguard.evaluation.bench import BenchContext, BenchRow, group, time_call
+
+
+@group("sim")
+def sim_group(ctx: BenchContext) -> list[BenchRow]:
+    from depthguard.render import Renderer
+    from depthguard.sim import load_cell
+    from depthguard.sim.ground_truth import grid_shape, voxel_centres
+    from depthguard.sources import SimSource, sensor_model
+    from depthguard.sources.noise import NoiseWorkspace, apply_noise
+
+    rows: list[BenchRow] = []
+    reps = max(3, ctx.repeats if not ctx.quick else 3)
+
+    # noise model alone
+    m = sensor_model("kinect_v1")
+    ideal = np.random.default_rng(ctx.seed).uniform(0.5, 4.5, (480, 640)).astype(np.float32)
+    ideal[:, 300:340] = 1.0  # some depth edges
+    ws, out = NoiseWorkspace(ideal.shape), np.empty(ideal.shape, np.float32)
+    rng = np.random.default_rng(ctx.seed)
+    t = time_call(lambda: apply_noise(ideal, m, 589.4, rng, ws=ws, out=out), reps)
+    buf = np.empty(ideal.shape)
+    tp = time_call(lambda: rng.standard_normal(out=buf), reps)
+    rows.append(BenchRow("sim.noise.kinect_640x480_ms", float(np.median(t) * 1e3), "ms", None,
+                         "numpy standard_normal 640x480", float(np.median(tp) * 1e3),
+                         "disparity noise + 1/8 px quantisation + edge dropout + range"))
+
+    # a whole simulated frame set of the ur3 cell
+    cell = load_cell("ur3-cell")
+    src = SimSource(cell, seed=ctx.seed)
+    tt = cell.situations["arm_reaching"].time
+    t = time_call(lambda: src.frames(tt), reps)
+    meshes, _ = cell.scene.meshes_at(tt)
+    rends = [Renderer(c) for c in cell.rig.cameras]
+    tp = time_call(lambda: [r.render(meshes) for r in rends], reps)
+    rows.append(BenchRow("sim.ur3_cell.frames_4x640x480_ms", float(np.median(t) * 1e3), "ms", None,
+                         "4 renders alone", float(np.median(tp) * 1e3),
+                         "scene meshes at t + render + D435 noise, 4 cameras"))
+
+    # ground-truth occupancy of the c-arm room
+    room = load_cell("c-arm-room")
+    lo, hi = room.rig.workspace.lo, room.rig.workspace.hi
+    ts = room.situations["setup1"].time
+    t = time_call(lambda: room.scene.occupancy(lo, hi, 0.05, ts, robot=True), max(2, reps // 3), warmup=1)
+    prims = room.scene.obstacles_at(ts) + room.scene.robot_primitives(ts)
+
+    def brute():
+        lo_, _, n = grid_shape(lo, hi, 0.05)
+        c = voxel_centres(lo_, 0.05, (0, 0, 0), n)
+        d = np.full(len(c), np.inf)
+        for p in prims:
+            np.minimum(d, p.sdf(c), out=d)
+        return (d <= 0).reshape(n)
+
+    assert np.array_equal(brute(), room.scene.occupancy(lo, hi, 0.05, ts, robot=True))
+    tp = time_call(brute, max(2, reps // 3), warmup=1)
+    rows.append(BenchRow("sim.c_arm_room.occupancy_5cm_ms", float(np.median(t) * 1e3), "ms", None,
+                         "every SDF on every voxel", float(np.median(tp) * 1e3),
+                         f"{len(prims)} primitives, 80x80x50 voxels, centre rule"))
+    return rows

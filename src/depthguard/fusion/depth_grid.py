@@ -1,0 +1,527 @@
+"""Several cameras fused in the principal camera's depth space: the depth grid map
+(Flacco & De Luca 2015; SPEC §3, R10–R12).
+
+Use::
+
+    grid = DepthGridMap(rig.cameras, principal="cam0", d_min=0.3, d_max=3.7, delta_d=0.01)
+    res = grid.distance(depths, points, rho=0.4, method="hybrid",
+                        robot_depths=robot_depths, robot_capsules=robot.collision_capsules(q, 0.05))
+
+or, in a control loop, :meth:`DepthGridMap.set_frames` once per camera frame
+and :meth:`DepthGridMap.query` once per control cycle (no allocation).
+
+The off-line map (R11) is kept compact: the principal pixels' corner rays in
+every other camera's frame, ``(H+1) (W+1) 3`` float64 per camera (7.4 MB for
+640x480), from which each cell's pixels and ``dstart`` / ``dend`` follow on
+the fly (:mod:`~depthguard.fusion.depth_grid_kernels` states the rule);
+:func:`~depthguard.fusion.depth_grid_ref.explicit_map_numpy` builds the
+paper's explicit table for small grids and the tests check they agree.
+
+When no camera sees the whole workspace, :class:`MultiPrincipalDepthGrid`
+keeps a map per camera and evaluates each control point with a principal
+that sees it (the paper's future work).
+"""
+
+from __future__ import annotations
+
+import hashlib
+import math
+import os
+import time
+from pathlib import Path
+
+import numpy as np
+
+from depthguard.camera import Camera, check_depth_image
+from depthguard.distance.api import DistanceResult, check_points, check_rho
+from depthguard.fusion import depth_grid_kernels as K
+
+__all__ = ["DepthGridMap", "MultiPrincipalDepthGrid", "default_cache_dir"]
+
+_FORMAT = 1
+_METHODS = {"min": K.METHOD_MIN, "mean": K.METHOD_MEAN, "hybrid": K.METHOD_HYBRID}
+
+
+def default_cache_dir() -> Path:
+    """``$DEPTHGUARD_CACHE`` or ``~/.cache/depthguard``."""
+    return Path(os.environ.get("DEPTHGUARD_CACHE", Path.home() / ".cache" / "depthguard"))
+
+
+def _intrinsics_row(cam: Camera) -> list[float]:
+    return [cam.fx, cam.fy, cam.cx, cam.cy, float(cam.width), float(cam.height),
+            cam.min_range, cam.max_range]
+
+
+def _pyramid_layout(H: int, W: int, levels: int) -> tuple[np.ndarray, np.ndarray, int]:
+    dims = np.zeros((levels, 2), dtype=np.int64)
+    offs = np.zeros(levels, dtype=np.int64)
+    h, w, o = H, W, 0
+    for lv in range(levels):
+        dims[lv] = (h, w)
+        offs[lv] = o
+        o += h * w
+        h, w = (h + 1) // 2, (w + 1) // 2
+    return offs, dims, o
+
+
+def _capsule_array(capsules) -> np.ndarray:
+    """(C, 7) world capsules ``a, b, radius`` from a list of ``Capsule`` or ``(segments (C,2,3), radii (C,))``."""
+    if capsules is None:
+        return np.zeros((0, 7))
+    if isinstance(capsules, tuple) and len(capsules) == 2 and np.ndim(capsules[0]) == 3:
+        seg = np.asarray(capsules[0], dtype=np.float64)
+        rad = np.asarray(capsules[1], dtype=np.float64)
+        if seg.shape[1:] != (2, 3) or rad.shape != (len(seg),):
+            raise ValueError(f"robot_capsules as (segments, radii) must be ((C, 2, 3), (C,)), "
+                             f"got {seg.shape}, {rad.shape}")
+        out = np.concatenate([seg.reshape(-1, 6), rad[:, None]], axis=1)
+    else:
+        rows = []
+        for c in capsules:
+            if not (hasattr(c, "segment") and hasattr(c, "radius")):
+                raise ValueError(f"robot_capsules must hold Capsule objects (got {type(c).__name__})")
+            a, b = c.segment()
+            rows.append(np.r_[a, b, c.radius])
+        out = np.asarray(rows, dtype=np.float64).reshape(-1, 7)
+    if not np.all(np.isfinite(out)) or np.any(out[:, 6] < 0):
+        raise ValueError("robot_capsules must have finite end points and radii >= 0")
+    return out
+
+
+class DepthGridMap:
+    """Depth grid map of a rig (R10–R12): principal camera's pixels x depth slices.
+
+    Parameters
+    ----------
+    cameras : list[Camera]
+        Every camera of the rig (ids unique); the principal among them.
+    principal : str or Camera
+        The camera whose depth space carries the grid. It should see the
+        whole space of interest (the paper's assumption 1): obstacles outside
+        its image are not considered.
+    d_min, d_max, delta_d : float, metres
+        Grid depths: slice ``gd = r(d) = floor((d - d_min) / delta_d)`` for
+        ``d`` in ``[d_min, d_max]``; ``n_d = ceil((d_max - d_min) / delta_d)`` slices.
+        Gray space outside the grid cannot be confirmed free and stays obstacle.
+    cache_dir : path or None
+        Where the off-line map is cached (default :func:`default_cache_dir`);
+        the file name carries a key of every camera's :meth:`Camera.key` and
+        the grid parameters, so a changed rig builds a new map. A file that
+        cannot be read or does not match is rebuilt, never trusted.
+    cache : bool
+        False: always build, never write.
+    quiet : bool
+        No progress output while building.
+
+    Attributes: ``principal`` (Camera), ``others`` (list[Camera]), ``shape``
+    ``(H, W, n_d)``, ``nbytes`` (the map's tables), ``build_seconds``,
+    ``from_cache``, ``cache_path``.
+    """
+
+    def __init__(self, cameras, principal, d_min: float, d_max: float, delta_d: float,
+                 cache_dir=None, *, cache: bool = True, quiet: bool = True):
+        cams = list(cameras)
+        if not cams:
+            raise ValueError("DepthGridMap needs at least one camera")
+        for c in cams:
+            if not isinstance(c, Camera):
+                raise ValueError(f"cameras must be depthguard Camera objects (got {type(c).__name__})")
+        ids = [c.id for c in cams]
+        if len(set(ids)) != len(ids):
+            raise ValueError(f"camera ids must be unique (got {ids})")
+        pid = principal.id if isinstance(principal, Camera) else principal
+        if pid not in ids:
+            raise ValueError(f"principal camera {pid!r} is not among the cameras {ids}")
+        try:
+            d_min, d_max, delta_d = float(d_min), float(d_max), float(delta_d)
+        except (TypeError, ValueError):
+            raise ValueError("d_min, d_max and delta_d must be numbers of metres") from None
+        if not all(math.isfinite(x) for x in (d_min, d_max, delta_d)):
+            raise ValueError("d_min, d_max and delta_d must be finite")
+        if d_min < 0 or d_max <= d_min:
+            raise ValueError(f"grid depths must satisfy 0 <= d_min < d_max (got d_min={d_min}, d_max={d_max})")
+        if delta_d <= 0:
+            raise ValueError(f"delta_d must be > 0 metres (got {delta_d})")
+        n_d = int(math.ceil((d_max - d_min) / delta_d - 1e-9))
+        if n_d > 1_000_000:
+            raise ValueError(f"grid has {n_d} depth slices; increase delta_d")
+        self.principal: Camera = cams[ids.index(pid)]
+        self.others: list[Camera] = [c for c in cams if c.id != pid]
+        self.d_min, self.delta_d, self.n_d = d_min, delta_d, n_d
+        self.d_max = d_min + n_d * delta_d
+        P = self.principal
+        self.shape = (P.height, P.width, n_d)
+        self._Rp = np.ascontiguousarray(P.R)
+        self._tp = np.ascontiguousarray(P.t)
+        self._pint = np.asarray(_intrinsics_row(P), dtype=np.float64)
+        self._kint = np.asarray([_intrinsics_row(c) for c in self.others], dtype=np.float64).reshape(-1, 8)
+        self.key = self._key()
+        self.cache_path = None
+        if cache:
+            self.cache_path = Path(cache_dir if cache_dir is not None else default_cache_dir()) / \
+                f"depthgrid-{self.key}.npz"
+        t0 = time.perf_counter()
+        self.from_cache = False
+        loaded = self._load() if self.cache_path is not None else None
+        if loaded is not None:
+            self.rays, self.origins = loaded
+            self.from_cache = True
+        else:
+            self.rays, self.origins = self._build(quiet)
+            if self.cache_path is not None:
+                self._save()
+        self.build_seconds = time.perf_counter() - t0
+        self._alloc_frames()
+        self._caps = np.zeros((0, 7))
+        self._caps_world = np.zeros((0, 7))
+        self._alloc_points(16)
+        self.has_frames = False
+
+    # ------------------------------------------------------------ off-line map (R11)
+    def _key(self) -> str:
+        h = hashlib.sha256()
+        h.update(repr((_FORMAT, self.principal.key(), [c.key() for c in self.others],
+                       self.d_min, self.delta_d, self.n_d)).encode())
+        return h.hexdigest()[:24]
+
+    def _build(self, quiet: bool):
+        """Corner rays of the principal pixels in each other camera's frame (R11)."""
+        from depthguard.progress import track
+
+        P = self.principal
+        H, W = P.height, P.width
+        nk = len(self.others)
+        rays = np.empty((max(nk, 1), H + 1, W + 1, 3))
+        origins = np.zeros((max(nk, 1), 3))
+        uc = (np.arange(W + 1) - 0.5 - P.cx) / P.fx
+        vc = (np.arange(H + 1) - 0.5 - P.cy) / P.fy
+        chunk = max(1, (H + 1) // 8)
+        steps = [(k, r0) for k in range(nk) for r0 in range(0, H + 1, chunk)]
+        Rpw = P.world_from_camera[:3, :3]
+        tpw = P.world_from_camera[:3, 3]
+        for k, r0 in track(steps, "depth grid map", quiet=quiet or not steps):
+            cam = self.others[k]
+            M = cam.R @ Rpw                        # principal frame -> k frame
+            origins[k] = cam.R @ tpw + cam.t       # principal optical centre in k
+            r1 = min(r0 + chunk, H + 1)
+            c = np.empty((r1 - r0, W + 1, 3))
+            c[..., 0] = uc[None, :]
+            c[..., 1] = vc[r0:r1, None]
+            c[..., 2] = 1.0
+            rays[k, r0:r1] = c @ M.T
+        if nk == 0:
+            rays = rays[:0]
+            origins = origins[:0]
+        return np.ascontiguousarray(rays), np.ascontiguousarray(origins)
+
+    def _save(self) -> None:
+        try:
+            self.cache_path.parent.mkdir(parents=True, exist_ok=True)
+            tmp = self.cache_path.with_name(self.cache_path.name + f".{os.getpid()}.tmp.npz")
+            np.savez(tmp, key=np.array(self.key), rays=self.rays, origins=self.origins)
+            os.replace(tmp, self.cache_path)
+        except OSError:
+            pass  # a cache that cannot be written only costs a rebuild next time
+
+    def _load(self):
+        p = self.cache_path
+        if p is None or not p.exists():
+            return None
+        try:
+            with np.load(p, allow_pickle=False) as z:
+                key = str(z["key"])
+                rays = np.ascontiguousarray(z["rays"], dtype=np.float64)
+                origins = np.ascontiguousarray(z["origins"], dtype=np.float64)
+        except Exception:
+            return None
+        H, W, _ = self.shape
+        nk = len(self.others)
+        if (key != self.key or rays.shape != (nk, H + 1, W + 1, 3) or origins.shape != (nk, 3)
+                or not np.all(np.isfinite(rays)) or not np.all(np.isfinite(origins))):
+            return None
+        return rays, origins
+
+    @property
+    def nbytes(self) -> int:
+        """Bytes of the off-line map (the compact tables)."""
+        return int(self.rays.nbytes + self.origins.nbytes + self._kint.nbytes)
+
+    def r(self, d):
+        """Depth slice ``r(d) = floor((d - d_min) / delta_d)`` (R10); may fall outside ``0..n_d-1``."""
+        return np.floor((np.asarray(d, dtype=np.float64) - self.d_min) / self.delta_d).astype(np.int64)
+
+    def cell_pixels(self, camera_id: str, gx: int, gy: int, gd: int):
+        """The map entry of cell ``(gx, gy, gd)`` for another camera (R11).
+
+        Returns ``(pixels (M, 2) int [u, v], dstart, dend)`` in metres; ``M = 0``
+        and NaN depths when that camera does not see the whole cell.
+        """
+        ids = [c.id for c in self.others]
+        if camera_id not in ids:
+            raise ValueError(f"{camera_id!r} is not a non-principal camera of this map ({ids})")
+        H, W, nd = self.shape
+        if not (0 <= gx < W and 0 <= gy < H and 0 <= gd < nd):
+            raise ValueError(f"cell ({gx}, {gy}, {gd}) outside the grid {W}x{H}x{nd}")
+        d1 = self.d_min + gd * self.delta_d
+        seen, u0, u1, v0, v1, zmin, zmax = K.cell_footprint(self.rays, self.origins, self._kint,
+                                                            ids.index(camera_id), gx, gy, d1,
+                                                            d1 + self.delta_d)
+        if not seen:
+            return np.zeros((0, 2), dtype=np.int64), float("nan"), float("nan")
+        uu, vv = np.meshgrid(np.arange(u0, u1 + 1), np.arange(v0, v1 + 1))
+        return np.stack([uu.ravel(), vv.ravel()], axis=1), float(zmin), float(zmax)
+
+    # ------------------------------------------------------------ on-line (R12)
+    def _alloc_frames(self) -> None:
+        P = self.principal
+        self._pfree = np.empty(P.shape)
+        self._pkind = np.empty(P.shape, dtype=np.int8)
+        nk = len(self.others)
+        Hk = max([c.height for c in self.others], default=1)
+        Wk = max([c.width for c in self.others], default=1)
+        self._kfree = np.zeros((max(nk, 1), Hk, Wk))
+        self._kkind = np.empty((Hk, Wk), dtype=np.int8)
+        levels = max(1, int(math.ceil(math.log2(max(Hk, Wk)))) + 1)
+        self._koff = np.zeros((max(nk, 1), levels), dtype=np.int64)
+        self._kdims = np.ones((max(nk, 1), levels, 2), dtype=np.int64)
+        size = 1
+        for k, c in enumerate(self.others):
+            offs, dims, n = _pyramid_layout(c.height, c.width, levels)
+            self._koff[k], self._kdims[k] = offs, dims
+            size = max(size, n)
+        self._kpyr = np.zeros((max(nk, 1), size))
+        self._no_robot = np.zeros((1, 1), dtype=np.float32)
+        self._cap_lo = np.zeros(P.shape + (K.MAX_CAPS_PER_PIXEL,))
+        self._cap_hi = np.zeros(P.shape + (K.MAX_CAPS_PER_PIXEL,))
+        self._cap_n = np.zeros(P.shape, dtype=np.int64)
+        self._rays_arg = self.rays if nk else np.zeros((1, 1, 1, 3))
+        self._orig_arg = self.origins if nk else np.zeros((1, 3))
+        self._kint_arg = self._kint if nk else np.zeros((1, 8))
+
+    def _alloc_points(self, n: int) -> None:
+        self._cap = n
+        self._dist = np.empty(n)
+        self._dir = np.empty((n, 3))
+        self._count = np.empty(n, dtype=np.int64)
+        self._obs = np.empty(n, dtype=np.bool_)
+
+    def set_frames(self, depths: dict, robot_depths: dict | None = None,
+                   robot_offset: float = 0.03, robot_capsules=None, invalid: str = "unknown",
+                   robot_in_others: str = "unknown") -> None:
+        """Load one frame per camera (R9, R28); call once per camera frame.
+
+        depths : dict camera id -> (H, W) float metres (0 / NaN / out of range =
+            invalid: the ray is unknown from ``min_range`` on). The principal's
+            frame is required; a missing other camera clears nothing (safe).
+        robot_depths : optional dict camera id -> (H, W) the robot rendered into
+            that camera at its current joints (0 = no robot). A pixel is the
+            robot's where ``measured >= robot_depth - robot_offset``: free up
+            to the robot, unknown behind it (R9, R12 case 4).
+        robot_capsules : the robot's padded volume (list of ``Capsule`` or
+            ``(segments (C, 2, 3), radii (C,))``, world); cells inside are never
+            obstacles. Usually ``robot.collision_capsules(q, padding)``.
+        invalid : R28 policy for invalid pixels (0, NaN, out of range):
+            ``"unknown"`` (default, safe): the ray is unknown from ``min_range``
+            on — an obstacle for the principal unless another camera clears
+            it, and it clears nothing in another camera; ``"free"``: nothing
+            on the ray (for simulated cells without walls, where 0 means the
+            ray left the scene).
+        robot_in_others : what a robot pixel of a *non-principal* camera says.
+            ``"unknown"`` (default, R9): free up to the robot, unknown behind
+            it, so space hidden by the robot from that camera stays obstacle
+            when the principal cannot see it either. ``"free"`` (the paper's
+            removal): the pixel confirms nothing; this drops the robot's
+            shadow in the other cameras (the shadow of fig. 12 disappears)
+            but a hand hidden behind the robot from every camera is missed.
+        """
+        if not isinstance(depths, dict):
+            raise ValueError("depths must be a dict camera id -> depth image")
+        robot_depths = robot_depths or {}
+        if not isinstance(robot_depths, dict):
+            raise ValueError("robot_depths must be a dict camera id -> rendered robot depth")
+        known = {self.principal.id, *(c.id for c in self.others)}
+        for name, d in (("depths", depths), ("robot_depths", robot_depths)):
+            extra = set(d) - known
+            if extra:
+                raise ValueError(f"{name} names unknown camera(s) {sorted(extra)}; cameras: {sorted(known)}")
+        off = float(robot_offset)
+        if not (math.isfinite(off) and off >= 0):
+            raise ValueError(f"robot_offset must be finite and >= 0 metres (got {robot_offset!r})")
+        if invalid not in ("unknown", "free"):
+            raise ValueError(f"invalid must be 'unknown' or 'free' (got {invalid!r})")
+        self._invalid_free = invalid == "free"
+        if robot_in_others not in ("unknown", "free"):
+            raise ValueError(f"robot_in_others must be 'unknown' or 'free' (got {robot_in_others!r})")
+        P = self.principal
+        if P.id not in depths:
+            raise ValueError(f"depths has no frame of the principal camera {P.id!r}")
+        self._state(P, depths[P.id], robot_depths.get(P.id), off, self._pfree, self._pkind, False)
+        for k, cam in enumerate(self.others):
+            if cam.id in depths:
+                self._state(cam, depths[cam.id], robot_depths.get(cam.id), off,
+                            self._kfree[k], self._kkind, robot_in_others == "free")
+            else:
+                self._kfree[k].fill(0.0)          # nothing seen: clears nothing
+            K.build_min_pyramid(self._kfree[k], cam.height, cam.width, self._kpyr[k],
+                                self._koff[k], self._kdims[k])
+        self.set_robot_capsules(robot_capsules)
+        self.has_frames = True
+
+    def set_robot_capsules(self, robot_capsules) -> None:
+        """Set the robot's padded volume (world capsules) used by :meth:`query`."""
+        caps = _capsule_array(robot_capsules)
+        self._caps_world = caps
+        if len(caps):
+            a = caps[:, 0:3] @ self._Rp.T + self._tp
+            b = caps[:, 3:6] @ self._Rp.T + self._tp
+            self._caps = np.ascontiguousarray(np.concatenate([a, b, caps[:, 6:7]], axis=1))
+            P = self.principal
+            K.capsule_intervals(self._caps, len(caps), self._capsule_boxes(self._caps), P.fx, P.fy,
+                                P.cx, P.cy, P.height, P.width, self._cap_lo, self._cap_hi, self._cap_n)
+        else:
+            self._caps = np.zeros((1, 7))
+        self._ncaps = len(caps)
+
+    def _capsule_boxes(self, caps: np.ndarray) -> np.ndarray:
+        """(C, 4) inclusive pixel boxes holding each capsule's projection (principal frame
+        capsules): the projected corners of its axis-aligned bounding box, plus a pixel."""
+        P = self.principal
+        boxes = np.zeros((len(caps), 4), dtype=np.int64)
+        sgn = np.array([[x, y, z] for x in (-1, 1) for y in (-1, 1) for z in (-1, 1)], float)
+        for i, c in enumerate(caps):
+            lo = np.minimum(c[0:3], c[3:6]) - c[6]
+            hi = np.maximum(c[0:3], c[3:6]) + c[6]
+            C = (lo + hi) / 2 + sgn * (hi - lo) / 2
+            if np.any(C[:, 2] <= 1e-6):
+                boxes[i] = (0, P.width - 1, 0, P.height - 1)
+                continue
+            pu = C[:, 0] * P.fx / C[:, 2] + P.cx
+            pv = C[:, 1] * P.fy / C[:, 2] + P.cy
+            boxes[i] = (max(int(np.floor(pu.min() + 0.5)) - 1, 0), min(int(np.floor(pu.max() + 0.5)) + 1, P.width - 1),
+                        max(int(np.floor(pv.min() + 0.5)) - 1, 0), min(int(np.floor(pv.max() + 0.5)) + 1, P.height - 1))
+        return boxes
+
+    def _state(self, cam, depth, robot_depth, off, out_free, out_kind, robot_free) -> None:
+        d = check_depth_image(cam, depth)
+        if robot_depth is None:
+            rd, use = self._no_robot, False
+        else:
+            rd, use = check_depth_image(cam, robot_depth, name="robot_depth"), True
+        K.frame_state(d, rd, use, cam.min_range, cam.max_range, off, self._invalid_free,
+                      robot_free, out_free, out_kind)
+
+    def query(self, points, rho: float = 0.4, method: str = "hybrid") -> DistanceResult:
+        """Distances of control points (N, 3) world metres to the fused obstacles (R12).
+
+        The arrays of the result are views of reused buffers, overwritten by
+        the next query: ``.copy()`` the result to keep it.
+        """
+        if not self.has_frames:
+            raise ValueError("DepthGridMap.query: call set_frames(depths) first")
+        p = check_points(points)
+        r = check_rho(rho)
+        try:
+            m = _METHODS[method]
+        except (KeyError, TypeError):
+            raise ValueError(f"method must be one of 'min', 'mean', 'hybrid' (got {method!r})") from None
+        n = len(p)
+        if n > self._cap:
+            self._alloc_points(n)
+        K.grid_distances(self._pfree, self._pkind, self._Rp, self._tp, self._pint,
+                         self.d_min, self.delta_d, self.n_d,
+                         self._kfree, self._kpyr, self._koff, self._kdims,
+                         self._rays_arg, self._orig_arg, self._kint_arg, len(self.others),
+                         self._caps, self._ncaps, self._cap_lo, self._cap_hi, self._cap_n, p, n, r, m,
+                         self._dist, self._dir, self._count, self._obs)
+        return DistanceResult(self._dist[:n], self._dir[:n], self._obs[:n], self._count[:n])
+
+    def distance(self, depths: dict, points, rho: float = 0.4, method: str = "hybrid",
+                 robot_depths: dict | None = None, *, robot_capsules=None,
+                 robot_offset: float = 0.03, invalid: str = "unknown",
+                 robot_in_others: str = "unknown") -> DistanceResult:
+        """Distance from control points to what all cameras see together (SPEC §3, §9).
+
+        depths, robot_depths : dict camera id -> (H, W) images (see :meth:`set_frames`).
+        points : (N, 3) world metres. rho : radius of surveillance (m).
+        method : ``"min"``, ``"mean"`` or ``"hybrid"`` (R7 over the principal's pixels,
+            one distance per pixel: its nearest obstacle cell).
+        robot_capsules, robot_offset, invalid, robot_in_others : see :meth:`set_frames`.
+
+        Returns a :class:`~depthguard.distance.DistanceResult` with fresh arrays:
+        ``distance`` (N,) m, ``inf`` = no obstacle within ``rho``; ``direction``
+        (N, 3) world unit vectors towards the obstacle; ``observed`` (N,) =
+        the point lies in the principal's image and range.
+        """
+        self.set_frames(depths, robot_depths, robot_offset=robot_offset, robot_capsules=robot_capsules,
+                        invalid=invalid, robot_in_others=robot_in_others)
+        return self.query(points, rho=rho, method=method).copy()
+
+    def __repr__(self) -> str:
+        H, W, nd = self.shape
+        return (f"DepthGridMap(principal={self.principal.id!r}, others={[c.id for c in self.others]}, "
+                f"{W}x{H}x{nd} cells, d=[{self.d_min:.4f}, {self.d_max:.4f}] m, "
+                f"delta_d={self.delta_d} m, {self.nbytes / 1e6:.1f} MB)")
+
+
+class MultiPrincipalDepthGrid:
+    """A depth grid map per camera; each control point is evaluated with a
+    principal that sees it (Flacco & De Luca 2015, §IX future work).
+
+    For a point the principal is, among the cameras whose image and range hold
+    it, one whose view holds the whole cube of side ``2 rho`` around it (so no
+    obstacle within ``rho`` lies outside the principal's image), preferring
+    the nearest such camera (finest cells); if none holds the whole cube, the
+    camera holding most of the cube's 8 corners (ties: nearest). A point no
+    camera sees is ``observed = False`` with ``distance = inf`` (cannot judge).
+    """
+
+    def __init__(self, cameras, d_min: float, d_max: float, delta_d: float, cache_dir=None,
+                 *, cache: bool = True, quiet: bool = True):
+        cams = list(cameras)
+        self.cameras = cams
+        self.maps = {c.id: DepthGridMap(cams, c.id, d_min, d_max, delta_d, cache_dir,
+                                        cache=cache, quiet=quiet) for c in cams}
+
+    @property
+    def nbytes(self) -> int:
+        return sum(m.nbytes for m in self.maps.values())
+
+    def principal_for(self, points, rho: float = 0.4) -> np.ndarray:
+        """(N,) index into ``cameras`` of each point's principal, -1 where no camera sees it."""
+        p = check_points(points)
+        r = check_rho(rho)
+        corners = (p[:, None, :] + r * np.array([[sx, sy, sz] for sx in (-1, 1) for sy in (-1, 1)
+                                                  for sz in (-1, 1)], float)[None]).reshape(-1, 3)
+        best = np.full(len(p), -1)
+        score = np.full(len(p), -np.inf)
+        for k, cam in enumerate(self.cameras):
+            sees = cam.in_view(p)
+            n_in = cam.in_view(corners).reshape(-1, 8).sum(1)
+            dp = cam.world_to_camera(p)[:, 2]
+            s = n_in * 1e3 - dp
+            take = sees & (s > score)
+            best[take] = k
+            score[take] = s[take]
+        return best
+
+    def distance(self, depths: dict, points, rho: float = 0.4, method: str = "hybrid",
+                 robot_depths: dict | None = None, *, robot_capsules=None,
+                 robot_offset: float = 0.03, invalid: str = "unknown",
+                 robot_in_others: str = "unknown") -> DistanceResult:
+        """As :meth:`DepthGridMap.distance`, each point through its own principal."""
+        p = check_points(points)
+        n = len(p)
+        dist = np.full(n, np.inf)
+        direc = np.zeros((n, 3))
+        obs = np.zeros(n, dtype=bool)
+        count = np.zeros(n, dtype=np.int64)
+        who = self.principal_for(p, rho)
+        for k, cam in enumerate(self.cameras):
+            sel = who == k
+            if not sel.any():
+                continue
+            res = self.maps[cam.id].distance(depths, p[sel], rho, method, robot_depths,
+                                             robot_capsules=robot_capsules, robot_offset=robot_offset,
+                                             invalid=invalid, robot_in_others=robot_in_others)
+            dist[sel], direc[sel], obs[sel], count[sel] = res.distance, res.direction, res.observed, res.count
+        return DistanceResult(dist, direc, obs, count)

@@ -1,0 +1,187 @@
+"""Kernels of the free-space map (R21): a gather and a compare per voxel and camera.
+
+Model (built once from intrinsics and extrinsics, see
+:class:`depthguard.fusion.free_space.FreeSpaceMap`), for ``C`` cameras and
+``N`` voxels (flattened C-order over ``(nx, ny, nz)``), stored camera by camera
+as the list of *pairs* (voxel, camera) where the camera can judge the voxel
+(centre in front of it, inside the image, depth within ``[min_range, max_range]``);
+the pairs of camera ``c`` are ``start[c] : start[c+1]``, in increasing voxel order:
+
+- ``vox (P,) int32``: the voxel index;
+- ``pix (P,) int32``: the pixel of the voxel centre's projection, as an index
+  into the flat buffer of all images (``offs[c] + v * W + u``, ``u = floor(px + 1/2)``);
+- ``zc (P,) float32``: depth ``z_c`` of the voxel centre in camera ``c``, metres;
+- ``ru, rv (P,) uint8``: half-size in pixels of a window around ``pix`` that
+  holds the projection of the whole voxel (only used with ``full=True``).
+
+Per camera: ``half (C,)`` half the depth extent of any voxel,
+``h_c = s/2 (|r_x| + |r_y| + |r_z|)`` with ``r`` the optical axis in the world
+(row 3 of ``R``), so the voxel's depths span ``[z_c - h_c, z_c + h_c]``;
+``far (C,)`` where "free" starts behind the centre: ``h_c`` for the
+``"extent"`` depth test, ``0`` for the ``"centre"`` test (the paper, SPEC R21).
+
+Per camera, with ``d`` the measured depth (R21):
+
+- ``d`` invalid (0, NaN, outside ``[min_range, max_range]``): no information;
+- ``d > z_c + far_c + margin``: the camera sees the voxel **free**;
+- ``z_c - h_c <= d <= z_c + far_c + margin``: it sees a **surface** in the voxel;
+- ``d < z_c - h_c``: the voxel is hidden from that camera: no information.
+
+Combination over the cameras of one update: the voxel is free when
+``n_free >= min_free_views`` or when ``n_free >= 1`` and no camera sees a
+surface in it (free once is free, but a seen surface needs
+``min_free_views`` cameras — the paper's three — to overrule it).
+
+With ``full=True`` a camera calls the voxel free only if every pixel of the
+window holding the voxel's projection is valid and beyond the threshold (the
+nearest depth of the window is used for both tests); with ``full=False``
+only the centre pixel is read, as in the paper.
+
+The update runs in parallel over chunks of voxels; within a chunk camera
+after camera (one image stays in cache); each voxel's counters belong to one
+chunk, so they are written without races.
+"""
+
+from __future__ import annotations
+
+import numba as nb
+import numpy as np
+
+__all__ = ["free_space_update", "free_space_update_numpy", "voxel_counts_numpy"]
+
+
+@nb.njit(cache=True, parallel=True, nogil=True)
+def free_space_update(depth, offs, widths, heights, rmin, rmax, vstart, chunk, vox, pix, zc, ru, rv,
+                      half, far, margin, min_free_views, full, accumulate,
+                      n_free, n_surf, free_state, occupied):
+    """R21: one update of the free-space map, in place.
+
+    Parameters
+    ----------
+    depth : (sum H*W,) float32, metres — every camera's image, flattened, camera after camera.
+    offs, widths, heights : (C,) int64 — where each image starts, its size.
+    rmin, rmax : (C,) float64 — valid measurement range of each camera.
+    vstart : (T+1,) int64 — voxel chunks ``vstart[t] : vstart[t+1]`` (one parallel task each).
+    chunk : (C, T+1) int64 — the pairs of camera ``c`` for voxel chunk ``t`` are
+        ``chunk[c, t] : chunk[c, t+1]``.
+    vox, pix : (P,) int32; zc : (P,) float32; ru, rv : (P,) uint8;
+    half, far : (C,) float64 — the model (module docstring).
+    margin : float, metres; min_free_views : int; full : bool.
+    accumulate : bool — keep voxels that ``free_state`` already holds free.
+    n_free, n_surf : (N,) uint8 — workspace, overwritten (cameras seeing free / a surface).
+    free_state : (N,) bool, in/out — free voxels (sticky when ``accumulate``).
+    occupied : (N,) bool, out — ``not free_state``.
+
+    One parallel loop over voxel chunks; within a chunk, camera after camera
+    (the image stays in cache), so every voxel's counters belong to one task.
+    """
+    T = vstart.shape[0] - 1
+    C = chunk.shape[0]
+    for t in nb.prange(T):
+        for i in range(vstart[t], vstart[t + 1]):
+            n_free[i] = 0
+            n_surf[i] = 0
+        for c in range(C):
+            lo = rmin[c]
+            hi = rmax[c]
+            h = half[c]
+            f = far[c] + margin
+            W = widths[c]
+            H = heights[c]
+            off = offs[c]
+            if not full:
+                for k in range(chunk[c, t], chunk[c, t + 1]):
+                    d = depth[pix[k]]
+                    if d >= lo and d <= hi:
+                        z = zc[k]
+                        if d > z + f:
+                            n_free[vox[k]] += 1
+                        elif d >= z - h:
+                            n_surf[vox[k]] += 1
+                continue
+            for k in range(chunk[c, t], chunk[c, t + 1]):
+                q = pix[k] - off
+                u0 = q % W
+                v0 = q // W
+                a = np.int64(ru[k])
+                b = np.int64(rv[k])
+                d = np.inf
+                bad = False
+                for vv in range(max(v0 - b, 0), min(v0 + b + 1, H)):
+                    base = off + vv * W
+                    for uu in range(max(u0 - a, 0), min(u0 + a + 1, W)):
+                        x = depth[base + uu]
+                        if not (x >= lo and x <= hi):
+                            bad = True
+                        elif x < d:
+                            d = x
+                if bad:
+                    continue
+                z = zc[k]
+                if d > z + f:
+                    n_free[vox[k]] += 1
+                elif d >= z - h:
+                    n_surf[vox[k]] += 1
+        for i in range(vstart[t], vstart[t + 1]):
+            free = n_free[i] >= min_free_views or (n_free[i] >= 1 and n_surf[i] == 0)
+            if accumulate and free_state[i]:
+                free = True
+            free_state[i] = free
+            occupied[i] = not free
+
+
+# ----------------------------------------------------------------- numpy twins
+def voxel_counts_numpy(depths, n_voxels, rmin, rmax, start, vox, pix, offs, zc, ru, rv, half, far,
+                       margin, full):
+    """Plain-numpy twin of the per-camera tests: ``(n_free, n_surface)`` per voxel, (N,) each.
+
+    ``depths`` is a list of (H, W) images in camera order; the model as in the kernel.
+    """
+    n_free = np.zeros(n_voxels, dtype=np.int64)
+    n_surf = np.zeros(n_voxels, dtype=np.int64)
+    for c, img in enumerate(depths):
+        img = np.asarray(img, dtype=np.float32)
+        H, W = img.shape
+        sl = slice(start[c], start[c + 1])
+        v_idx = vox[sl]
+        q = pix[sl].astype(np.int64) - offs[c]
+        valid_px = (img >= rmin[c]) & (img <= rmax[c])          # NaN compares False
+        if full:
+            u0, v0 = q % W, q // W
+            d = np.full(len(q), np.inf, dtype=np.float32)
+            ok = np.ones(len(q), dtype=bool)
+            R = int(max(ru[sl].max(initial=0), rv[sl].max(initial=0)))
+            for dv in range(-R, R + 1):
+                for du in range(-R, R + 1):
+                    uu, vv = u0 + du, v0 + dv
+                    use = ((np.abs(du) <= ru[sl]) & (np.abs(dv) <= rv[sl])
+                           & (uu >= 0) & (uu < W) & (vv >= 0) & (vv < H))
+                    uc, vc = np.clip(uu, 0, W - 1), np.clip(vv, 0, H - 1)
+                    x, xv = img[vc, uc], valid_px[vc, uc]
+                    ok &= ~use | xv
+                    d = np.where(use & xv, np.minimum(d, x), d)
+        else:
+            d = img.ravel()[q]
+            ok = valid_px.ravel()[q]
+        z = zc[sl].astype(np.float64)
+        d = d.astype(np.float64)
+        free = ok & (d > z + far[c] + margin)
+        surf = ok & ~free & (d >= z - half[c])
+        np.add.at(n_free, v_idx, free)
+        np.add.at(n_surf, v_idx, surf)
+    return n_free, n_surf
+
+
+def free_space_update_numpy(depths, n_voxels, rmin, rmax, start, vox, pix, offs, zc, ru, rv, half, far,
+                            margin, min_free_views, full=False, previous_free=None):
+    """Plain-numpy twin of :func:`free_space_update`: (N,) bool ``occupied``.
+
+    free = n_free >= min_free_views  or  (n_free >= 1 and n_surface == 0),
+    or'ed with ``previous_free`` when given (accumulation).
+    """
+    n_free, n_surf = voxel_counts_numpy(depths, n_voxels, rmin, rmax, start, vox, pix, offs, zc, ru, rv,
+                                        half, far, margin, full)
+    free = (n_free >= min_free_views) | ((n_free >= 1) & (n_surf == 0))
+    if previous_free is not None:
+        free |= previous_free
+    return ~free

@@ -1,0 +1,210 @@
+"""Expected depth images: :func:`render_depth` and the reusable :class:`Renderer` (R16).
+
+The known scene (static CAD meshes and the robot's link meshes at its current
+joint values, in world coordinates) is rendered into a camera with a z-buffer:
+transform (equation 1), cull back faces, clip against the near plane,
+project (equation 2), rasterise with perspective-correct depth, keep the
+nearest. See :mod:`depthguard.render.raster` for the kernels and the fill
+rule; :mod:`depthguard.render.raster_ref` is their plain-numpy twin.
+
+Output: ``depth`` (H, W) float32 metres, the camera-frame ``z`` of the
+nearest surface (not the ray length), 0 where nothing is hit; ``labels``
+(H, W) int32, the index into the input list of the mesh that owns the
+pixel, -1 where nothing is hit.
+"""
+
+from __future__ import annotations
+
+from typing import Sequence
+
+import numba
+import numpy as np
+
+from depthguard.geometry.mesh import Mesh, as_mesh
+from depthguard.render.raster import render_packed, render_packed_parallel
+
+__all__ = ["Renderer", "render_depth"]
+
+
+def _checked(m, k: int) -> Mesh:
+    """A :class:`Mesh` with float64 (V, 3) vertices and int32 (F, 3) faces. A ``Mesh`` that
+    already has them passes as is (the kernel then checks values: finite vertices and
+    face indices in range); anything else goes through :func:`as_mesh`."""
+    if type(m) is Mesh:
+        v, f = m
+        if (isinstance(v, np.ndarray) and isinstance(f, np.ndarray) and v.dtype == np.float64
+                and f.dtype == np.int32 and v.ndim == 2 and f.ndim == 2
+                and v.shape[1] == 3 and f.shape[1] == 3):
+            return m
+    return as_mesh(m, name=f"meshes[{k}]")
+
+
+def _mesh_list(meshes) -> list[Mesh]:
+    if isinstance(meshes, Mesh) or (hasattr(meshes, "vertices") and hasattr(meshes, "faces")):
+        meshes = [meshes]   # a single mesh
+    try:
+        items = list(meshes)
+    except TypeError:
+        raise ValueError(f"meshes must be a list of meshes (Mesh, (vertices, faces) or trimesh), "
+                         f"got {type(meshes).__name__}") from None
+    return [_checked(m, k) for k, m in enumerate(items)]
+
+
+class Renderer:
+    """Z-buffer renderer for one camera with buffers reused across calls (R16).
+
+    Parameters
+    ----------
+    cam : Camera
+        Intrinsics, image size and pose (``cam.R``, ``cam.t`` = camera_from_world).
+    near : float
+        Near clipping plane in metres (> 0). Triangles crossing it are clipped,
+        not dropped; what lies nearer than ``near`` is not drawn.
+    parallel : bool
+        Use numba threads (faces in parallel, then disjoint bands of image
+        rows). Off by default: one core is steadier when the machine is shared
+        (several cameras are better rendered in parallel at a higher level).
+    n_bands : int, optional
+        Bands of rows for the parallel kernel (default 4 per numba thread).
+
+    The depth / label images and the packed vertex / face / label buffers are
+    allocated once and grown when a call brings more triangles; the kernels
+    allocate nothing. :meth:`render` returns **views of the renderer's own
+    buffers** (``self.depth``, ``self.labels``): the next call overwrites them,
+    so copy what you keep. ``self.face_ids`` holds the packed index of the face
+    owning each pixel (see :meth:`face_index` for the index within its mesh).
+    """
+
+    def __init__(self, cam, near: float = 0.01, parallel: bool = False, n_bands: int | None = None):
+        near = float(near)
+        if not np.isfinite(near) or near <= 0.0:
+            raise ValueError(f"near must be a finite distance > 0 m (got {near})")
+        for attr in ("R", "t", "fx", "fy", "cx", "cy", "width", "height"):
+            if not hasattr(cam, attr):
+                raise ValueError(f"cam must be a depthguard Camera (missing {attr!r})")
+        self.cam = cam
+        self.near = near
+        self.parallel = bool(parallel)
+        H, W = int(cam.height), int(cam.width)
+        if n_bands is None:
+            # a few bands per thread: load balance without scanning the triangle list too often
+            n_bands = 4 * numba.get_num_threads()
+        self.n_bands = int(max(1, min(n_bands, H)))
+        self._R = np.ascontiguousarray(cam.R, dtype=np.float64)
+        self._t = np.ascontiguousarray(cam.t, dtype=np.float64)
+        self.depth = np.zeros((H, W), dtype=np.float32)
+        self.labels = np.full((H, W), -1, dtype=np.int32)
+        self.face_ids = np.full((H, W), -1, dtype=np.int32)
+        self._wbuf = np.zeros((H, W))                       # 1/z z-buffer (workspace)
+        self._sbuf = np.full((H, W), -1, dtype=np.int32)    # winning slot (workspace)
+        self._mesh_off = np.zeros((1, 2), dtype=np.int64)
+        self._vw = np.zeros((0, 3))
+        self._vc = np.zeros((0, 3))
+        self._faces = np.zeros((0, 3), dtype=np.int32)
+        self._face_label = np.zeros(0, dtype=np.int32)
+        self._tri = np.zeros((0, 18))
+        self._box = np.zeros((0, 4), dtype=np.int32)
+        self._slot_label = np.zeros((0, 2), dtype=np.int32)
+
+    # -------------------------------------------------------------- buffers
+    def _reserve(self, n_v: int, n_f: int) -> None:
+        if n_v > len(self._vw):
+            cap = max(n_v, 2 * len(self._vw), 1024)
+            self._vw = np.zeros((cap, 3))
+            self._vc = np.zeros((cap, 3))
+        if n_f > len(self._faces):
+            cap = max(n_f, 2 * len(self._faces), 1024)
+            self._faces = np.zeros((cap, 3), dtype=np.int32)
+            self._face_label = np.zeros(cap, dtype=np.int32)
+            self._tri = np.zeros((2 * cap, 18))
+            self._box = np.zeros((2 * cap, 4), dtype=np.int32)
+            self._slot_label = np.zeros((2 * cap, 2), dtype=np.int32)
+
+    def _pack(self, meshes: list[Mesh]) -> tuple[int, int]:
+        nv = [len(m.vertices) for m in meshes]
+        nf = [len(m.faces) for m in meshes]
+        self._mesh_off = np.zeros((len(meshes) + 1, 2), dtype=np.int64)
+        np.cumsum(nv, out=self._mesh_off[1:, 0])
+        np.cumsum(nf, out=self._mesh_off[1:, 1])
+        n_v, n_f = int(self._mesh_off[-1, 0]), int(self._mesh_off[-1, 1])
+        self._reserve(n_v, n_f)
+        if n_v:
+            np.concatenate([m.vertices for m in meshes], out=self._vw[:n_v])
+        if n_f:
+            np.concatenate([m.faces for m in meshes], out=self._faces[:n_f])
+        return n_v, n_f
+
+    # --------------------------------------------------------------- render
+    def render(self, meshes: Sequence, cull_back: bool = True) -> tuple[np.ndarray, np.ndarray]:
+        """Render ``meshes`` (world coordinates) into the camera (R16).
+
+        Parameters
+        ----------
+        meshes : list of :class:`~depthguard.geometry.mesh.Mesh`, ``(vertices (V, 3), faces (F, 3))``
+            pairs or ``trimesh.Trimesh``; faces wound counter-clockwise seen from outside.
+        cull_back : bool
+            Skip triangles seen from behind (default). Turn off for open or
+            inconsistently wound meshes.
+
+        Returns
+        -------
+        depth : (H, W) float32 view of ``self.depth``; metres along the optical axis, 0 = nothing.
+        labels : (H, W) int32 view of ``self.labels``; index into ``meshes``, -1 = nothing.
+        """
+        ms = _mesh_list(meshes)
+        n_v, n_f = self._pack(ms)
+        c = self.cam
+        args = (self._vw, n_v, self._faces, n_f, self._mesh_off, len(ms), self._face_label,
+                self._R, self._t, float(c.fx), float(c.fy), float(c.cx), float(c.cy), self.near,
+                bool(cull_back), self._vc, self._tri, self._box, self._slot_label)
+        if self.parallel:
+            status, bad, _ = render_packed_parallel(*args, self.n_bands, self._wbuf, self._sbuf,
+                                                    self.depth, self.labels, self.face_ids)
+        else:
+            status, bad, _ = render_packed(*args, self._wbuf, self._sbuf,
+                                           self.depth, self.labels, self.face_ids)
+        if status != 0:
+            self.depth[:] = 0.0
+            self.labels[:] = -1
+            self.face_ids[:] = -1
+            for k, m in enumerate(ms):   # as_mesh names the mesh and the problem
+                as_mesh(m, name=f"meshes[{k}]")
+            raise ValueError("meshes: " + ("a face index lies outside its mesh" if status == 1
+                                           else "vertices must be finite"))
+        return self.depth, self.labels
+
+    def face_index(self) -> np.ndarray:
+        """(H, W) int32: which face of mesh ``labels[v, u]`` owns each pixel of the last
+        :meth:`render` (row of that mesh's ``faces``), -1 where nothing. Allocates; not for hot loops."""
+        out = np.full(self.face_ids.shape, -1, dtype=np.int32)
+        hit = self.face_ids >= 0
+        out[hit] = self.face_ids[hit] - self._mesh_off[self.labels[hit], 1]
+        return out
+
+
+def render_depth(cam, meshes: Sequence, near: float = 0.01, labels: bool = False,
+                 cull_back: bool = True):
+    """Expected depth image of ``meshes`` seen by ``cam`` (R16, SPEC §9).
+
+    Parameters
+    ----------
+    cam : Camera
+    meshes : list of meshes in world coordinates (``Mesh``, ``(vertices, faces)`` or trimesh).
+    near : float
+        Near clipping plane, metres (> 0).
+    labels : bool
+        Also return the label image.
+    cull_back : bool
+        Cull triangles seen from behind (outward CCW winding).
+
+    Returns
+    -------
+    depth : (H, W) float32, metres (camera-frame z), 0 where nothing is hit;
+    or ``(depth, labels)`` with labels (H, W) int32 = index into ``meshes``, -1 where nothing.
+
+    For repeated rendering into the same camera use :class:`Renderer`, which
+    keeps its buffers.
+    """
+    r = Renderer(cam, near=near)
+    depth, lab = r.render(meshes, cull_back=cull_back)
+    return (depth, lab) if labels else depth

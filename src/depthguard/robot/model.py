@@ -1,0 +1,307 @@
+"""The robot model: immutable kinematics + geometry, and a small workspace (R9, R14, R16).
+
+Pinocchio-style: :class:`RobotModel` never changes (``with_base`` /
+``with_control_points`` return new models); :class:`RobotData` holds the
+preallocated buffers of the 500 Hz loop::
+
+    data = robot.create_data()
+    robot.forward(q, data)      # data.link_poses (L,4,4), data.cp_positions (m,3),
+                                # data.cp_jacobians (m,3,n): views, overwritten per call
+
+The other methods are conveniences that allocate and return fresh arrays.
+Units: metres, radians; poses are 4x4 ``world_from_link``.
+"""
+
+from __future__ import annotations
+
+from dataclasses import dataclass
+from typing import Iterable, Mapping, Sequence
+
+import numpy as np
+
+from depthguard.geometry import Capsule, Mesh
+from depthguard.robot.capsules import LinkCapsule
+from depthguard.robot.chain import Chain, forward_kernel
+from depthguard.transforms import as_rigid, transform_points
+
+__all__ = ["ControlPoint", "RobotData", "RobotModel"]
+
+
+@dataclass(frozen=True, eq=False)
+class ControlPoint:
+    """A point fixed to ``link`` (name) at ``offset`` (3,) in the link frame (m), with a ``radius`` (m)
+    — the robot's extent around it, for distances (R13, R14)."""
+    name: str
+    link: str
+    offset: np.ndarray
+    radius: float = 0.0
+
+    def __repr__(self) -> str:
+        return (f"ControlPoint({self.name!r}, link={self.link!r}, "
+                f"offset={np.round(self.offset, 4).tolist()}, radius={self.radius})")
+
+
+class RobotData:
+    """Preallocated buffers for :meth:`RobotModel.forward` (one per thread / loop)."""
+
+    def __init__(self, n_links: int, dof: int, n_cp: int):
+        self.link_poses = np.zeros((n_links, 4, 4))
+        self.joint_frames = np.zeros((n_links, 2, 3))     # world joint origin, world unit axis
+        self.scratch = np.zeros((3, 4, 4))
+        self.cp_positions = np.zeros((n_cp, 3))
+        self.cp_jacobians = np.zeros((n_cp, 3, dof))
+
+
+def _ro(a) -> np.ndarray:
+    a = np.array(a, dtype=np.float64)
+    a.setflags(write=False)
+    return a
+
+
+def _ro_faces(f) -> np.ndarray:
+    f = np.array(f, dtype=np.int32)
+    f.setflags(write=False)
+    return f
+
+
+class RobotModel:
+    """Kinematic chain, limits, control points and link geometry of one robot.
+
+    Attributes: ``name``, ``dof``, ``joint_names``, ``q_min`` / ``q_max`` (n,)
+    rad or m (±inf for continuous joints), ``qd_max`` (n,) rad/s or m/s,
+    ``q_home`` (n,), ``base`` (4, 4) world pose of the root link,
+    ``link_names`` (L), ``control_points`` (index 0 = end effector),
+    ``link_mesh_names`` (links with geometry), ``capsules`` (link-frame
+    :class:`~depthguard.robot.capsules.LinkCapsule` s), ``chain``.
+    """
+
+    def __init__(self, name: str, chain: Chain, *, base: np.ndarray | None = None,
+                 q_home: Sequence[float] | None = None,
+                 control_points: Iterable[ControlPoint | Mapping] = (),
+                 link_meshes: Mapping[str, Mesh] | None = None,
+                 capsules: Iterable[LinkCapsule] = (), source: str = ""):
+        self.name = str(name)
+        self.chain = chain
+        self.source = source
+        self.base = _ro(np.eye(4) if base is None else self._check_base(base))
+        n = chain.dof
+        qh = np.zeros(n) if q_home is None else np.asarray(q_home, dtype=np.float64)
+        if qh.shape != (n,):
+            raise ValueError(f"{name}: q_home must have {n} values, got shape {qh.shape}")
+        if np.any(qh < chain.q_min) or np.any(qh > chain.q_max):
+            raise ValueError(f"{name}: q_home {qh.tolist()} violates the joint limits")
+        self.q_home = _ro(qh)
+        meshes = dict(link_meshes or {})
+        for ln in meshes:
+            chain.link_index(ln)
+        order = [ln for ln in chain.link_names if ln in meshes]
+        self.link_mesh_names = tuple(order)
+        self._mesh_link = np.array([chain.link_index(ln) for ln in order], dtype=np.int64)
+        self._meshes = tuple(Mesh(_ro(meshes[ln].vertices), _ro_faces(meshes[ln].faces)) for ln in order)
+        caps = tuple(capsules)
+        for c in caps:
+            chain.link_index(c.link)
+            if not c.radius > 0:
+                raise ValueError(f"{name}: capsule {c.name or c.link!r} needs a radius > 0")
+        self.capsules = caps
+        self._cap_link = np.array([chain.link_index(c.link) for c in caps], dtype=np.int64)
+        self._cap_ab = np.array([[c.a, c.b] for c in caps], dtype=np.float64).reshape(-1, 2, 3)
+        self._set_control_points(control_points)
+        self._frozen = True
+
+    def __setattr__(self, key, value):
+        if getattr(self, "_frozen", False):
+            raise AttributeError(f"RobotModel is immutable (use with_base / with_control_points), "
+                                 f"cannot set {key!r}")
+        object.__setattr__(self, key, value)
+
+    # ------------------------------------------------------------ properties
+    @property
+    def dof(self) -> int:
+        return self.chain.dof
+
+    @property
+    def joint_names(self) -> tuple[str, ...]:
+        return self.chain.joint_names
+
+    @property
+    def link_names(self) -> tuple[str, ...]:
+        return self.chain.link_names
+
+    @property
+    def q_min(self) -> np.ndarray:
+        return self.chain.q_min
+
+    @property
+    def q_max(self) -> np.ndarray:
+        return self.chain.q_max
+
+    @property
+    def qd_max(self) -> np.ndarray:
+        return self.chain.qd_max
+
+    @property
+    def control_points(self) -> tuple[ControlPoint, ...]:
+        return self._cps
+
+    def __repr__(self) -> str:
+        return (f"RobotModel({self.name!r}, dof={self.dof}, links={len(self.link_names)}, "
+                f"control_points={len(self._cps)})")
+
+    # ------------------------------------------------------------ validation
+    def _check_base(self, T) -> np.ndarray:
+        try:
+            return as_rigid(T)
+        except ValueError as exc:
+            raise ValueError(f"robot base pose {exc}") from None
+
+    def check_q(self, q) -> np.ndarray:
+        """``q`` as a float64 (dof,) array; ``ValueError`` naming the expected length otherwise."""
+        qa = np.asarray(q, dtype=np.float64)
+        if qa.shape != (self.dof,):
+            raise ValueError(f"q must have {self.dof} joint values for robot {self.name!r} "
+                             f"({', '.join(self.joint_names)}), got shape {qa.shape}")
+        if not np.all(np.isfinite(qa)):
+            raise ValueError(f"q must be finite, got {qa.tolist()}")
+        return qa
+
+    def _set_control_points(self, cps) -> None:
+        out = []
+        for i, c in enumerate(cps):
+            if isinstance(c, Mapping):
+                unknown = set(c) - {"name", "link", "offset", "radius"}
+                if unknown or "link" not in c:
+                    raise ValueError(f"control point {i}: needs 'link' (and optional name, offset, radius); "
+                                     f"unknown keys {sorted(unknown)}" if unknown else
+                                     f"control point {i}: missing 'link'")
+                c = ControlPoint(c.get("name", f"cp{i}"), c["link"], c.get("offset", (0.0, 0.0, 0.0)),
+                                 c.get("radius", 0.0))
+            if not isinstance(c, ControlPoint):
+                raise ValueError(f"control point {i}: expected a ControlPoint or a mapping, got {type(c).__name__}")
+            k = self.chain.link_index(c.link)
+            off = np.asarray(c.offset, dtype=np.float64).reshape(-1)
+            if off.shape != (3,) or not np.all(np.isfinite(off)):
+                raise ValueError(f"control point {c.name!r}: offset must be 3 finite numbers, got {c.offset!r}")
+            r = float(c.radius)
+            if not (np.isfinite(r) and r >= 0):
+                raise ValueError(f"control point {c.name!r}: radius must be >= 0, got {c.radius!r}")
+            out.append(ControlPoint(str(c.name), self.chain.link_names[k], _ro(off), r))
+        if not out:
+            raise ValueError(f"robot {self.name!r} needs at least one control point (index 0 = end effector)")
+        names = [c.name for c in out]
+        if len(set(names)) != len(names):
+            raise ValueError(f"control point names must be unique, got {names}")
+        self._cps = tuple(out)
+        self._cp_link = np.array([self.chain.link_index(c.link) for c in out], dtype=np.int64)
+        self._cp_off = np.ascontiguousarray([c.offset for c in out], dtype=np.float64)
+
+    # ------------------------------------------------------------ copies
+    def _copy(self) -> "RobotModel":
+        new = object.__new__(RobotModel)
+        new.__dict__.update(self.__dict__)
+        new.__dict__["_frozen"] = False
+        return new
+
+    def with_base(self, T: np.ndarray) -> "RobotModel":
+        """The same robot with its root link at the world pose ``T`` (4, 4)."""
+        new = self._copy()
+        new.base = _ro(self._check_base(T))
+        new._frozen = True
+        return new
+
+    def with_control_points(self, control_points: Iterable[ControlPoint | Mapping]) -> "RobotModel":
+        """The same robot with another control-point set (index 0 = end effector)."""
+        new = self._copy()
+        new._set_control_points(control_points)
+        new._frozen = True
+        return new
+
+    # ------------------------------------------------------------ hot path
+    def create_data(self) -> RobotData:
+        """Buffers for :meth:`forward`, sized for this model's control points."""
+        return RobotData(self.chain.n_links, self.dof, len(self._cps))
+
+    def forward(self, q: np.ndarray, data: RobotData) -> RobotData:
+        """FK of every link + positions and (3, dof) Jacobians of all control points into ``data`` (R14).
+
+        ``q`` (dof,) float64; a wrong length or a non-finite value raises ``ValueError``.
+        No allocation for a float64 ``q`` of the right length.
+        """
+        if not (isinstance(q, np.ndarray) and q.dtype == np.float64 and q.shape == (self.dof,)):
+            q = self.check_q(q)
+        c = self.chain
+        if not forward_kernel(q, self.base, c.xf, c.ints, c.axis, c.support, self._cp_link, self._cp_off,
+                              data.link_poses, data.joint_frames, data.scratch, data.cp_positions,
+                              data.cp_jacobians):
+            self.check_q(q)  # raises, naming the bad value
+        return data
+
+    # ------------------------------------------------------------ conveniences
+    def _run(self, q, cp_link: np.ndarray, cp_off: np.ndarray):
+        q = self.check_q(q)
+        c = self.chain
+        poses = np.empty((c.n_links, 4, 4))
+        jf = np.empty((c.n_links, 2, 3))
+        pos = np.empty((len(cp_link), 3))
+        jac = np.empty((len(cp_link), 3, self.dof))
+        forward_kernel(q, self.base, c.xf, c.ints, c.axis, c.support, cp_link, cp_off,
+                       poses, jf, np.empty((3, 4, 4)), pos, jac)
+        return poses, pos, jac
+
+    def link_poses(self, q) -> np.ndarray:
+        """(L, 4, 4) world poses of all links, ordered as :attr:`link_names`."""
+        return self._run(q, self._cp_link[:0], self._cp_off[:0])[0]
+
+    def link_pose(self, q, link: int | str) -> np.ndarray:
+        """(4, 4) world pose of one link."""
+        return self.link_poses(q)[self.chain.link_index(link)]
+
+    def point_jacobian(self, q, link: int | str, p_local) -> np.ndarray:
+        """(3, dof) position Jacobian of the point ``p_local`` (3,) fixed to ``link`` (R14)."""
+        k = self.chain.link_index(link)
+        p = np.asarray(p_local, dtype=np.float64).reshape(-1)
+        if p.shape != (3,):
+            raise ValueError(f"p_local must be 3 numbers, got shape {np.shape(p_local)}")
+        return self._run(q, np.array([k], dtype=np.int64), p.reshape(1, 3))[2][0]
+
+    def point_position(self, q, link: int | str, p_local) -> np.ndarray:
+        """(3,) world position of ``p_local`` fixed to ``link``."""
+        T = self.link_pose(q, link)
+        return T[:3, :3] @ np.asarray(p_local, dtype=np.float64) + T[:3, 3]
+
+    def control_point_positions(self, q) -> np.ndarray:
+        """(m, 3) world positions of the control points."""
+        return self._run(q, self._cp_link, self._cp_off)[1]
+
+    def control_point_jacobians(self, q) -> np.ndarray:
+        """(m, 3, dof) position Jacobians of the control points."""
+        return self._run(q, self._cp_link, self._cp_off)[2]
+
+    def link_meshes(self, q) -> list[Mesh]:
+        """World meshes of the links with geometry (order :attr:`link_mesh_names`), for rendering (R16)."""
+        poses = self.link_poses(q)
+        return [Mesh(transform_points(poses[k], m.vertices), m.faces)
+                for k, m in zip(self._mesh_link, self._meshes)]
+
+    def local_link_meshes(self) -> dict[str, Mesh]:
+        """Link-frame meshes by link name."""
+        return dict(zip(self.link_mesh_names, self._meshes))
+
+    def collision_segments(self, q, padding: float = 0.0) -> tuple[np.ndarray, np.ndarray]:
+        """World capsule end points (K, 2, 3) and radii (K,) (+ ``padding``, m)."""
+        poses = self.link_poses(q)
+        T = poses[self._cap_link]                                   # (K, 4, 4)
+        ab = np.einsum("kij,knj->kni", T[:, :3, :3], self._cap_ab) + T[:, None, :3, 3]
+        r = np.array([c.radius for c in self.capsules]) + float(padding)
+        return ab, r
+
+    def collision_capsules(self, q, padding: float = 0.0) -> list[Capsule]:
+        """World :class:`~depthguard.geometry.Capsule` s covering the links, radii + ``padding`` (m).
+
+        The robot's own (padded) volume: self-distance, ground truth, free space (R9, R12, R21).
+        """
+        if not (np.isfinite(padding) and padding >= 0):
+            raise ValueError(f"padding must be >= 0 (m), got {padding!r}")
+        ab, r = self.collision_segments(q, padding)
+        return [Capsule.between(ab[i, 0], ab[i, 1], float(r[i]), name=c.name or c.link)
+                for i, c in enumerate(self.capsules)]

@@ -1,0 +1,240 @@
+"""People for simulated scenes: articulated capsule bodies following scripted keyframes.
+
+A :class:`Person` is built from exact primitives (so ground truth stays
+analytic): legs (capsules), torso (box), neck (capsule), head (sphere),
+upper arms, forearms (capsules) and hands (spheres). Its pose at time ``t``
+comes from keyframes (:class:`Key`): where it stands on the floor, where it
+faces, and optionally a world point each hand reaches for (two-link
+inverse kinematics of the arm, elbow down and out). Between keys the pose is
+interpolated (``"linear"`` with smooth-step easing) or held (``"step"``).
+
+A person can carry props: :class:`Carry` attaches a scene prop to a hand for
+a time window; after the window the prop stays where it was released.
+
+Body frame: x forward (the heading), y to the person's left, z up; the
+origin is on the floor under the pelvis.
+"""
+
+from __future__ import annotations
+
+import math
+from dataclasses import dataclass, field
+from typing import Sequence
+
+import numpy as np
+
+from depthguard.geometry.primitives import Box, Capsule, Primitive, Sphere
+from depthguard.transforms import pose, rot_z
+
+__all__ = ["BodyShape", "Key", "Carry", "Person", "PersonPose"]
+
+
+@dataclass(frozen=True)
+class BodyShape:
+    """Body dimensions in metres (an adult of about 1.75 m by default)."""
+    height: float = 1.75
+    torso_depth: float = 0.22
+    torso_width: float = 0.36
+    head_radius: float = 0.11
+    neck_radius: float = 0.05
+    upper_arm: float = 0.30        # shoulder to elbow
+    forearm: float = 0.30          # elbow to hand centre
+    arm_radius: float = 0.045
+    forearm_radius: float = 0.04
+    hand_radius: float = 0.05
+    leg_radius: float = 0.075
+    hip_width: float = 0.20        # between the leg axes
+    legs: bool = True
+
+    @property
+    def hip_z(self) -> float:
+        return 0.50 * self.height
+
+    @property
+    def shoulder_z(self) -> float:
+        return 0.82 * self.height
+
+    def shoulder(self, side: str) -> np.ndarray:
+        """Shoulder joint in the body frame."""
+        s = 1.0 if side == "left" else -1.0
+        return np.array([0.0, s * (self.torso_width / 2 + self.arm_radius), self.shoulder_z - 0.04])
+
+    def rest_hand(self, side: str) -> np.ndarray:
+        """Hand centre of a relaxed, hanging arm in the body frame."""
+        sh = self.shoulder(side)
+        reach = 0.97 * (self.upper_arm + self.forearm)
+        return sh + np.array([0.06, 0.02 * np.sign(sh[1]), -math.sqrt(reach ** 2 - 0.06 ** 2 - 0.02 ** 2)])
+
+
+@dataclass(frozen=True)
+class Key:
+    """A keyframe: at time ``t`` the person stands at ``xy`` (floor position, m) facing
+    ``heading`` (rad, 0 = +x, counter-clockwise); ``left`` / ``right`` are world points
+    (3,) the hands reach for, or ``None`` for a relaxed arm."""
+    t: float
+    xy: tuple[float, float]
+    heading: float = 0.0
+    left: tuple[float, float, float] | None = None
+    right: tuple[float, float, float] | None = None
+
+
+@dataclass(frozen=True)
+class Carry:
+    """The scene prop ``prop`` is held by the ``hand`` (``"left"``/``"right"``) for ``t0 <= t < t1``;
+    its pose is the hand frame (hand centre, body heading) times ``offset`` (4x4 or (3,) translation)."""
+    prop: str
+    hand: str
+    t0: float
+    t1: float
+    offset: tuple = (0.0, 0.0, 0.0)
+
+    def offset_matrix(self) -> np.ndarray:
+        o = np.asarray(self.offset, dtype=np.float64)
+        return o if o.shape == (4, 4) else pose(t=o)
+
+
+@dataclass(frozen=True)
+class PersonPose:
+    """The resolved pose at one time: floor position, heading, and hand targets in the world."""
+    xy: np.ndarray
+    heading: float
+    left: np.ndarray | None
+    right: np.ndarray | None
+
+
+@dataclass
+class Person:
+    """A scripted person (module docstring).
+
+    Parameters
+    ----------
+    name : prefix of the primitive names (``"<name>/torso"`` …).
+    keys : keyframes, sorted by time; before the first / after the last the end keys hold.
+    shape : body dimensions.
+    floor_z : height of the floor the person stands on, m.
+    present : ``(t_enter, t_leave)``: outside this window the person is not in the scene.
+    carries : props held in a hand over time windows.
+    interp : ``"linear"`` (eased) or ``"step"`` (hold each key until the next).
+    """
+    name: str
+    keys: Sequence[Key]
+    shape: BodyShape = field(default_factory=BodyShape)
+    floor_z: float = 0.0
+    present: tuple[float, float] = (-math.inf, math.inf)
+    carries: Sequence[Carry] = ()
+    interp: str = "linear"
+
+    def __post_init__(self):
+        if not self.keys:
+            raise ValueError(f"person {self.name!r}: needs at least one keyframe")
+        self.keys = sorted(self.keys, key=lambda k: k.t)
+        if self.interp not in ("linear", "step"):
+            raise ValueError(f"person {self.name!r}: interp must be 'linear' or 'step' (got {self.interp!r})")
+        for c in self.carries:
+            if c.hand not in ("left", "right"):
+                raise ValueError(f"person {self.name!r}: carry hand must be 'left' or 'right' (got {c.hand!r})")
+
+    # ---------------------------------------------------------------- pose
+    def is_present(self, t: float) -> bool:
+        return self.present[0] <= t < self.present[1]
+
+    def body_frame(self, xy, heading) -> np.ndarray:
+        return pose(rot_z(heading), [xy[0], xy[1], self.floor_z])
+
+    def pose_at(self, t: float) -> PersonPose:
+        """Floor position, heading and world hand targets at time ``t``."""
+        ks = self.keys
+        if t <= ks[0].t or len(ks) == 1:
+            return self._resolve(ks[0], ks[0], 0.0)
+        if t >= ks[-1].t:
+            return self._resolve(ks[-1], ks[-1], 0.0)
+        i = int(np.searchsorted([k.t for k in ks], t, side="right")) - 1
+        a, b = ks[i], ks[i + 1]
+        if self.interp == "step":
+            return self._resolve(a, a, 0.0)
+        s = (t - a.t) / (b.t - a.t)
+        s = s * s * (3 - 2 * s)  # smooth step: start and stop gently
+        return self._resolve(a, b, s)
+
+    def _resolve(self, a: Key, b: Key, s: float) -> PersonPose:
+        xy = (1 - s) * np.asarray(a.xy, float) + s * np.asarray(b.xy, float)
+        dh = (b.heading - a.heading + math.pi) % (2 * math.pi) - math.pi
+        heading = a.heading + s * dh
+        T = self.body_frame(xy, heading)
+        hands = {}
+        for side in ("left", "right"):
+            ta, tb = getattr(a, side), getattr(b, side)
+            if ta is None and tb is None:
+                hands[side] = None
+                continue
+            rest = T[:3, :3] @ self.shape.rest_hand(side) + T[:3, 3]
+            pa = rest if ta is None else np.asarray(ta, float)
+            pb = rest if tb is None else np.asarray(tb, float)
+            hands[side] = (1 - s) * pa + s * pb
+        return PersonPose(xy, heading, hands["left"], hands["right"])
+
+    def arm_points(self, p: PersonPose, side: str) -> tuple[np.ndarray, np.ndarray, np.ndarray]:
+        """World shoulder, elbow and hand centre of one arm (two-link IK towards the target)."""
+        sh = self.shape
+        T = self.body_frame(p.xy, p.heading)
+        R, o = T[:3, :3], T[:3, 3]
+        S = R @ sh.shoulder(side) + o
+        target = getattr(p, side)
+        if target is None:
+            target = R @ sh.rest_hand(side) + o
+        L1, L2 = sh.upper_arm, sh.forearm
+        d_vec = np.asarray(target, float) - S
+        d = float(np.linalg.norm(d_vec))
+        u = d_vec / d if d > 1e-9 else R @ np.array([0.0, 0.0, -1.0])
+        d = min(max(d, abs(L1 - L2) + 0.05), 0.999 * (L1 + L2))
+        hand = S + d * u
+        a = (L1 * L1 - L2 * L2 + d * d) / (2 * d)
+        h = math.sqrt(max(L1 * L1 - a * a, 0.0))
+        s = 1.0 if side == "left" else -1.0
+        pole = R @ np.array([-0.2, 0.5 * s, -1.0])          # elbow goes down, out and back
+        w = pole - (pole @ u) * u
+        nw = np.linalg.norm(w)
+        w = w / nw if nw > 1e-9 else R @ np.array([0.0, s, 0.0])
+        elbow = S + a * u + h * w
+        return S, elbow, hand
+
+    def hand_frame(self, t: float, side: str) -> np.ndarray:
+        """4x4 world pose of a hand: origin at the hand centre, axes of the body heading."""
+        p = self.pose_at(t)
+        _, _, hand = self.arm_points(p, side)
+        return pose(rot_z(p.heading), hand)
+
+    def primitives(self, t: float) -> list[Primitive]:
+        """The body at time ``t`` as exact primitives (empty when not present)."""
+        if not self.is_present(t):
+            return []
+        p = self.pose_at(t)
+        return self.primitives_at(p)
+
+    def primitives_at(self, p: PersonPose) -> list[Primitive]:
+        sh, n = self.shape, self.name
+        T = self.body_frame(p.xy, p.heading)
+        R, o = T[:3, :3], T[:3, 3]
+
+        def w(v):
+            return R @ np.asarray(v, float) + o
+
+        out: list[Primitive] = []
+        if sh.legs:
+            for side, s in (("left", 1.0), ("right", -1.0)):
+                hip = w([0.0, s * sh.hip_width / 2, sh.hip_z])
+                foot = w([0.0, s * sh.hip_width / 2, sh.leg_radius])
+                out.append(Capsule.between(foot, hip, sh.leg_radius, name=f"{n}/{side}_leg"))
+        torso_h = sh.shoulder_z - sh.hip_z + 0.05
+        out.append(Box(size=(sh.torso_depth, sh.torso_width, torso_h),
+                       world_from_local=pose(R, w([0.0, 0.0, sh.hip_z - 0.05 + torso_h / 2])),
+                       name=f"{n}/torso"))
+        head_c = w([0.0, 0.0, sh.height - sh.head_radius])
+        out.append(Capsule.between(w([0.0, 0.0, sh.shoulder_z - 0.02]), head_c, sh.neck_radius, name=f"{n}/neck"))
+        out.append(Sphere(radius=sh.head_radius, world_from_local=pose(t=head_c), name=f"{n}/head"))
+        for side in ("left", "right"):
+            S, E, Hd = self.arm_points(p, side)
+            out.append(Capsule.between(S, E, sh.arm_radius, name=f"{n}/{side}_upper_arm"))
+            out.append(Capsule.between(E, Hd, sh.forearm_radius, name=f"{n}/{side}_forearm"))
+            out.append(Sphere(radius=sh.hand_radius, world_from_local=pose(t=Hd), name=f"{n}/{side}_hand"))
+        return out

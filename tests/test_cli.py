@@ -1,0 +1,41 @@
+"""The depthguard command: --help everywhere, clear errors for bad arguments."""
+
+import json
+import subprocess
+import sys
+
+import pytest
+from typer.testing import CliRunner
+
+from depthguard.cli import app
+
+
+def _commands(typer_app, prefix=()):
+    import typer.main
+    click_cmd = typer.main.get_command(typer_app)
+    out = []
+
+    def walk(cmd, path):
+        out.append(path)
+        for name, sub in getattr(cmd, "commands", {}).items():
+            walk(sub, path + (name,))
+
+    walk(click_cmd, prefix)
+    return out
+
+
+def test_every_command_has_help():
+    runner = CliRunner()
+    cmds = _commands(app)
+    assert len(cmds) > 3
+    for path in cmds:
+        res = runner.invoke(app, list(path) + ["--help"])
+        assert res.exit_code == 0, (path, res.output)
+        assert "Usage" in res.output
+
+
+def test_bench_rejects_unknown_group():
+    res = subprocess.run([sys.executable, "-m", "depthguard.cli.__main__", "bench", "--only", "nosuchgroup"],
+                         capture_output=True, text=True)
+    assert res.returncode == 2
+    assert "nosuchgroup" in (res.stderr + res.stdout)

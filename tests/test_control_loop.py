@@ -1,0 +1,110 @@
+"""The closed loop (R13–R15, R26, R27): trajectory, supervisor, and short scenario runs.
+
+The scenario runs are marked slow: each simulates a few seconds of flacco-cell
+with the principal Kinect (one camera, Flacco 2014's set-up) at 30 Hz with its
+noise model and the controller at 500 Hz. Truth: the scene's exact signed
+distances (``sim.ground_truth``) to the robot's capsules.
+"""
+
+from __future__ import annotations
+
+import numpy as np
+import pytest
+
+from depthguard.control.loop import LoopConfig, SafetySupervisor
+from depthguard.control.trajectory import Hexagon
+
+
+# ------------------------------------------------------------------ fast
+def test_hexagon_passes_corners_at_speed():
+    hx = Hexagon(center=(-0.6, 0.0, 0.6), radius=0.2, speed=0.4, accel=2.0)
+    C = hx.corners
+    # regular hexagon in the plane x = -0.6: all sides = radius
+    assert np.allclose(C[:, 0], -0.6)
+    assert np.allclose(np.linalg.norm(np.roll(C, -1, 0) - C, axis=1), 0.2)
+    # side time = L/v + v/a = 0.5 + 0.2 s; corners reached at multiples of it, at rest
+    assert hx.side_time == pytest.approx(0.7)
+    for k in range(7):
+        p, v = hx.at(k * 0.7)
+        np.testing.assert_allclose(p, C[k % 6], atol=1e-12)
+        assert np.linalg.norm(v) < 1e-9
+    taus = np.linspace(0, hx.period, 4001)
+    P = np.array([hx.at(t)[0] for t in taus])
+    Vv = np.array([hx.at(t)[1] for t in taus])
+    assert np.linalg.norm(Vv, axis=1).max() == pytest.approx(0.4)
+    # velocity is the derivative of position (central differences)
+    dP = (P[2:] - P[:-2]) / (taus[2] - taus[0])
+    assert np.abs(dP - Vv[1:-1]).max() < 2e-3
+    assert hx.path_distance(P).max() < 1e-12
+    with pytest.raises(ValueError, match="radius"):
+        Hexagon(radius=0.0)
+
+
+def test_supervisor_ramps_and_reports():
+    sup = SafetySupervisor(dt=0.002, stop_time=0.5, resume_time=1.0)
+    ks = [sup.update(0.002 * i, {"stale:cam1": "camera cam1 stale"}) for i in range(300)]
+    # 1 -> 0 in stop_time / dt = 250 cycles, linear
+    assert ks[0] == pytest.approx(1 - 1 / 250)
+    assert ks[248] > 0.0 and ks[249] == 0.0
+    ep = sup.episodes[0]
+    assert ep["reason"] == "camera cam1 stale" and ep["t_start"] == 0.0
+    assert ep["t_stopped"] == pytest.approx(0.002 * 249)
+    k = [sup.update(0.6 + 0.002 * i, {}) for i in range(500)][-1]
+    assert k == pytest.approx(1.0) and ep["t_end"] == pytest.approx(0.6)
+
+
+def test_loop_config_rejects_bad_values():
+    with pytest.raises(ValueError, match="rho"):
+        LoopConfig(rho=0.0)
+    with pytest.raises(ValueError, match="fusion"):
+        LoopConfig(fusion="magic")
+
+
+# ------------------------------------------------------------------ closed loop (slow)
+def _run(name, duration, **cfg):
+    from depthguard.control.scenarios import run_scenario
+    return run_scenario(name, duration=duration, config=LoopConfig(fusion="single", **cfg), write=False)
+
+
+@pytest.mark.slow
+def test_loop_tracks_hexagon_without_obstacles():
+    s, res = _run("empty", 2.0)
+    # measured: 0.15 mm RMS (first-order CLIK at 500 Hz, k_p = 5/s), no reaction at all
+    assert s["ee_tracking_rms_m"] < 1e-3
+    assert s["ee_tracking_clear_share"] == 1.0
+    assert s["safe_stops"] == [] and s["min_task_scale"] == 1.0
+    assert s["ee_max_repulsion_m_s"] == 0.0
+    assert not s["collision"]
+    # the EE really goes round the hexagon: 2 s at 0.7 s per side covers more than 2 sides
+    assert np.ptp(res.ee[:, 1]) > 0.15 and np.ptp(res.ee[:, 2]) > 0.15
+
+
+@pytest.mark.slow
+@pytest.mark.parametrize("name,duration", [("reach", 4.0), ("plate", 4.5), ("elbow", 5.0), ("shadow", 4.0)])
+def test_scenarios_avoid_collision(name, duration):
+    s, res = _run(name, duration)
+    assert not s["collision"]
+    assert s["min_true_distance_m"] > 0.0
+    # the obstacle came within rho of the robot and the robot reacted (ground truth says so)
+    assert np.min(res.gt_cp) < 0.4
+    if name in ("reach", "plate"):
+        assert s["ee_max_repulsion_m_s"] > 0.2
+    if name == "elbow":
+        # the elbow stayed clear while the EE kept tracking (limits, not repulsion)
+        j = res.control_point_names.index("elbow")
+        assert res.gt_cp[:, j].min() > 0.1
+        assert s["ee_tracking_rms_all_m"] < 0.05
+
+
+@pytest.mark.slow
+def test_camera_dropout_stops_and_says_why():
+    from depthguard.control.scenarios import run_scenario
+    s, res = run_scenario("camera_dropout", duration=3.0, config=LoopConfig(fusion="grid", distance_hz=10.0),
+                          write=False)
+    assert s["stopped_at_end"]
+    stops = s["safe_stops"]
+    assert stops and "cam1" in stops[0]["reason"] and "R27" in stops[0]["reason"]
+    # last frame at t <= 2.0, limit 3 periods = 0.1 s: the stop is requested at about 2.1 s
+    assert 2.05 <= stops[0]["t_start"] <= 2.15
+    assert stops[0]["t_stopped"] == pytest.approx(stops[0]["t_start"] + 0.5, abs=0.01)
+    assert np.abs(res.qd[res.t > stops[0]["t_stopped"] + 0.01]).max() == 0.0

@@ -1,0 +1,229 @@
+"""Distributed camera subsystem over zenoh on loopback (R20, R27).
+
+In-process: the protocol (ids, refusal, rejection counting, settings, staleness,
+liveliness). Multi-process: four node processes; one SIGKILLed, one SIGSTOPped;
+restart; a voxel-size change; fuzzed messages against the running server.
+Truth: the server's own storage before the failure (which voxels were exclusively
+whose), wall-clock deadlines, and the protocol's stated rules.
+"""
+
+import os
+import signal
+import socket
+import subprocess
+import sys
+import time
+
+import numpy as np
+import pytest
+from hypothesis import HealthCheck, given, settings
+from hypothesis import strategies as st
+
+from depthguard.distributed import wire as W
+from depthguard.distributed.client import ServerClient, ServerRefused
+from depthguard.distributed.server import ERR_REFUSED, FusionServer
+
+
+def free_port() -> int:
+    with socket.socket() as s:
+        s.bind(("127.0.0.1", 0))
+        return s.getsockname()[1]
+
+
+def wait_until(pred, timeout, step=0.02):
+    t_end = time.monotonic() + timeout
+    while time.monotonic() < t_end:
+        v = pred()
+        if v:
+            return v
+        time.sleep(step)
+    return pred()
+
+
+@pytest.fixture
+def server():
+    port = free_port()
+    logs = []
+    srv = FusionServer(["cam0", "cam1", "cam2", "cam3"], W.Settings(stale_s=0.5),
+                       listen=[f"tcp/127.0.0.1:{port}"], log=logs.append).start()
+    srv.logs = logs
+    srv.endpoint = f"tcp/127.0.0.1:{port}"
+    yield srv
+    srv.close()
+
+
+@pytest.fixture
+def client(server):
+    c = ServerClient([server.endpoint])
+    c.wait_for_server(5.0)
+    yield c
+    c.close()
+
+
+def _update(client, uid, keys, seq=1, s=0.02):
+    keys = np.asarray(keys)
+    return client.request("depthguard/update", W.update_request(uid, seq, time.time(), s, keys,
+                                                                  np.full(len(keys), 9)))
+
+
+def test_protocol_in_process(server, client):
+    uid = client.request("depthguard/init", W.init_request("cam0", "a")).unit_id
+    uid1 = client.request("depthguard/init", W.init_request("cam1", "b")).unit_id
+    assert uid != uid1
+    # seen before → same id, no new storage
+    assert client.request("depthguard/init", W.init_request("cam0", "a2")).unit_id == uid
+    assert len(server.units) == 2 and server.units["cam0"].inits == 2
+    # unknown camera refused, logged, counted
+    with pytest.raises(ServerRefused) as e:
+        client.request("depthguard/init", W.init_request("intruder", "evil"))
+    assert e.value.code == ERR_REFUSED and server.refused == 1
+    assert any("intruder" in m for m in server.logs)
+    # no liveliness token yet → the unit is "left" and the reply asks for the token
+    rep = _update(client, uid, [[1, 2, 3]])
+    assert rep.flags & 1
+    assert server.status()["nodes"][0]["state"] == "left"
+    tok = client.session.liveliness().declare_token("depthguard/alive/cam0")
+    assert wait_until(lambda: server.units["cam0"].alive, 2.0)
+    rep = _update(client, uid, [[1, 2, 3], [4, 5, 6]], seq=2)
+    assert not rep.flags & 1
+    keys, s = server.global_map()
+    np.testing.assert_array_equal(keys, [[1, 2, 3], [4, 5, 6]])
+    # settings change reaches the next reply
+    server.set_settings(voxel_size=0.05, joints=[0.1, 0.2])
+    rep = _update(client, uid, [[1, 2, 3]], seq=3)
+    assert rep.settings.voxel_size == 0.05 and rep.settings.joints == (0.1, 0.2)
+    # voxels sent at the old size are re-gridded conservatively into the new one
+    keys, s = server.global_map()
+    # voxel (1, 2, 3) at 2 cm = [0.02, 0.04) x [0.04, 0.06) x [0.06, 0.08): y straddles 0.05
+    assert s == 0.05
+    np.testing.assert_array_equal(keys, [[0, 0, 1], [0, 1, 1]])
+    # stale after stale_s without updates (R20), and left out of the map
+    time.sleep(0.6)
+    st_ = client.status()
+    assert st_["nodes"][0]["state"] == "stale" and st_["voxels_total"] == 0
+    # token gone → left
+    tok.undeclare()
+    assert wait_until(lambda: server.status()["nodes"][0]["state"] == "left", 2.0)
+    # malformed / unexpected messages rejected and counted, the server answers on
+    r0 = server.rejected
+    for bad in (b"", b"garbage", W.status_request()):
+        with pytest.raises(ServerRefused):
+            client.request("depthguard/update", bad)
+    with pytest.raises(ServerRefused):
+        client.set_settings(voxel_size=3.0)
+    assert server.rejected == r0 + 4
+    with pytest.raises(ServerRefused, match="not initialised"):
+        _update(client, 999, [[0, 0, 0]])
+    assert set(client.status()) >= {"nodes", "voxels_total", "bytes_per_s"}
+
+
+@settings(max_examples=60, deadline=None, suppress_health_check=[HealthCheck.function_scoped_fixture])
+@given(key=st.sampled_from(["init", "update", "status", "settings"]), data=st.binary(max_size=300))
+def test_fuzzed_messages_crash_nothing(server, client, key, data):
+    r0 = server.rejected + server.refused
+    try:
+        client.request(f"depthguard/{key}", data, timeout=2.0)
+    except ServerRefused:
+        assert server.rejected + server.refused == r0 + 1
+    except W.WireError:
+        pytest.fail("the server replied with something undecodable")
+    assert "nodes" in client.status()
+
+
+# ------------------------------------------------------------------ multi-process
+RIG = """
+name: four-cams
+workspace: {{min: [-0.6, -0.6, 0.0], max: [0.6, 0.6, 1.0]}}
+cameras:
+{cams}
+"""
+CAM = """  - id: {id}
+    width: 160
+    height: 120
+    fx: 140.0
+    fy: 140.0
+    cx: 79.5
+    cy: 59.5
+    range: [0.2, 6.0]
+    pose: {{look_at: {{eye: [{x}, {y}, 1.4], target: [0.0, 0.0, 0.5]}}}}
+"""
+
+
+def _rig(tmp_path):
+    eyes = [(1.6, 0.1), (-1.6, -0.1), (0.1, 1.6), (-0.1, -1.6)]
+    cams = "".join(CAM.format(id=f"cam{i}", x=x, y=y) for i, (x, y) in enumerate(eyes))
+    p = tmp_path / "rig.yaml"
+    p.write_text(RIG.format(cams=cams))
+    return p
+
+
+def _spawn(rig, cam, endpoint, fps=20):
+    env = dict(os.environ, PYTHONUNBUFFERED="1")
+    return subprocess.Popen([sys.executable, "-m", "depthguard.distributed.node", "--rig", str(rig),
+                             "--camera", cam, "--connect", endpoint, "--fps", str(fps), "--quiet"],
+                            stdout=subprocess.DEVNULL, stderr=subprocess.PIPE, env=env)
+
+
+@pytest.mark.multiprocess
+@pytest.mark.slow
+@pytest.mark.timeout(120)
+def test_four_nodes_kill_freeze_restart_settings(tmp_path, server, client):
+    rig = _rig(tmp_path)
+    procs = {}
+    try:
+        for i in range(4):
+            procs[f"cam{i}"] = _spawn(rig, f"cam{i}", server.endpoint)
+
+        def all_fresh():
+            st_ = server.status()
+            return len(st_["nodes"]) == 4 and all(n["state"] == "fresh" and n["voxels"] > 0 for n in st_["nodes"])
+        assert wait_until(all_fresh, 60.0), (server.status(), [p.poll() for p in procs.values()])
+        ids = {u.camera: u.id for u in server.units.values()}
+        own = {c: set(map(tuple, u.keys.tolist())) for c, u in server.units.items()}
+        excl = {c: own[c] - set().union(*(own[o] for o in own if o != c)) for c in own}
+        assert all(len(e) > 0 for e in excl.values())
+        # SIGKILL cam1, SIGSTOP cam2
+        t0 = time.monotonic()
+        procs["cam1"].send_signal(signal.SIGKILL)
+        procs["cam2"].send_signal(signal.SIGSTOP)
+
+        def dropped():
+            st_ = {n["camera"]: n for n in server.status()["nodes"]}
+            if st_["cam1"]["state"] == "fresh" or st_["cam2"]["state"] == "fresh":
+                return False
+            keys = set(map(tuple, server.global_map()[0].tolist()))
+            return not (keys & (excl["cam1"] | excl["cam2"])) and excl["cam0"] <= keys and excl["cam3"] <= keys
+        assert wait_until(dropped, 1.5, step=0.01), server.status()
+        t_drop = time.monotonic() - t0
+        assert t_drop <= 1.5
+        # the killed one is reported left at once (its session closed); the frozen one after the lease
+        assert wait_until(lambda: {n["camera"]: n["state"] for n in server.status()["nodes"]}["cam1"] == "left", 0.5)
+        assert wait_until(lambda: {n["camera"]: n["state"] for n in server.status()["nodes"]}["cam2"] == "left",
+                          1.6 - (time.monotonic() - t0) + 0.5)
+        # restart the killed one: old id back, no new storage
+        procs["cam1"].wait(5)
+        procs["cam1"] = _spawn(rig, "cam1", server.endpoint)
+        assert wait_until(lambda: server.units["cam1"].inits == 2
+                          and server.unit_state(server.units["cam1"]) == "fresh", 60.0)
+        assert server.units["cam1"].id == ids["cam1"] and len(server.units) == 4
+        # a voxel-size change reaches every running node
+        client.set_settings(voxel_size=0.05)
+
+        def all_at_new_size():
+            return all(server.units[c].voxel_size == 0.05 and server.unit_state(server.units[c]) == "fresh"
+                       for c in ("cam0", "cam1", "cam3"))
+        assert wait_until(all_at_new_size, 5.0), server.status()
+        # the frozen one resumes, re-joins and picks up the new size too
+        procs["cam2"].send_signal(signal.SIGCONT)
+        assert wait_until(lambda: server.units["cam2"].voxel_size == 0.05
+                          and server.unit_state(server.units["cam2"]) == "fresh", 10.0), server.status()
+        assert server.units["cam2"].id == ids["cam2"]
+    finally:
+        for p in procs.values():
+            if p.poll() is None:
+                try:
+                    p.send_signal(signal.SIGCONT)
+                except ProcessLookupError:
+                    pass
+                p.kill()
+            p.wait(10)

@@ -1,0 +1,57 @@
+"""`depthguard scenes list|render` and the demo's contact sheets."""
+
+import subprocess
+import sys
+
+import numpy as np
+import pytest
+from PIL import Image
+from typer.testing import CliRunner
+
+from depthguard.cli import app
+from depthguard.depth_io import read_depth
+from depthguard.render import render_depth
+from depthguard.sim import load_cell
+
+
+def test_scenes_list_names_every_cell():
+    res = CliRunner().invoke(app, ["scenes", "list"])
+    assert res.exit_code == 0, res.output
+    for name in ("flacco-walls", "flacco-cell", "ur3-cell", "c-arm-room"):
+        assert name in res.output
+    assert "lwr4" in res.output and "ur3" in res.output and "21 x tof" in res.output
+
+
+def test_scenes_render_writes_depth_pngs_and_a_contact_sheet(tmp_path):
+    res = CliRunner().invoke(app, ["scenes", "render", "flacco-walls", "--time", "0", "--out", str(tmp_path),
+                                   "--noiseless"])
+    assert res.exit_code == 0, res.output
+    d = read_depth(tmp_path / "cam0.png")
+    cell = load_cell("flacco-walls")
+    ideal = render_depth(cell.rig.camera("cam0"), cell.scene.meshes_at(0.0)[0])
+    ideal[(ideal < 0.4) | (ideal > 4.0)] = 0
+    assert np.abs(d - ideal).max() <= 0.0005 + 1e-6  # millimetre PNG
+    with Image.open(tmp_path / "contact_sheet.png") as im:
+        assert im.size[0] > 200 and im.mode in ("RGBA", "RGB")
+
+
+def run_cli(*args):
+    return subprocess.run([sys.executable, "-m", "depthguard.cli.__main__", *args], capture_output=True, text=True)
+
+
+@pytest.mark.slow  # three interpreter start-ups
+def test_scenes_render_bad_input_is_one_clear_error(tmp_path):
+    r = run_cli("scenes", "render", "no-such-cell", "--out", str(tmp_path))
+    assert r.returncode == 2 and "unknown cell 'no-such-cell'" in r.stderr
+    r = run_cli("scenes", "render", "flacco-cell", "--situation", "nope", "--out", str(tmp_path))
+    assert r.returncode == 2 and "situations: robot_alone" in r.stderr
+    r = run_cli("scenes", "render", "flacco-walls", "--time", "-1", "--out", str(tmp_path))
+    assert r.returncode == 2 and "time" in r.stderr
+
+
+def test_demo_contact_sheets_function(tmp_path):
+    from depthguard.cli.demo import render_contact_sheets
+
+    sheets = render_contact_sheets(tmp_path, cells=["flacco-walls"], noiseless=True)
+    assert [p.name for p in sheets] == ["contact_sheet.png"]
+    assert (tmp_path / "flacco-walls" / "static" / "cam0.png").is_file()

@@ -1,0 +1,167 @@
+"""Scenes: people (arm IK, keyframes, carrying), props, robot paths, and the C-arm model."""
+
+import math
+
+import numpy as np
+import pytest
+
+from depthguard.geometry.primitives import Box, Sphere
+from depthguard.sim import CArm, CArmPose, Carry, JointPath, Key, Person, Prop, Scene
+from depthguard.sim.carm import CARM_LIMITS
+from depthguard.transforms import pose
+
+
+def person(**kw):
+    keys = kw.pop("keys", [Key(0.0, (0.0, 0.0), 0.0), Key(2.0, (1.0, 0.0), math.pi / 2, right=(1.3, 0.5, 1.2))])
+    return Person("p", keys, **kw)
+
+
+def part(prims, name):
+    return next(p for p in prims if p.name == name)
+
+
+def test_arm_reaches_a_reachable_target_with_true_limb_lengths():
+    pp = person()
+    pose2 = pp.pose_at(2.0)
+    S, E, H = pp.arm_points(pose2, "right")
+    sh = pp.shape
+    np.testing.assert_allclose(H, [1.3, 0.5, 1.2], atol=1e-9)
+    assert np.linalg.norm(E - S) == pytest.approx(sh.upper_arm, abs=1e-9)
+    assert np.linalg.norm(H - E) == pytest.approx(sh.forearm, abs=1e-9)
+    assert E[2] < (S[2] + H[2]) / 2 + 1e-9  # elbow down
+    hand = part(pp.primitives(2.0), "p/right_hand")
+    np.testing.assert_allclose(hand.world_from_local[:3, 3], [1.3, 0.5, 1.2], atol=1e-9)
+
+
+def test_unreachable_target_stretches_the_arm_towards_it():
+    pp = person(keys=[Key(0.0, (0.0, 0.0), 0.0, left=(3.0, 3.0, 1.4))])
+    S, E, H = pp.arm_points(pp.pose_at(0.0), "left")
+    reach = pp.shape.upper_arm + pp.shape.forearm
+    assert np.linalg.norm(H - S) == pytest.approx(0.999 * reach, rel=1e-9)
+    u = (np.array([3.0, 3.0, 1.4]) - S) / np.linalg.norm(np.array([3.0, 3.0, 1.4]) - S)
+    np.testing.assert_allclose((H - S) / np.linalg.norm(H - S), u, atol=1e-9)
+
+
+def test_keyframes_interpolate_and_hold():
+    pp = person()
+    assert pp.pose_at(-1.0).xy.tolist() == [0.0, 0.0]
+    assert pp.pose_at(1.0).xy.tolist() == pytest.approx([0.5, 0.0])  # eased, symmetric midpoint
+    assert pp.pose_at(1.0).heading == pytest.approx(math.pi / 4)
+    assert pp.pose_at(5.0).xy.tolist() == [1.0, 0.0]
+    step = person(interp="step")
+    assert step.pose_at(1.9).xy.tolist() == [0.0, 0.0]
+    # the torso stands on the floor at the keyed position, facing the heading
+    torso = part(pp.primitives(2.0), "p/torso")
+    R = torso.world_from_local[:3, :3]
+    np.testing.assert_allclose(R[:, 0], [0.0, 1.0, 0.0], atol=1e-12)
+    lowest = min(p.bounds()[0, 2] for p in pp.primitives(2.0))
+    assert lowest == pytest.approx(0.0, abs=1e-3)
+    top = max(p.bounds()[1, 2] for p in pp.primitives(2.0))
+    assert top == pytest.approx(pp.shape.height, abs=2e-3)
+
+
+def test_presence_window():
+    pp = person(present=(1.0, 3.0))
+    assert pp.primitives(0.5) == [] and pp.primitives(3.0) == []
+    assert len(pp.primitives(2.0)) == 11  # 2 legs, torso, neck, head, 2 x (upper arm, forearm, hand)
+
+
+def test_carried_prop_follows_the_hand_then_stays_where_released():
+    keys = [Key(0.0, (0.0, 0.0), 0.0, right=(0.4, -0.2, 1.0)), Key(4.0, (2.0, 1.0), 1.0, right=(2.3, 1.1, 1.0)),
+            Key(6.0, (0.0, 0.0), 0.0)]
+    pp = Person("p", keys, carries=[Carry("box", "right", 1.0, 4.0, (0.0, 0.0, -0.1))])
+    box = Prop("box", Box(size=(0.2, 0.2, 0.1)), pose(t=[5.0, 5.0, 0.05]))
+    sc = Scene([Sphere(radius=0.1, world_from_local=pose(t=[9, 9, 9]), name="ball")], people=[pp], props=[box])
+    np.testing.assert_allclose(sc.prop_pose("box", 0.5), box.pose0)
+    for t in (1.0, 2.5, 3.9):
+        want = pp.hand_frame(t, "right") @ pose(t=[0, 0, -0.1])
+        np.testing.assert_allclose(sc.prop_pose("box", t), want, atol=1e-12)
+    released = pp.hand_frame(4.0, "right") @ pose(t=[0, 0, -0.1])
+    np.testing.assert_allclose(sc.prop_pose("box", 5.5), released, atol=1e-12)
+    np.testing.assert_allclose(released[:3, 3], [2.3, 1.1, 0.9], atol=1e-9)
+    prim = part(sc.obstacles_at(5.5), "box")
+    np.testing.assert_allclose(prim.world_from_local, released, atol=1e-12)
+    names = sc.meshes_at(2.0)[1]
+    assert names[0] == "ball" and "box" in names and "p/head" in names
+
+
+def test_scene_checks_its_script():
+    with pytest.raises(ValueError, match="unknown prop"):
+        Scene(people=[Person("p", [Key(0, (0, 0))], carries=[Carry("nothing", "left", 0, 1)])])
+    with pytest.raises(ValueError, match="unique"):
+        Scene(people=[Person("p", [Key(0, (0, 0))]), Person("p", [Key(0, (0, 0))])])
+    with pytest.raises(ValueError, match="hand"):
+        Person("p", [Key(0, (0, 0))], carries=[Carry("b", "middle", 0, 1)])
+
+
+def test_joint_path_interpolates_linear_and_step():
+    jp = JointPath([(0.0, [0, 0]), (2.0, [1, -2])])
+    np.testing.assert_allclose(jp(1.0), [0.5, -1.0])
+    np.testing.assert_allclose(jp(-1), [0, 0])
+    np.testing.assert_allclose(jp(9), [1, -2])
+    st = JointPath([(0.0, [0, 0]), (2.0, [1, -2])], interp="step")
+    np.testing.assert_allclose(st(1.99), [0, 0])
+    np.testing.assert_allclose(st(2.0), [1, -2])
+    with pytest.raises(ValueError, match="same number"):
+        JointPath([(0, [0]), (1, [0, 1])])
+
+
+# ------------------------------------------------------------------- C-arm
+def part_centre(carm, p, name):
+    return next(x for x in carm.primitives(p) if x.name == f"carm/{name}").world_from_local[:3, 3]
+
+
+def test_carm_axes_meet_at_the_isocentre():
+    carm = CArm()
+    iso = carm.isocentre(CArmPose())
+    det0 = part_centre(carm, CArmPose(), "detector")
+    src0 = part_centre(carm, CArmPose(), "source")
+    # zero pose: beam vertical, detector above, source below the isocentre
+    np.testing.assert_allclose(det0 - iso, [0, 0, 0.50], atol=1e-12)
+    np.testing.assert_allclose(src0 - iso, [0, 0, -0.55], atol=1e-12)
+    rng = np.random.default_rng(1)
+    for _ in range(20):
+        q = rng.uniform(carm.q_min, carm.q_max)
+        q[3] = 0.0
+        p = CArmPose.from_array(q)
+        det, src = part_centre(carm, p, "detector"), part_centre(carm, p, "source")
+        np.testing.assert_allclose(carm.isocentre(p), iso)
+        assert np.linalg.norm(det - iso) == pytest.approx(0.50, abs=1e-12)
+        assert np.linalg.norm(src - iso) == pytest.approx(0.55, abs=1e-12)
+        # source, isocentre and detector stay on one line (the beam)
+        np.testing.assert_allclose(np.cross(det - iso, src - iso), 0, atol=1e-12)
+
+
+def test_carm_propeller_and_orbit_turn_the_beam_in_their_planes():
+    carm = CArm()
+    iso = carm.isocentre(CArmPose())
+    a = math.radians(30)
+    # propeller turns about the horizontal axis along the L-arm (x at larm 0): beam stays in the y-z plane
+    d = part_centre(carm, CArmPose(propeller=a), "detector") - iso
+    np.testing.assert_allclose(d, 0.5 * np.array([0, -math.sin(a), math.cos(a)]), atol=1e-12)
+    # C-arc (orbital) turns in the C plane (x-z at zero pose)
+    d = part_centre(carm, CArmPose(carc=a), "detector") - iso
+    np.testing.assert_allclose(d, 0.5 * np.array([math.sin(a), 0, math.cos(a)]), atol=1e-12)
+    # L-arm turns the support around the vertical axis; longitudinal translates along the rail (x)
+    s0 = part_centre(carm, CArmPose(), "support") - iso
+    s1 = part_centre(carm, CArmPose(larm=math.pi / 2), "support") - iso
+    np.testing.assert_allclose(s1, [-s0[1], s0[0], s0[2]], atol=1e-12)
+    t = part_centre(carm, CArmPose(longitudinal=-0.4), "support") - part_centre(carm, CArmPose(), "support")
+    np.testing.assert_allclose(t, [-0.4, 0, 0], atol=1e-12)
+
+
+def test_carm_pose_names_limits_and_robot_like_api():
+    p = CArmPose.degrees(larm=10, propeller=-20, carc=5, longitudinal=0.3)
+    np.testing.assert_allclose(CArmPose.from_array(p.as_array()).as_array(), p.as_array())
+    with pytest.raises(ValueError, match="carc"):
+        CArmPose.degrees(carc=80).check()
+    with pytest.raises(ValueError, match="4 values"):
+        CArmPose.from_array([0, 0])
+    carm = CArm()
+    assert carm.dof == 4 and carm.joint_names == ("larm", "propeller", "carc", "longitudinal")
+    assert carm.q_min[2] == CARM_LIMITS["carc"][0]
+    ms = carm.link_meshes(p.as_array())
+    assert len(ms) == len(carm.link_mesh_names) == len(carm.primitives(p))
+    # every part's surface is within its own primitive's zero level set
+    for prim, m in zip(carm.primitives(p), ms):
+        assert np.abs(prim.sdf(m.vertices)).max() < 1e-9

@@ -1,0 +1,156 @@
+"""Noise models of the simulated depth cameras: statistics against the models' equations."""
+
+import dataclasses
+
+import numpy as np
+import pytest
+from scipy.stats import norm
+
+from depthguard.sources.noise import apply_noise, depth_edges, kinect_quantise
+from depthguard.sources.sensors import sensor_model
+
+H, W = 240, 320
+FX = 300.0
+
+
+def flat(z):
+    return np.full((H, W), z, np.float32)
+
+
+def measured(model, ideal, seed=0, **kw):
+    return apply_noise(ideal, model, FX, np.random.default_rng(seed), **kw)
+
+
+@pytest.mark.parametrize("name", ["realsense_d435", "tof"])
+@pytest.mark.parametrize("z", [1.0, 3.0])
+def test_gaussian_noise_std_matches_model(name, z):
+    m = dataclasses.replace(sensor_model(name), edge_dropout=0.0)
+    out = measured(m, flat(z)).astype(np.float64)
+    assert (out > 0).all()  # a flat wall has no edges and is in range
+    sigma = m.sigma_a + m.sigma_z2 * z * z  # the model's equation
+    n = out.size
+    # sample std has relative standard error 1/sqrt(2n) (~0.26 %); allow 5 of them
+    assert abs(out.std() / sigma - 1) < 5 / np.sqrt(2 * n)
+    assert abs(out.mean() - z) < 5 * sigma / np.sqrt(n)
+
+
+def test_d435_noise_grows_with_z_squared():
+    m = dataclasses.replace(sensor_model("realsense_d435"), sigma_a=0.0, edge_dropout=0.0)
+    s1 = measured(m, flat(1.0)).std()
+    s3 = measured(m, flat(3.0)).std()
+    assert s3 / s1 == pytest.approx(9.0, rel=0.02)
+
+
+def test_kinect_quantisation_steps_match_fb_over_z2():
+    m = sensor_model("kinect_v1")
+    fb = FX * m.baseline
+    z = np.linspace(0.5, 3.9, 200000)
+    q = np.unique(kinect_quantise(z, FX, m.baseline, m.disparity_bits))
+    gaps = np.diff(q)
+    mid = (q[1:] + q[:-1]) / 2
+    # depth step of a 1/8-pixel disparity step: dz = z^2 / (f b) / 8, to first order
+    np.testing.assert_allclose(gaps, mid ** 2 / fb / 8, rtol=0.02)
+    # every output lies on the lattice f b / (k / 8)
+    k = fb / q * 8
+    np.testing.assert_allclose(k, np.rint(k), atol=1e-6)
+
+
+@pytest.mark.parametrize("z", [1.0, 3.0])
+def test_kinect_std_matches_quantised_gaussian_disparity(z):
+    m = dataclasses.replace(sensor_model("kinect_v1"), edge_dropout=0.0)
+    out = measured(m, flat(z), seed=3).astype(np.float64)
+    # independent truth: disparity d0 = fb/z plus N(0, s_d), s_d = sigma_z2 * fb, rounded to 1/8 px;
+    # probability of each level from the normal CDF, depth fb / level
+    fb = FX * m.baseline
+    sd = m.sigma_z2 * fb
+    d0 = fb / z
+    k = np.arange(np.floor((d0 - 8 * sd) * 8), np.ceil((d0 + 8 * sd) * 8) + 1)
+    p = norm.cdf((k + 0.5) / 8, d0, sd) - norm.cdf((k - 0.5) / 8, d0, sd)
+    depth = fb / (k / 8)
+    mean = (p * depth).sum() / p.sum()
+    std = np.sqrt((p * (depth - mean) ** 2).sum() / p.sum())
+    n = out.size
+    assert out.std() == pytest.approx(std, rel=6 / np.sqrt(2 * n) + 0.01)
+    assert abs(out.mean() - mean) < 6 * std / np.sqrt(n)
+
+
+@pytest.mark.parametrize("name", ["kinect_v1", "realsense_d435", "tof", "ideal"])
+def test_deterministic_under_seed(name):
+    m = sensor_model(name)
+    img = step_image()
+    a = measured(m, img, seed=7)
+    b = measured(m, img, seed=7)
+    np.testing.assert_array_equal(a, b)
+    if name != "ideal":
+        c = measured(m, img, seed=8)
+        assert not np.array_equal(a, c)
+
+
+@pytest.mark.parametrize("name", ["kinect_v1", "realsense_d435", "tof"])
+def test_noiseless_is_rendered_depth_within_range(name):
+    m = sensor_model(name)
+    ideal = np.linspace(0.0, m.max_range + 1.0, H * W).reshape(H, W).astype(np.float32)
+    ideal[0, :5] = np.nan
+    out = measured(m, ideal, noiseless=True)
+    inside = (ideal >= m.min_range) & (ideal <= m.max_range)
+    np.testing.assert_array_equal(out[inside], ideal[inside])
+    assert (out[~inside] == 0).all()
+    assert out.dtype == np.float32
+
+
+@pytest.mark.parametrize("name", ["kinect_v1", "realsense_d435", "tof"])
+def test_out_of_range_and_nothing_is_zero(name):
+    m = sensor_model(name)
+    assert (measured(m, flat(m.max_range + 0.5)) == 0).all()
+    assert (measured(m, flat(m.min_range * 0.5)) == 0).all()
+    assert (measured(m, flat(0.0)) == 0).all()
+
+
+def step_image(near=1.0, far=2.0):
+    img = np.full((H, W), far, np.float32)
+    img[:, : W // 2] = near
+    return img
+
+
+def test_edges_found_on_both_sides_of_a_step_and_at_silhouettes():
+    img = step_image()
+    img[100:120, 10:20] = 0.0  # a hole: its border pixels are silhouette edges
+    edge, other = depth_edges(img)
+    cols = np.nonzero(edge[50])[0]
+    assert set(cols) == {W // 2 - 1, W // 2}
+    assert other[50, W // 2 - 1] == 2.0 and other[50, W // 2] == 1.0
+    assert edge[99, 10:20].all() and edge[120, 10:20].all() and edge[100:120, 9].all()
+    assert not edge[100:120, 10:20].any()  # invalid pixels are never edges
+    assert other[99, 15] == 0.0
+
+
+def test_edge_dropout_rate():
+    m = dataclasses.replace(sensor_model("realsense_d435"), edge_dropout=0.3)
+    img = step_image()
+    out = measured(m, img, seed=11)
+    edge, _ = depth_edges(img)
+    dropped = (out == 0) & edge
+    n = edge.sum()
+    rate = dropped.sum() / n
+    assert abs(rate - 0.3) < 5 * np.sqrt(0.3 * 0.7 / n)
+    assert (out[~edge] > 0).all()  # no dropout off the edges
+
+
+def test_tof_flying_pixels_between_the_two_sides():
+    m = dataclasses.replace(sensor_model("tof"), sigma_a=0.0, edge_dropout=0.0, flying_fraction=0.5)
+    img = step_image()
+    out = measured(m, img, seed=5)
+    edge, _ = depth_edges(img)
+    np.testing.assert_array_equal(out[~edge], img[~edge])  # noise off: only edges change
+    e = out[edge]
+    assert ((e >= 1.0) & (e <= 2.0)).all()
+    flying = (e > 1.0) & (e < 2.0)
+    n = e.size
+    assert abs(flying.mean() - 0.5) < 5 * np.sqrt(0.25 / n)
+    # flying depths are spread over the gap (uniform between the sides)
+    assert abs(e[flying].mean() - 1.5) < 0.1
+
+
+def test_bad_input_names_the_problem():
+    with pytest.raises(ValueError, match="2-D"):
+        apply_noise(np.zeros(5), sensor_model("tof"), FX, np.random.default_rng(0))

@@ -1,0 +1,89 @@
+"""Simulated cameras and the simulated source: rendering + noise, determinism, frames."""
+
+import numpy as np
+import pytest
+
+from depthguard.camera import Camera
+from depthguard.geometry.primitives import Box, Sphere
+from depthguard.render import render_depth
+from depthguard.sim import Scene, load_cell
+from depthguard.sources import Frame, SimSource, SimulatedCamera, intrinsics_for
+from depthguard.transforms import look_at, pose
+
+
+def small_cam(sensor="realsense_d435", w=424, h=240):
+    return Camera("c", world_from_camera=look_at([2.0, 0.0, 1.0], [0, 0, 0.5]), sensor=sensor,
+                  **intrinsics_for(sensor, w, h))
+
+
+def scene_meshes():
+    return [Box(size=(0.6, 0.6, 1.0), world_from_local=pose(t=[0, 0, 0.5])).mesh(),
+            Sphere(radius=0.2, world_from_local=pose(t=[0.5, 0.5, 1.0])).mesh(),
+            Box(size=(30, 30, 0.02), world_from_local=pose(t=[0, 0, -0.01])).mesh()]
+
+
+def test_noiseless_capture_is_the_rendered_depth_within_range():
+    cam = small_cam()
+    ideal = render_depth(cam, scene_meshes())
+    got = SimulatedCamera(cam, noiseless=True).capture(scene_meshes())
+    inside = (ideal >= cam.min_range) & (ideal <= cam.max_range)
+    assert inside.sum() > 1000 and (ideal > cam.max_range).any()  # the floor runs out of range
+    np.testing.assert_array_equal(got[inside], ideal[inside])
+    assert (got[~inside] == 0).all() and got.dtype == np.float32
+
+
+def test_noisy_capture_is_near_the_rendered_depth_and_deterministic():
+    cam = small_cam()
+    meshes = scene_meshes()
+    ideal = render_depth(cam, meshes)
+    a = SimulatedCamera(cam, seed=3).capture(meshes, stamp=1.5)
+    b = SimulatedCamera(cam, seed=3).capture(meshes, stamp=1.5)
+    c = SimulatedCamera(cam, seed=3).capture(meshes, stamp=1.6)
+    np.testing.assert_array_equal(a, b)
+    assert not np.array_equal(a, c)
+    both = (a > 0) & (ideal > 0)
+    err = (a - ideal)[both]
+    z = ideal[both]
+    m = SimulatedCamera(cam).model
+    sigma = m.sigma_a + m.sigma_z2 * z ** 2
+    assert np.mean(np.abs(err) < 5 * sigma) > 0.99
+    # the camera's own stream (no stamp) advances: two captures differ, and replay with the seed
+    s1 = SimulatedCamera(cam, seed=4)
+    x1, x2 = s1.capture(meshes), s1.capture(meshes)
+    s2 = SimulatedCamera(cam, seed=4)
+    assert not np.array_equal(x1, x2)
+    np.testing.assert_array_equal(s2.capture(meshes), x1)
+
+
+def test_model_comes_from_the_camera_and_bad_models_are_rejected():
+    assert SimulatedCamera(small_cam("tof", 320, 240)).model.name == "tof"
+    cam = Camera("x", 64, 48, 50.0, 50.0, 31.5, 23.5)
+    assert SimulatedCamera(cam).model.name == "ideal"
+    with pytest.raises(ValueError, match="unknown sensor model"):
+        SimulatedCamera(cam, model="kinect_v9")
+
+
+def test_sim_source_frames_of_a_cell():
+    cell = load_cell("flacco-walls")
+    src = SimSource(cell, seed=1)
+    frames = src.frames(0.0, labels=True)
+    assert set(frames) == {"cam0"}
+    f = frames["cam0"]
+    assert isinstance(f, Frame) and f.camera_id == "cam0" and f.stamp == 0.0
+    assert f.depth.shape == (480, 640) and f.depth.dtype == np.float32
+    names = cell.scene.meshes_at(0.0)[1]
+    assert {names[i] for i in np.unique(f.labels) if i >= 0} == {"table", "wall"}
+    # the frame is a pure function of (seed, camera, t)
+    np.testing.assert_array_equal(SimSource(cell, seed=1).frames(0.0)["cam0"].depth, f.depth)
+    # noiseless frames equal the rendered depth
+    ideal = render_depth(cell.rig.camera("cam0"), cell.scene.meshes_at(0.0)[0])
+    nf = SimSource(cell, noiseless=True).frames(0.0)["cam0"].depth
+    np.testing.assert_array_equal(nf[ideal > 0.4], ideal[ideal > 0.4])
+
+
+def test_sim_source_needs_a_scene():
+    with pytest.raises(ValueError, match="rig= and scene="):
+        SimSource(rig=load_cell("flacco-walls").rig)
+    cell = load_cell("flacco-walls")
+    src = SimSource(rig=cell.rig, scene=Scene([]), noiseless=True)
+    assert (src.frames(0.0)["cam0"].depth == 0).all()  # nothing to see
