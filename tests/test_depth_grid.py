@@ -116,6 +116,23 @@ def test_grid_kernel_equals_numpy_twin(method):
     assert np.isfinite(d).sum() >= 5           # the comparison is not vacuous
 
 
+def test_reach_band_gives_the_same_answers():
+    """Restricting the per-frame work to a box holding the rho-balls changes nothing for
+    points inside it; gray cells outside it count as obstacles (safe)."""
+    rng = np.random.default_rng(11)
+    prims, cams, depths = _scene(rng, 2)
+    grid = DepthGridMap(cams, "c0", 1.0, 4.6, 0.03, cache=False)
+    P = rng.uniform(-0.7, 0.7, (16, 3))
+    full = grid.distance(depths, P, 0.4, "hybrid")
+    box = (P.min(0) - 0.45, P.max(0) + 0.45)
+    part = grid.distance(depths, P, 0.4, "hybrid", reach=box)
+    np.testing.assert_array_equal(full.distance, part.distance)
+    np.testing.assert_array_equal(full.direction, part.direction)
+    assert np.isfinite(full.distance).sum() >= 3
+    far = grid.distance(depths, P, 0.4, "hybrid", reach=(np.full(3, 5.0), np.full(3, 6.0)))
+    assert np.all(far.distance <= full.distance)
+
+
 def test_capsule_intervals_match_corner_test(rng):
     """Per-pixel capsule intervals (analytic ray-capsule) agree with the 8-corner test."""
     cam = _cam("c0", (2.5, 0, 1), w=40, h=30, f=32.0)

@@ -91,3 +91,20 @@ def test_reproduce_command_writes_figures_and_table(tmp_path):
     lines = (out / "table.csv").read_text().splitlines()
     assert len(lines) == 22 and lines[0].startswith("x,truth,cartesian_D")
     assert "min" in r.output and "Cartesian" in r.output
+
+
+@pytest.mark.slow
+def test_bench_group_quick_rows():
+    from depthguard.evaluation.bench import BenchContext
+    from depthguard.evaluation.bench.distance import bench_distance
+
+    rows = {r.name: r for r in bench_distance(BenchContext(quick=True, repeats=3))}
+    for name, paper in (("distance.min.worst_ms", 1.46), ("distance.mean.worst_ms", 3.335),
+                        ("distance.hybrid.worst_ms", 3.335), ("distance.cartesian_kdtree.worst_ms", 70.6),
+                        ("distance.cartesian_brute.worst_ms", 70.6)):
+        assert rows[name].paper == paper and rows[name].peer_value is not None
+    for name in ("distance.hybrid.9pts_ms", "distance.hybrid.32pts_ms", "distance.prepare_ms",
+                 "distance.hybrid_vs_kdtree.speedup"):
+        assert name in rows
+    assert all(np.isfinite(r.value) and r.value > 0 for r in rows.values())
+    assert "build" in rows["distance.cartesian_kdtree.worst_ms"].note

@@ -198,8 +198,12 @@ def test_four_nodes_kill_freeze_restart_settings(tmp_path, server, client):
         assert t_drop <= 1.5
         # the killed one is reported left at once (its session closed); the frozen one after the lease
         assert wait_until(lambda: {n["camera"]: n["state"] for n in server.status()["nodes"]}["cam1"] == "left", 0.5)
+        t_killed_left = time.monotonic() - t0
         assert wait_until(lambda: {n["camera"]: n["state"] for n in server.status()["nodes"]}["cam2"] == "left",
                           1.6 - (time.monotonic() - t0) + 0.5)
+        t_frozen_left = time.monotonic() - t0
+        print(f"voxels dropped after {t_drop:.3f} s; killed 'left' after {t_killed_left:.3f} s; "
+              f"frozen 'left' after {t_frozen_left:.3f} s")
         # restart the killed one: old id back, no new storage
         procs["cam1"].wait(5)
         procs["cam1"] = _spawn(rig, "cam1", server.endpoint)
@@ -227,3 +231,117 @@ def test_four_nodes_kill_freeze_restart_settings(tmp_path, server, client):
                     pass
                 p.kill()
             p.wait(10)
+
+
+def _cli(*args):
+    return [sys.executable, "-m", "depthguard.cli", *args]
+
+
+@pytest.mark.multiprocess
+@pytest.mark.slow
+@pytest.mark.timeout(120)
+def test_cli_server_node_status(tmp_path):
+    """`depthguard server`, `depthguard node`, `depthguard status --json` as a user runs them;
+    a node whose camera is not in the server's rig is refused (exit 2, one error line)."""
+    import json
+
+    rig = _rig(tmp_path)
+    bad_rig = tmp_path / "intruder.yaml"
+    bad_rig.write_text(rig.read_text().replace("id: cam3", "id: intruder"))
+    ep = f"tcp/127.0.0.1:{free_port()}"
+    procs = []
+    try:
+        srv = subprocess.Popen(_cli("server", "--rig", str(rig), "--listen", ep, "--every", "0", "--duration", "60"),
+                               stdout=subprocess.DEVNULL, stderr=subprocess.PIPE, text=True)
+        procs.append(srv)
+        node = subprocess.Popen(_cli("node", "--rig", str(rig), "--camera", "cam0", "--source", "pattern",
+                                     "--connect", ep, "--fps", "20"),
+                                stdout=subprocess.DEVNULL, stderr=subprocess.DEVNULL)
+        procs.append(node)
+
+        def fresh():
+            r = subprocess.run(_cli("status", "--connect", ep, "--json", "--timeout", "1"),
+                               capture_output=True, text=True, timeout=30)
+            if r.returncode != 0:
+                return None
+            st = json.loads(r.stdout)
+            return st if st["nodes"] and st["nodes"][0]["state"] == "fresh" else None
+        st = wait_until(fresh, 60.0, step=0.5)
+        assert st, "node never became fresh"
+        n = st["nodes"][0]
+        assert (n["camera"], n["id"]) == ("cam0", 1) and n["voxels"] > 0 and n["age_s"] < 0.5
+        assert st["voxels_total"] == n["voxels"] and st["bytes_per_s"] > 0
+        intr = subprocess.run(_cli("node", "--rig", str(bad_rig), "--camera", "intruder", "--source", "pattern",
+                                   "--connect", ep), capture_output=True, text=True, timeout=60)
+        assert intr.returncode == 2
+        assert "not in the rig" in intr.stderr and len(intr.stderr.strip().splitlines()) == 1
+        r = subprocess.run(_cli("status", "--connect", ep, "--json"), capture_output=True, text=True, timeout=30)
+        assert json.loads(r.stdout)["refused"] == 1
+    finally:
+        for p in procs:
+            if p.poll() is None:
+                p.kill()
+            p.wait(10)
+    r = subprocess.run(_cli("status", "--connect", ep, "--timeout", "0.3"), capture_output=True, text=True, timeout=30)
+    assert r.returncode == 2 and "no server answered" in r.stderr
+
+
+def test_node_reinitialises_after_server_restart(tmp_path):
+    """A node whose server restarted (unknown unit id) initialises again and carries on."""
+    from depthguard.distributed.node import build_node
+
+    rig = _rig(tmp_path)
+    port = free_port()
+    ep = f"tcp/127.0.0.1:{port}"
+    srv = FusionServer(["cam0"], W.Settings(voxel_size=0.05), listen=[ep]).start()
+    node = build_node(str(rig), "cam0", "pattern", connect=[ep])
+    try:
+        node.declare_token()
+        node.initialize(timeout=10)
+        assert node.step() > 0 and node.filter.voxel_size == 0.05
+        srv.close()
+        srv = FusionServer(["cam0"], W.Settings(voxel_size=0.03), listen=[ep]).start()
+        # the restarted server does not know unit 1: the node initialises again and adopts its settings
+        assert wait_until(lambda: _try_step(node) and "cam0" in srv.units and srv.units["cam0"].updates > 0, 15.0)
+        assert node.filter.voxel_size == 0.03 and srv.units["cam0"].inits == 1
+    finally:
+        node.close()
+        srv.close()
+
+
+def _try_step(node):
+    from depthguard.distributed.client import ServerUnavailable
+    try:
+        node.step()
+        return True
+    except ServerUnavailable:
+        return False
+
+
+def test_fit_to_wire_coarsens_conservatively(rng):
+    from depthguard.distributed.node import fit_to_wire
+
+    keys = rng.integers(-400, 400, (W.MAX_VOXELS + 5000, 3))
+    k2, c2, s2 = fit_to_wire(keys, np.ones(len(keys), np.int32), 0.01)
+    assert len(k2) <= W.MAX_VOXELS and s2 > 0.01
+    covered = set(map(tuple, k2.tolist()))
+    pts = (keys[:2000] + rng.uniform(0, 1, (2000, 3))) * 0.01
+    assert all(tuple(np.floor(p / s2).astype(int)) in covered for p in pts)
+    W.update_request(1, 1, 0.0, s2, k2, c2)     # and it encodes
+
+
+def test_network_defaults_are_loopback_and_checked():
+    import inspect
+
+    from depthguard.distributed import settings as NS
+    from depthguard.distributed.node import CameraNode
+
+    assert NS.DEFAULT_ENDPOINT.startswith("tcp/127.0.0.1:")
+    assert inspect.signature(FusionServer).parameters["listen"].default == (NS.DEFAULT_ENDPOINT,)
+    assert all("127.0.0.1" in e for e in inspect.signature(CameraNode).parameters["listen"].default)
+    with pytest.raises(ValueError, match="locator"):
+        NS.zenoh_config(listen=["127.0.0.1:7447"])
+    with pytest.raises(ValueError, match="lease"):
+        NS.zenoh_config(lease_ms=5000)
+    with pytest.raises(ValueError, match="zenoh key"):
+        NS.Keys().alive("cam/*")

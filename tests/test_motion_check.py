@@ -104,3 +104,74 @@ def test_braking_distance():
     assert braking_distance(0.2, 0.5, reaction_time=0.1) == pytest.approx(0.06)
     with pytest.raises(ValueError):
         braking_distance(0.0, 1.0)
+
+
+# ------------------------------------------------------------- robot-arm motions
+def _ur3():
+    from depthguard.robot import load_robot
+    return load_robot("ur3")
+
+
+@pytest.mark.slow
+def test_joint_motion_moves_one_joint_by_u_times_S():
+    from depthguard.control.motion_check import joint_motion
+    robot = _ur3()
+    q0 = np.array([0.0, -1.2, 1.0, -1.4, -1.57, 0.0])
+    m = joint_motion(robot, q0, joint=0, sign=-1.0, braking=0.2)
+    q = q0.copy()
+    q[0] -= 2.5 * 0.2
+    got = m.primitives_at(2.5)
+    want = robot.collision_capsules(q)
+    assert len(got) == len(want)
+    for a, b in zip(got, want):
+        assert np.allclose(np.asarray(a.segment()), np.asarray(b.segment()))
+    with pytest.raises(ValueError, match="joint index"):
+        joint_motion(robot, q0, joint=6, sign=1.0, braking=0.1)
+
+
+@pytest.mark.slow
+def test_cartesian_motion_follows_the_direction():
+    from depthguard.control.motion_check import cartesian_motion
+    robot = _ur3()
+    q0 = np.array([0.3, -1.2, 1.2, -1.5, -1.57, 0.0])
+    d = np.array([0.0, 0.6, 0.8])
+    m = cartesian_motion(robot, q0, d, braking=0.05)
+    # after u = 3 the end effector has moved 3 * 0.05 m along d; the joint path is internal,
+    # so look at the last link's capsule, which moves (almost) rigidly with the end effector
+    caps = m.primitives_at(3.0)
+    ee_cap = np.asarray(caps[-1].segment()).mean(axis=0)
+    ref = np.asarray(robot.collision_capsules(q0)[-1].segment()).mean(axis=0)
+    assert np.allclose(ee_cap - ref, 0.15 * d, atol=0.01)
+    with pytest.raises(ValueError, match="direction"):
+        cartesian_motion(robot, q0, [0, 0, 0], braking=0.05)
+
+
+@pytest.mark.slow
+def test_robot_joint_motion_verdict_against_a_wall():
+    # a UR3 base joint turning towards a wall of voxels: contact where the swept capsules
+    # first reach the wall (truth: the capsules' exact sdf at the wall's voxel centres)
+    from depthguard.control.motion_check import joint_motion
+    robot = _ur3()
+    grid = VoxelGrid([-0.8, -0.8, -0.2], [0.8, 0.8, 0.8], 0.04)
+    q0 = np.array([0.0, -0.3, 0.0, -1.57, 0.0, 0.0])
+    c = grid.centres()
+    occ = ((c[:, 1] > 0.35) & (c[:, 0] > 0.0)).reshape(grid.shape)   # obstacle region
+    S = np.deg2rad(10.0)
+    m = joint_motion(robot, q0, joint=0, sign=1.0, braking=S)
+    v = check_motion(occ, grid, m)
+    # truth: smallest u at which some capsule comes within half a voxel diagonal (+ padding)
+    # of an occupied centre, scanned finely
+    occ_c = c[occ.ravel()]
+    u_true = math.inf
+    for u in np.linspace(0, 5, 501):
+        caps = m.primitives_at(u)
+        dmin = min(float(np.min(cp.sdf(occ_c))) for cp in caps)
+        if dmin <= 0.0:
+            u_true = u
+            break
+    assert math.isfinite(u_true) and u_true > 0.5    # the case has a contact ahead
+    assert v.u_contact <= u_true + 1e-9               # never later than the real contact
+    assert v.level == level_of(v.u_contact)
+    # not earlier than the discretisation allows (half a diagonal + padding + a step) at the
+    # lever arm of the part that reaches the wall (> 0.3 m from the base axis)
+    assert v.u_contact * S >= u_true * S - (0.04 * math.sqrt(3) / 2 + 0.04) / 0.3

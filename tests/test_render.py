@@ -258,6 +258,16 @@ def test_inputs_accepted_and_rejected():
         render_depth(cam, [(np.zeros((4, 2)), [[0, 1, 2]])])
     with pytest.raises(ValueError, match="Camera"):
         render_depth("cam0", [m])
+    # a well-typed Mesh skips the Python checks: the kernel checks its values instead
+    r = Renderer(cam)
+    with pytest.raises(ValueError, match=r"meshes\[1\].*face indices"):
+        r.render([m, Mesh(m.vertices, m.faces + np.int32(5))])
+    bad_v = m.vertices.copy()
+    bad_v[3, 1] = np.nan
+    with pytest.raises(ValueError, match=r"meshes\[0\].*finite"):
+        r.render([Mesh(bad_v, m.faces), m])
+    assert not r.depth.any() and np.all(r.labels == -1)   # nothing half-drawn is left behind
+    np.testing.assert_array_equal(r.render([m])[0], ref)
 
 
 def _tz(z):
@@ -371,3 +381,19 @@ def test_builtin_cells_match_embree(name):
     assert len(meshes) == len(names) and meshes
     for cam in cell.rig.cameras:
         assert_matches_embree(cam, meshes, cull_back=True)
+
+
+@pytest.mark.slow
+def test_bench_group_quick_rows():
+    """The ``render`` bench group (quick mode) yields its three rows, each with the Embree
+    peer measured on the same frame (no speed is asserted: timings belong to the bench)."""
+    from depthguard.evaluation.bench import BenchContext
+    from depthguard.evaluation.bench.render import bench_render
+
+    rows = {r.name: r for r in bench_render(BenchContext(quick=True, repeats=3))}
+    assert set(rows) == {"render.ur3_cell.640x480_ms", "render.ur3_cell.1280x720_ms",
+                         "render.soup200k.640x480_ms"}
+    for r in rows.values():
+        assert r.unit == "ms" and r.peer == "embree"
+        assert np.isfinite(r.value) and r.value > 0
+        assert np.isfinite(r.peer_value) and r.peer_value > 0

@@ -6,7 +6,7 @@ import numpy as np
 import pytest
 from scipy.stats import norm
 
-from depthguard.sources.noise import apply_noise, depth_edges, kinect_quantise
+from depthguard.sources.noise import NoiseWorkspace, apply_noise, depth_edges, depth_edges_kernel, kinect_quantise
 from depthguard.sources.sensors import sensor_model
 
 H, W = 240, 320
@@ -154,3 +154,40 @@ def test_tof_flying_pixels_between_the_two_sides():
 def test_bad_input_names_the_problem():
     with pytest.raises(ValueError, match="2-D"):
         apply_noise(np.zeros(5), sensor_model("tof"), FX, np.random.default_rng(0))
+
+
+def random_scene_image(rng, h=60, w=80):
+    """Blocks at random depths, holes, and a slanted plane: many kinds of edges."""
+    img = np.full((h, w), 3.0) + np.linspace(0, 0.5, w)[None, :]
+    for _ in range(8):
+        v, u = rng.integers(0, h - 10), rng.integers(0, w - 10)
+        img[v:v + rng.integers(3, 20), u:u + rng.integers(3, 20)] = rng.uniform(0.2, 5.0)
+    img[rng.random((h, w)) < 0.03] = 0.0
+    img[0, 0] = np.nan
+    return img.astype(np.float32)
+
+
+def test_edge_kernel_matches_numpy_twin(rng):
+    for _ in range(5):
+        img = random_scene_image(rng)
+        e_ref, o_ref = depth_edges(img)
+        z = np.nan_to_num(img.astype(np.float64))
+        edge, other = np.empty(z.shape, bool), np.empty(z.shape)
+        n, n_valid = depth_edges_kernel(z, 0.03, 0.02, edge, other)
+        np.testing.assert_array_equal(edge, e_ref)
+        np.testing.assert_array_equal(other, o_ref)
+        assert n == e_ref.sum() and n_valid == (z > 0).sum()
+
+
+@pytest.mark.parametrize("name", ["kinect_v1", "realsense_d435", "tof"])
+def test_noise_kernel_matches_numpy_twin(rng, name):
+    m = sensor_model(name)
+    if name == "kinect_v1":
+        m = dataclasses.replace(m, sigma_a=0.002)  # exercise the second normal draw too
+    ws = NoiseWorkspace((60, 80))
+    for seed in range(4):
+        img = random_scene_image(rng)
+        a = apply_noise(img, m, FX, np.random.default_rng(seed), ws=ws)
+        b = apply_noise(img, m, FX, np.random.default_rng(seed), use_numpy=True)
+        np.testing.assert_array_equal(a == 0, b == 0)
+        np.testing.assert_allclose(a, b, rtol=1e-6, atol=1e-7)

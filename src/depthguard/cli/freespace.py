@@ -32,8 +32,11 @@ def hamersma2011(
     res = run(out, voxels=voxels, seed=seed, quick=quick, log=log, placement=not no_placement,
               calibration=not no_calibration)
     typer.echo((out / "report.md").read_text())
-    n_u = sum(r["verdict"] == "u" for rows in res["verdicts"].values() for r in rows)
-    typer.echo(f"unsafe verdicts: {n_u}; report: {out / 'report.md'}")
+    for label, rr in res["rigs"].items():
+        n = sum(len(rows) for rows in rr["verdicts"].values())
+        n_u = sum(r["verdict"] == "u" for rows in rr["verdicts"].values() for r in rows)
+        typer.echo(f"rig {label}: {n_u} unsafe verdicts of {n}")
+    typer.echo(f"report: {out / 'report.md'}")
 
 
 @app.command("placement")

@@ -65,20 +65,14 @@ def constraint_limits(J_C, D, V, qd_max, rho: float, alpha: float,
         raise ValueError(f"D must have shape ({m},) and V ({m}, 3); got {d.shape} and {v.shape}")
     vmax = _as_limits(qd_max, n)
     f = risk(d, rho, alpha)                                    # (m,), 0 where D = inf
-    scale = 1.0 - f                                            # (m,)
-    hi = vmax.copy()
-    lo = -vmax.copy()
-    for c in range(m):
-        if f[c] == 0.0:
-            continue
-        s = J[c].T @ (v[c] * f[c])                             # eq. (21), (n,)
-        smax = np.abs(s).max()
-        if smax == 0.0:
-            continue
-        pos = s > tol * smax
-        neg = s < -tol * smax
-        np.minimum(hi, np.where(pos, vmax * scale[c], np.inf), out=hi)
-        np.maximum(lo, np.where(neg, -vmax * scale[c], -np.inf), out=lo)
+    Vf = np.where(np.isfinite(d)[:, None], v, 0.0) * f[:, None]  # (m, 3); V ignored where D = inf
+    s = np.einsum("cij,ci->cj", J, Vf)                         # eq. (21), (m, n)
+    smax = np.abs(s).max(axis=1, keepdims=True)                # (m, 1)
+    pos = s > tol * smax                                       # joint i moves C towards the obstacle
+    neg = s < -tol * smax
+    cap = vmax[None, :] * (1.0 - f)[:, None]                   # eq. (22), (m, n)
+    hi = np.minimum(vmax, np.where(pos, cap, np.inf).min(axis=0))
+    lo = np.maximum(-vmax, np.where(neg, -cap, -np.inf).max(axis=0))
     return lo, hi
 
 

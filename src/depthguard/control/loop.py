@@ -42,7 +42,7 @@ from depthguard.control.repulsion import repulsive_velocity
 from depthguard.control.sns import SNSWorkspace, sns_velocity
 from depthguard.control.trajectory import Hexagon
 
-__all__ = ["LoopConfig", "LoopResult", "ClosedLoop", "SafetySupervisor", "solve_ik"]
+__all__ = ["LoopConfig", "LoopResult", "ClosedLoop", "SafetySupervisor", "solve_ik", "stop_reasons"]
 
 
 @dataclass(frozen=True)
@@ -126,6 +126,32 @@ class SafetySupervisor:
         return self.k
 
 
+def stop_reasons(ages, age_limit: float, camera_ids, observed, D, V, names) -> dict[str, str]:
+    """The conditions that make the supervisor stop the robot, ``key -> message`` (R26, R27).
+
+    ``ages`` (n_cam,) s since each camera's last frame (``inf`` before the
+    first); ``observed`` (m,) bool; ``D`` (m,) m; ``V`` (m, 3). Rules:
+    a frame older than ``age_limit`` (stale data, R27); a control point that
+    no camera can judge (``observed = False``, R26: the worst case, not free);
+    a control point inside an obstacle frustum (finite ``D`` that is 0 or has
+    no direction: no way to flee, and R14 gives no limit without ``V``).
+    ``D = inf`` (nothing within ρ) is never a reason.
+    """
+    reasons = {}
+    for i, cid in enumerate(camera_ids):
+        if ages[i] > age_limit + 1e-9:
+            reasons[f"stale:{cid}"] = (f"camera {cid}: no frame for more than {age_limit * 1e3:.0f} ms "
+                                       f"- stale data (R27)")
+    for j in np.nonzero(~np.asarray(observed, dtype=bool))[0]:
+        reasons[f"unobserved:{names[j]}"] = f"control point {names[j]} is not observed by any camera (R26)"
+    D = np.asarray(D, dtype=np.float64)
+    inside = np.isfinite(D) & ((D <= 0.0) | (np.linalg.norm(V, axis=1) == 0.0))
+    for j in np.nonzero(inside)[0]:
+        reasons[f"inside:{names[j]}"] = (f"control point {names[j]} lies inside an obstacle frustum "
+                                         f"(D = 0, no direction)")
+    return reasons
+
+
 def solve_ik(robot, target: np.ndarray, q0: np.ndarray, iters: int = 500, tol: float = 1e-6) -> np.ndarray:
     """Joints that put control point 0 (the EE) at ``target`` (3,), from ``q0``: damped least squares
     with a small pull towards ``q0``; raises ``ValueError`` if the target is not reached."""
@@ -160,6 +186,7 @@ class LoopResult:
     override: np.ndarray          # (T,) safety override k
     gt_cp: np.ndarray             # (T, m) true distance of each control point to the obstacles
     gt_robot: np.ndarray          # (T,) true distance robot capsules <-> obstacles
+    gt_robot_dyn: np.ndarray      # (T,) the same to the moving obstacles only (people, props, scripted)
     frame_age: np.ndarray         # (T, n_cam) s
     control_point_names: list[str]
     camera_ids: list[str]
@@ -176,12 +203,14 @@ class ClosedLoop:
     ``cell``: from :func:`depthguard.sim.load_cell` (``.rig`` with cameras and
     robot, ``.scene``); ``extra_obstacles``: ``t -> list[Primitive]`` scripted
     by the scenario (rendered and in the ground truth); ``dropout``: camera id
-    -> time after which it delivers no more frames.
+    -> time after which it delivers no more frames; ``cell_dynamic``: also the
+    cell's own scripted people and props (off by default: they are scripted
+    around the cell's own robot trajectory, not around this controlled robot).
     """
 
     def __init__(self, cell, config: LoopConfig | None = None,
                  extra_obstacles: Callable[[float], list] | None = None,
-                 dropout: dict[str, float] | None = None, seed: int = 0):
+                 dropout: dict[str, float] | None = None, seed: int = 0, cell_dynamic: bool = False):
         from depthguard.sources import SimulatedCamera
 
         self.cfg = cfg = config or LoopConfig()
@@ -191,6 +220,8 @@ class ClosedLoop:
             raise ValueError("the cell's rig has no robot")
         self.robot = rig.robot
         self.scene = cell.scene
+        self.cell_dynamic = bool(cell_dynamic)
+        self._static_meshes = [p.mesh() for p in self.scene.static]
         cams = list(rig.cameras)
         if cfg.cameras is not None:
             cams = [rig.camera(c) for c in cfg.cameras]
@@ -239,6 +270,7 @@ class ClosedLoop:
     def _setup_ground_truth(self):
         """Capsules that never move and touch the static scene (the base on its mount) are left out
         of the ground truth; every other capsule counts (reported in the summary)."""
+        from depthguard.sim.ground_truth import true_distance
         q = self.q_start
         ab0, r0 = self.robot.collision_segments(q)
         rng = np.random.default_rng(1)
@@ -253,7 +285,7 @@ class ClosedLoop:
         for i in range(len(ab0)):
             u = np.linspace(0.0, 1.0, self.gt_n[i])[:, None]
             pts = ab0[i, 0] * (1 - u) + ab0[i, 1] * u
-            touching[i] = np.min(np.asarray(self.scene.true_distance(pts, 0.0)) - r0[i]) <= 0.005
+            touching[i] = np.min(true_distance(self.scene.static, pts) - r0[i]) <= 0.005
         keep = moved | ~touching
         self.gt_caps = np.nonzero(keep)[0]
         self._gt_u = [np.linspace(0.0, 1.0, k)[:, None] for k in self.gt_n]
@@ -262,7 +294,12 @@ class ClosedLoop:
 
     # ------------------------------------------------------------ pieces
     def obstacles_at(self, t: float) -> list:
-        return list(self.scene.obstacles_at(t)) + list(self.extra(t))
+        """Every obstacle at ``t``: the cell's static objects, its people and props if
+        ``cell_dynamic``, and the scenario's scripted primitives."""
+        out = list(self.scene.static)
+        if self.cell_dynamic:
+            out += list(self.scene.dynamic_at(t))
+        return out + list(self.extra(t))
 
     def ground_truth(self, P: np.ndarray, q: np.ndarray, t: float) -> tuple[np.ndarray, float]:
         """True distances at ``t``: (m,) control points ``P`` to the obstacles (0 inside) and the
@@ -277,14 +314,17 @@ class ClosedLoop:
             pts.append(ab[i, 0] * (1 - u) + ab[i, 1] * u)
             rad.append(np.full(len(u), r[i]))
         X = np.concatenate(pts)
-        sd = np.asarray(true_distance(self.obstacles_at(t), X), dtype=np.float64)   # 0 inside
-        d = sd - np.concatenate(rad)
+        dyn = ([] if not self.cell_dynamic else list(self.scene.dynamic_at(t))) + list(self.extra(t))
+        sd_dyn = np.asarray(true_distance(dyn, X), dtype=np.float64)                  # 0 inside
+        sd = np.minimum(sd_dyn, true_distance(self.scene.static, X))
+        r_all = np.concatenate(rad)
+        d = sd - r_all
         m = len(P)
-        return np.maximum(d[:m], 0.0), float(d[m:].min())
+        return np.maximum(d[:m], 0.0), float(d[m:].min()), float((sd_dyn - r_all)[m:].min())
 
     def _env_meshes(self, t: float) -> list:
-        meshes, _names = self.scene.meshes_at(t, robot=False)
-        return list(meshes) + [p.mesh() for p in self.extra(t)]
+        dyn = list(self.scene.dynamic_at(t)) if self.cell_dynamic else []
+        return self._static_meshes + [p.mesh() for p in dyn + list(self.extra(t))]
 
     # ------------------------------------------------------------ run
     def run(self, duration: float, progress: Callable | None = None,
@@ -312,7 +352,7 @@ class ClosedLoop:
         R = {k: np.zeros(s) for k, s in dict(q=(T, n), qd=(T, n), ee=(T, 3), ee_des=(T, 3), D=(T, m),
                                                rep=(T, 3), gt_cp=(T, m), frame_age=(T, nc)).items()}
         R["observed"] = np.zeros((T, m), dtype=bool)
-        for k in ("scale", "override", "gt_robot", "t"):
+        for k in ("scale", "override", "gt_robot", "gt_robot_dyn", "t"):
             R[k] = np.zeros(T)
         timing = dict(camera_sim=0.0, self_removal=0.0, distance=0.0, reaction=0.0, ground_truth=0.0)
 
@@ -344,10 +384,10 @@ class ClosedLoop:
         snaps_todo = sorted(float(x) for x in snapshot_times)
         snapshots = []
         n_distance, next_distance = 0, 0.0
+        frames_dirty = False
         for k in steps:
             t = k * dt
             # 1. vision
-            new_frame = False
             for i, cid in enumerate(cam_ids):
                 if t + 1e-9 < next_frame[i]:
                     continue
@@ -356,8 +396,8 @@ class ClosedLoop:
                     continue
                 t0 = time.perf_counter()
                 robot_meshes = robot.link_meshes(q)
-                env = self._env_meshes(t)
-                d = self.sims[cid].capture(env + robot_meshes, stamp=t)
+                scene_meshes = self._env_meshes(t)
+                d = self.sims[cid].capture(scene_meshes + robot_meshes, stamp=t)
                 if cfg.invalid == "far":
                     cam = self.cams[i]
                     d = np.where(d > 0, d, np.float32(cam.max_range - 1e-3)).astype(np.float32)
@@ -370,7 +410,7 @@ class ClosedLoop:
                 timing["self_removal"] += t2 - t1
                 stamps[i] = t
                 n_frames[cid] += 1
-                new_frame = True
+                frames_dirty = True
                 if i == 0 and snaps_todo and t >= snaps_todo[0] - 1e-9:
                     snaps_todo.pop(0)
                     snapshots.append((t, cid, depths[cid].copy()))
@@ -378,18 +418,20 @@ class ClosedLoop:
             t0 = time.perf_counter()
             robot.forward(q, data)
             P = data.cp_positions
-            due = k == 0 or new_frame or cfg.distance_hz is None or t + 1e-9 >= next_distance
+            due = k == 0 or cfg.distance_hz is None or t + 1e-9 >= next_distance
             if not due:
                 pass                                   # hold D, V, obs of the last distance cycle
             elif self.grid is not None:
-                if new_frame:
+                if frames_dirty:
                     self.grid.set_frames(depths, rdepths, robot_offset=cfg.robot_offset)
+                    frames_dirty = False
                 self.grid.set_robot_capsules(robot.collision_segments(q, cfg.robot_padding))
                 res = self.grid.query(P, rho=rho, method=cfg.method)
             else:
-                if new_frame:
+                if frames_dirty:
                     cid = cam_ids[0]
                     self.single.set_depth(depths[cid], robot_depth=rdepths[cid], robot_offset=cfg.robot_offset)
+                    frames_dirty = False
                 res = self.single.query(P, rho=rho, method=cfg.method)
             if due:
                 D = np.array(res.distance, dtype=np.float64)
@@ -402,18 +444,7 @@ class ClosedLoop:
             timing["distance"] += t1 - t0
             # 3. supervision
             ages = t - stamps
-            reasons = {}
-            for i, cid in enumerate(cam_ids):
-                if ages[i] > age_limit + 1e-9:
-                    reasons[f"stale:{cid}"] = (f"camera {cid}: no frame for more than {age_limit * 1e3:.0f} ms "
-                                               f"({cfg.stale_periods:g} frame periods) - stale data (R27)")
-            for j in np.nonzero(~obs)[0]:
-                reasons[f"unobserved:{self.cp_names[j]}"] = (
-                    f"control point {self.cp_names[j]} is not observed by any camera (R26)")
-            inside = np.isfinite(D) & ((D <= 0.0) | (np.linalg.norm(V, axis=1) == 0.0))
-            for j in np.nonzero(inside)[0]:
-                reasons[f"inside:{self.cp_names[j]}"] = (
-                    f"control point {self.cp_names[j]} lies inside an obstacle frustum (D = 0, no direction)")
+            reasons = stop_reasons(ages, age_limit, cam_ids, obs, D, V, self.cp_names)
             kov = sup.update(t, reasons)
             # 4. reaction
             x = P[0]
@@ -442,7 +473,7 @@ class ClosedLoop:
             R["override"][k] = kov
             R["frame_age"][k] = ages
             # 5. ground truth
-            R["gt_cp"][k], R["gt_robot"][k] = self.ground_truth(P, q, t)
+            R["gt_cp"][k], R["gt_robot"][k], R["gt_robot_dyn"][k] = self.ground_truth(P, q, t)
             timing["ground_truth"] += time.perf_counter() - t2
             # integrate
             q = q + r.qd * dt
@@ -451,7 +482,7 @@ class ClosedLoop:
         timing["distance_cycles"] = n_distance
         return LoopResult(t=R["t"], q=R["q"], qd=R["qd"], ee=R["ee"], ee_des=R["ee_des"], D=R["D"],
                           observed=R["observed"], rep=R["rep"], scale=R["scale"], override=R["override"],
-                          gt_cp=R["gt_cp"], gt_robot=R["gt_robot"], frame_age=R["frame_age"],
+                          gt_cp=R["gt_cp"], gt_robot=R["gt_robot"], gt_robot_dyn=R["gt_robot_dyn"], frame_age=R["frame_age"],
                           control_point_names=list(self.cp_names), camera_ids=cam_ids,
                           episodes=sup.episodes, timing=timing, n_frames=n_frames,
                           excluded_capsules=list(self.excluded_caps), snapshots=snapshots)

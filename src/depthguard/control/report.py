@@ -65,6 +65,8 @@ def summarize(res, scenario: str, description: str, config, hexagon, extra: dict
         "duration_s": duration,
         "min_true_distance_m": float(np.min(res.gt_robot)),
         "collision": bool(np.min(res.gt_robot) <= 0.0),
+        "min_true_distance_dynamic_m": (None if not np.isfinite(np.min(res.gt_robot_dyn))
+                                        else float(np.min(res.gt_robot_dyn))),
         "min_true_distance_control_points_m": float(np.min(res.gt_cp)),
         "ee_tracking_rms_m": _rms(err[clear]),
         "ee_tracking_clear_share": float(np.mean(clear)),
@@ -137,7 +139,8 @@ def write_report(out: Path, res, summary: dict, hexagon, rho: float, snapshots=N
     D = np.where(np.isfinite(res.D), res.D, np.nan)
     axs[0].plot(t, D[:, 0], color="tab:blue", label=f"{res.control_point_names[0]} (sensed)")
     axs[0].plot(t, res.gt_cp[:, 0].clip(max=1.0), color="tab:blue", ls=":", label="EE point, true")
-    axs[0].plot(t, res.gt_robot.clip(max=1.0), color="k", lw=1, label="robot capsules, true")
+    if np.isfinite(res.gt_robot_dyn).any():
+        axs[0].plot(t, res.gt_robot_dyn.clip(max=1.0), color="k", lw=1, label="robot <-> moving obstacles, true")
     axs[0].axhline(rho, color="gray", ls="--", lw=0.8)
     axs[0].set_ylabel("distance [m]")
     axs[0].set_ylim(0, max(rho * 1.5, 0.1))

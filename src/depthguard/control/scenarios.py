@@ -213,6 +213,10 @@ def run_scenario(name: str, out=None, duration: float | None = None, seed: int =
     dur = float(sc.duration if duration is None else duration)
     if not (np.isfinite(dur) and dur > 0):
         raise ValueError(f"duration must be > 0 s, got {duration!r}")
+    if cfg.fusion == "single" and sc.dropout:
+        # one camera only: the one that stops is the principal
+        principal = cfg.principal or c.rig.cameras[0].id
+        sc.dropout = {principal: min(sc.dropout.values())}
     loop = ClosedLoop(c, cfg, extra_obstacles=sc.obstacles, dropout=sc.dropout, seed=seed)
     res = loop.run(dur, progress=progress, snapshot_times=tuple(x for x in sc.snapshot_times if x < dur))
     summary = summarize(res, name, sc.description, cfg, cfg.hexagon,

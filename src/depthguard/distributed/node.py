@@ -140,8 +140,9 @@ class CameraNode:
 
     # -------------------------------------------------------------- protocol
     def _apply(self, s: W.Settings) -> None:
-        if self.settings is not None and s.epoch == self.settings.epoch:
-            return
+        """Adopt the server's settings (cheap when nothing changed: the filter keeps its
+        buffers for an unchanged voxel size and its robot render for unchanged joints).
+        No epoch shortcut: a restarted server counts its epochs from 0 again."""
         self.filter.configure(voxel_size=s.voxel_size, threshold=s.threshold)
         if math.isnan(s.offset_const) or math.isnan(s.offset_k):
             self.filter.offset = self._default_offset

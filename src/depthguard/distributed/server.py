@@ -249,6 +249,9 @@ class FusionServer:
 
         key = str(sample.key_expr)
         cam = key.rsplit("/", 1)[-1]
+        if cam not in self.cameras:
+            self._log(f"liveliness token of unknown camera {cam!r} ignored")
+            return
         with self._lock:
             if sample.kind == zenoh.SampleKind.PUT:
                 self._alive.add(cam)

@@ -20,6 +20,7 @@ DEFAULT_PREFIX = "depthguard"
 DEFAULT_LEASE_MS = 1000
 
 _ENDPOINT = re.compile(r"^(tcp|udp|quic|tls|unixsock-stream)/[^\s]+$")
+_CHUNK = re.compile(r"^[A-Za-z0-9_\-.]+$")
 _PREFIX = re.compile(r"^[A-Za-z0-9_\-]+(/[A-Za-z0-9_\-]+)*$")
 
 
@@ -60,6 +61,8 @@ class Keys:
         return f"{self.prefix}/trigger"
 
     def alive(self, camera: str = "*") -> str:
+        if camera != "*" and not _CHUNK.match(camera):
+            raise ValueError(f"camera id {camera!r} cannot name a zenoh key: use letters, digits, '_', '-', '.'")
         return f"{self.prefix}/alive/{camera}"
 
 

@@ -105,6 +105,35 @@ def _passes_kernel(seen, az, min_views, min_sep, out):
         out[n] = ok
 
 
+@nb.njit(cache=True, parallel=True)
+def _gain_kernel(seen, az, chosen, passing, cand, min_sep, out):
+    """For each candidate camera: how many voxels not yet passing would pass with it added
+    (a new passing triple must contain the candidate and two chosen cameras)."""
+    K = chosen.shape[0]
+    N = seen.shape[1]
+    for ci in nb.prange(cand.shape[0]):
+        c = cand[ci]
+        g = 0
+        for n in range(N):
+            if passing[n] or not seen[c, n]:
+                continue
+            hit = False
+            for a in range(K):
+                i = chosen[a]
+                if not seen[i, n] or _sep(az[i, n], az[c, n]) < min_sep:
+                    continue
+                for b in range(a + 1, K):
+                    j = chosen[b]
+                    if seen[j, n] and _sep(az[j, n], az[c, n]) >= min_sep and _sep(az[i, n], az[j, n]) >= min_sep:
+                        hit = True
+                        break
+                if hit:
+                    break
+            if hit:
+                g += 1
+        out[ci] = g
+
+
 def passes_criterion(seen: np.ndarray, az: np.ndarray, min_views: int = 3,
                      min_separation_deg: float = 100.0) -> np.ndarray:
     """R23: (N,) bool — at least ``min_views`` cameras see the voxel and (for 3 or more)
@@ -204,33 +233,42 @@ class PlacementResult:
 
 
 def greedy_placement(seen: np.ndarray, az: np.ndarray, candidates, target_share: float = 1.0,
-                     max_cameras: int = 40, prune: bool = True, start=(), **kw) -> PlacementResult:
-    """Greedy improver (R23): add the candidate that raises the passing share most (ties:
-    the one that brings most voxels closer to three views) until ``target_share`` is reached, then drop any camera
-    whose removal keeps the share at the target. ``start``: indices already placed."""
+                     max_cameras: int = 40, prune: bool = True, start=(), min_views: int = 3,
+                     min_separation_deg: float = 100.0) -> PlacementResult:
+    """Greedy improver (R23): add the candidate that makes most voxels pass (ties, and
+    while fewer than three cameras are placed: the one bringing most voxels closer to
+    three views) until ``target_share`` is reached, then drop any camera whose removal
+    keeps the share at the target. ``start``: indices already placed."""
+    kw = dict(min_views=min_views, min_separation_deg=min_separation_deg)
+    seen = np.ascontiguousarray(seen, dtype=np.bool_)
+    az = np.ascontiguousarray(az, dtype=np.float64)
     C, N = seen.shape
     chosen = list(start)
     share = []
-    best_share = passes_criterion(seen[chosen], az[chosen], **kw).mean() if chosen else 0.0
+    passing = passes_criterion(seen[chosen], az[chosen], **kw) if chosen else np.zeros(N, bool)
+    best_share = float(passing.mean())
+    lim = math.radians(min_separation_deg) - 1e-12
+    gains = np.zeros(C, dtype=np.int64)
     while best_share < target_share - 1e-12 and len(chosen) < max_cameras:
-        best = None
-        for c in range(C):
-            if c in chosen:
-                continue
-            idx = chosen + [c]
-            s = passes_criterion(seen[idx], az[idx], **kw).mean()
-            key = (s, int(np.minimum(seen[idx].sum(axis=0), 3).sum()))
-            if best is None or key > best[0]:
-                best = (key, c)
-        if best is None:
+        cand = np.array([c for c in range(C) if c not in chosen], dtype=np.int64)
+        if not len(cand):
             break
-        chosen.append(best[1])
-        best_share = best[0][0]
+        nviews = seen[chosen].sum(axis=0) if chosen else np.zeros(N, dtype=np.int64)
+        progress = (np.minimum(nviews[None, :] + seen[cand], 3)).sum(axis=1)
+        if len(chosen) >= 2:
+            _gain_kernel(seen, az, np.asarray(chosen, dtype=np.int64), passing, cand, lim, gains[:len(cand)])
+            g = gains[:len(cand)]
+        else:
+            g = np.zeros(len(cand), dtype=np.int64)
+        best = max(range(len(cand)), key=lambda k: (g[k], progress[k]))
+        chosen.append(int(cand[best]))
+        passing = passes_criterion(seen[chosen], az[chosen], **kw)
+        best_share = float(passing.mean())
         share.append(best_share)
     if prune and best_share >= target_share - 1e-12:
         for c in list(chosen)[::-1]:
             idx = [x for x in chosen if x != c]
             if idx and passes_criterion(seen[idx], az[idx], **kw).mean() >= target_share - 1e-12:
                 chosen = idx
-        best_share = passes_criterion(seen[chosen], az[chosen], **kw).mean()
-    return PlacementResult(chosen, share, float(best_share), [candidates[i] for i in chosen])
+        best_share = float(passes_criterion(seen[chosen], az[chosen], **kw).mean())
+    return PlacementResult(chosen, share, best_share, [candidates[i] for i in chosen])

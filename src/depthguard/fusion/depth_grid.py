@@ -39,6 +39,7 @@ from depthguard.fusion import depth_grid_kernels as K
 __all__ = ["DepthGridMap", "MultiPrincipalDepthGrid", "default_cache_dir"]
 
 _FORMAT = 1
+RUNS_PER_COLUMN = 8          # obstacle runs kept per principal column; more are merged (safe side)
 _METHODS = {"min": K.METHOD_MIN, "mean": K.METHOD_MEAN, "hybrid": K.METHOD_HYBRID}
 
 
@@ -282,6 +283,10 @@ class DepthGridMap:
         self._kfree = np.zeros((max(nk, 1), Hk, Wk))
         self._kkind = np.empty((Hk, Wk), dtype=np.int8)
         levels = max(1, int(math.ceil(math.log2(max(Hk, Wk)))) + 1)
+        self._runs = np.zeros(P.shape + (RUNS_PER_COLUMN, 2), dtype=np.int32)
+        self._nruns = np.zeros(P.shape, dtype=np.int32)
+        self._band = np.zeros(P.shape + (2,), dtype=np.int32)
+        self._tile_first = np.zeros((-(-P.height // K.TILE), -(-P.width // K.TILE)), dtype=np.int32)
         self._koff = np.zeros((max(nk, 1), levels), dtype=np.int64)
         self._kdims = np.ones((max(nk, 1), levels, 2), dtype=np.int64)
         size = 1
@@ -289,7 +294,8 @@ class DepthGridMap:
             offs, dims, n = _pyramid_layout(c.height, c.width, levels)
             self._koff[k], self._kdims[k] = offs, dims
             size = max(size, n)
-        self._kpyr = np.zeros((max(nk, 1), size))
+        self._kpmin = np.zeros((max(nk, 1), size))
+        self._kpmax = np.zeros((max(nk, 1), size))
         self._no_robot = np.zeros((1, 1), dtype=np.float32)
         self._cap_lo = np.zeros(P.shape + (K.MAX_CAPS_PER_PIXEL,))
         self._cap_hi = np.zeros(P.shape + (K.MAX_CAPS_PER_PIXEL,))
@@ -307,7 +313,7 @@ class DepthGridMap:
 
     def set_frames(self, depths: dict, robot_depths: dict | None = None,
                    robot_offset: float = 0.03, robot_capsules=None, invalid: str = "unknown",
-                   robot_in_others: str = "unknown") -> None:
+                   robot_in_others: str = "unknown", reach=None) -> None:
         """Load one frame per camera (R9, R28); call once per camera frame.
 
         depths : dict camera id -> (H, W) float metres (0 / NaN / out of range =
@@ -333,6 +339,11 @@ class DepthGridMap:
             removal): the pixel confirms nothing; this drops the robot's
             shadow in the other cameras (the shadow of fig. 12 disappears)
             but a hand hidden behind the robot from every camera is missed.
+        reach : optional world box ``(lo (3,), hi (3,))`` holding every ball of radius
+            ``rho`` around the points that will be queried with this frame
+            (e.g. :meth:`robot_reach`). Gray cells outside it are not examined
+            and count as obstacles (safe); answers for points whose balls lie
+            inside are the same as without ``reach``, at a fraction of the cost.
         """
         if not isinstance(depths, dict):
             raise ValueError("depths must be a dict camera id -> depth image")
@@ -362,13 +373,49 @@ class DepthGridMap:
                             self._kfree[k], self._kkind, robot_in_others == "free")
             else:
                 self._kfree[k].fill(0.0)          # nothing seen: clears nothing
-            K.build_min_pyramid(self._kfree[k], cam.height, cam.width, self._kpyr[k],
-                                self._koff[k], self._kdims[k])
+            K.build_pyramids(self._kfree[k], cam.height, cam.width, self._kpmin[k], self._kpmax[k],
+                             self._koff[k], self._kdims[k])
         self.set_robot_capsules(robot_capsules)
+        self._set_band(reach)
+        K.column_runs(self._pfree, self._pkind, self._pint, self.d_min, self.delta_d, self.n_d,
+                      self._kfree, self._kpmin, self._kpmax, self._koff, self._kdims, self._rays_arg,
+                      self._orig_arg, self._kint_arg, len(self.others), self._caps, self._ncaps,
+                      self._cap_lo, self._cap_hi, self._cap_n, self._band, self._runs, self._nruns)
+        K.tile_first_cells(self._runs, self._nruns, self._tile_first)
         self.has_frames = True
 
+    def _set_band(self, reach) -> None:
+        if reach is None:
+            self._band[..., 0] = -(1 << 30)
+            self._band[..., 1] = 1 << 30
+            return
+        try:
+            lo, hi = (np.asarray(x, dtype=np.float64).reshape(3) for x in reach)
+        except (TypeError, ValueError):
+            raise ValueError("reach must be a world box (lo (3,), hi (3,))") from None
+        if not (np.all(np.isfinite(lo)) and np.all(np.isfinite(hi)) and np.all(lo <= hi)):
+            raise ValueError(f"reach must be a finite box with lo <= hi (got {lo}, {hi})")
+        P = self.principal
+        pad = 2.0 * float(np.hypot(1 / P.fx, 1 / P.fy))
+        K.reach_band(lo, hi, np.ascontiguousarray(P.world_from_camera[:3, :3]),
+                     np.ascontiguousarray(P.position), P.fx, P.fy, P.cx, P.cy, self.d_min, self.delta_d,
+                     pad, self._band)
+
+    @staticmethod
+    def robot_reach(robot_capsules, rho: float, margin: float = 0.1):
+        """World box around the robot's capsules grown by ``rho + margin`` (m): the
+        ``reach`` of :meth:`set_frames` for the robot's own control points, which
+        may move ``margin`` between frames."""
+        caps = _capsule_array(robot_capsules)
+        if not len(caps):
+            raise ValueError("robot_reach needs at least one capsule")
+        pts = np.concatenate([caps[:, 0:3], caps[:, 3:6]])
+        r = np.concatenate([caps[:, 6], caps[:, 6]])[:, None]
+        g = float(rho) + float(margin)
+        return (pts - r).min(0) - g, (pts + r).max(0) + g
+
     def set_robot_capsules(self, robot_capsules) -> None:
-        """Set the robot's padded volume (world capsules) used by :meth:`query`."""
+        """Set the robot's padded volume (world capsules); part of :meth:`set_frames`."""
         caps = _capsule_array(robot_capsules)
         self._caps_world = caps
         if len(caps):
@@ -427,25 +474,22 @@ class DepthGridMap:
         n = len(p)
         if n > self._cap:
             self._alloc_points(n)
-        K.grid_distances(self._pfree, self._pkind, self._Rp, self._tp, self._pint,
-                         self.d_min, self.delta_d, self.n_d,
-                         self._kfree, self._kpyr, self._koff, self._kdims,
-                         self._rays_arg, self._orig_arg, self._kint_arg, len(self.others),
-                         self._caps, self._ncaps, self._cap_lo, self._cap_hi, self._cap_n, p, n, r, m,
+        K.grid_distances(self._pfree, self._runs, self._nruns, self._tile_first, self._Rp, self._tp, self._pint,
+                         self.d_min, self.delta_d, p, n, r, m,
                          self._dist, self._dir, self._count, self._obs)
         return DistanceResult(self._dist[:n], self._dir[:n], self._obs[:n], self._count[:n])
 
     def distance(self, depths: dict, points, rho: float = 0.4, method: str = "hybrid",
                  robot_depths: dict | None = None, *, robot_capsules=None,
                  robot_offset: float = 0.03, invalid: str = "unknown",
-                 robot_in_others: str = "unknown") -> DistanceResult:
+                 robot_in_others: str = "unknown", reach=None) -> DistanceResult:
         """Distance from control points to what all cameras see together (SPEC §3, §9).
 
         depths, robot_depths : dict camera id -> (H, W) images (see :meth:`set_frames`).
         points : (N, 3) world metres. rho : radius of surveillance (m).
         method : ``"min"``, ``"mean"`` or ``"hybrid"`` (R7 over the principal's pixels,
             one distance per pixel: its nearest obstacle cell).
-        robot_capsules, robot_offset, invalid, robot_in_others : see :meth:`set_frames`.
+        robot_capsules, robot_offset, invalid, robot_in_others, reach : see :meth:`set_frames`.
 
         Returns a :class:`~depthguard.distance.DistanceResult` with fresh arrays:
         ``distance`` (N,) m, ``inf`` = no obstacle within ``rho``; ``direction``
@@ -453,7 +497,7 @@ class DepthGridMap:
         the point lies in the principal's image and range.
         """
         self.set_frames(depths, robot_depths, robot_offset=robot_offset, robot_capsules=robot_capsules,
-                        invalid=invalid, robot_in_others=robot_in_others)
+                        invalid=invalid, robot_in_others=robot_in_others, reach=reach)
         return self.query(points, rho=rho, method=method).copy()
 
     def __repr__(self) -> str:

@@ -51,7 +51,7 @@ from depthguard.distance.window import surveillance_window
 
 __all__ = [
     "D_ZERO", "KIND_SURFACE", "KIND_ROBOT", "KIND_UNKNOWN", "METHOD_MIN", "METHOD_MEAN", "METHOD_HYBRID",
-    "frame_state", "build_min_pyramid", "capsule_intervals", "MAX_CAPS_PER_PIXEL", "cell_footprint", "cell_cleared", "cell_in_capsules",
+    "frame_state", "build_pyramids", "column_runs", "reach_band", "tile_first_cells", "RUN_END", "TILE", "capsule_intervals", "MAX_CAPS_PER_PIXEL", "cell_footprint", "cell_cleared", "cell_in_capsules",
     "grid_distances",
 ]
 
@@ -106,17 +106,19 @@ def frame_state(depth, robot_depth, use_robot, min_range, max_range, robot_offse
 
 
 @njit(cache=True)
-def build_min_pyramid(free, H, W, pyr, offsets, dims):
-    """Min-pyramid of a free-depth image: level ``l`` holds the minimum over
-    aligned ``2^l x 2^l`` blocks (level 0 is the image). ``pyr`` is a flat
-    float64 buffer; level ``l`` (``dims[l] = (h_l, w_l)``) starts at
-    ``offsets[l]``, row-major. Used only to skip work: a box whose minimum
-    free depth exceeds a depth is free up to that depth in every pixel."""
+def build_pyramids(free, H, W, pmin, pmax, offsets, dims):
+    """Min- and max-pyramids of a free-depth image: level ``l`` holds the
+    minimum (maximum) over aligned ``2^l x 2^l`` blocks (level 0 is the image).
+    ``pmin`` / ``pmax`` are flat float64 buffers; level ``l`` (``dims[l] = (h_l, w_l)``)
+    starts at ``offsets[l]``, row-major. Used only to skip work exactly: a box
+    whose minimum free depth exceeds a depth is free up to it in every pixel;
+    one whose maximum is below a depth is occupied or hidden before it in every pixel."""
     nl = offsets.shape[0]
     o = offsets[0]
     for v in range(H):
         for u in range(W):
-            pyr[o + v * W + u] = free[v, u]
+            pmin[o + v * W + u] = free[v, u]
+            pmax[o + v * W + u] = free[v, u]
     for lv in range(1, nl):
         hp = dims[lv - 1, 0]
         wp = dims[lv - 1, 1]
@@ -127,6 +129,7 @@ def build_min_pyramid(free, H, W, pyr, offsets, dims):
         for v in range(hl):
             for u in range(wl):
                 m = np.inf
+                x = -np.inf
                 for dv in range(2):
                     vv = 2 * v + dv
                     if vv >= hp:
@@ -135,16 +138,21 @@ def build_min_pyramid(free, H, W, pyr, offsets, dims):
                         uu = 2 * u + du
                         if uu >= wp:
                             continue
-                        x = pyr[op + vv * wp + uu]
-                        if x < m:
-                            m = x
-                pyr[ol + v * wl + u] = m
+                        a = pmin[op + vv * wp + uu]
+                        b = pmax[op + vv * wp + uu]
+                        if a < m:
+                            m = a
+                        if b > x:
+                            x = b
+                pmin[ol + v * wl + u] = m
+                pmax[ol + v * wl + u] = x
 
 
 @njit(cache=True, inline="always")
 def _box_min(pyr, offsets, dims, u0, u1, v0, v1):
     """Lower bound of the free depth over pixels ``u0..u1 x v0..v1`` (inclusive):
-    the minimum over the pyramid blocks covering the box (at most 2 x 2)."""
+    the minimum over the pyramid blocks covering the box (at most 2 x 2).
+    With the max-pyramid and the comparison reversed, the upper bound."""
     nl = offsets.shape[0]
     lv = 0
     while lv < nl - 1 and ((u1 >> lv) - (u0 >> lv) > 1 or (v1 >> lv) - (v0 >> lv) > 1):
@@ -160,6 +168,23 @@ def _box_min(pyr, offsets, dims, u0, u1, v0, v1):
         for a in range(a0, a1 + 1):
             x = pyr[ol + b * wl + a]
             if x < m:
+                m = x
+    return m
+
+
+@njit(cache=True, inline="always")
+def _box_max(pyr, offsets, dims, u0, u1, v0, v1):
+    nl = offsets.shape[0]
+    lv = 0
+    while lv < nl - 1 and ((u1 >> lv) - (u0 >> lv) > 1 or (v1 >> lv) - (v0 >> lv) > 1):
+        lv += 1
+    wl = dims[lv, 1]
+    ol = offsets[lv]
+    m = -np.inf
+    for b in range(v0 >> lv, (v1 >> lv) + 1):
+        for a in range(u0 >> lv, (u1 >> lv) + 1):
+            x = pyr[ol + b * wl + a]
+            if x > m:
                 m = x
     return m
 
@@ -264,6 +289,21 @@ def _range_cleared(kpyr, koff, kdims, rays, origins, kint, nk, gx, gy, d1, d2):
         if _box_min(kpyr[k], koff[k], kdims[k], u0, u1, v0, v1) > zmax:
             return True
     return False
+
+
+@njit(cache=True)
+def _range_confirmed(kpmax, koff, kdims, rays, origins, kint, nk, gx, gy, d1, d2):
+    """Fast sufficient test that every cell of the piece ``[d1, d2]`` of a column
+    is confirmed by every other camera: each camera sees the piece whole and the
+    largest free depth over its footprint is below the piece's ``dstart``.
+    True implies :func:`cell_cleared` is False for every cell inside."""
+    for k in range(nk):
+        seen, u0, u1, v0, v1, zmin, zmax = cell_footprint(rays, origins, kint, k, gx, gy, d1, d2)
+        if not seen:
+            return False
+        if not (_box_max(kpmax[k], koff[k], kdims[k], u0, u1, v0, v1) < zmin):
+            return False
+    return True
 
 
 @njit(cache=True)
@@ -419,19 +459,218 @@ def capsule_intervals(caps, ncaps, boxes, fx, fy, cx, cy, H, W, out_lo, out_hi, 
                 out_n[v, u] = min(n + 1, MAX_CAPS_PER_PIXEL + 1)
 
 
-@njit(cache=True)
-def _column(u, v, df, kind, px, py, dp, lim2, fx, fy, cx, cy, dmin, dd, nd,
-            kfree, kpyr, koff, kdims, rays, origins, kint, nk, caps, ncaps, cap_lo, cap_hi, cap_n):
-    """Nearest obstacle cell of the principal pixel ``(u, v)``'s column (R10, R12).
+RUN_END = 1 << 30          # "to the end of the ray" in a run of cells
+TILE = 8                   # principal pixels per tile side (query skips whole tiles)
 
-    Walks the cells whose R10 distance can be ``<= sqrt(lim2)``, from the
-    minimiser of the distance along the column outwards, and stops in each
-    direction once the distance grows past the best found (the R10 distance
-    is a convex function of ``ôd``, which is monotone in ``gd``). A gray cell
-    is first tested against the robot's capsules (per-pixel intervals), then
-    for clearing: a run of cells ahead is tried at once on the other
-    cameras' min-pyramids (a sufficient test), halving the run down to the
-    single cell, which is then tested exactly (:func:`cell_cleared`).
+
+@njit(cache=True)
+def tile_first_cells(runs, nruns, out):
+    """(ceil(H/TILE), ceil(W/TILE)) int32: per tile, the smallest first obstacle cell
+    of its columns (``RUN_END`` if none); a point whose reach ends before it skips the tile."""
+    H = nruns.shape[0]
+    W = nruns.shape[1]
+    for ty in range(out.shape[0]):
+        for tx in range(out.shape[1]):
+            m = RUN_END
+            for v in range(ty * TILE, min(H, ty * TILE + TILE)):
+                for u in range(tx * TILE, min(W, tx * TILE + TILE)):
+                    if nruns[v, u] > 0 and runs[v, u, 0, 0] < m:
+                        m = runs[v, u, 0, 0]
+            out[ty, tx] = m
+
+
+@njit(cache=True, inline="always")
+def _in_caps(cap_lo, cap_hi, ncp, v, u, d1, d2, caps, ncaps, fx, fy, cx, cy, g):
+    if ncp > MAX_CAPS_PER_PIXEL:
+        return cell_in_capsules(caps, ncaps, fx, fy, cx, cy, u, v, d1, d2)
+    for j in range(ncp):
+        if cap_lo[v, u, j] <= d1 and d2 <= cap_hi[v, u, j]:
+            return True
+    return False
+
+
+@njit(cache=True, parallel=True)
+def column_runs(pfree, pkind, pint, dmin, dd, nd, kfree, kpmin, kpmax, koff, kdims, rays, origins,
+                kint, nk, caps, ncaps, cap_lo, cap_hi, cap_n, band, runs, nruns):
+    """Per frame: the obstacle cells of every principal column as runs (R12).
+
+    For pixel ``(u, v)`` with free depth ``df`` and kind: the measured surface
+    cell ``r(do)`` is an obstacle (cases 2/3); the gray cells behind it (from
+    ``r(do) + 1``), behind the robot (from ``r(dr)``, case 4) or on an invalid
+    ray (from ``r(min_range)``) are obstacles unless another camera clears
+    them (:func:`cell_cleared`); cells outside the grid cannot be cleared;
+    cells inside a padded robot capsule never are obstacles. Stretches of
+    cells are settled at once where the other cameras' min / max pyramids
+    prove them all cleared / all confirmed (exact shortcuts), otherwise cell
+    by cell.
+
+    band : (H, W, 2) int32: only gray cells ``band[v, u, 0] <= gd <= band[v, u, 1]``
+        are evaluated (:func:`reach_band`); gray cells outside count as obstacles
+        unseen (safe). A full band evaluates the whole column.
+    runs : (H, W, R, 2) int32 inclusive cell ranges ``[a, b]`` (``b = RUN_END``:
+        to the end of the ray); nruns : (H, W) int32. More than ``R`` runs: the
+        last run absorbs the rest, gaps included (conservative: more obstacle).
+    """
+    H = pfree.shape[0]
+    W = pfree.shape[1]
+    R = runs.shape[2]
+    fx = pint[0]
+    fy = pint[1]
+    cx = pint[2]
+    cy = pint[3]
+    for v in prange(H):
+        for u in range(W):
+            nr = 0
+            df = pfree[v, u]
+            if not df < np.inf:
+                nruns[v, u] = 0
+                continue
+            gs = int(math.floor((df - dmin) / dd))
+            direct = pkind[v, u] == KIND_SURFACE
+            ncp = cap_n[v, u] if ncaps > 0 else 0
+            g_last = nd - 1
+            for j in range(min(ncp, MAX_CAPS_PER_PIXEL)):
+                g_last = max(g_last, int(math.floor((cap_hi[v, u, j] - dmin) / dd)))
+            if ncp > MAX_CAPS_PER_PIXEL:
+                g_last = max(g_last, nd + 1000)
+            g = gs
+            in_run = False
+            known_until = g - 1
+            known_obst = False
+            span_next = 64
+            while g <= g_last:
+                d1 = dmin + g * dd
+                d2 = d1 + dd
+                incap = ncaps > 0 and _in_caps(cap_lo, cap_hi, ncp, v, u, d1, d2, caps, ncaps,
+                                               fx, fy, cx, cy, g)
+                if incap:
+                    obst = False
+                elif (g == gs and direct) or g < 0 or g >= nd:
+                    obst = True
+                elif nk == 0 or g < band[v, u, 0] or g > band[v, u, 1]:
+                    obst = True
+                elif g <= known_until:
+                    obst = known_obst
+                else:
+                    # the stretch g..e may not reach a capsule's cells nor leave the grid
+                    e = min(nd - 1, band[v, u, 1])
+                    for j in range(min(ncp, MAX_CAPS_PER_PIXEL)):
+                        cs = int(math.ceil((cap_lo[v, u, j] - dmin) / dd)) - 2
+                        if cs >= g:
+                            e = min(e, cs)
+                    if ncp > MAX_CAPS_PER_PIXEL:
+                        e = g
+                    span = min(span_next, e - g + 1)
+                    settled = False
+                    if span > 1:
+                        da = d1
+                        db = dmin + (g + span) * dd
+                        if _range_cleared(kpmin, koff, kdims, rays, origins, kint, nk, u, v, da, db):
+                            known_obst = False
+                            settled = True
+                        elif _range_confirmed(kpmax, koff, kdims, rays, origins, kint, nk, u, v, da, db):
+                            known_obst = True
+                            settled = True
+                    if settled:
+                        known_until = g + span - 1
+                        span_next = min(2 * span, 256)
+                        obst = known_obst
+                    else:
+                        # one stretch test per miss, its length shrinking fast: the cost
+                        # stays within a small factor of the cell-by-cell test
+                        span_next = max(span // 4, 1) if span > 1 else min(span_next * 2, 8)
+                        obst = not cell_cleared(kfree, rays, origins, kint, nk, u, v, d1, d2)
+                if obst:
+                    if in_run:
+                        runs[v, u, nr - 1, 1] = g
+                    elif nr < R:
+                        runs[v, u, nr, 0] = g
+                        runs[v, u, nr, 1] = g
+                        nr += 1
+                        in_run = True
+                    else:
+                        runs[v, u, R - 1, 1] = g             # overflow: absorb, gap included
+                        in_run = True
+                else:
+                    in_run = False
+                g += 1
+            # beyond the last examined cell: outside the grid, unknown -> obstacle
+            if g_last >= nd - 1:
+                if in_run:
+                    runs[v, u, nr - 1, 1] = RUN_END
+                elif nr < R:
+                    runs[v, u, nr, 0] = g_last + 1
+                    runs[v, u, nr, 1] = RUN_END
+                    nr += 1
+                else:
+                    runs[v, u, R - 1, 1] = RUN_END
+            nruns[v, u] = nr
+
+
+@njit(cache=True, parallel=True)
+def reach_band(lo, hi, Rwp, o, fx, fy, cx, cy, dmin, dd, pad, band):
+    """Per principal pixel, the slices whose cells can meet the world box
+    ``[lo, hi]`` (R12 work limited to where control points can reach).
+
+    The pixel's centre ray ``o + d Rwp ((u - cx)/fx, (v - cy)/fy, 1)`` (``d`` =
+    principal depth) is clipped by the box grown by ``pad`` metres per metre of
+    depth plus nothing else (``pad >= hypot(1/fx, 1/fy)`` covers the whole
+    pixel frustum). band : (H, W, 2) int32 written ``[first, last]`` slice
+    (``first > last``: none).
+    """
+    H = band.shape[0]
+    W = band.shape[1]
+    for v in prange(H):
+        for u in range(W):
+            c0 = (u - cx) / fx
+            c1 = (v - cy) / fy
+            t0 = 0.0
+            t1 = 1e9
+            for a in range(3):
+                da = Rwp[a, 0] * c0 + Rwp[a, 1] * c1 + Rwp[a, 2]
+                # |X_a - clamp| <= pad * d  -> lo_a - pad d <= o_a + d da <= hi_a + pad d
+                # as linear constraints in d: (da + pad) d >= lo_a - o_a ; (da - pad) d <= hi_a - o_a
+                p = da + pad
+                q = lo[a] - o[a]
+                if p > 0.0:
+                    t0 = max(t0, q / p)
+                elif q > 0.0:
+                    t1 = -1.0
+                p = da - pad
+                q = hi[a] - o[a]
+                if p < 0.0:
+                    t0 = max(t0, q / p)
+                elif p > 0.0:
+                    t1 = min(t1, q / p)
+                elif q < 0.0:
+                    t1 = -1.0
+            if t0 > t1:
+                band[v, u, 0] = 1
+                band[v, u, 1] = 0
+            else:
+                band[v, u, 0] = int(math.floor((t0 - dmin) / dd)) - 1
+                band[v, u, 1] = int(math.floor((min(t1, 1e6) - dmin) / dd)) + 1
+
+
+@njit(cache=True, inline="always")
+def _f2(g, dmin, dd, dp, ax, ay, bx, by):
+    d1 = dmin + g * dd
+    od = min(max(dp, d1), d1 + dd)                             # R10 depth rule
+    wx = ax * od - bx
+    wy = ay * od - by
+    wz = od - dp
+    return wx * wx + wy * wy + wz * wz, wx, wy, wz
+
+
+@njit(cache=True)
+def _column(u, v, runs, nr, px, py, dp, lim2, fx, fy, cx, cy, dmin, dd):
+    """Nearest obstacle cell of the principal pixel ``(u, v)``'s column (R10, R12)
+    among its obstacle runs, by the R10 distance.
+
+    Along the column the R10 distance is ``f(ôd)`` with ``f`` convex and
+    ``ôd = clamp(dp, d1, d2)`` monotone in ``gd``, so ``f`` is unimodal in
+    ``gd`` with its minimum at a cell ``g*`` next to ``r(dstar)``; the
+    minimum over a run ``[a, b]`` is at ``clamp(g*, a, b)``.
     Returns ``(found, D^2, vx, vy, vz)`` (camera-frame vector, R5).
     """
     ox = min(max(px, u - 0.5), u + 0.5)                       # R3
@@ -448,128 +687,55 @@ def _column(u, v, df, kind, px, py, dp, lim2, fx, fy, cx, cy, dmin, dd, nd,
     if qx * qx + qy * qy + qz * qz > lim2:
         return False, 0.0, 0.0, 0.0, 0.0
     rho = math.sqrt(lim2)
-    gs = int(math.floor((df - dmin) / dd))                    # cell of the free depth
+    g_lo = int(math.floor((dp - rho - dmin) / dd))
     g_hi = int(math.floor((dp + rho - dmin) / dd))
-    g_lo = max(gs, int(math.floor((dp - rho - dmin) / dd)))
-    if g_lo > g_hi:
-        return False, 0.0, 0.0, 0.0, 0.0
-    direct = kind == KIND_SURFACE
-    ncp = cap_n[v, u] if ncaps > 0 else 0
-    gm = int(math.floor((dstar - dmin) / dd))
-    gm = min(max(gm, g_lo), g_hi)
+    gr = int(math.floor((dstar - dmin) / dd))
     best2 = lim2
     found = False
     bvx = 0.0
     bvy = 0.0
     bvz = 0.0
-    for dirn in range(2):
-        if dirn == 0:
-            g = gm
-            step = 1
-            gend = g_hi
-        else:
-            g = gm - 1
-            step = -1
-            gend = g_lo
-        clear_to = g - step                   # cells strictly before this (in walk order) are cleared
-        while g_lo <= g <= g_hi:
-            d1 = dmin + g * dd
-            d2 = d1 + dd
-            od = min(max(dp, d1), d2)                          # R10 depth rule
-            wx = ax * od - bx
-            wy = ay * od - by
-            wz = od - dp
-            f2 = wx * wx + wy * wy + wz * wz
-            if f2 > best2 or (found and f2 == best2):
-                if (step == 1 and od >= dstar) or (step == -1 and od <= dstar):
-                    break
-                g += step
-                continue
-            if g == gs and direct:
-                obst = True
-            elif g < 0 or g >= nd:
-                obst = True                                    # outside the grid: unknown
-            else:
-                obst = True
-                # inside the padded robot?
-                if ncp > MAX_CAPS_PER_PIXEL:
-                    if cell_in_capsules(caps, ncaps, fx, fy, cx, cy, u, v, d1, d2):
-                        obst = False
-                else:
-                    for j in range(ncp):
-                        if cap_lo[v, u, j] <= d1 and d2 <= cap_hi[v, u, j]:
-                            obst = False
-                            break
-                if obst and nk > 0:
-                    if (step == 1 and g <= clear_to) or (step == -1 and g >= clear_to):
-                        obst = False
-                    else:
-                        # try a run of cells g .. g + step*(span-1) at once
-                        span = (gend - g) * step + 1
-                        lim_hi = nd - 1 - g if step == 1 else g
-                        span = min(span, lim_hi + 1)
-                        while span > 1:
-                            ga = g if step == 1 else g - span + 1
-                            gb = ga + span - 1
-                            if _range_cleared(kpyr, koff, kdims, rays, origins, kint, nk, u, v,
-                                              dmin + ga * dd, dmin + (gb + 1) * dd):
-                                clear_to = gb if step == 1 else ga
-                                break
-                            span = span // 2
-                        if span > 1:
-                            obst = False
-                        else:
-                            obst = not cell_cleared(kfree, rays, origins, kint, nk, u, v, d1, d2)
-            if g == gs and direct and ncaps > 0:
-                if ncp > MAX_CAPS_PER_PIXEL:
-                    if cell_in_capsules(caps, ncaps, fx, fy, cx, cy, u, v, d1, d2):
-                        obst = False
-                else:
-                    for j in range(ncp):
-                        if cap_lo[v, u, j] <= d1 and d2 <= cap_hi[v, u, j]:
-                            obst = False
-                            break
-            if obst and (g < 0 or g >= nd) and ncaps > 0:
-                if cell_in_capsules(caps, ncaps, fx, fy, cx, cy, u, v, d1, d2):
-                    obst = False
-            if obst:
+    for j in range(nr):
+        a = max(runs[v, u, j, 0], g_lo)
+        b = min(runs[v, u, j, 1], g_hi)
+        if a > b:
+            continue
+        for c in range(3):
+            g = min(max(gr - 1 + c, a), b)
+            f2, wx, wy, wz = _f2(g, dmin, dd, dp, ax, ay, bx, by)
+            if f2 < best2 or (not found and f2 == best2):
                 best2 = f2
                 found = True
                 bvx = wx        # camera-frame vector (R5): ((ôx-cx)ôd - (px-cx)dp)/fx ...
                 bvy = wy
                 bvz = wz
-            g += step
     return found, best2, bvx, bvy, bvz
 
 
 @njit(cache=True, parallel=True)
-def grid_distances(pfree, pkind, Rp, tp, pint, dmin, dd, nd,
-                   kfree, kpyr, koff, kdims, rays, origins, kint, nk,
-                   caps, ncaps, cap_lo, cap_hi, cap_n, points, n_points, rho, method,
+def grid_distances(pfree, runs, nruns, tile_first, Rp, tp, pint, dmin, dd,
+                   points, n_points, rho, method,
                    out_distance, out_direction, out_count, out_observed):
     """On-line distances of ``n_points`` control points through the depth grid (R12).
 
-    pfree, pkind : (H, W) principal frame state from :func:`frame_state`.
+    pfree : (H, W) principal free depths from :func:`frame_state`.
+    runs, nruns : the frame's obstacle runs per principal column (:func:`column_runs`).
+    tile_first : (ceil(H/TILE), ceil(W/TILE)) int32, the first obstacle cell of any
+        column of each tile (:func:`tile_first_cells`), to skip tiles at once.
     Rp, tp : principal ``camera_from_world`` (3, 3), (3,).
     pint : (8,) principal fx, fy, cx, cy, W, H, min_range, max_range.
-    dmin, dd, nd : grid start depth, slice depth (m), number of slices (R10).
-    kfree : (nk, Hk, Wk) free depths of the other cameras; kpyr / koff / kdims:
-        their min-pyramids (:func:`build_min_pyramid`), flat per camera.
-    rays, origins, kint : the compact map (module docstring).
-    caps : (>= ncaps, 7) robot capsules in the principal frame (a, b, radius);
-        cap_lo / cap_hi / cap_n their per-pixel intervals (:func:`capsule_intervals`).
+    dmin, dd : grid start depth, slice depth (m) (R10).
     points : (>= n_points, 3) world metres. method : METHOD_*.
     out_* : as in :func:`depthguard.distance.kernels.depth_space_distances`:
         distance (inf = nothing within rho), unit world direction, count of
         columns in S, observed (P inside the principal's image and range).
 
     Per principal pixel of the region of surveillance (R6) with free depth
-    ``df``: case 1 ``df > dp + rho`` skips it; otherwise the nearest obstacle
-    cell of the column is found by :func:`_column` — the measured surface
-    cell (case 2, and the end of case 3's walk) is an obstacle without
-    confirmation; gray cells behind a surface (case 3), behind the robot
-    (case 4) or on an invalid ray are obstacles unless another camera clears
-    them; cells inside the padded robot are never obstacles.
+    ``df``: case 1 ``df > dp + rho`` skips it; otherwise the nearest of the
+    column's obstacle cells (:func:`column_runs`: the measured surface cell
+    of cases 2/3 without confirmation, the gray cells of cases 3/4 that no
+    other camera clears, never cells inside the padded robot) by the R10
+    distance (:func:`_column`); then R7 over the pixels with ``D <= rho``.
     """
     H = pfree.shape[0]
     W = pfree.shape[1]
@@ -610,39 +776,51 @@ def grid_distances(pfree, pkind, Rp, tp, pint, dmin, dd, nd,
         bx = 0.0
         by = 0.0
         bz = 0.0
+        g_lo = int(math.floor((dp - rho - dmin) / dd))
+        g_hi = int(math.floor((dp + rho - dmin) / dd))
         for v in range(v0, v1 + 1):
-            for u in range(u0, u1 + 1):
-                df = pfree[v, u]
-                if df > dp + rho:                                  # case 1
+            ty = v // TILE
+            for tx in range(u0 // TILE, u1 // TILE + 1):
+                if tile_first[ty, tx] > g_hi:                     # no cell of the tile in reach
                     continue
-                lim2 = best2 if method == METHOD_MIN else rho2
-                found, D2, vx, vy, vz = _column(u, v, df, pkind[v, u], px, py, dp, lim2,
-                                                fx, fy, cx, cy, dmin, dd, nd,
-                                                kfree, kpyr, koff, kdims, rays, origins, kint, nk,
-                                                caps, ncaps, cap_lo, cap_hi, cap_n)
-                if not found:
-                    continue
-                D = math.sqrt(D2)
-                if D <= D_ZERO:
-                    D = 0.0
-                    D2 = 0.0
-                if method == METHOD_MIN:
-                    if D2 < best2 or n == 0:
-                        best2 = D2
+                for u in range(max(u0, tx * TILE), min(u1, tx * TILE + TILE - 1) + 1):
+                    df = pfree[v, u]
+                    if df > dp + rho:                              # case 1
+                        continue
+                    nr = nruns[v, u]
+                    reach = False
+                    for j in range(nr):
+                        if runs[v, u, j, 0] <= g_hi and runs[v, u, j, 1] >= g_lo:
+                            reach = True
+                            break
+                    if not reach:
+                        continue
+                    lim2 = best2 if method == METHOD_MIN else rho2
+                    found, D2, vx, vy, vz = _column(u, v, runs, nr, px, py, dp, lim2, fx, fy, cx, cy,
+                                                    dmin, dd)
+                    if not found:
+                        continue
+                    D = math.sqrt(D2)
+                    if D <= D_ZERO:
+                        D = 0.0
+                        D2 = 0.0
+                    if method == METHOD_MIN:
+                        if D2 < best2 or n == 0:
+                            best2 = D2
+                            dmin_found = D
+                            bx = vx
+                            by = vy
+                            bz = vz
+                            n = 1
+                        continue
+                    n += 1
+                    sD += D
+                    if D < dmin_found:
                         dmin_found = D
-                        bx = vx
-                        by = vy
-                        bz = vz
-                        n = 1
-                    continue
-                n += 1
-                sD += D
-                if D < dmin_found:
-                    dmin_found = D
-                if D > 0.0:
-                    sx += vx / D
-                    sy += vy / D
-                    sz += vz / D
+                    if D > 0.0:
+                        sx += vx / D
+                        sy += vy / D
+                        sz += vz / D
         if n == 0:
             continue
         out_count[i] = n

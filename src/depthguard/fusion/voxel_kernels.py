@@ -62,12 +62,10 @@ def filter_voxelize(depth, expected, robot_depth, fx, fy, cx, cy, Rwc, twc, min_
     H, W = depth.shape
     ny = dims[1]
     nz = dims[2]
-    inv_s = 1.0 / voxel_size
     nt = 0
     n_kept = 0
     n_invalid = 0
     for v in range(H):
-        yv = (v - cy) / fy
         for u in range(W):
             d = np.float64(depth[v, u])
             if not (d >= min_range and d <= max_range):   # also rejects NaN
@@ -81,16 +79,16 @@ def filter_voxelize(depth, expected, robot_depth, fx, fy, cx, cy, Rwc, twc, min_
                 continue
             n_kept += 1
             xc = (u - cx) * d / fx
-            yc = yv * d
+            yc = (v - cy) * d / fy                  # same operation order as Camera.depth_to_points
             px = Rwc[0, 0] * xc + Rwc[0, 1] * yc + Rwc[0, 2] * d + twc[0]
             py = Rwc[1, 0] * xc + Rwc[1, 1] * yc + Rwc[1, 2] * d + twc[1]
             pz = Rwc[2, 0] * xc + Rwc[2, 1] * yc + Rwc[2, 2] * d + twc[2]
             if not (px >= lo[0] and px < hi[0] and py >= lo[1] and py < hi[1]
                     and pz >= lo[2] and pz < hi[2]):
                 continue
-            ix = np.int64(math.floor(px * inv_s)) - key_lo[0]
-            iy = np.int64(math.floor(py * inv_s)) - key_lo[1]
-            iz = np.int64(math.floor(pz * inv_s)) - key_lo[2]
+            ix = np.int64(math.floor(px / voxel_size)) - key_lo[0]
+            iy = np.int64(math.floor(py / voxel_size)) - key_lo[1]
+            iz = np.int64(math.floor(pz / voxel_size)) - key_lo[2]
             if ix < 0 or iy < 0 or iz < 0 or ix >= dims[0] or iy >= ny or iz >= nz:
                 continue
             flat = (ix * ny + iy) * nz + iz

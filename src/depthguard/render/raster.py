@@ -52,7 +52,8 @@ Buffers (all preallocated by the caller, nothing is allocated here):
 - ``box`` (2F, 4) int32 per-slot pixel bounding box ``u0, u1, v0, v1``
   (empty when ``v0 > v1``); ``slot_label`` (2F, 2) int32: mesh label and
   packed face index of the slot.
-- ``wbuf`` (H, W) float64 ``1/z`` z-buffer and ``sbuf`` (H, W) int32 winning slot (workspace).
+- ``wbuf`` (H, W) float64 ``1/z`` z-buffer and ``sbuf`` (H, W) int32 winning slot
+  (workspace; all 0 / -1 between calls).
 - ``depth`` (H, W) float32 metres (0 = nothing), ``labels`` (H, W) int32
   mesh label (-1 = nothing), ``face_ids`` (H, W) int32 packed face index
   (-1 = nothing).
@@ -99,7 +100,7 @@ def _edge(x0, y0, x1, y1):
     return A, B, px, py
 
 
-@njit(cache=True, inline="always")
+@njit(cache=True)
 def _setup_one(x0, y0, iz0, x1, y1, iz1, x2, y2, iz2, W, H, tri, box, s):
     """Screen-space setup of one triangle into slot ``s``; 1 if it may cover a pixel, else 0
     (slot marked empty). ``(x_i, y_i)`` pixel coordinates, ``iz_i = 1/z_i``."""
@@ -200,34 +201,30 @@ def _setup_face(f, vc, faces, face_label, mesh_off, near, cull_back, fx, fy, cx,
     ipz = 1.0 / pz
     spx = px * fx * ipz + cx
     spy = py * fy * ipz + cy
-    if n_in == 3:
+    inear = 1.0 / near
+    if n_in == 3:      # triangle p, q, r
         iq = 1.0 / qz
         ir = 1.0 / rz
-        return _setup_one(spx, spy, ipz, qx * fx * iq + cx, qy * fy * iq + cy, iq,
-                          rx * fx * ir + cx, ry * fy * ir + cy, ir, W, H, tri, box, s)
-    elif n_in == 2:
-        # polygon p, q, X(q->r), X(p->r); fan (p, q, Xqr), (p, Xqr, Xpr)
+        s1x, s1y, i1 = qx * fx * iq + cx, qy * fy * iq + cy, iq
+        s2x, s2y, i2 = rx * fx * ir + cx, ry * fy * ir + cy, ir
+    elif n_in == 2:    # polygon p, q, X(q->r), X(p->r): fan (p, q, Xqr), (p, Xqr, Xpr)
         iq = 1.0 / qz
-        inear = 1.0 / near
         x1, y1 = _clip_point(qx, qy, qz, rx, ry, rz, near)
         x2, y2 = _clip_point(px, py, pz, rx, ry, rz, near)
-        sqx = qx * fx * iq + cx
-        sqy = qy * fy * iq + cy
-        s1x = x1 * fx * inear + cx
-        s1y = y1 * fy * inear + cy
-        s2x = x2 * fx * inear + cx
-        s2y = y2 * fy * inear + cy
-        k = _setup_one(spx, spy, ipz, sqx, sqy, iq, s1x, s1y, inear, W, H, tri, box, s)
-        slot_label[s + k, 0] = lab
-        slot_label[s + k, 1] = f
-        return k + _setup_one(spx, spy, ipz, s1x, s1y, inear, s2x, s2y, inear, W, H, tri, box, s + k)
-    else:
-        # polygon p, X(p->q), X(p->r)
-        inear = 1.0 / near
+        s1x, s1y, i1 = qx * fx * iq + cx, qy * fy * iq + cy, iq
+        s2x, s2y, i2 = x1 * fx * inear + cx, y1 * fy * inear + cy, inear
+        s3x, s3y = x2 * fx * inear + cx, y2 * fy * inear + cy
+    else:              # polygon p, X(p->q), X(p->r)
         x1, y1 = _clip_point(px, py, pz, qx, qy, qz, near)
         x2, y2 = _clip_point(px, py, pz, rx, ry, rz, near)
-        return _setup_one(spx, spy, ipz, x1 * fx * inear + cx, y1 * fy * inear + cy, inear,
-                          x2 * fx * inear + cx, y2 * fy * inear + cy, inear, W, H, tri, box, s)
+        s1x, s1y, i1 = x1 * fx * inear + cx, y1 * fy * inear + cy, inear
+        s2x, s2y, i2 = x2 * fx * inear + cx, y2 * fy * inear + cy, inear
+    k = _setup_one(spx, spy, ipz, s1x, s1y, i1, s2x, s2y, i2, W, H, tri, box, s)
+    if n_in == 2:
+        slot_label[s + k, 0] = lab
+        slot_label[s + k, 1] = f
+        k += _setup_one(spx, spy, ipz, s2x, s2y, inear, s3x, s3y, inear, W, H, tri, box, s + k)
+    return k
 
 
 @njit(cache=True, inline="always")
@@ -252,13 +249,11 @@ def _raster_rows(r0, r1, tri, box, slot_label, n_slots, wbuf, sbuf, depth, label
     The z-buffer holds ``w = 1/z`` (float64, 0 = nothing; nearer = larger ``w``,
     strictly, so on an exact tie the slot drawn first keeps the pixel) and the
     winning slot; the rows of ``depth = 1/w`` (float32, 0 = nothing),
-    ``labels`` and ``face_ids`` (-1 = nothing) are written at the end.
+    ``labels`` and ``face_ids`` (-1 = nothing) are written at the end. The
+    z-buffer rows must be clear (0 / -1) on entry and are left clear on exit
+    (cleared while the result is read out: one pass over memory less).
     """
     W = depth.shape[1]
-    for v in range(r0, r1):
-        for u in range(W):
-            wbuf[v, u] = 0.0
-            sbuf[v, u] = -1
     for s in range(n_slots):
         va = box[s, 2]
         vb = box[s, 3]
@@ -351,6 +346,8 @@ def _raster_rows(r0, r1, tri, box, slot_label, n_slots, wbuf, sbuf, depth, label
                 depth[v, u] = np.float32(1.0 / wbuf[v, u])
                 labels[v, u] = slot_label[k, 0]
                 face_ids[v, u] = slot_label[k, 1]
+                wbuf[v, u] = 0.0   # leave the z-buffer cleared for the next call
+                sbuf[v, u] = -1
             else:
                 depth[v, u] = 0.0
                 labels[v, u] = -1

@@ -11,7 +11,8 @@ and follows the same conventions as the kernel: back faces culled in the
 camera frame, Sutherland–Hodgman clipping against ``z = near`` (the polygon
 started at the same vertex, fanned the same way), pixel centres at integer
 coordinates, the top-left fill rule with canonically evaluated edges, and
-nearest wins (the first drawn on an exact tie).
+nearest wins: the largest 1/z (float64; the first drawn on an exact tie),
+stored as depth = float32(1 / (1/z)).
 """
 
 from __future__ import annotations
@@ -38,8 +39,8 @@ def render_depth_numpy(cam, meshes, near: float = 0.01, cull_back: bool = True):
         m = as_mesh(m, name=f"meshes[{k}]")
         R, t, P = cam.R, cam.t, m.vertices
         # (1), written out row by row (the same order of operations as the kernel)
-        vc = np.stack([R[k, 0] * P[:, 0] + R[k, 1] * P[:, 1] + R[k, 2] * P[:, 2] + t[k]
-                       for k in range(3)], axis=1)
+        vc = np.stack([R[j, 0] * P[:, 0] + R[j, 1] * P[:, 1] + R[j, 2] * P[:, 2] + t[j]
+                       for j in range(3)], axis=1)
         for i, face in enumerate(m.faces):
             a, b, c = vc[face]
             if a[2] < near and b[2] < near and c[2] < near:

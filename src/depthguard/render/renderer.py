@@ -95,7 +95,7 @@ class Renderer:
         self.depth = np.zeros((H, W), dtype=np.float32)
         self.labels = np.full((H, W), -1, dtype=np.int32)
         self.face_ids = np.full((H, W), -1, dtype=np.int32)
-        self._wbuf = np.zeros((H, W))                       # 1/z z-buffer (workspace)
+        self._wbuf = np.zeros((H, W))                       # 1/z z-buffer (workspace, clear between calls)
         self._sbuf = np.full((H, W), -1, dtype=np.int32)    # winning slot (workspace)
         self._mesh_off = np.zeros((1, 2), dtype=np.int64)
         self._vw = np.zeros((0, 3))

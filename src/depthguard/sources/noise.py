@@ -9,6 +9,7 @@ nothing was hit) into a *measured* one, the way the sensor would:
   Kinect) and turned back into depth. ``σ_δ = sigma_z2 · fx · b`` so that
   the depth noise before quantisation is ``σ_z = sigma_z2 · z²``; the
   quantisation steps in depth are ``Δz ≈ z² / (fx · b · 2**bits)``.
+  (``sigma_a``, if set, adds depth noise on top.)
 - ``stereo`` (RealSense D435): ``z + N(0, σ)``, ``σ = sigma_a + sigma_z2·z²``.
 - ``tof`` (time of flight): ``z + N(0, σ)``, ``σ = sigma_a + sigma_z2·z²``
   (about 1 cm), and *flying pixels*: a share ``flying_fraction`` of the
@@ -25,23 +26,32 @@ A depth *edge* pixel is a valid pixel with a 4-neighbour that is either
 invalid (a silhouette against nothing) or differs in depth by more than
 ``jump_abs + jump_rel · min(z_p, z_q)`` metres.
 
-All randomness comes from the ``numpy.random.Generator`` passed in, so the
-output is a deterministic function of the input and the generator's state.
-The workspace :class:`NoiseWorkspace` holds the scratch buffers, reused
-from call to call.
+Random draws, all from the ``numpy.random.Generator`` passed in, in this
+order: one float32 standard normal per valid pixel in raster order (the
+noise), as many more if a Kinect has ``sigma_a > 0``; then, per edge pixel
+in raster order, one uniform for flying pixels (ToF) and one for dropout. The output is a
+deterministic function of the input and the generator's state.
+
+The per-pixel work is one numba kernel (:func:`measure_kernel`, with
+:func:`depth_edges_kernel`); :func:`measure_numpy` and :func:`depth_edges`
+are their plain-numpy twins, used by the tests. :class:`NoiseWorkspace`
+holds the scratch buffers, reused from call to call.
 """
 
 from __future__ import annotations
 
+import numba
 import numpy as np
 
 from depthguard.sources.sensors import SensorModel
 
-__all__ = ["NoiseWorkspace", "apply_noise", "depth_edges", "kinect_quantise", "depth_sigma",
-           "EDGE_JUMP_ABS", "EDGE_JUMP_REL"]
+__all__ = ["NoiseWorkspace", "apply_noise", "depth_edges", "depth_edges_kernel", "measure_kernel",
+           "measure_numpy", "kinect_quantise", "depth_sigma", "EDGE_JUMP_ABS", "EDGE_JUMP_REL"]
 
 EDGE_JUMP_ABS = 0.03   # metres
 EDGE_JUMP_REL = 0.02   # per metre of depth
+
+KIND_CODES = {"ideal": 0, "structured_light": 1, "stereo": 2, "tof": 3}
 
 
 class NoiseWorkspace:
@@ -49,15 +59,12 @@ class NoiseWorkspace:
 
     def __init__(self, shape: tuple[int, int]):
         self.shape = tuple(int(s) for s in shape)
-        self.z = np.empty(self.shape, np.float64)       # working depth
-        self.gauss = np.empty(self.shape, np.float64)   # N(0, 1) draws
-        self.uni = np.empty(self.shape, np.float64)     # U(0, 1) draws (flying pixels)
-        self.uni2 = np.empty(self.shape, np.float64)    # U(0, 1) draws (edge dropout)
+        self.z = np.empty(self.shape, np.float64)       # ideal depth, 0 = nothing
+        n = self.shape[0] * self.shape[1]
+        self.gauss = np.empty(n, np.float32)            # N(0, 1) per valid pixel, raster order
+        self.gauss2 = np.empty(n, np.float32)           # second N(0, 1) (Kinect sigma_a only)
         self.other = np.empty(self.shape, np.float64)   # depth across the edge
-        self.jump = np.empty(self.shape, np.float64)    # largest |depth step| to a neighbour
-        self.edge = np.empty(self.shape, bool)
-        self.valid = np.empty(self.shape, bool)
-        self.mask = np.empty(self.shape, bool)
+        self.edge = np.empty(self.shape, np.bool_)
 
 
 def depth_sigma(model: SensorModel, z: np.ndarray | float) -> np.ndarray | float:
@@ -87,30 +94,26 @@ def kinect_quantise(z: np.ndarray, fx: float, baseline: float, bits: int,
         return np.where(q > 0, fb / np.where(q > 0, q, 1.0), 0.0)
 
 
-def depth_edges(depth: np.ndarray, jump_abs: float = EDGE_JUMP_ABS, jump_rel: float = EDGE_JUMP_REL,
-                ws: NoiseWorkspace | None = None) -> tuple[np.ndarray, np.ndarray]:
-    """Edge pixels of a depth image and the depth on the other side.
+# ------------------------------------------------------------------- edges
+def depth_edges(depth: np.ndarray, jump_abs: float = EDGE_JUMP_ABS,
+                jump_rel: float = EDGE_JUMP_REL) -> tuple[np.ndarray, np.ndarray]:
+    """Edge pixels of a depth image and the depth on the other side (numpy twin of the kernel).
 
     Returns ``(edge, other)``: ``edge`` (H, W) bool marks valid pixels next
     to an invalid pixel or to a depth step larger than
     ``jump_abs + jump_rel·min(z_p, z_q)``; ``other`` (H, W) float64 holds,
     for edge pixels, the depth of the 4-neighbour with the largest step
-    (0 when the largest step is to an invalid pixel). The arrays belong to
-    ``ws`` when given (overwritten by the next call).
+    (0 when that is an invalid pixel; ties go to the first of left, right,
+    up, down).
     """
-    d = np.asarray(depth)
-    ws = ws or NoiseWorkspace(d.shape)
-    z, valid, edge, other, jump = ws.z, ws.valid, ws.edge, ws.other, ws.jump
-    np.copyto(z, d)
-    np.greater(z, 0.0, out=valid)
-    valid &= np.isfinite(z)
+    z = np.asarray(depth, dtype=np.float64).copy()
+    valid = np.isfinite(z) & (z > 0)
     z[~valid] = 0.0
-    edge.fill(False)
-    other.fill(0.0)
-    jump.fill(0.0)
     H, W = z.shape
-    # four neighbours: (slice of p, slice of q)
-    shifts = (
+    edge = np.zeros((H, W), bool)
+    other = np.zeros((H, W))
+    jump = np.zeros((H, W))
+    shifts = (  # (slice of p, slice of its neighbour q): left, right, up, down
         ((slice(None), slice(1, None)), (slice(None), slice(0, W - 1))),
         ((slice(None), slice(0, W - 1)), (slice(None), slice(1, None))),
         ((slice(1, None), slice(None)), (slice(0, H - 1), slice(None))),
@@ -128,10 +131,154 @@ def depth_edges(depth: np.ndarray, jump_abs: float = EDGE_JUMP_ABS, jump_rel: fl
     return edge, other
 
 
+@numba.njit(cache=True)
+def depth_edges_kernel(z, jump_abs, jump_rel, edge, other):
+    """Kernel of :func:`depth_edges`: ``z`` (H, W) float64 with 0 = invalid; fills ``edge`` (H, W)
+    bool and ``other`` (H, W) float64; returns ``(number of edge pixels, number of valid pixels)``."""
+    H, W = z.shape
+    du = (-1, 1, 0, 0)
+    dv = (0, 0, -1, 1)
+    n = 0
+    n_valid = 0
+    for v in range(H):
+        for u in range(W):
+            zp = z[v, u]
+            e = False
+            best = 0.0
+            oth = 0.0
+            if zp > 0.0:
+                n_valid += 1
+                for k in range(4):
+                    uu = u + du[k]
+                    vv = v + dv[k]
+                    if uu < 0 or uu >= W or vv < 0 or vv >= H:
+                        continue
+                    zq = z[vv, uu]
+                    if zq > 0.0:
+                        step = abs(zp - zq)
+                        if step <= jump_abs + jump_rel * min(zp, zq):
+                            continue
+                    else:
+                        step = np.inf
+                    e = True
+                    if step > best:
+                        best = step
+                        oth = zq
+            edge[v, u] = e
+            other[v, u] = oth
+            if e:
+                n += 1
+    return n, n_valid
+
+
+# ------------------------------------------------------------- measurement
+@numba.njit(cache=True)
+def measure_kernel(z, edge, other, gauss, gauss2, u_fly, u_drop, kind, fb, steps, sigma_a, sigma_z2,
+                   flying_fraction, edge_dropout, lo, hi, out):
+    """Measured depth of every pixel (module docstring), into ``out`` (H, W) float32.
+
+    z, other : (H, W) float64; gauss, gauss2 : normals per valid pixel in raster order (gauss2 used
+    only by a Kinect with sigma_a > 0);
+    edge : (H, W) bool; u_fly, u_drop : uniforms per edge pixel in raster order (length 0 when
+    unused); kind : 0 ideal, 1 structured light, 2 stereo, 3 tof; fb : fx·baseline (pixel·m);
+    steps : disparity steps per pixel (2**bits).
+    """
+    H, W = z.shape
+    k = 0
+    i = 0
+    for v in range(H):
+        for u in range(W):
+            zp = z[v, u]
+            m = 0.0
+            if zp > 0.0:
+                g = np.float64(gauss[i])
+                if kind == 1:
+                    d = fb / zp + sigma_z2 * fb * g
+                    q = np.rint(d * steps) / steps
+                    m = fb / q if q > 0.0 else 0.0
+                    if sigma_a > 0.0 and m > 0.0:
+                        m += sigma_a * np.float64(gauss2[i])
+                elif kind == 2 or kind == 3:
+                    m = zp + (sigma_a + sigma_z2 * zp * zp) * g
+                else:
+                    m = zp
+                i += 1
+                if edge[v, u]:
+                    if u_fly.shape[0] > 0 and other[v, u] > 0.0 and u_fly[k] < flying_fraction:
+                        m = zp + (u_fly[k] / flying_fraction) * (other[v, u] - zp)
+                    if u_drop.shape[0] > 0 and u_drop[k] < edge_dropout:
+                        m = 0.0
+                    k += 1
+            if m < lo or m > hi:
+                m = 0.0
+            out[v, u] = m
+    return out
+
+
+def measure_numpy(z, edge, other, gauss, gauss2, u_fly, u_drop, kind, fb, steps, sigma_a, sigma_z2,
+                  flying_fraction, edge_dropout, lo, hi) -> np.ndarray:
+    """Plain-numpy twin of :func:`measure_kernel` (same arguments, returns (H, W) float32)."""
+    valid = z > 0
+    zs = np.where(valid, z, 1.0)
+    g = np.zeros(z.shape)
+    g[valid] = gauss[: valid.sum()]   # boolean indexing walks raster order
+    g2 = np.zeros(z.shape)
+    if len(gauss2):
+        g2[valid] = gauss2[: valid.sum()]
+    gauss, gauss2 = g, g2
+    if kind == 1:
+        d = fb / zs + sigma_z2 * fb * gauss
+        q = np.rint(d * steps) / steps
+        m = np.where(q > 0, fb / np.where(q > 0, q, 1.0), 0.0)
+        if sigma_a > 0:
+            m = np.where(m > 0, m + sigma_a * gauss2, 0.0)
+    elif kind in (2, 3):
+        m = zs + (sigma_a + sigma_z2 * zs * zs) * gauss
+    else:
+        m = zs.copy()
+    ev, eu = np.nonzero(edge & valid)  # raster order: the order of the per-edge draws
+    if len(u_fly):
+        f = u_fly[: len(ev)]
+        fly = (other[ev, eu] > 0) & (f < flying_fraction)
+        zp = z[ev, eu]
+        m[ev[fly], eu[fly]] = zp[fly] + (f[fly] / flying_fraction) * (other[ev, eu][fly] - zp[fly])
+    if len(u_drop):
+        drop = u_drop[: len(ev)] < edge_dropout
+        m[ev[drop], eu[drop]] = 0.0
+    m = np.where(valid, m, 0.0)
+    m[(m < lo) | (m > hi)] = 0.0
+    return m.astype(np.float32)
+
+
+def _draws(model: SensorModel, rng: np.random.Generator, ws: NoiseWorkspace, n_edges: int, n_valid: int):
+    """The random draws of one measurement, in the documented order."""
+    gauss = ws.gauss[:n_valid]
+    rng.standard_normal(out=gauss, dtype=np.float32)
+    gauss2 = ws.gauss2[:0]
+    if model.kind == "structured_light" and model.sigma_a > 0:
+        gauss2 = ws.gauss2[:n_valid]
+        rng.standard_normal(out=gauss2, dtype=np.float32)
+    empty = np.zeros(0)
+    u_fly = rng.random(n_edges) if (model.kind == "tof" and model.flying_pixels and model.flying_fraction > 0) else empty
+    u_drop = rng.random(n_edges) if model.edge_dropout > 0 else empty
+    return gauss, gauss2, u_fly, u_drop
+
+
+def _params(model: SensorModel, fx: float) -> tuple:
+    kind = KIND_CODES.get(model.kind)
+    if kind is None:
+        raise ValueError(f"sensor {model.name!r}: unknown kind {model.kind!r}")
+    fb = fx * model.baseline
+    if kind == 1 and (fb <= 0 or model.disparity_bits <= 0):
+        raise ValueError(f"sensor {model.name!r}: structured light needs baseline > 0 and disparity_bits > 0")
+    return kind, fb, float(2 ** model.disparity_bits), model.sigma_a, model.sigma_z2, \
+        model.flying_fraction if model.flying_pixels else 0.0, model.edge_dropout
+
+
 def apply_noise(ideal: np.ndarray, model: SensorModel, fx: float, rng: np.random.Generator,
                 min_range: float | None = None, max_range: float | None = None,
                 noiseless: bool = False, ws: NoiseWorkspace | None = None,
-                out: np.ndarray | None = None) -> np.ndarray:
+                out: np.ndarray | None = None, use_numpy: bool = False) -> np.ndarray:
     """Measured depth from ideal depth with ``model``'s noise (module docstring).
 
     Parameters
@@ -143,6 +290,7 @@ def apply_noise(ideal: np.ndarray, model: SensorModel, fx: float, rng: np.random
     min_range, max_range : valid range in metres (default: the model's).
     noiseless : only the range rule, no noise, no dropout.
     ws, out : optional preallocated workspace and (H, W) float32 output.
+    use_numpy : run the numpy twins instead of the kernels (tests).
 
     Returns
     -------
@@ -159,50 +307,21 @@ def apply_noise(ideal: np.ndarray, model: SensorModel, fx: float, rng: np.random
         out = np.empty(d.shape, np.float32)
     elif out.shape != d.shape or out.dtype != np.float32:
         raise ValueError(f"out must be float32 of shape {d.shape}, got {out.dtype} {out.shape}")
-
+    z = ws.z
+    np.copyto(z, d)
+    z[~(np.isfinite(z) & (z > 0))] = 0.0
     if noiseless or model.kind == "ideal":
-        z = ws.z
-        np.copyto(z, d)
-        z[~np.isfinite(z)] = 0.0
-    else:
-        edge, other = depth_edges(d, ws=ws)   # fills ws.z, ws.valid too
-        z, valid = ws.z, ws.valid
-        rng.standard_normal(out=ws.gauss)
-        rng.random(out=ws.uni)
-        rng.random(out=ws.uni2)
-        if model.kind == "structured_light":
-            fb = fx * model.baseline
-            if fb <= 0 or model.disparity_bits <= 0:
-                raise ValueError(f"sensor {model.name!r}: structured light needs baseline > 0 and disparity_bits > 0")
-            zq = kinect_quantise(np.where(valid, z, 1.0), fx, model.baseline, model.disparity_bits,
-                                 disparity_noise=ws.gauss * (model.sigma_z2 * fb))
-            if model.sigma_a:  # a depth-independent term on top, from its own draws
-                rng.standard_normal(out=ws.jump)
-                zq = zq + model.sigma_a * ws.jump
-            np.copyto(z, np.where(valid, zq, 0.0))
-        elif model.kind in ("stereo", "tof"):
-            sig = depth_sigma(model, z)
-            z += sig * ws.gauss
-            if model.kind == "tof" and model.flying_pixels and model.flying_fraction > 0:
-                # the uniform draws decide (a) which edge pixels fly and (b) where they land
-                fly = edge & (other > 0) & (ws.uni < model.flying_fraction)
-                frac = ws.uni / model.flying_fraction  # U(0,1) again on the flying subset
-                z[fly] = ideal_between(d, other, frac, fly)
-        else:
-            raise ValueError(f"sensor {model.name!r}: unknown kind {model.kind!r}")
-        z[~valid] = 0.0
-        if model.edge_dropout > 0:
-            np.less(ws.uni2, model.edge_dropout, out=ws.mask)
-            ws.mask &= edge
-            z[ws.mask] = 0.0
-    np.logical_or(z < lo, z > hi, out=ws.mask)
-    z[ws.mask] = 0.0
-    np.copyto(out, z, casting="same_kind")
-    return out
-
-
-def ideal_between(d: np.ndarray, other: np.ndarray, frac: np.ndarray, mask: np.ndarray) -> np.ndarray:
-    """Flying-pixel depths ``z_p + frac·(z_other − z_p)`` on ``mask`` (1-D, mask order)."""
-    zp = np.asarray(d, dtype=np.float64)[mask]
-    return zp + frac[mask] * (other[mask] - zp)
-
+        np.copyto(out, z, casting="same_kind")
+        out[(z < lo) | (z > hi)] = 0.0
+        return out
+    kind, fb, steps, sa, sz2, ff, ed = _params(model, fx)
+    if use_numpy:
+        edge, other = depth_edges(z)
+        g, g2, u_fly, u_drop = _draws(model, rng, ws, int(edge.sum()), int((z > 0).sum()))
+        out[...] = measure_numpy(z, edge, other, g, g2, u_fly, u_drop, kind, fb, steps, sa, sz2,
+                                 ff, ed, lo, hi)
+        return out
+    n_edges, n_valid = depth_edges_kernel(z, EDGE_JUMP_ABS, EDGE_JUMP_REL, ws.edge, ws.other)
+    g, g2, u_fly, u_drop = _draws(model, rng, ws, n_edges, n_valid)
+    return measure_kernel(z, ws.edge, ws.other, g, g2, u_fly, u_drop, kind, fb, steps, sa, sz2,
+                          ff, ed, lo, hi, out)

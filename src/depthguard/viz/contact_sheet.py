@@ -12,8 +12,8 @@ __all__ = ["contact_sheet", "colorize_depth"]
 
 
 def colorize_depth(depth: np.ndarray, vmin: float, vmax: float, cmap: str = "turbo") -> np.ndarray:
-    """(H, W, 3) float RGB of a depth image (metres): near = red end of the map reversed to blue…;
-    invalid pixels (0 / non-finite) are black."""
+    """(H, W, 3) float RGB of a depth image (metres) on ``[vmin, vmax]``: near = warm (the top of
+    ``cmap``), far = cold; invalid pixels (0 / non-finite) are black."""
     import matplotlib
 
     d = np.asarray(depth, dtype=np.float64)

@@ -18,6 +18,9 @@ cell at 640x480. No paper quotes a figure for this step.
 
 from __future__ import annotations
 
+import os
+import time
+
 import numpy as np
 
 from depthguard.evaluation.bench import BenchContext, BenchRow, group, time_call
@@ -60,21 +63,28 @@ def _row(name: str, cam, meshes, ctx: BenchContext, what: str) -> BenchRow:
 
     r = Renderer(cam)
     t = time_call(lambda: r.render(meshes), ctx.repeats, warmup=3)
+    cpu = np.empty(ctx.repeats)   # CPU time of this thread: what the wall time is on an idle core
+    for i in range(ctx.repeats):
+        c0 = time.thread_time()
+        r.render(meshes)
+        cpu[i] = time.thread_time() - c0
     rp = Renderer(cam, parallel=True)
-    tp = time_call(lambda: rp.render(meshes), ctx.repeats, warmup=3)
+    tp = time_call(lambda: rp.render(meshes), 2 if ctx.quick else ctx.repeats, warmup=1 if ctx.quick else 3)
     n_tri = sum(len(m[1]) for m in meshes)
     peer_ms = None
     try:
         from depthguard.render.embree import EmbreeCaster
 
         caster = EmbreeCaster(cam)
-        te = time_call(lambda: caster.cast(meshes), 1 if ctx.quick else 5, warmup=1)
+        te = time_call(lambda: caster.cast(meshes), 1 if ctx.quick else 5, warmup=0 if ctx.quick else 1)
         peer_ms = float(np.median(te) * 1e3)
     except ImportError:
         what += "; embreex not installed, no peer"
-    note = (f"{what}; {n_tri} triangles, {cam.width}x{cam.height}; one core, worst {t.max() * 1e3:.2f} ms; "
-            f"parallel (numba threads) {np.median(tp) * 1e3:.2f} ms; peer: Embree BVH build + 1 ray/pixel, "
-            f"rebuilt every frame (moving robot)")
+    load = os.getloadavg()[0] if hasattr(os, "getloadavg") else float("nan")
+    note = (f"{what}; {n_tri} triangles, {cam.width}x{cam.height}; one core, worst {t.max() * 1e3:.2f} ms, "
+            f"CPU time {np.median(cpu) * 1e3:.2f} ms (load average {load:.1f} on {os.cpu_count()} cores); "
+            f"parallel (numba threads) {np.median(tp) * 1e3:.2f} ms; peer: Embree (1 thread) BVH build "
+            f"+ 1 ray/pixel, rebuilt every frame (moving robot)")
     return BenchRow(name, float(np.median(t) * 1e3), "ms", None, "embree", peer_ms, note)
 
 
