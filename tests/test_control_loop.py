@@ -119,7 +119,7 @@ def test_scenarios_avoid_collision(name, duration):
 @pytest.mark.slow
 def test_camera_dropout_stops_and_says_why():
     from depthguard.control.scenarios import run_scenario
-    s, res = run_scenario("camera_dropout", duration=3.0, config=LoopConfig(fusion="grid", distance_hz=10.0),
+    s, res = run_scenario("camera_dropout", duration=3.0, config=LoopConfig(fusion="grid", distance_hz=5.0),
                           write=False)
     assert s["stopped_at_end"]
     stops = s["safe_stops"]

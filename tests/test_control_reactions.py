@@ -220,3 +220,26 @@ def test_sns_bad_input():
         sns_velocity(np.eye(3), np.zeros(3), np.ones(3), 2 * np.ones(3))
     with pytest.raises(ValueError, match="task velocity"):
         sns_velocity(np.eye(3), np.zeros(2), -np.ones(3), np.ones(3))
+
+
+def test_reaction_kernel_matches_numpy_twin():
+    from depthguard.control.reaction import reaction, reaction_numpy
+
+    rng = np.random.default_rng(11)
+    n, m = 7, 9
+    for trial in range(200):
+        D = rng.uniform(0.0, 0.5, m)
+        D[rng.random(m) < 0.3] = np.inf
+        V = rng.normal(size=(m, 3))
+        V /= np.linalg.norm(V, axis=1, keepdims=True)
+        J = rng.normal(size=(m, 3, n))
+        J[:, :, rng.integers(n):] *= rng.random() < 0.5          # joints beyond a link: zero columns
+        q_min, q_max = -np.full(n, 2.0), np.full(n, 2.0)
+        q = rng.uniform(-2.1, 2.1, n)
+        qd_max = rng.uniform(1.0, 3.0, n)
+        k = rng.uniform(0, 1)
+        a = reaction(D, V, J, q, q_min, q_max, qd_max, 0.002, RHO, VMAX, ALPHA, k)
+        b = reaction_numpy(D, V, J, q, q_min, q_max, qd_max, 0.002, RHO, VMAX, ALPHA, k)
+        for x, y in zip(a, b):
+            np.testing.assert_allclose(x, y, rtol=1e-12, atol=1e-12)
+        assert np.all(a[1] <= 0) and np.all(a[2] >= 0)

@@ -93,19 +93,23 @@ def test_frame_state_equals_twin(rng):
         np.testing.assert_array_equal(kind, k2)
 
 
-@pytest.mark.parametrize("method", ["min", "mean", "hybrid"])
-def test_grid_kernel_equals_numpy_twin(method):
-    """The kernel (walk, pruning, pyramid shortcuts, capsule intervals) gives exactly
-    the twin's answer (every cell classified at once, no pruning)."""
-    rng = np.random.default_rng(7)
-    prims, cams, depths = _scene(rng, 3)
-    # a "robot": a capsule rendered into every camera and removed (R9), padded volume excluded
-    robot = Capsule.between([-0.3, 0.5, -0.4], [0.2, 0.4, 0.5], 0.08)
-    rdepths = {c.id: render_depth(c, [robot.mesh()]) for c in cams}
-    depths = {c.id: render_depth(c, [p.mesh() for p in prims] + [robot.mesh()]) for c in cams}
-    caps = [Capsule.between([-0.3, 0.5, -0.4], [0.2, 0.4, 0.5], 0.12)]
+@pytest.mark.parametrize("method,seed,n_cams", [("min", 7, 3), ("mean", 7, 3), ("hybrid", 7, 3),
+                                                 ("hybrid", 8, 2), ("min", 9, 2)])
+def test_grid_kernel_equals_numpy_twin(method, seed, n_cams):
+    """The kernels (per-frame obstacle runs with pyramid shortcuts and capsule
+    intervals, per-cycle run lookup) give exactly the twin's answer (every cell
+    classified at once, no shortcut)."""
+    rng = np.random.default_rng(seed)
+    prims, cams, depths = _scene(rng, n_cams)
+    # a "robot": two capsules rendered into every camera and removed (R9), padded volume excluded
+    a, b, c = np.array([-0.3, 0.5, -0.4]), np.array([0.2, 0.4, 0.5]), np.array([0.6, -0.1, 0.6])
+    links = [Capsule.between(a, b, 0.08), Capsule.between(b, c, 0.06)]
+    rdepths = {cam.id: render_depth(cam, [lk.mesh() for lk in links]) for cam in cams}
+    depths = {cam.id: render_depth(cam, [p.mesh() for p in prims] + [lk.mesh() for lk in links])
+              for cam in cams}
+    caps = [Capsule.between(a, b, 0.12), Capsule.between(b, c, 0.1)]
     grid = DepthGridMap(cams, "c0", 1.0, 4.6, 0.03, cache=False)
-    P = np.vstack([rng.uniform(-0.8, 0.8, (10, 3)), robot.segment()[0] * 0.5 + robot.segment()[1] * 0.5])
+    P = np.vstack([rng.uniform(-0.8, 0.8, (10, 3)), (a + b) / 2, b, (b + c) / 2, c])
     res = grid.distance(depths, P, 0.4, method, rdepths, robot_capsules=caps)
     d, v, o, c = _twin(grid, depths, P, 0.4, method, rdepths, caps)
     np.testing.assert_allclose(res.distance, d, rtol=1e-9, atol=1e-12)

@@ -34,7 +34,8 @@ def test_hidden_hand_missed_by_one_found_by_two(res):
     near = h.truth < 0.2                      # the control points next to the hand
     assert near.sum() >= 3
     one = np.where(np.isfinite(h.one), h.one, np.inf)
-    assert np.all(one[near] > h.truth[near] + 0.1), (one, h.truth)          # missed
+    # missed: one camera sees the arm holding it at best, well beyond the discretisation
+    assert np.all(one[near] > h.truth[near] + 2 * h.eps[near]), (one, h.truth)
     # found: within the discretisation, or within the padded self volume that hides the hand's
     # part touching the robot (cells inside it are never obstacles, R12)
     assert np.all(h.two[near] <= h.truth[near] + PADDING + h.eps[near]), (h.two, h.truth)

@@ -115,6 +115,12 @@ def test_protocol_in_process(server, client):
     with pytest.raises(ServerRefused, match="not initialised"):
         _update(client, 999, [[0, 0, 0]])
     assert set(client.status()) >= {"nodes", "voxels_total", "bytes_per_s"}
+    # centralised mode: voxels computed in the server's process enter the same map
+    server.local_update("cam3", np.array([[7, 7, 7]]), np.array([5]), 0.05, time.time())
+    keys, _ = server.global_map()
+    assert [7, 7, 7] in keys.tolist()
+    with pytest.raises(ValueError, match="not in the rig"):
+        server.local_update("intruder", np.zeros((0, 3)), np.zeros(0), 0.05, 0.0)
 
 
 @settings(max_examples=60, deadline=None, suppress_health_check=[HealthCheck.function_scoped_fixture])
@@ -179,6 +185,9 @@ def test_four_nodes_kill_freeze_restart_settings(tmp_path, server, client):
             return len(st_["nodes"]) == 4 and all(n["state"] == "fresh" and n["voxels"] > 0 for n in st_["nodes"])
         assert wait_until(all_fresh, 60.0), (server.status(), [p.poll() for p in procs.values()])
         ids = {u.camera: u.id for u in server.units.values()}
+        # each node reports its share of invalid pixels (pattern: a 48x36 patch of 160x120 valid)
+        for n in server.status()["nodes"]:
+            assert abs(n["invalid_frac"] - (1 - 48 * 36 / (160 * 120))) < 1e-3
         own = {c: set(map(tuple, u.keys.tolist())) for c, u in server.units.items()}
         excl = {c: own[c] - set().union(*(own[o] for o in own if o != c)) for c in own}
         assert all(len(e) > 0 for e in excl.values())

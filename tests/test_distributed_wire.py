@@ -23,8 +23,8 @@ def test_roundtrip_every_message(rng):
     m = W.decode(W.init_reply(42, s))
     assert m.unit_id == 42 and m.settings == s
     keys, counts = _voxels(rng, 500)
-    m = W.decode(W.update_request(3, 99, 1234.5678, 0.02, keys, counts))
-    assert (m.unit_id, m.seq, m.stamp, m.voxel_size) == (3, 99, 1234.5678, 0.02)
+    m = W.decode(W.update_request(3, 99, 1234.5678, 0.02, keys, counts, invalid_frac=0.125))
+    assert (m.unit_id, m.seq, m.stamp, m.voxel_size, m.invalid_frac) == (3, 99, 1234.5678, 0.02, 0.125)
     np.testing.assert_array_equal(m.keys, keys)
     np.testing.assert_array_equal(m.counts, np.minimum(counts, 65535))
     m = W.decode(W.update_reply(s, token_missing=True))
@@ -53,6 +53,8 @@ def test_limits_and_clear_errors(rng):
         W.update_request(1, 1, 0.0, 0.02, np.array([[40000, 0, 0]]), np.array([1]))
     with pytest.raises(W.WireError, match="voxel size"):
         W.Settings(voxel_size=0.5).check()
+    with pytest.raises(W.WireError, match="invalid_frac"):
+        W.update_request(1, 1, 0.0, 0.02, keys[:1], counts[:1], invalid_frac=1.5)
     with pytest.raises(W.WireError, match="exceeds the limit"):
         W.decode(b"\0" * (W.MAX_MESSAGE_BYTES + 1))
     good = W.init_request("cam0", "x")
@@ -67,7 +69,7 @@ def test_limits_and_clear_errors(rng):
     with pytest.raises(W.WireError, match="unexpected message type"):
         W.decode(good, expect=W.MsgType.UPDATE_REQ)
     # a well-framed update whose count field lies (CRC recomputed): truncated, named
-    body = struct.pack("<IIdfI", 1, 1, 0.0, 0.02, 5) + b"\0" * 8
+    body = struct.pack("<IIdfIf", 1, 1, 0.0, 0.02, 5, 0.0) + b"\0" * 8
     head = struct.pack("<3sBBBHI", b"DGW", 1, 3, 0, 0, len(body))
     lie = head + body + struct.pack("<I", zlib.crc32(head + body))
     with pytest.raises(W.WireError, match="truncated at keys"):

@@ -220,6 +220,8 @@ def test_kernel_matches_numpy_twin(full, depth_test):
     assert np.array_equal(occ, ref)
     # the rule is exercised both ways: some voxels freed with a surface seen (>= 3 free views)
     nf, ns = voxel_counts_numpy(imgs, fs.grid.size, *fs.twin_args(), fs.margin, full)
+    knf, kns = fs.counts()
+    assert np.array_equal(knf.ravel(), nf) and np.array_equal(kns.ravel(), ns)
     assert ((nf >= 1) & (nf < 3) & (ns >= 1)).any() and (nf >= 1).sum() > 500
     if not full:
         assert ((nf >= 3) & (ns >= 1)).any()

@@ -45,3 +45,23 @@ def test_bench_group_quick():
     assert "freespace.21cam.5cm_ms" in names and "freespace.21cam.10cm_ms" in names
     r = names["freespace.21cam.5cm_ms"]
     assert r.value > 0 and r.peer == "numpy twin" and r.peer_value > 0
+
+
+def test_calibration_disturbance_stays_within_bounds():
+    from depthguard.camera import Camera
+    from depthguard.evaluation.hamersma2011 import perturbed_cameras
+    from depthguard.transforms import look_at
+    cams = [Camera(f"c{k}", 64, 48, 50.0, 50.0, 31.5, 23.5, look_at([2.0, k * 0.5, 2.0], [0, 0, 0.5]))
+            for k in range(20)]
+    rng = np.random.default_rng(1)
+    for rot, tr in ((1.0, 0.0), (0.0, 0.01)):
+        out = perturbed_cameras(cams, rng, rot, tr)
+        for a, b in zip(cams, out):
+            dR = a.world_from_camera[:3, :3].T @ b.world_from_camera[:3, :3]
+            ang = np.degrees(np.arccos(np.clip((np.trace(dR) - 1) / 2, -1, 1)))
+            dt = b.position - a.position
+            assert ang <= np.sqrt(3) * rot + 1e-4          # three angles, each within ±rot
+            assert np.all(np.abs(dt) <= tr + 1e-12)
+            assert (a.fx, a.width, a.id) == (b.fx, b.width, b.id)
+        moved = [np.abs(b.world_from_camera - a.world_from_camera).max() for a, b in zip(cams, out)]
+        assert min(moved) > 0

@@ -12,10 +12,8 @@ import depthguard as dg
 from depthguard.geometry import Box, Capsule, Cylinder, Mesh, Sphere
 from depthguard.render import Renderer, render_depth
 from depthguard.render.raster_ref import render_depth_numpy
+from depthguard.render.embree import EmbreeCaster
 from depthguard.transforms import look_at
-
-embreex = pytest.importorskip("embreex")
-from depthguard.render.embree import EmbreeCaster  # noqa: E402
 
 
 def camera(w=80, h=60, f=70.0, cx=None, cy=None, T=None, id="cam"):
@@ -190,6 +188,19 @@ def test_shared_edges_no_cracks_no_double_draw():
     assert whole[20, 20] and whole[20, 28] and whole[12, 20]   # centre and points on axis-aligned edges
 
 
+def test_top_left_rule_on_an_aligned_rectangle():
+    """A rectangle whose edges run exactly through pixel centres, u in [10, 20], v in [5, 15]:
+    the top-left rule takes its left column and top row, not its right column and bottom row,
+    so it covers exactly 10 x 10 pixels (as on a GPU); its diagonal is drawn once."""
+    cam = camera(w=32, h=24, f=10.0, cx=0.0, cy=0.0)
+    for corners in ([[1.0, 0.5, 1.0], [1.0, 1.5, 1.0], [2.0, 1.5, 1.0], [2.0, 0.5, 1.0]],
+                    [[2.0, 1.5, 1.0], [2.0, 0.5, 1.0], [1.0, 0.5, 1.0], [1.0, 1.5, 1.0]]):  # other diagonal
+        depth = render_depth(cam, [quad(corners)])
+        expect = np.zeros(cam.shape, bool)
+        expect[5:15, 10:20] = True
+        np.testing.assert_array_equal(depth > 0, expect)
+
+
 # ---------------------------------------------------------------- culling
 def test_back_face_culling():
     cam = camera()
@@ -298,6 +309,7 @@ def assert_matches_embree(cam, meshes, cull_back=True, near=0.01):
     surfaces of two meshes) or each one's face is within one pixel in the other's image
     (silhouettes differ by at most one pixel along edges); such pixels must be rare.
     Returns the number of pixels that show the same face in both."""
+    pytest.importorskip("embreex")
     r = Renderer(cam, near=near)
     depth, labels = r.render(meshes, cull_back=cull_back)
     ids = _ids(labels, r.face_index())
@@ -389,6 +401,8 @@ def test_bench_group_quick_rows():
     peer measured on the same frame (no speed is asserted: timings belong to the bench)."""
     from depthguard.evaluation.bench import BenchContext
     from depthguard.evaluation.bench.render import bench_render
+
+    pytest.importorskip("embreex")
 
     rows = {r.name: r for r in bench_render(BenchContext(quick=True, repeats=3))}
     assert set(rows) == {"render.ur3_cell.640x480_ms", "render.ur3_cell.1280x720_ms",

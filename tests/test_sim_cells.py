@@ -219,3 +219,60 @@ def test_carm_room_setups_are_collision_free(cells):
         clashes = [(a, b) for a, b in itertools.combinations(occ, 2)
                    if {a, b} & movers and {a, b} != {"patient", "doctor"} and (occ[a] & occ[b]).any()]
         assert not clashes, (s.name, clashes)
+
+
+@pytest.mark.parametrize("name", ["flacco-cell", "ur3-cell", "c-arm-room"])
+def test_every_camera_sees_the_scene_and_the_machine(cells, name):
+    """Noiseless renders of the first situation: each camera sees the cell, most see the robot."""
+    from depthguard.sources import SimSource
+
+    c = cells[name]
+    t = list(c.situations.values())[0].time
+    frames = SimSource(c, noiseless=True).frames(t, labels=True)
+    names = c.scene.meshes_at(t)[1]
+    robot_ids = np.array([i for i, n in enumerate(names) if n.startswith("robot/")])
+    sees_robot = 0
+    for cid, f in frames.items():
+        assert (f.depth > 0).mean() > 0.3, cid
+        sees_robot += int(np.isin(f.labels, robot_ids).sum() > 100)
+    assert sees_robot >= 0.75 * len(frames)
+
+
+def test_robot_joint_override_and_ground_truth_excludes_the_robot(cells):
+    c = cells["flacco-cell"]
+    scene, t = c.scene_for("robot_alone")
+    q = scene.robot_q(t) + 0.3
+    m_script, names = scene.meshes_at(t)
+    m_q, _ = scene.meshes_at(t, q=q)
+    i = names.index("robot/link7")
+    np.testing.assert_allclose(m_q[i].vertices, c.rig.robot.link_meshes(q)[c.rig.robot.link_mesh_names.index("link7")].vertices)
+    assert not np.allclose(m_q[i].vertices, m_script[i].vertices)
+    # the robot is not an obstacle: its control points have positive true distance ...
+    cps = c.rig.robot.control_point_positions(scene.robot_q(t))
+    assert (scene.true_distance(cps, t) > 0.05).all()
+    # ... but it is in the occupancy when asked for
+    lo, hi = np.array([-0.8, -0.8, 0.0]), np.array([0.8, 0.8, 1.2])
+    without = scene.occupancy(lo, hi, 0.04, t)
+    with_robot = scene.occupancy(lo, hi, 0.04, t, robot=True)
+    assert (with_robot & ~without).sum() > 20 and not (without & ~with_robot).any()
+    with pytest.raises(ValueError, match="7 joint values"):
+        scene.meshes_at(t, q=[0.0, 1.0])
+
+
+@pytest.mark.parametrize("name", ["flacco-cell", "ur3-cell"])
+def test_people_never_walk_through_furniture_or_the_robot(cells, name):
+    """Along the whole script, no surface point of a person lies inside furniture or the robot."""
+    scene = cells[name].scene
+    for t in np.arange(0.0, scene.duration + 1e-9, 0.25):
+        obs = scene.obstacles_at(t)
+        body = [p for p in obs if "/" in p.name]
+        if not body:
+            continue
+        others = [p for p in obs if "/" not in p.name and p.name != "box"] + scene.robot_primitives(t)
+        pts = np.concatenate([p.mesh().vertices for p in body])
+        pts = pts[pts[:, 2] > scene.people[0].floor_z + 0.02]  # the soles stand on the floor
+        for o in others:  # only points inside the obstacle's bounding box can be inside it
+            lo, hi = o.bounds()
+            near = np.all((pts >= lo - 0.01) & (pts <= hi + 0.01), axis=1)
+            if near.any():
+                assert o.sdf(pts[near]).min() > 0.0, (t, o.name)

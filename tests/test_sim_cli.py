@@ -55,3 +55,14 @@ def test_demo_contact_sheets_function(tmp_path):
     sheets = render_contact_sheets(tmp_path, cells=["flacco-walls"], noiseless=True)
     assert [p.name for p in sheets] == ["contact_sheet.png"]
     assert (tmp_path / "flacco-walls" / "static" / "cam0.png").is_file()
+
+
+def test_colorize_depth_marks_invalid_black_and_orders_near_far():
+    from depthguard.viz import colorize_depth
+
+    d = np.array([[0.0, 1.0, 2.0, np.nan]], np.float32)
+    rgb = colorize_depth(d, 1.0, 2.0)
+    assert rgb.shape == (1, 4, 3)
+    assert (rgb[0, 0] == 0).all() and (rgb[0, 3] == 0).all()
+    near, far = rgb[0, 1], rgb[0, 2]
+    assert near[0] > near[2] and far[2] > far[0]  # near is warm (red), far is cold (blue)

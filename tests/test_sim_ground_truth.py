@@ -117,3 +117,12 @@ def test_mesh_solid_distance_matches_the_analytic_ring(rng):
     # the 48-gon differs from the circle by r (1 - cos(pi/48)) <= 0.13 mm
     np.testing.assert_allclose(got, ref, atol=2e-4)
     assert ((ref == 0) == (got <= 2e-4)).mean() > 0.98
+
+
+def test_shipped_stl_is_the_generated_fixture(tmp_path):
+    from depthguard.sim.cells import write_fixture_meshes
+
+    shipped = load_mesh(str(resources.files("depthguard") / "data" / "cells" / "meshes" / "ring_fixture.stl"))
+    made = load_mesh(write_fixture_meshes(tmp_path)[0])
+    np.testing.assert_allclose(shipped.vertices, made.vertices, atol=1e-4)
+    np.testing.assert_array_equal(shipped.faces, made.faces)

@@ -165,3 +165,35 @@ def test_carm_pose_names_limits_and_robot_like_api():
     # every part's surface is within its own primitive's zero level set
     for prim, m in zip(carm.primitives(p), ms):
         assert np.abs(prim.sdf(m.vertices)).max() < 1e-9
+
+
+def test_carm_padding_contains_the_offset_volume(rng):
+    carm = CArm()
+    q = CArmPose.degrees(larm=30, propeller=20, carc=-10).as_array()
+    exact = carm.collision_primitives(q)
+    padded = carm.collision_primitives(q, padding=0.05)
+    # points within 5 cm of the machine lie inside the padded volume
+    from depthguard.sim.ground_truth import true_distance
+    pts = rng.uniform([-1.5, -1.5, 0.0], [1.5, 1.5, 2.5], (20000, 3))
+    near = true_distance(exact, pts) <= 0.05
+    assert near.sum() > 200
+    assert (true_distance(padded, pts[near]) == 0).all()
+    with pytest.raises(ValueError, match="padding"):
+        carm.collision_primitives(q, padding=-1)
+
+
+def test_walking_swings_the_legs_above_the_floor():
+    walker = Person("w", [Key(0.0, (0.0, 0.0), 0.0), Key(4.0, (4.0, 0.0), 0.0)])
+    still = Person("s", [Key(0.0, (0.0, 0.0), 0.0)])
+    assert still.leg_swing(1.3) == 0.0
+    swings = [walker.leg_swing(t) for t in np.linspace(1.0, 3.0, 41)]
+    assert max(swings) > 0.2 and min(swings) < -0.2 and max(np.abs(swings)) <= math.radians(25) + 1e-12
+    for t in np.linspace(0.5, 3.5, 13):
+        prims = walker.primitives(t)
+        assert min(p.bounds()[0, 2] for p in prims) >= -1e-9  # feet never sink into the floor
+        legs = [p for p in prims if p.name.endswith("_leg")]
+        a, b = (np.array(p.segment()) for p in legs)
+        # the two feet mirror each other about the hips' vertical (opposite phase)
+        fa, fb = a[np.argmin(a[:, 2])], b[np.argmin(b[:, 2])]
+        hip_x = walker.pose_at(t).xy[0]
+        assert (fa[0] - hip_x) == pytest.approx(-(fb[0] - hip_x), abs=1e-9)

@@ -87,3 +87,15 @@ def test_sim_source_needs_a_scene():
     cell = load_cell("flacco-walls")
     src = SimSource(rig=cell.rig, scene=Scene([]), noiseless=True)
     assert (src.frames(0.0)["cam0"].depth == 0).all()  # nothing to see
+
+
+@pytest.mark.slow  # loads two cells and renders
+def test_bench_group_quick_rows():
+    from depthguard.evaluation.bench import BenchContext
+    from depthguard.evaluation.bench.sim import sim_group
+
+    rows = {r.name: r for r in sim_group(BenchContext(quick=True, repeats=3))}
+    assert set(rows) == {"sim.noise.kinect_640x480_ms", "sim.ur3_cell.frames_4x640x480_ms",
+                         "sim.c_arm_room.occupancy_10cm_ms"}
+    for r in rows.values():
+        assert r.value > 0 and r.peer and r.peer_value > 0 and r.unit == "ms"

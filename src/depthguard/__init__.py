@@ -37,6 +37,7 @@ _EXPORTS = {
     "DistanceResult": "depthguard.distance",
     "DepthGridMap": "depthguard.fusion.depth_grid",
     "FreeSpaceMap": "depthguard.fusion.free_space",
+    "VoxelFilter": "depthguard.fusion.voxels",
 }
 
 __all__ = sorted(_EXPORTS)

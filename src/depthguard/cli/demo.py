@@ -19,7 +19,7 @@ import typer
 
 from depthguard.cli.app import app
 
-DEMO_SCENARIOS = {"reach": 7.0, "elbow": 8.0}      # simulated seconds
+DEMO_SCENARIOS = {"reach": 8.0, "elbow": 10.0}     # simulated seconds (the scenarios' defaults)
 
 
 def render_contact_sheets(out: Path, seed: int = 0, noiseless: bool = False,

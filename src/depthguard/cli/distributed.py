@@ -50,8 +50,14 @@ def server_cmd(
     multicast: bool = typer.Option(False, "--multicast", help="Enable zenoh multicast scouting."),
     every: float = typer.Option(5.0, "--every", help="Log the status every this many seconds (0 = never)."),
     duration: float = typer.Option(0.0, "--duration", help="Stop after this many seconds (0 = run until Ctrl-C)."),
+    centralised: bool = typer.Option(False, "--centralised", help="With --cell: filter every simulated camera in "
+                                     "this process (the centralised mode, for comparison) instead of waiting for nodes."),
+    fps: float = typer.Option(15.0, "--fps", help="Centralised mode: scene refreshes per second."),
 ) -> None:
-    """Run the fusion server (main unit): registry, freshness, global voxel map (R20)."""
+    """Run the fusion server (main unit): registry, freshness, global voxel map (R20).
+
+    With --centralised the same pipeline runs for every camera in this one process
+    (all images into one place), and the status reports it the same way."""
     from depthguard.distributed import wire as W
     from depthguard.distributed.server import FusionServer
     from depthguard.progress import log
@@ -72,6 +78,32 @@ def server_cmd(
     srv.start()
     log(f"server on {', '.join(listen)} for cameras {', '.join(r.camera_ids)}")
     t0 = time.monotonic()
+    central = None
+    if centralised:
+        if c is None:
+            raise typer.BadParameter("--centralised needs --cell (simulated cameras)", param_hint="--centralised")
+        from depthguard.distributed.central import CentralisedPipeline
+        from depthguard.sources import SimSource
+
+        t_sim = sim_time if sim_time is not None else 0.0
+        frames = {cid: f.depth for cid, f in SimSource(c, seed=0).frames(t_sim).items()}
+        pipe = CentralisedPipeline(r.cameras, (r.workspace.lo, r.workspace.hi), voxel_size=voxel_size,
+                                   threshold=threshold, static_meshes=r.static_meshes(), robot=r.robot)
+
+        def central_loop():
+            period = 1.0 / fps if fps > 0 else 0.0
+            while not stop.is_set():
+                t1 = time.monotonic()
+                st = srv.settings
+                pipe.configure(voxel_size=st.voxel_size, threshold=st.threshold)
+                q = st.joints if (st.joints and r.robot is not None) else None
+                for cid, vs in pipe.per_camera(frames, q=q).items():
+                    srv.local_update(cid, vs.keys, vs.counts, vs.voxel_size, time.time(),
+                                     invalid_frac=vs.n_invalid / frames[cid].size)
+                stop.wait(max(0.0, period - (time.monotonic() - t1)))
+        central = threading.Thread(target=central_loop, daemon=True)
+        central.start()
+        log(f"centralised mode: {len(frames)} cameras filtered in this process")
     try:
         while not stop.is_set():
             stop.wait(every if every > 0 else 0.5)
@@ -83,6 +115,9 @@ def server_cmd(
             if duration and time.monotonic() - t0 >= duration:
                 break
     finally:
+        stop.set()
+        if central is not None:
+            central.join(5)
         srv.close()
 
 
@@ -143,9 +178,10 @@ def status_cmd(
 
     t = Table(title=f"depthguard server: {st['voxels_total']} voxels of {st['voxel_size'] * 1000:g} mm, "
                     f"{st['bytes_per_s'] / 1000:.1f} kB/s, rejected {st['rejected']}, refused {st['refused']}")
-    for col in ("camera", "id", "state", "age_s", "voxels", "address"):
+    for col in ("camera", "id", "state", "age_s", "voxels", "invalid px", "address"):
         t.add_column(col)
     for n in st["nodes"]:
         age = "-" if n["age_s"] is None else f"{n['age_s']:.3f}"
-        t.add_row(n["camera"], str(n["id"]), n["state"], age, str(n["voxels"]), n.get("address", ""))
+        inv = "-" if n.get("invalid_frac") is None else f"{100 * n['invalid_frac']:.0f} %"
+        t.add_row(n["camera"], str(n["id"]), n["state"], age, str(n["voxels"]), inv, n.get("address", ""))
     Console().print(t)

@@ -43,12 +43,14 @@ def hamersma2011(
 def placement(
     cell: str = typer.Option("c-arm-room", "--cell", help="Built-in cell whose rig is checked."),
     voxel: float = typer.Option(0.10, "--voxel", help="Voxel size of the space of interest, metres."),
+    clearance: float = typer.Option(0.8, "--clearance", help="Space of interest: the workspace shrunk by this much from the walls (metres; 0 = the whole box)."),
     min_separation: float = typer.Option(100.0, "--min-separation", help="Pairwise horizontal angle in degrees."),
     improve: bool = typer.Option(True, "--improve/--no-improve", help="Also run the greedy improver over wall and ceiling positions."),
     spacing: float = typer.Option(0.5, "--spacing", help="Spacing of the improver's candidate positions, metres."),
 ) -> None:
-    """R23: share of the (empty) workspace seen by >= 3 cameras pairwise >= 100° apart, and how
-    many cameras a greedy placement along the walls and ceiling needs."""
+    """R23: share of the (empty) space of interest seen by >= 3 cameras pairwise >= 100° apart in
+    the horizontal plane, by number of cameras, and how many cameras a greedy placement on the
+    walls (two rings) and the ceiling needs."""
     import numpy as np
 
     from depthguard.evaluation.placement import (azimuths, candidate_cameras, greedy_placement,
@@ -63,24 +65,41 @@ def placement(
     c = load_cell(cell)
     rig = c.rig
     lo, hi = np.asarray(rig.workspace.lo, float), np.asarray(rig.workspace.hi, float)
-    pts = VoxelGrid(lo, hi, voxel).centres()
-    shell = [o.mesh() for o in c.scene.static
-             if np.any(np.asarray(o.bounds())[1] <= lo + 0.01) or np.any(np.asarray(o.bounds())[0] >= hi - 0.01)]
-    seen = visibility(rig.cameras, pts, shell)
-    az = azimuths(rig.cameras, pts)
-    ok = passes_criterion(seen, az, min_separation_deg=min_separation)
-    typer.echo(f"{cell}: {len(rig.cameras)} cameras, {len(pts)} voxels of {voxel * 100:.0f} cm: "
-               f"{100 * ok.mean():.1f} % pass (>= 3 views pairwise >= {min_separation:g} deg apart)")
-    g = greedy_placement(seen, az, rig.cameras, target_share=1.0, max_cameras=len(rig.cameras), prune=False,
-                         min_separation_deg=min_separation)
-    curve = share_vs_cameras(seen, az, g.chosen, min_separation_deg=min_separation)
+    if not (0 <= clearance < 0.5 * float(np.min(hi[:2] - lo[:2]))):
+        raise typer.BadParameter(f"clearance {clearance} m leaves no space of interest", param_hint="--clearance")
+    ilo, ihi = lo.copy(), hi.copy()
+    ilo[:2] += clearance
+    ihi[:2] -= clearance
+    pts = VoxelGrid(ilo, ihi, voxel).centres()
+
+    def outside(o):
+        b = np.asarray(o.bounds())
+        return bool(np.any(b[1] <= lo + 0.01) or np.any(b[0] >= hi - 0.01))
+
+    shell = [o.mesh() for o in c.scene.static if outside(o)]
+    kw = dict(min_separation_deg=min_separation)
+    seen, az = visibility(rig.cameras, pts, shell), azimuths(rig.cameras, pts)
+    ok = passes_criterion(seen, az, **kw)
+    typer.echo(f"{cell}: {len(rig.cameras)} cameras, {len(pts)} voxels of {voxel * 100:.0f} cm in "
+               f"{ilo.round(2).tolist()}..{ihi.round(2).tolist()}: {100 * ok.mean():.1f} % pass "
+               f"(>= 3 views pairwise >= {min_separation:g} deg apart)")
+    g = greedy_placement(seen, az, rig.cameras, target_share=1.0, max_cameras=len(rig.cameras), prune=False, **kw)
+    curve = share_vs_cameras(seen, az, g.chosen, **kw)
     typer.echo("share vs cameras (best first): " + ", ".join(f"{i + 1}:{100 * v:.1f}" for i, v in enumerate(curve)))
     if improve:
-        cands = candidate_cameras(lo, hi, target=(lo + hi) / 2 - [0, 0, (hi[2] - lo[2]) * 0.15],
-                                  template=rig.cameras[0], spacing=spacing, wall_height=hi[2] - 0.2)
+        mid = (lo + hi) / 2
+        h = hi[2] - lo[2]
+        rings = [(hi[2] - 0.15, (mid[0], mid[1], lo[2] + 0.24 * h)), (lo[2] + 0.6, (mid[0], mid[1], lo[2] + 0.72 * h))]
+        cands = candidate_cameras(lo, hi, target=(mid[0], mid[1], lo[2] + 0.36 * h), template=rig.cameras[0],
+                                  spacing=spacing, rings=rings)
+        furniture = [o for o in c.scene.static if not outside(o)]
+        if furniture:  # no camera inside (or right against) the fixed furniture
+            from depthguard.geometry import sdf_union
+            keep = sdf_union(furniture, np.stack([k.position for k in cands])) > 0.10
+            cands = [k for k, ok in zip(cands, keep) if ok]
         sc, ac = visibility(cands, pts, shell), azimuths(cands, pts)
-        reach = float(passes_criterion(sc, ac, min_separation_deg=min_separation).mean())
-        r = greedy_placement(sc, ac, cands, target_share=reach, max_cameras=60, min_separation_deg=min_separation)
+        reach = float(passes_criterion(sc, ac, **kw).mean())
+        r = greedy_placement(sc, ac, cands, target_share=0.995 * reach, max_cameras=60, **kw)
         typer.echo(f"greedy improver: {len(r.chosen)} cameras reach {100 * r.final_share:.1f} % "
                    f"(all {len(cands)} candidates: {100 * reach:.1f} %; paper: 21 cameras)")
         for cam in r.cameras:

@@ -63,7 +63,9 @@ def run(
 
 def _one_line(s: dict) -> str:
     rms = s["ee_tracking_rms_m"]
-    parts = [f"{s['scenario']}: min true distance {s['min_true_distance_m'] * 100:.1f} cm",
+    dyn = s.get("min_true_distance_dynamic_m")
+    parts = [f"{s['scenario']}: min true distance {s['min_true_distance_m'] * 100:.1f} cm"
+             + ("" if dyn is None else f" (to moving obstacles {dyn * 100:.1f} cm)"),
              "COLLISION" if s["collision"] else "no collision",
              f"EE tracking RMS {rms * 1000:.1f} mm" if rms is not None else "EE tracking RMS n/a",
              f"{s['avoidance_rate_hz']:.0f} Hz avoidance", f"real-time factor {s['real_time_factor']:.2f}"]

@@ -37,8 +37,7 @@ from typing import Callable
 
 import numpy as np
 
-from depthguard.control.joint_limits import combine_limits, constraint_limits, position_limits
-from depthguard.control.repulsion import repulsive_velocity
+from depthguard.control.reaction import reaction
 from depthguard.control.sns import SNSWorkspace, sns_velocity
 from depthguard.control.trajectory import Hexagon
 
@@ -267,6 +266,17 @@ class ClosedLoop:
             self.grid = None
             self.single = DistanceWorkspace(self.cams[0], max_points=16)
 
+    def _grid_kw(self, caps) -> dict:
+        """Optional arguments of the grid's ``set_frames`` that this version offers: the box the
+        control points can reach before the next frame (only gray cells there are examined)."""
+        import inspect
+        if not hasattr(self, "_grid_params"):
+            self._grid_params = set(inspect.signature(self.grid.set_frames).parameters)
+        kw = {}
+        if "reach" in self._grid_params and hasattr(self.grid, "robot_reach"):
+            kw["reach"] = self.grid.robot_reach(caps, self.cfg.rho, margin=0.1)
+        return kw
+
     def _setup_ground_truth(self):
         """Capsules that never move and touch the static scene (the base on its mount) are left out
         of the ground truth; every other capsule counts (reported in the summary)."""
@@ -385,6 +395,9 @@ class ClosedLoop:
         snapshots = []
         n_distance, next_distance = 0, 0.0
         frames_dirty = False
+        react_buf = (np.empty(3), np.empty(n), np.empty(n))
+        q_min, q_max, qd_max = (np.ascontiguousarray(a, dtype=np.float64)
+                                for a in (robot.q_min, robot.q_max, robot.qd_max))
         for k in steps:
             t = k * dt
             # 1. vision
@@ -422,10 +435,13 @@ class ClosedLoop:
             if not due:
                 pass                                   # hold D, V, obs of the last distance cycle
             elif self.grid is not None:
+                caps = robot.collision_segments(q, cfg.robot_padding)
                 if frames_dirty:
-                    self.grid.set_frames(depths, rdepths, robot_offset=cfg.robot_offset)
+                    self.grid.set_frames(depths, rdepths, robot_offset=cfg.robot_offset, robot_capsules=caps,
+                                         **self._grid_kw(caps))
                     frames_dirty = False
-                self.grid.set_robot_capsules(robot.collision_segments(q, cfg.robot_padding))
+                else:
+                    self.grid.set_robot_capsules(caps)
                 res = self.grid.query(P, rho=rho, method=cfg.method)
             else:
                 if frames_dirty:
@@ -450,12 +466,9 @@ class ClosedLoop:
             x = P[0]
             p_d, v_d = self.hexagon.at(tau)
             xd = kov * v_d + cfg.k_p * (p_d - x)
-            rep = repulsive_velocity(D[0], V[0], rho, cfg.v_max, alpha)
+            rep, lo, hi = reaction(D, V, data.cp_jacobians, q, q_min, q_max, qd_max, dt, rho, cfg.v_max,
+                                   alpha, kov, out=react_buf)          # R13, R14, joint limits, times k
             xc = xd + rep
-            lo_c, hi_c = constraint_limits(data.cp_jacobians[1:], D[1:], V[1:], robot.qd_max, rho, alpha)
-            lo_p, hi_p = position_limits(q, robot.q_min, robot.q_max, robot.qd_max, dt)
-            lo, hi = combine_limits((lo_c, hi_c), (lo_p, hi_p))
-            lo, hi = kov * lo, kov * hi
             r = sns_velocity(data.cp_jacobians[0], xc, lo, hi, qd0=cfg.k_posture * (self.q_start - q),
                              workspace=self.sns_ws)
             t2 = time.perf_counter()

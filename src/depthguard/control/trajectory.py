@@ -12,6 +12,7 @@ resumes where it stopped instead of chasing a target that ran away.
 from __future__ import annotations
 
 from dataclasses import dataclass
+from functools import cached_property
 
 import numpy as np
 
@@ -40,7 +41,7 @@ class Hexagon:
             if not (np.isfinite(v) and v > 0):
                 raise ValueError(f"hexagon {name} must be > 0, got {v!r}")
 
-    @property
+    @cached_property
     def corners(self) -> np.ndarray:
         """(6, 3) world corners."""
         th = np.deg2rad(self.theta0_deg + 60.0 * np.arange(6))

@@ -186,7 +186,8 @@ class CameraNode:
         vs = self.filter.filter(depth, q=self.q)
         keys, counts, s = fit_to_wire(vs.keys, vs.counts, vs.voxel_size)
         self.seq = self._trigger_seq if self.trigger else self.seq + 1
-        msg = W.update_request(self.unit_id, self.seq, stamp, s, keys, counts)
+        invalid = vs.n_invalid / (self.cam.width * self.cam.height)
+        msg = W.update_request(self.unit_id, self.seq, stamp, s, keys, counts, invalid)
         self.sent_bytes += len(msg)
         try:
             rep = self.client.request(self.keys.update, msg, 1.0, W.MsgType.UPDATE_REP)

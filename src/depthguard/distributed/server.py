@@ -58,6 +58,7 @@ class Unit:
     stamp: float = float("nan")      # capture time sent by the node (its clock)
     t_update: float | None = None    # server monotonic receive time
     seq: int = 0
+    invalid_frac: float = float("nan")   # share of the node's pixels without a valid measurement (R28)
     updates: int = 0
     inits: int = 1
 
@@ -220,6 +221,7 @@ class FusionServer:
                 return W.error_reply(ERR_UNKNOWN_UNIT, f"unit id {m.unit_id} is not initialised")
             u.keys, u.counts, u.voxel_size = m.keys, m.counts, m.voxel_size
             u.stamp, u.seq, u.t_update = m.stamp, m.seq, now
+            u.invalid_frac = m.invalid_frac
             u.updates += 1
             self._bytes.append((now, len(data)))
             token_missing = not u.alive
@@ -227,6 +229,28 @@ class FusionServer:
         if self.on_update is not None:
             self.on_update(u)
         return reply
+
+    def local_update(self, camera: str, keys: np.ndarray, counts: np.ndarray, voxel_size: float,
+                     stamp: float, address: str = "local", invalid_frac: float = float("nan")) -> Unit:
+        """Centralised mode: store a camera's voxels computed in this process (no network);
+        the unit counts as present while this is called."""
+        if camera not in self.cameras:
+            raise ValueError(f"camera {camera!r} is not in the rig")
+        now = time.monotonic()
+        with self._lock:
+            u = self.units.get(camera)
+            if u is None:
+                u = Unit(self._next_id, camera, address)
+                self._next_id += 1
+                self.units[camera] = u
+            u.alive = True
+            self._alive.add(camera)
+            u.keys, u.counts, u.voxel_size = np.asarray(keys), np.asarray(counts), float(voxel_size)
+            u.stamp, u.t_update = float(stamp), now
+            u.invalid_frac = float(invalid_frac)
+            u.seq += 1
+            u.updates += 1
+        return u
 
     def _on_status(self, data: bytes) -> bytes:
         W.decode(data, expect=W.MsgType.STATUS_REQ)
@@ -295,7 +319,8 @@ class FusionServer:
             return sum(b for _, b in self._bytes) / _RATE_WINDOW_S
 
     def status(self) -> dict:
-        """The server's view: ``{"nodes": [{"camera", "id", "state", "age_s", "voxels", ...}],
+        """The server's view: ``{"nodes": [{"camera", "id", "state", "age_s", "voxels",
+        "invalid_frac", ...}],
         "voxels_total", "bytes_per_s", "rejected", "refused", "settings"}``."""
         now = time.monotonic()
         keys, s = self.global_map()
@@ -308,6 +333,7 @@ class FusionServer:
                     "age_s": None if u.t_update is None else round(now - u.t_update, 4),
                     "voxels": int(len(u.keys)) if state == "fresh" else 0,
                     "voxel_size": u.voxel_size, "address": u.address,
+                    "invalid_frac": None if u.invalid_frac != u.invalid_frac else round(u.invalid_frac, 4),
                     "updates": u.updates, "inits": u.inits,
                 })
             st = self.settings

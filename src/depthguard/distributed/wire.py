@@ -10,7 +10,9 @@ A compact, versioned, size-limited binary format, little-endian::
 INIT_REQ     (1)       cam_len u8, camera id (utf-8), addr_len u8, address (utf-8)
 INIT_REP     (2)       unit_id u32, settings
 UPDATE_REQ   (3)       unit_id u32, seq u32, stamp f64 (s, capture time), voxel_size f32 (m),
-                       n u32, keys n×3 int16, counts n×u16 (8 bytes per voxel)
+                       n u32, invalid_frac f32 (share of the image's pixels without a valid
+                       measurement: R28, "cannot judge" there), keys n×3 int16, counts n×u16
+                       (8 bytes per voxel)
 UPDATE_REP   (4)       settings; flag bit 0 = the server does not see the node's liveliness token
 ERROR_REP    (5)       code u16, msg_len u16, message (utf-8)
 STATUS_REQ   (6)       empty
@@ -48,7 +50,7 @@ MAX_MESSAGE_BYTES = 1 << 20
 _HDR = struct.Struct("<3sBBBHI")
 _CRC = struct.Struct("<I")
 _OVERHEAD = _HDR.size + _CRC.size
-_UPD = struct.Struct("<IIdfI")
+_UPD = struct.Struct("<IIdfIf")
 BYTES_PER_VOXEL = 8
 MAX_VOXELS = (MAX_MESSAGE_BYTES - _OVERHEAD - _UPD.size) // BYTES_PER_VOXEL
 _SET = struct.Struct("<IfffffB")
@@ -113,6 +115,7 @@ class Message:
     voxel_size: float = 0.0
     keys: np.ndarray = field(default_factory=lambda: np.zeros((0, 3), np.int16))
     counts: np.ndarray = field(default_factory=lambda: np.zeros(0, np.uint16))
+    invalid_frac: float = 0.0
     settings: Settings | None = None
     code: int = 0
     text: str = ""          # error message, or JSON for STATUS_REP / SETTINGS_REQ
@@ -152,8 +155,9 @@ def init_reply(unit_id: int, settings: Settings) -> bytes:
 
 
 def update_request(unit_id: int, seq: int, stamp: float, voxel_size: float,
-                   keys: np.ndarray, counts: np.ndarray) -> bytes:
-    """UPDATE_REQ; keys (N, 3) int within int16, counts (N,) (saturated at 65535)."""
+                   keys: np.ndarray, counts: np.ndarray, invalid_frac: float = 0.0) -> bytes:
+    """UPDATE_REQ; keys (N, 3) int within int16, counts (N,) (saturated at 65535),
+    invalid_frac in [0, 1] (share of invalid pixels)."""
     k = np.asarray(keys)
     c = np.asarray(counts)
     if k.ndim != 2 or k.shape[1] != 3 or c.shape != (k.shape[0],):
@@ -164,9 +168,11 @@ def update_request(unit_id: int, seq: int, stamp: float, voxel_size: float,
         raise WireError("voxel keys outside the int16 range of the wire format")
     if not math.isfinite(stamp):
         raise WireError("stamp must be finite")
+    if not (0.0 <= invalid_frac <= 1.0):
+        raise WireError(f"invalid_frac {invalid_frac} outside [0, 1]")
     if not (0.01 - 1e-6 <= voxel_size <= 0.8):
         raise WireError(f"voxel size {voxel_size} m outside the wire range 0.01-0.8 m")
-    body = (_UPD.pack(unit_id, seq & 0xFFFFFFFF, stamp, voxel_size, len(k))
+    body = (_UPD.pack(unit_id, seq & 0xFFFFFFFF, stamp, voxel_size, len(k), invalid_frac)
             + k.astype("<i2").tobytes() + np.clip(c, 0, 65535).astype("<u2").tobytes())
     return _frame(MsgType.UPDATE_REQ, body)
 
@@ -200,7 +206,8 @@ def encode(msg: Message) -> bytes:
     if t == MsgType.INIT_REP:
         return init_reply(msg.unit_id, msg.settings or Settings())
     if t == MsgType.UPDATE_REQ:
-        return update_request(msg.unit_id, msg.seq, msg.stamp, msg.voxel_size, msg.keys, msg.counts)
+        return update_request(msg.unit_id, msg.seq, msg.stamp, msg.voxel_size, msg.keys, msg.counts,
+                              msg.invalid_frac)
     if t == MsgType.UPDATE_REP:
         return update_reply(msg.settings or Settings(), bool(msg.flags & 1))
     if t == MsgType.ERROR_REP:
@@ -307,8 +314,11 @@ def decode(buf: bytes | bytearray | memoryview, expect: MsgType | tuple[MsgType,
         (m.unit_id,) = r.unpack(struct.Struct("<I"), "unit id")
         m.settings = _read_settings(r)
     elif t == MsgType.UPDATE_REQ:
-        m.unit_id, m.seq, m.stamp, vs, n = r.unpack(_UPD, "update header")
+        m.unit_id, m.seq, m.stamp, vs, n, inv = r.unpack(_UPD, "update header")
         m.voxel_size = _r6(vs)
+        m.invalid_frac = _r6(inv)
+        if not (0.0 <= m.invalid_frac <= 1.0):
+            raise WireError(f"UPDATE_REQ: invalid_frac {m.invalid_frac} outside [0, 1]")
         if not math.isfinite(m.stamp):
             raise WireError("UPDATE_REQ: stamp is not finite")
         if not (0.01 - 1e-6 <= m.voxel_size <= 0.8):

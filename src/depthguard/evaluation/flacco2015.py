@@ -91,9 +91,10 @@ def run_flacco2015(rho: float = 0.4, padding: float = 0.05, delta_d: float = 0.0
         caps = robot.collision_capsules(q, padding)
         one = depth_space_distance(cams[0], depths["cam0"], P, rho, "min", robot_depth=rds["cam0"],
                                    invalid="free")
-        two = grid.distance(depths, P, rho, "min", rds, robot_capsules=caps, invalid="free")
+        reach = grid.robot_reach(caps, rho, 0.05)      # the control points lie in the capsules
+        two = grid.distance(depths, P, rho, "min", rds, robot_capsules=caps, invalid="free", reach=reach)
         twop = grid.distance(depths, P, rho, "min", rds, robot_capsules=caps, invalid="free",
-                             robot_in_others="free")
+                             robot_in_others="free", reach=reach)
         out[name] = SituationResult(
             name, cell.situations[name].description, P, [c.name for c in robot.control_points],
             scene.true_distance(P, t), one.distance, one.direction, two.distance, two.direction,

@@ -17,6 +17,15 @@ the fly (:mod:`~depthguard.fusion.depth_grid_kernels` states the rule);
 :func:`~depthguard.fusion.depth_grid_ref.explicit_map_numpy` builds the
 paper's explicit table for small grids and the tests check they agree.
 
+On-line work is split as the paper's footnote 1 suggests (frames at 30 Hz,
+distances as fast as possible): :meth:`DepthGridMap.set_frames` settles, once
+per frame, which cells of each principal column are obstacles (the
+confirmation of R12 done per cell, or per stretch of cells where the other
+cameras' min/max pyramids prove a whole stretch cleared or confirmed) and
+stores them as runs; :meth:`DepthGridMap.query` then only looks up, per
+pixel of the region of surveillance, the nearest obstacle cell of its runs.
+``reach`` limits the per-frame work to a box around the robot.
+
 When no camera sees the whole workspace, :class:`MultiPrincipalDepthGrid`
 keeps a map per camera and evaluates each control point with a principal
 that sees it (the paper's future work).
@@ -457,8 +466,12 @@ class DepthGridMap:
         K.frame_state(d, rd, use, cam.min_range, cam.max_range, off, self._invalid_free,
                       robot_free, out_free, out_kind)
 
-    def query(self, points, rho: float = 0.4, method: str = "hybrid") -> DistanceResult:
+    def query(self, points, rho: float = 0.4, method: str = "hybrid",
+              threads: int | None = None) -> DistanceResult:
         """Distances of control points (N, 3) world metres to the fused obstacles (R12).
+
+        threads : numba threads for this call (default: all); 1 runs the points
+            one after the other, which is steadier on a busy machine.
 
         The arrays of the result are views of reused buffers, overwritten by
         the next query: ``.copy()`` the result to keep it.
@@ -474,10 +487,27 @@ class DepthGridMap:
         n = len(p)
         if n > self._cap:
             self._alloc_points(n)
+        prev = None
+        if threads is not None:
+            import numba
+
+            if int(threads) < 1:
+                raise ValueError(f"threads must be >= 1 (got {threads!r})")
+            prev = numba.get_num_threads()
+            numba.set_num_threads(min(int(threads), numba.config.NUMBA_NUM_THREADS))
+        try:
+            self._run_query(p, n, r, m)
+        finally:
+            if prev is not None:
+                import numba
+
+                numba.set_num_threads(prev)
+        return DistanceResult(self._dist[:n], self._dir[:n], self._obs[:n], self._count[:n])
+
+    def _run_query(self, p, n, r, m) -> None:
         K.grid_distances(self._pfree, self._runs, self._nruns, self._tile_first, self._Rp, self._tp, self._pint,
                          self.d_min, self.delta_d, p, n, r, m,
                          self._dist, self._dir, self._count, self._obs)
-        return DistanceResult(self._dist[:n], self._dir[:n], self._obs[:n], self._count[:n])
 
     def distance(self, depths: dict, points, rho: float = 0.4, method: str = "hybrid",
                  robot_depths: dict | None = None, *, robot_capsules=None,

@@ -66,7 +66,7 @@ _FX, _FY, _CX, _CY, _W, _H, _RMIN, _RMAX = range(8)
 D_ZERO = 1e-9
 
 
-@njit(cache=True, parallel=True)
+@njit(cache=True)
 def frame_state(depth, robot_depth, use_robot, min_range, max_range, robot_offset,
                 invalid_free, robot_free, out_free, out_kind):
     """Per-pixel state of one depth frame (R1, R9, R28).
@@ -88,7 +88,7 @@ def frame_state(depth, robot_depth, use_robot, min_range, max_range, robot_offse
         an obstacle without confirmation), ``KIND_ROBOT`` or ``KIND_UNKNOWN``.
     """
     H, W = depth.shape
-    for v in prange(H):
+    for v in range(H):
         for u in range(W):
             m = np.float64(depth[v, u])
             if not ((m == m) and m > 0.0 and m >= min_range and m <= max_range):
@@ -420,7 +420,7 @@ def _ray_capsule(cx_, cy_, cap):
 MAX_CAPS_PER_PIXEL = 4
 
 
-@njit(cache=True, parallel=True)
+@njit(cache=True)
 def capsule_intervals(caps, ncaps, boxes, fx, fy, cx, cy, H, W, out_lo, out_hi, out_n):
     """Per principal pixel, the depth intervals ``[lo, hi]`` where the pixel's
     cross-section (its 4 corner rays) lies inside each padded robot capsule
@@ -434,11 +434,11 @@ def capsule_intervals(caps, ncaps, boxes, fx, fy, cx, cy, H, W, out_lo, out_hi, 
     out_lo, out_hi : (H, W, MAX_CAPS_PER_PIXEL) float64; out_n : (H, W) int64
     number of intervals (``MAX_CAPS_PER_PIXEL + 1`` = too many: test cells directly).
     """
-    for v in prange(H):
+    for v in range(H):
         for u in range(W):
             out_n[v, u] = 0
     for c in range(ncaps):
-        for v in prange(boxes[c, 2], boxes[c, 3] + 1):
+        for v in range(boxes[c, 2], boxes[c, 3] + 1):
             for u in range(boxes[c, 0], boxes[c, 1] + 1):
                 lo = -np.inf
                 hi = np.inf
@@ -489,6 +489,69 @@ def _in_caps(cap_lo, cap_hi, ncp, v, u, d1, d2, caps, ncaps, fx, fy, cx, cy, g):
     return False
 
 
+@njit(cache=True, inline="always")
+def _section(rays, origins, kint, k, gx, gy, d):
+    """Camera ``k``'s view of the cross-section of principal pixel ``(gx, gy)``'s
+    frustum at depth ``d`` (4 corners): ``(in_range, pumin, pumax, pvmin, pvmax,
+    zmin, zmax)``, the same arithmetic as :func:`cell_footprint`."""
+    fx = kint[k, _FX]
+    fy = kint[k, _FY]
+    cx = kint[k, _CX]
+    cy = kint[k, _CY]
+    rmin = kint[k, _RMIN]
+    rmax = kint[k, _RMAX]
+    pumin = np.inf
+    pumax = -np.inf
+    pvmin = np.inf
+    pvmax = -np.inf
+    zmin = np.inf
+    zmax = -np.inf
+    ok = True
+    for j in range(4):
+        a = gy + (j >> 1)
+        b = gx + (j & 1)
+        X = origins[k, 0] + d * rays[k, a, b, 0]
+        Y = origins[k, 1] + d * rays[k, a, b, 1]
+        Z = origins[k, 2] + d * rays[k, a, b, 2]
+        if Z < zmin:
+            zmin = Z
+        if Z > zmax:
+            zmax = Z
+        if not (Z >= rmin and Z <= rmax):
+            ok = False
+            continue
+        pu = X * fx / Z + cx
+        pv = Y * fy / Z + cy
+        pumin = min(pumin, pu)
+        pumax = max(pumax, pu)
+        pvmin = min(pvmin, pv)
+        pvmax = max(pvmax, pv)
+    return ok, pumin, pumax, pvmin, pvmax, zmin, zmax
+
+
+@njit(cache=True, inline="always")
+def _cleared_by_sections(kfree, kint, k, s1, s2):
+    """:func:`cell_cleared` for one camera from the cell's two cross-sections."""
+    if not (s1[0] and s2[0]):
+        return False
+    pumin = min(s1[1], s2[1])
+    pumax = max(s1[2], s2[2])
+    pvmin = min(s1[3], s2[3])
+    pvmax = max(s1[4], s2[4])
+    zmax = max(s1[6], s2[6])
+    if not (pumin >= -0.5 and pumax < kint[k, _W] - 0.5 and pvmin >= -0.5 and pvmax < kint[k, _H] - 0.5):
+        return False
+    u0 = int(math.floor(pumin + 0.5))
+    u1 = int(math.floor(pumax + 0.5))
+    v0 = int(math.floor(pvmin + 0.5))
+    v1 = int(math.floor(pvmax + 0.5))
+    for v in range(v0, v1 + 1):
+        for u in range(u0, u1 + 1):
+            if not (kfree[k, v, u] > zmax):
+                return False
+    return True
+
+
 @njit(cache=True, parallel=True)
 def column_runs(pfree, pkind, pint, dmin, dd, nd, kfree, kpmin, kpmax, koff, kdims, rays, origins,
                 kint, nk, caps, ncaps, cap_lo, cap_hi, cap_n, band, runs, nruns):
@@ -535,6 +598,8 @@ def column_runs(pfree, pkind, pint, dmin, dd, nd, kfree, kpmin, kpmax, koff, kdi
                 g_last = max(g_last, nd + 1000)
             g = gs
             in_run = False
+            sec_g = gs - 1               # slice whose near cross-section ``sec`` holds (nk == 1);
+            sec = (False, df, df, df, df, df, df)   # (per-column values: not hoisted by parfors)
             known_until = g - 1
             known_obst = False
             span_next = 64
@@ -555,9 +620,8 @@ def column_runs(pfree, pkind, pint, dmin, dd, nd, kfree, kpmin, kpmax, koff, kdi
                     # the stretch g..e may not reach a capsule's cells nor leave the grid
                     e = min(nd - 1, band[v, u, 1])
                     for j in range(min(ncp, MAX_CAPS_PER_PIXEL)):
-                        cs = int(math.ceil((cap_lo[v, u, j] - dmin) / dd)) - 2
-                        if cs >= g:
-                            e = min(e, cs)
+                        if cap_lo[v, u, j] > d1:       # a capsule's cells may start after g
+                            e = min(e, int(math.ceil((cap_lo[v, u, j] - dmin) / dd)) - 2)
                     if ncp > MAX_CAPS_PER_PIXEL:
                         e = g
                     span = min(span_next, e - g + 1)
@@ -579,7 +643,15 @@ def column_runs(pfree, pkind, pint, dmin, dd, nd, kfree, kpmin, kpmax, koff, kdi
                         # one stretch test per miss, its length shrinking fast: the cost
                         # stays within a small factor of the cell-by-cell test
                         span_next = max(span // 4, 1) if span > 1 else min(span_next * 2, 8)
-                        obst = not cell_cleared(kfree, rays, origins, kint, nk, u, v, d1, d2)
+                        if nk == 1:
+                            # consecutive cells share a cross-section: project 4 corners, not 8
+                            s1 = sec if sec_g == g else _section(rays, origins, kint, 0, u, v, d1)
+                            s2 = _section(rays, origins, kint, 0, u, v, d2)
+                            sec = s2
+                            sec_g = g + 1
+                            obst = not _cleared_by_sections(kfree, kint, 0, s1, s2)
+                        else:
+                            obst = not cell_cleared(kfree, rays, origins, kint, nk, u, v, d1, d2)
                 if obst:
                     if in_run:
                         runs[v, u, nr - 1, 1] = g
@@ -607,20 +679,21 @@ def column_runs(pfree, pkind, pint, dmin, dd, nd, kfree, kpmin, kpmax, koff, kdi
             nruns[v, u] = nr
 
 
-@njit(cache=True, parallel=True)
+@njit(cache=True)
 def reach_band(lo, hi, Rwp, o, fx, fy, cx, cy, dmin, dd, pad, band):
     """Per principal pixel, the slices whose cells can meet the world box
     ``[lo, hi]`` (R12 work limited to where control points can reach).
 
     The pixel's centre ray ``o + d Rwp ((u - cx)/fx, (v - cy)/fy, 1)`` (``d`` =
     principal depth) is clipped by the box grown by ``pad`` metres per metre of
-    depth plus nothing else (``pad >= hypot(1/fx, 1/fy)`` covers the whole
-    pixel frustum). band : (H, W, 2) int32 written ``[first, last]`` slice
-    (``first > last``: none).
+    depth (``pad >= hypot(1/fx, 1/fy) / 2`` covers the whole pixel frustum),
+    then one slice is added at each end. band : (H, W, 2) int32 written
+    ``[first, last]`` slice (``first > last``: none). A band that is too
+    wide only costs time; the caller's box must hold the rho-balls.
     """
     H = band.shape[0]
     W = band.shape[1]
-    for v in prange(H):
+    for v in range(H):
         for u in range(W):
             c0 = (u - cx) / fx
             c1 = (v - cy) / fy
@@ -634,6 +707,8 @@ def reach_band(lo, hi, Rwp, o, fx, fy, cx, cy, dmin, dd, pad, band):
                 q = lo[a] - o[a]
                 if p > 0.0:
                     t0 = max(t0, q / p)
+                elif p < 0.0:
+                    t1 = min(t1, q / p)
                 elif q > 0.0:
                     t1 = -1.0
                 p = da - pad

@@ -45,10 +45,12 @@ voxel centre. A thin object (thinner than the voxel, not on the centre ray
 of any camera) is then missed: the voxel is declared free although part of
 it is occupied (*object seen as free*). ``footprint="full"`` reads every
 pixel of a window holding the voxel's whole projection and calls the voxel
-free only if all are valid and beyond its depth extent — conservative, at
-the cost of more *free seen as object* next to edges and a slower update.
-A voxel only partly inside a camera's image is not judged by that camera in
-``"full"`` mode.
+free only if all are valid and beyond the depth threshold (with
+``depth_test="extent"``: nothing seen anywhere in the voxel) — conservative,
+at the cost of more *free seen as object* next to edges and a slower update
+(about 20x at 5 cm in the C-arm room). A voxel only partly inside a camera's
+image, or nearer to it than ``max_window`` allows, is not judged by that
+camera in ``"full"`` mode.
 
 **The machine's own volume** (the C-arm, the robot) cannot collide with
 itself: :meth:`FreeSpaceMap.add_free_volume` frees every voxel the machine
@@ -363,6 +365,11 @@ class FreeSpaceMap:
     def occupied(self) -> np.ndarray:
         """(nx, ny, nz) bool: the current map (True = occupied or unknown)."""
         return self._occ.reshape(self.grid.shape)
+
+    def counts(self) -> tuple[np.ndarray, np.ndarray]:
+        """Of the last update: (nx, ny, nz) uint8 arrays — how many cameras saw each voxel
+        free, and how many saw a surface in it (views of internal buffers)."""
+        return self._nf.reshape(self.grid.shape), self._ns.reshape(self.grid.shape)
 
     def reset(self) -> None:
         """Every voxel occupied again (forget all free space and the machine volume)."""

@@ -73,10 +73,14 @@ class Renderer:
     buffers** (``self.depth``, ``self.labels``): the next call overwrites them,
     so copy what you keep. ``self.face_ids`` holds the packed index of the face
     owning each pixel (see :meth:`face_index` for the index within its mesh).
+    One renderer per thread: its buffers are not shared safely.
     """
 
     def __init__(self, cam, near: float = 0.01, parallel: bool = False, n_bands: int | None = None):
-        near = float(near)
+        try:
+            near = float(near)
+        except (TypeError, ValueError):
+            raise ValueError(f"near must be a distance in metres (got {near!r})") from None
         if not np.isfinite(near) or near <= 0.0:
             raise ValueError(f"near must be a finite distance > 0 m (got {near})")
         for attr in ("R", "t", "fx", "fy", "cx", "cy", "width", "height"):

@@ -179,10 +179,30 @@ class CArm:
 
     # ----------------------------------------------------- robot-like API
     def collision_primitives(self, q, padding: float = 0.0) -> list[Primitive]:
-        """The machine's volume at ``q`` (padding is not supported for boxes: must be 0)."""
-        if padding:
-            raise ValueError("CArm.collision_primitives: padding must be 0 (the model is exact)")
-        return self.primitives(q)
+        """The machine's volume at ``q``, grown by ``padding`` metres (>= 0).
+
+        Capsules grow exactly (radius + padding); boxes and cylinders grow by
+        ``padding`` on every face, a superset of the exact offset volume.
+        """
+        import dataclasses
+
+        padding = float(padding)
+        if not (padding >= 0.0 and math.isfinite(padding)):
+            raise ValueError(f"CArm.collision_primitives: padding must be >= 0 (got {padding})")
+        prims = self.primitives(q)
+        if padding == 0.0:
+            return prims
+        out = []
+        for p in prims:
+            if isinstance(p, Box):
+                out.append(dataclasses.replace(p, size=tuple(np.asarray(p.size) + 2 * padding)))
+            elif isinstance(p, (Capsule,)):
+                out.append(dataclasses.replace(p, radius=p.radius + padding))
+            elif isinstance(p, Cylinder):
+                out.append(dataclasses.replace(p, radius=p.radius + padding, length=p.length + 2 * padding))
+            else:  # pragma: no cover - the model uses only the three kinds
+                raise ValueError(f"CArm: cannot pad {type(p).__name__}")
+        return out
 
     def link_meshes(self, q) -> list[Mesh]:
         """World meshes of the machine's parts at ``q`` (order of :attr:`link_mesh_names`)."""

@@ -32,7 +32,7 @@ from depthguard.geometry.primitives import Box, Capsule, Primitive, Sphere
 from depthguard.sim.carm import CArm, CArmPose
 from depthguard.sim.people import BodyShape, Carry, Key, Person
 from depthguard.sim.scene import JointPath, Prop, Scene
-from depthguard.transforms import pose, rot_z
+from depthguard.transforms import pose
 
 __all__ = ["Cell", "Situation", "load_cell", "list_cells", "cell_rig_path", "CELL_NAMES"]
 
@@ -86,6 +86,25 @@ def cell_rig_path(name: str) -> Path:
     return Path(str(resources.files("depthguard") / "data" / "cells" / f"{name}.yaml"))
 
 
+def ring_fixture_mesh():
+    """The ``ur3-cell``'s STL fixture as made: a trimesh annulus (ring part holder) in millimetres,
+    inner radius 30, outer 60, height 40, standing on z = 0 (``data/cells/meshes/ring_fixture.stl``)."""
+    import trimesh
+
+    m = trimesh.creation.annulus(r_min=30.0, r_max=60.0, height=40.0, sections=48)
+    m.apply_translation([0.0, 0.0, 20.0])
+    return m
+
+
+def write_fixture_meshes(directory: str | Path) -> list[Path]:
+    """Write the cells' mesh files (the shipped ones were made by this) into ``directory``."""
+    d = Path(directory)
+    d.mkdir(parents=True, exist_ok=True)
+    p = d / "ring_fixture.stl"
+    ring_fixture_mesh().export(p)
+    return [p]
+
+
 def list_cells() -> list[str]:
     """Names of the built-in cells."""
     return list(CELL_NAMES)
@@ -128,12 +147,12 @@ def _flacco_cell(rig):
     cp_names = [c.name for c in robot.control_points]
 
     # the box waiting on the side table (top at z = -0.1)
-    box = Prop("box", Box(size=(0.3, 0.2, 0.2)), pose(t=[-1.1, 1.1, 0.0]))
+    box = Prop("box", Box(size=(0.3, 0.2, 0.2)), pose(t=[-1.1, 1.0, 0.0]))
     # a hand point hidden behind the robot's forearm as seen from the principal camera
     cam0 = rig.camera("cam0").position
     fa = robot.control_point_positions(home)[cp_names.index("forearm_2") if "forearm_2" in cp_names else 0]
     ray = (fa - cam0) / np.linalg.norm(fa - cam0)
-    hidden = fa + 0.15 * ray
+    hidden = fa + 0.20 * ray
     shadow_xy = (0.8, -1.0)
     keys = [
         Key(2.0, (-2.6, -0.8), 0.0),
@@ -142,16 +161,19 @@ def _flacco_cell(rig):
         Key(9.0, (-1.05, -0.2), 0.0, right=tuple(ee_home + [-0.07, -0.03, 0.0])),   # reaches for the EE
         Key(10.0, (-1.05, -0.2), 0.0, right=tuple(ee_home + [-0.07, -0.03, 0.0])),
         Key(11.5, (-1.1, 0.5), math.pi / 2),
-        Key(13.0, (-1.1, 0.75), math.pi / 2),
-        Key(14.0, (-1.1, 0.75), math.pi / 2, right=(-1.1, 1.1, 0.15)),             # grips the box
-        Key(14.5, (-1.1, 0.75), math.pi / 2, right=(-1.1, 1.05, 0.3)),
+        Key(13.0, (-1.1, 0.7), math.pi / 2),
+        Key(14.0, (-1.1, 0.7), math.pi / 2, right=(-1.1, 1.0, 0.15)),              # grips the box
+        Key(14.5, (-1.1, 0.7), math.pi / 2, right=(-1.1, 0.95, 0.3)),              # lifts it
+        Key(15.2, (-1.1, 0.45), math.pi / 2, right=(-1.0, 0.75, 0.2)),             # steps back with it
         Key(16.5, (-1.2, -0.75), 0.0),                                                 # carries it round
         Key(19.0, (0.0, -0.75), math.pi / 2),
         Key(20.0, (0.0, -0.75), math.pi / 2, right=(0.2, -0.25, 0.25)),              # puts it down
         Key(21.5, (0.0, -1.2), math.pi / 2),
         Key(24.0, shadow_xy, math.atan2(-shadow_xy[1], -shadow_xy[0]), right=(0.45, -0.55, 0.5)),
         Key(26.0, shadow_xy, math.atan2(-shadow_xy[1], -shadow_xy[0]), right=(0.45, -0.55, 0.5)),
-        Key(28.5, (-0.7, 0.7), math.atan2(-0.7, 0.7)),
+        Key(27.2, (0.9, 0.8), math.pi),                                             # walks round the robot
+        Key(28.3, (-0.55, 0.75), math.pi),
+        Key(28.9, (-0.7, 0.7), math.atan2(-0.7, 0.7)),
         Key(30.0, (-0.7, 0.7), math.atan2(-0.7, 0.7), right=tuple(hidden)),          # hand behind the robot
         Key(32.0, (-0.7, 0.7), math.atan2(-0.7, 0.7), right=tuple(hidden)),
     ]
@@ -177,7 +199,7 @@ def _ur3_cell(rig):
     q1 = q0 + np.array([0.8, 0.3, -0.4, 0.0, 0.0, 0.0])
     q2 = q0 + np.array([-0.7, 0.2, -0.2, 0.0, 0.0, 0.0])
     path = JointPath([(0.0, q0), (4.0, q1), (8.0, q1), (12.0, q2), (16.0, q0)])
-    box = Prop("box", Box(size=(0.15, 0.1, 0.08)), pose(t=[0.0, -3.0, 0.84]))  # out of sight until carried
+    box = Prop("box", Box(size=(0.15, 0.1, 0.08)), pose(t=[0.0, -3.0, 0.04]))  # on the floor, out of sight
     keys = [
         Key(1.0, (1.2, -1.7), math.pi * 0.75),
         Key(3.0, (0.0, -0.62), math.pi / 2),

@@ -123,6 +123,7 @@ class Person:
     present: tuple[float, float] = (-math.inf, math.inf)
     carries: Sequence[Carry] = ()
     interp: str = "linear"
+    gait: bool = True   # swing the legs while walking (1.8 steps/s, up to ±25°)
 
     def __post_init__(self):
         if not self.keys:
@@ -209,9 +210,20 @@ class Person:
         if not self.is_present(t):
             return []
         p = self.pose_at(t)
-        return self.primitives_at(p)
+        return self.primitives_at(p, self.leg_swing(t))
 
-    def primitives_at(self, p: PersonPose) -> list[Primitive]:
+    def leg_swing(self, t: float) -> float:
+        """Swing angle (rad) of the left leg at time ``t`` (the right leg swings opposite): grows
+        with the forward walking speed (full ±25° from 1 m/s); 0 when standing or stepping back."""
+        if not self.gait or not self.shape.legs or self.interp == "step":
+            return 0.0
+        dt = 0.05
+        p = self.pose_at(t)
+        vel = (self.pose_at(t + dt).xy - self.pose_at(t - dt).xy) / (2 * dt)
+        v = max(float(vel @ [math.cos(p.heading), math.sin(p.heading)]), 0.0)
+        return math.radians(25.0) * min(v, 1.0) * math.sin(2 * math.pi * 0.9 * t)
+
+    def primitives_at(self, p: PersonPose, swing: float = 0.0) -> list[Primitive]:
         sh, n = self.shape, self.name
         T = self.body_frame(p.xy, p.heading)
         R, o = T[:3, :3], T[:3, 3]
@@ -222,8 +234,10 @@ class Person:
         out: list[Primitive] = []
         if sh.legs:
             for side, s in (("left", 1.0), ("right", -1.0)):
+                a = swing * s  # the legs swing in opposite phase, forward-backward
                 hip = w([0.0, s * sh.hip_width / 2, sh.hip_z])
-                foot = w([0.0, s * sh.hip_width / 2, sh.leg_radius])
+                L = sh.hip_z - sh.leg_radius
+                foot = w([L * math.sin(a), s * sh.hip_width / 2, sh.hip_z - L * math.cos(a)])
                 out.append(Capsule.between(foot, hip, sh.leg_radius, name=f"{n}/{side}_leg"))
         torso_h = sh.shoulder_z - sh.hip_z + 0.05
         out.append(Box(size=(sh.torso_depth, sh.torso_width, torso_h),

@@ -27,7 +27,6 @@ from depthguard.geometry.primitives import Primitive
 from depthguard.sim import ground_truth as gt
 from depthguard.sim.ground_truth import MeshSolid
 from depthguard.sim.people import Person
-from depthguard.transforms import pose
 
 __all__ = ["Scene", "Prop", "JointPath"]
 
@@ -156,24 +155,34 @@ class Scene:
         """Every obstacle but the robot at time ``t``, as exact primitives (named)."""
         return list(self.static) + self.dynamic_at(t)
 
-    def robot_primitives(self, t: float, padding: float = 0.0) -> list[Primitive]:
-        """The robot's volume at time ``t`` (its collision capsules, or the machine's primitives)."""
+    def robot_primitives(self, t: float, padding: float = 0.0, q=None) -> list[Primitive]:
+        """The robot's volume at time ``t`` (its collision capsules, or the machine's primitives);
+        ``q`` overrides the scripted joint values (e.g. a closed loop driving the robot)."""
         if self.robot is None:
             return []
-        q = self.robot_q(t)
+        q = self._q(t, q)
         if hasattr(self.robot, "collision_primitives"):
             return list(self.robot.collision_primitives(q, padding))
         return list(self.robot.collision_capsules(q, padding=padding))
 
-    def meshes_at(self, t: float, robot: bool = True) -> tuple[list[Mesh], list[str]]:
-        """World triangle meshes at time ``t`` and their names (robot links last, named ``robot/<link>``)."""
+    def _q(self, t: float, q) -> np.ndarray:
+        if q is None:
+            return self.robot_q(t)
+        q = np.asarray(q, dtype=np.float64)
+        if q.shape != (self.robot.dof,):
+            raise ValueError(f"scene {self.name!r}: q must have {self.robot.dof} joint values, got shape {q.shape}")
+        return q
+
+    def meshes_at(self, t: float, robot: bool = True, q=None) -> tuple[list[Mesh], list[str]]:
+        """World triangle meshes at time ``t`` and their names (robot links last, named ``robot/<link>``);
+        ``q`` overrides the robot's scripted joint values."""
         meshes = list(self._static_meshes)
         names = list(self._static_names)
         for prim in self.dynamic_at(t):
             meshes.append(self._local_mesh(prim).transformed(prim.world_from_local))
             names.append(prim.name)
         if robot and self.robot is not None:
-            q = self.robot_q(t)
+            q = self._q(t, q)
             meshes.extend(self.robot.link_meshes(q))
             names.extend(f"robot/{n}" for n in self.robot.link_mesh_names)
         return meshes, names
@@ -182,10 +191,16 @@ class Scene:
         """The primitive's local mesh, built once per distinct shape (people move, shapes stay)."""
         import dataclasses
 
+        def hashable(v):
+            if isinstance(v, Mesh):
+                return id(v)
+            if isinstance(v, (np.ndarray, list, tuple)):
+                return tuple(np.asarray(v, dtype=np.float64).ravel().tolist())
+            return v
+
         key = (type(prim).__name__,) + tuple(
-            id(v) if isinstance(v, (np.ndarray, Mesh)) else v
-            for f in dataclasses.fields(prim) if f.name not in ("world_from_local", "name", "_tm")
-            for v in [getattr(prim, f.name)])
+            hashable(getattr(prim, f.name))
+            for f in dataclasses.fields(prim) if f.name not in ("world_from_local", "name", "_tm"))
         m = self._mesh_cache.get(key)
         if m is None:
             m = self._mesh_cache[key] = prim.local_mesh()
@@ -197,11 +212,11 @@ class Scene:
         return gt.true_distance(self.obstacles_at(t), points)
 
     def occupancy(self, lo, hi, voxel_size: float, t: float, robot: bool = False, mode: str = "centre",
-                  refine: int = 2) -> np.ndarray:
+                  refine: int = 2, q=None) -> np.ndarray:
         """(nx, ny, nz) bool: voxel (i, j, k) spanning ``lo + [i, i+1)·voxel_size`` (likewise j, k)
         is occupied by an obstacle (and by the robot if ``robot``); rule of ``mode`` in
         :mod:`depthguard.sim.ground_truth`."""
-        prims = self.obstacles_at(t) + (self.robot_primitives(t) if robot else [])
+        prims = self.obstacles_at(t) + (self.robot_primitives(t, q=q) if robot else [])
         return gt.occupancy(prims, lo, hi, voxel_size, mode=mode, refine=refine)
 
 

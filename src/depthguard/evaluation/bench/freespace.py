@@ -75,7 +75,7 @@ def bench_freespace(ctx: BenchContext) -> list[BenchRow]:
 
     if not ctx.quick:
         ff = FreeSpaceMap(cams, (lo, hi), 0.05, margin=room.margin, footprint="full")
-        tf = time_call(lambda: ff.update(depths), reps)
+        tf = time_call(lambda: ff.update(depths), 5, warmup=1)
         rows.append(BenchRow("freespace.21cam.5cm_full_ms", float(np.median(tf) * 1e3), "ms", None,
                              "centre-pixel update", float(np.median(t) * 1e3),
                              "footprint='full': every pixel of each voxel's projection"))

@@ -10,7 +10,8 @@ Rows (median milliseconds, one core, after a warm-up):
   ur3-cell — the scene's meshes at t, four D435 renders and their noise.
   Peer: the four renders alone (``Renderer.render``) on the same meshes.
 - ``sim.c_arm_room.occupancy_5cm_ms``: ground-truth occupancy (R24) of the
-  4 x 4 x 2.5 m room at 5 cm (80 x 80 x 50 voxels, centre rule), robot included.
+  4 x 4 x 2.5 m room at 5 cm (80 x 80 x 50 voxels, centre rule), robot included
+  (quick mode: 10 cm, ``occupancy_10cm_ms``).
   Peer: the same grid by brute force, every primitive's SDF on every voxel centre.
 
 No paper quotes a figure for these steps.
@@ -59,24 +60,27 @@ def sim_group(ctx: BenchContext) -> list[BenchRow]:
                          "4 renders alone", float(np.median(tp) * 1e3),
                          "scene meshes at t + render + D435 noise, 4 cameras"))
 
-    # ground-truth occupancy of the c-arm room
+    # ground-truth occupancy of the c-arm room (quick mode: 10 cm voxels)
     room = load_cell("c-arm-room")
+    vs = 0.1 if ctx.quick else 0.05
     lo, hi = room.rig.workspace.lo, room.rig.workspace.hi
     ts = room.situations["setup1"].time
-    t = time_call(lambda: room.scene.occupancy(lo, hi, 0.05, ts, robot=True), max(2, reps // 3), warmup=1)
+    t = time_call(lambda: room.scene.occupancy(lo, hi, vs, ts, robot=True), max(2, reps // 3), warmup=1)
     prims = room.scene.obstacles_at(ts) + room.scene.robot_primitives(ts)
 
     def brute():
-        lo_, _, n = grid_shape(lo, hi, 0.05)
-        c = voxel_centres(lo_, 0.05, (0, 0, 0), n)
+        lo_, _, n = grid_shape(lo, hi, vs)
+        c = voxel_centres(lo_, vs, (0, 0, 0), n)
         d = np.full(len(c), np.inf)
         for p in prims:
             np.minimum(d, p.sdf(c), out=d)
         return (d <= 0).reshape(n)
 
-    assert np.array_equal(brute(), room.scene.occupancy(lo, hi, 0.05, ts, robot=True))
-    tp = time_call(brute, max(2, reps // 3), warmup=1)
-    rows.append(BenchRow("sim.c_arm_room.occupancy_5cm_ms", float(np.median(t) * 1e3), "ms", None,
+    if not np.array_equal(brute(), room.scene.occupancy(lo, hi, vs, ts, robot=True)):
+        raise AssertionError("sim bench: occupancy differs from the brute-force peer")
+    tp = time_call(brute, 1 if ctx.quick else 3, warmup=0)
+    n = grid_shape(lo, hi, vs)[2]
+    rows.append(BenchRow(f"sim.c_arm_room.occupancy_{round(vs * 100)}cm_ms", float(np.median(t) * 1e3), "ms", None,
                          "every SDF on every voxel", float(np.median(tp) * 1e3),
-                         f"{len(prims)} primitives, 80x80x50 voxels, centre rule"))
+                         f"{len(prims)} primitives, {n[0]}x{n[1]}x{n[2]} voxels, centre rule"))
     return rows

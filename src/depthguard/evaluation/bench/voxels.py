@@ -20,7 +20,6 @@ Rows (all on the ``ur3-cell`` scene with a person in it, noisy RealSense D435 mo
 
 from __future__ import annotations
 
-import math
 import os
 import signal
 import subprocess
@@ -120,6 +119,15 @@ def truth_any(cell, t, voxel_size):
     return occupancy(cell.scene.dynamic_at(t), lo, hi, voxel_size, mode="any")
 
 
+def cpu_ms(fn, n: int) -> float:
+    """Mean process CPU time of ``fn`` in ms (load-independent on a shared machine)."""
+    fn()
+    c0 = time.process_time()
+    for _ in range(n):
+        fn()
+    return (time.process_time() - c0) / n * 1e3
+
+
 # ------------------------------------------------------------------ distributed
 class _Refresh:
     """Server in this process + node processes in trigger mode; times trigger → last update."""
@@ -169,6 +177,16 @@ class _Refresh:
             ok = self._cv.wait_for(lambda: all(self._seen.get(c) == k for c in self.cam_ids), timeout)
         return time.perf_counter() - t0 if ok else None
 
+    def cpu_s(self) -> np.ndarray:
+        """(n,) CPU seconds (user + system) used so far by each node process (Linux /proc)."""
+        tick = os.sysconf("SC_CLK_TCK")
+        out = []
+        for p in self.procs:
+            with open(f"/proc/{p.pid}/stat") as fh:
+                fields = fh.read().rsplit(")", 1)[1].split()
+            out.append((int(fields[11]) + int(fields[12])) / tick)
+        return np.asarray(out)
+
     def close(self):
         for p in self.procs:
             if p.poll() is None:
@@ -177,7 +195,9 @@ class _Refresh:
         self.server.close()
 
 
-def distributed_refresh(cam_ids, w, h, t, repeats: int, qs=None) -> np.ndarray:
+def distributed_refresh(cam_ids, w, h, t, repeats: int, qs=None, cpu: dict | None = None) -> np.ndarray:
+    """Wall-clock seconds of ``repeats`` scene refreshes (trigger → every node's update in).
+    ``cpu``, if given, receives ``per_node_ms``: the nodes' mean CPU time per refresh."""
     r = _Refresh(cam_ids, w, h, t, qs)
     try:
         r.wait_ready()
@@ -187,12 +207,16 @@ def distributed_refresh(cam_ids, w, h, t, repeats: int, qs=None) -> np.ndarray:
             k += 1
             if r.once(k, timeout=3.0) is not None:
                 warm += 1
+        warm_k = k
         out = []
+        c0 = r.cpu_s()
         while len(out) < repeats:
             k += 1
             dt = r.once(k)
             if dt is not None:
                 out.append(dt)
+        if cpu is not None:
+            cpu["per_node_ms"] = (r.cpu_s() - c0) / max(1, k - warm_k) * 1e3
         return np.asarray(out)
     finally:
         r.close()
@@ -244,10 +268,12 @@ def bench_voxels(ctx: BenchContext) -> list[BenchRow]:
         twin = time_call(lambda: K.filter_voxelize_numpy(cam, depth, exp, off.const, off.k, ws[0], ws[1],
                                                           0.02, f.threshold), 1 if ctx.quick else 3, warmup=0)
         goal = goals.get((w, h))
+        cpu = cpu_ms(lambda: f.filter(depth, q=q_next()), rep)
         rows.append(BenchRow(f"voxels.filter.{tag}_ms", float(np.median(full) * 1e3), "ms", None,
                              "numpy twin (same step, expected given)", float(np.median(twin) * 1e3),
                              (f"goal <= {goal:g} ms; " if goal else "")
-                             + f"expected depth (robot render) + R17-R19, 20 mm, worst {full.max() * 1e3:.1f} ms"))
+                             + f"expected depth (robot render) + R17-R19, 20 mm, worst {full.max() * 1e3:.1f} ms, "
+                             f"CPU {cpu:.1f} ms, load avg {os.getloadavg()[0]:.1f}"))
         # OctoMap inserting the same kept cloud
         keep = K.keep_mask_numpy(cam, depth, exp, off.const, off.k)
         pts = cam.depth_to_points(depth, mask=keep)
@@ -284,17 +310,21 @@ def bench_voxels(ctx: BenchContext) -> list[BenchRow]:
         pipe = CentralisedPipeline([rig.camera(c) for c in ids], ws, static_meshes=statics, robot=rig.robot)
         sub = {c: frames[c] for c in ids}
         cen = time_call(lambda: pipe.refresh(sub, q=q_next()), rep)
+        cen_cpu = cpu_ms(lambda: pipe.refresh(sub, q=q_next()), rep)
         if ctx.quick:          # node processes take seconds to start: not in quick mode
             dval, note = float("nan"), "distributed not run in quick mode (node processes)"
         else:
             ctx.log(f"voxels: distributed refresh {tag}")
             try:
-                dist = distributed_refresh(ids, w, h, t, rep, qs)
+                cpu: dict = {}
+                dist = distributed_refresh(ids, w, h, t, rep, qs, cpu)
                 dval = float(np.median(dist) * 1e3)
                 note = (f"worst {dist.max() * 1e3:.1f} ms; {n} node processes + server share "
-                        f"{os.cpu_count()} cores (load avg {os.getloadavg()[0]:.1f})")
+                        f"{os.cpu_count()} cores (load avg {os.getloadavg()[0]:.1f}); node CPU per refresh "
+                        f"max {cpu['per_node_ms'].max():.1f} ms, sum {cpu['per_node_ms'].sum():.1f} ms")
             except (RuntimeError, TimeoutError) as exc:
                 dval, note = float("nan"), f"distributed run failed: {exc}"
+        note += f"; centralised CPU {cen_cpu:.1f} ms"
         if n == 3:
             note += (f"; paper centralised {PAPER_REFRESH_CENT[(w, h)]:g} ms"
                      + ("; goal <= 50 ms" if (w, h) == (1280, 720) else ""))
