@@ -113,7 +113,10 @@ def table(results: dict[str, SituationResult], rho: float = 0.4) -> str:
         for i, n in enumerate(r.names):
             lines.append(f"| {r.name} | {n} | {f(r.truth[i])} | {f(r.one[i])} | {f(r.two[i])} | "
                          f"{f(r.two_paper[i])} |")
-    lines.append(f"\n— = no obstacle within rho = {rho} m.")
+    lines.append(f"\n— = no obstacle within rho = {rho} m. 1 camera: cam0 alone, the paper's one-camera "
+                 "method (robot pixels dropped). 2 cameras: depth grid, principal cam0; (R9) robot "
+                 "pixels of cam1 are unknown behind the robot, (paper) they confirm nothing. Rays that "
+                 "leave the wall-less cell (depth 0) count as free (R28 policy 'free').")
     return "\n".join(lines)
 
 

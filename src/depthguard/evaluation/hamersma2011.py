@@ -26,7 +26,8 @@ Choices (the paper does not give them):
 - motions: every axis ± and four combinations (longitudinal with propeller
   or L-arm) at each setup's pose, and "k x" approach series as in the paper's
   table 4 (the C-arm advanced by ``k - 1`` braking distances along the motion
-  whose true contact is nearest, re-rendered and re-reconstructed each time).
+  whose true contact is farthest within L, re-rendered and re-reconstructed
+  each time, until the truth says S).
 """
 
 from __future__ import annotations
@@ -319,12 +320,13 @@ def _evaluate(room: Room, cams, label, voxels, setups, seed, quick, out, log, ca
                 rows.append(_verdict_row(setup, m, occ, truth, grid, mach))
             verdicts += rows
             if approach and not quick:
-                # the motion whose true contact is nearest but beyond S: approach it in steps
-                cand = [x for x in rows if 1.0 < (x["u_truth"] or math.inf) < math.inf]
+                # approach a contact in steps of S (the paper's "k x" rows): the motion whose true
+                # contact is farthest within L, so that the series runs L -> M -> S
+                cand = [x for x in rows if 1.0 < (x["u_truth"] or math.inf) <= 5.0]
                 if cand:
-                    best = min(cand, key=lambda x: x["u_truth"])
+                    best = max(cand, key=lambda x: x["u_truth"])
                     axes = dict(_motion_specs())[best["motion"]]
-                    for k in range(2, 6):
+                    for k in range(2, 7):
                         m, q_at = _clamped_motion(room, q0, axes, S, f"{k} x {best['motion']}", offset=float(k - 1))
                         qk = q_at(0.0)
                         depths_k = setup_frames(room, setup, seed, carm_q=qk, cameras=cams)

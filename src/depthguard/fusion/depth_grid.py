@@ -48,6 +48,7 @@ from depthguard.fusion import depth_grid_kernels as K
 __all__ = ["DepthGridMap", "MultiPrincipalDepthGrid", "default_cache_dir"]
 
 _FORMAT = 1
+PARALLEL_MIN_POINTS = 16     # below this many points a query runs on one thread (steadier)
 RUNS_PER_COLUMN = 8          # obstacle runs kept per principal column; more are merged (safe side)
 _METHODS = {"min": K.METHOD_MIN, "mean": K.METHOD_MEAN, "hybrid": K.METHOD_HYBRID}
 
@@ -348,11 +349,13 @@ class DepthGridMap:
             removal): the pixel confirms nothing; this drops the robot's
             shadow in the other cameras (the shadow of fig. 12 disappears)
             but a hand hidden behind the robot from every camera is missed.
-        reach : optional world box ``(lo (3,), hi (3,))`` holding every ball of radius
-            ``rho`` around the points that will be queried with this frame
-            (e.g. :meth:`robot_reach`). Gray cells outside it are not examined
-            and count as obstacles (safe); answers for points whose balls lie
-            inside are the same as without ``reach``, at a fraction of the cost.
+        reach : optional region holding every ball of radius ``rho`` around the
+            points that will be queried with this frame: a world box
+            ``(lo (3,), hi (3,))`` or capsules (list of ``Capsule`` or
+            ``(segments, radii)``, e.g. :meth:`robot_reach`). Gray cells outside
+            it are not examined and count as obstacles (safe); answers for
+            points whose balls lie inside are the same as without ``reach``,
+            at a fraction of the cost.
         """
         if not isinstance(depths, dict):
             raise ValueError("depths must be a dict camera id -> depth image")
@@ -398,13 +401,23 @@ class DepthGridMap:
             self._band[..., 0] = -(1 << 30)
             self._band[..., 1] = 1 << 30
             return
-        try:
-            lo, hi = (np.asarray(x, dtype=np.float64).reshape(3) for x in reach)
-        except (TypeError, ValueError):
-            raise ValueError("reach must be a world box (lo (3,), hi (3,))") from None
+        P = self.principal
+        is_box = (isinstance(reach, tuple) and len(reach) == 2 and np.shape(reach[0]) == (3,)
+                  and np.shape(reach[1]) == (3,))
+        if not is_box:
+            caps = _capsule_array(reach)
+            if not len(caps):
+                raise ValueError("reach as capsules needs at least one capsule")
+            grow = self.d_max * float(np.hypot(1 / P.fx, 1 / P.fy))     # half diagonal x 2
+            a = caps[:, 0:3] @ self._Rp.T + self._tp
+            b = caps[:, 3:6] @ self._Rp.T + self._tp
+            cc = np.ascontiguousarray(np.concatenate([a, b, caps[:, 6:7] + grow], axis=1))
+            K.reach_band_capsules(cc, len(cc), self._capsule_boxes(cc), P.fx, P.fy, P.cx, P.cy,
+                                  self.d_min, self.delta_d, self._band)
+            return
+        lo, hi = (np.asarray(x, dtype=np.float64).reshape(3) for x in reach)
         if not (np.all(np.isfinite(lo)) and np.all(np.isfinite(hi)) and np.all(lo <= hi)):
             raise ValueError(f"reach must be a finite box with lo <= hi (got {lo}, {hi})")
-        P = self.principal
         pad = 2.0 * float(np.hypot(1 / P.fx, 1 / P.fy))
         K.reach_band(lo, hi, np.ascontiguousarray(P.world_from_camera[:3, :3]),
                      np.ascontiguousarray(P.position), P.fx, P.fy, P.cx, P.cy, self.d_min, self.delta_d,
@@ -412,16 +425,13 @@ class DepthGridMap:
 
     @staticmethod
     def robot_reach(robot_capsules, rho: float, margin: float = 0.1):
-        """World box around the robot's capsules grown by ``rho + margin`` (m): the
-        ``reach`` of :meth:`set_frames` for the robot's own control points, which
-        may move ``margin`` between frames."""
+        """The ``reach`` of :meth:`set_frames` for the robot's own control points:
+        its capsules with radii grown by ``rho + margin`` (m), as ``(segments (C, 2, 3),
+        radii (C,))``; ``margin`` covers the motion of the points between frames."""
         caps = _capsule_array(robot_capsules)
         if not len(caps):
             raise ValueError("robot_reach needs at least one capsule")
-        pts = np.concatenate([caps[:, 0:3], caps[:, 3:6]])
-        r = np.concatenate([caps[:, 6], caps[:, 6]])[:, None]
-        g = float(rho) + float(margin)
-        return (pts - r).min(0) - g, (pts + r).max(0) + g
+        return caps[:, :6].reshape(-1, 2, 3).copy(), caps[:, 6] + float(rho) + float(margin)
 
     def set_robot_capsules(self, robot_capsules) -> None:
         """Set the robot's padded volume (world capsules); part of :meth:`set_frames`."""
@@ -470,8 +480,10 @@ class DepthGridMap:
               threads: int | None = None) -> DistanceResult:
         """Distances of control points (N, 3) world metres to the fused obstacles (R12).
 
-        threads : numba threads for this call (default: all); 1 runs the points
-            one after the other, which is steadier on a busy machine.
+        threads : numba threads for this call. Default: one thread below
+            ``PARALLEL_MIN_POINTS`` points (a parallel region costs more than it
+            saves for a few points, and waits for the slowest thread on a busy
+            machine), all threads from there.
 
         The arrays of the result are views of reused buffers, overwritten by
         the next query: ``.copy()`` the result to keep it.
@@ -488,6 +500,8 @@ class DepthGridMap:
         if n > self._cap:
             self._alloc_points(n)
         prev = None
+        if threads is None and n < PARALLEL_MIN_POINTS:
+            threads = 1
         if threads is not None:
             import numba
 

@@ -51,7 +51,7 @@ from depthguard.distance.window import surveillance_window
 
 __all__ = [
     "D_ZERO", "KIND_SURFACE", "KIND_ROBOT", "KIND_UNKNOWN", "METHOD_MIN", "METHOD_MEAN", "METHOD_HYBRID",
-    "frame_state", "build_pyramids", "column_runs", "reach_band", "tile_first_cells", "RUN_END", "TILE", "capsule_intervals", "MAX_CAPS_PER_PIXEL", "cell_footprint", "cell_cleared", "cell_in_capsules",
+    "frame_state", "build_pyramids", "column_runs", "reach_band", "reach_band_capsules", "tile_first_cells", "RUN_END", "TILE", "capsule_intervals", "MAX_CAPS_PER_PIXEL", "cell_footprint", "cell_cleared", "cell_in_capsules",
     "grid_distances",
 ]
 
@@ -725,6 +725,36 @@ def reach_band(lo, hi, Rwp, o, fx, fy, cx, cy, dmin, dd, pad, band):
             else:
                 band[v, u, 0] = int(math.floor((t0 - dmin) / dd)) - 1
                 band[v, u, 1] = int(math.floor((min(t1, 1e6) - dmin) / dd)) + 1
+
+
+@njit(cache=True)
+def reach_band_capsules(caps, ncaps, boxes, fx, fy, cx, cy, dmin, dd, band):
+    """Per principal pixel, the slices whose cells can meet one of the capsules
+    ``caps`` (principal frame, (C, 7) a, b, radius; already grown by the reach
+    and by the pixel's half diagonal at the farthest depth): the hull of the
+    centre ray's intervals inside them, one slice added at each end.
+    boxes : (C, 4) pixel boxes holding each capsule's projection.
+    band : (H, W, 2) int32 written; ``first > last``: no slice."""
+    H = band.shape[0]
+    W = band.shape[1]
+    for v in range(H):
+        for u in range(W):
+            band[v, u, 0] = 1
+            band[v, u, 1] = 0
+    for c in range(ncaps):
+        for v in range(boxes[c, 2], boxes[c, 3] + 1):
+            for u in range(boxes[c, 0], boxes[c, 1] + 1):
+                a, b = _ray_capsule((u - cx) / fx, (v - cy) / fy, caps[c])
+                if a > b:
+                    continue
+                g0 = int(math.floor((a - dmin) / dd)) - 1
+                g1 = int(math.floor((b - dmin) / dd)) + 1
+                if band[v, u, 0] > band[v, u, 1]:
+                    band[v, u, 0] = g0
+                    band[v, u, 1] = g1
+                else:
+                    band[v, u, 0] = min(band[v, u, 0], g0)
+                    band[v, u, 1] = max(band[v, u, 1], g1)
 
 
 @njit(cache=True, inline="always")
