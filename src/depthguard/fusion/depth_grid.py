@@ -310,6 +310,14 @@ class DepthGridMap:
         self._cap_lo = np.zeros(P.shape + (K.MAX_CAPS_PER_PIXEL,))
         self._cap_hi = np.zeros(P.shape + (K.MAX_CAPS_PER_PIXEL,))
         self._cap_n = np.zeros(P.shape, dtype=np.int64)
+        # lazy per-frame work: memoised cell classes per principal pixel (bits), frame stamps
+        nw = (self.n_d + 63) // 64
+        self._obits = np.zeros(P.shape + (nw,), dtype=np.uint64)
+        self._cbits = np.zeros(P.shape + (nw,), dtype=np.uint64)
+        self._stamp = np.zeros(P.shape, dtype=np.int64)
+        self._frame = 0
+        self._tmin = np.zeros(self._tile_first.shape)
+        self.lazy = True
         self._rays_arg = self.rays if nk else np.zeros((1, 1, 1, 3))
         self._orig_arg = self.origins if nk else np.zeros((1, 3))
         self._kint_arg = self._kint if nk else np.zeros((1, 8))
@@ -323,7 +331,7 @@ class DepthGridMap:
 
     def set_frames(self, depths: dict, robot_depths: dict | None = None,
                    robot_offset: float = 0.03, robot_capsules=None, invalid: str = "unknown",
-                   robot_in_others: str = "unknown", reach=None) -> None:
+                   robot_in_others: str = "unknown", reach=None, lazy: bool = True) -> None:
         """Load one frame per camera (R9, R28); call once per camera frame.
 
         depths : dict camera id -> (H, W) float metres (0 / NaN / out of range =
@@ -356,6 +364,13 @@ class DepthGridMap:
             it are not examined and count as obstacles (safe); answers for
             points whose balls lie inside are the same as without ``reach``,
             at a fraction of the cost.
+        lazy : True (default): the frame only stores the per-pixel states, the
+            other cameras' pyramids and the capsule intervals; each principal
+            column's cells are classified on first use by a query within this
+            frame, only over the slices within ``rho`` of its points, and kept
+            (per-pixel frame stamp, preallocated bits). False: every column's
+            obstacle runs now (the eager form; same answers unless a column has
+            more than ``RUNS_PER_COLUMN`` runs, which are then merged on the safe side).
         """
         if not isinstance(depths, dict):
             raise ValueError("depths must be a dict camera id -> depth image")
@@ -387,8 +402,13 @@ class DepthGridMap:
                 self._kfree[k].fill(0.0)          # nothing seen: clears nothing
             K.build_pyramids(self._kfree[k], cam.height, cam.width, self._kpmin[k], self._kpmax[k],
                              self._koff[k], self._kdims[k])
-        self.set_robot_capsules(robot_capsules)
         self._set_band(reach)
+        self.lazy = bool(lazy)
+        self.set_robot_capsules(robot_capsules)
+        if self.lazy:
+            K.tile_min_free(self._pfree, self._tmin)
+            self.has_frames = True
+            return
         K.column_runs(self._pfree, self._pkind, self._pint, self.d_min, self.delta_d, self.n_d,
                       self._kfree, self._kpmin, self._kpmax, self._koff, self._kdims, self._rays_arg,
                       self._orig_arg, self._kint_arg, len(self.others), self._caps, self._ncaps,
@@ -447,6 +467,7 @@ class DepthGridMap:
         else:
             self._caps = np.zeros((1, 7))
         self._ncaps = len(caps)
+        self._frame += 1          # memoised cells (lazy) were classified with the old volume
 
     def _capsule_boxes(self, caps: np.ndarray) -> np.ndarray:
         """(C, 4) inclusive pixel boxes holding each capsule's projection (principal frame
@@ -519,6 +540,24 @@ class DepthGridMap:
         return DistanceResult(self._dist[:n], self._dir[:n], self._obs[:n], self._count[:n])
 
     def _run_query(self, p, n, r, m) -> None:
+        if self.lazy:
+            import numba
+
+            fill = numba.get_num_threads() == 1
+            if not fill:
+                K.ensure_cells(self._pfree, self._pkind, self._tmin, self._pint, self.d_min, self.delta_d, self.n_d,
+                               self._kfree, self._kpmin, self._kpmax, self._koff, self._kdims, self._rays_arg,
+                               self._orig_arg, self._kint_arg, len(self.others), self._caps, self._ncaps,
+                               self._cap_lo, self._cap_hi, self._cap_n, self._band, self._Rp, self._tp, p, n, r,
+                               self._frame, self._stamp, self._obits, self._cbits)
+            K.grid_distances_lazy(self._pfree, self._tmin, self._obits, self._cap_n, self._caps, self._ncaps,
+                                  self._cap_lo, self._cap_hi, self.n_d, self._Rp, self._tp, self._pint,
+                                  self.d_min, self.delta_d, p, n, r, m,
+                                  self._dist, self._dir, self._count, self._obs,
+                                  fill, self._pkind, self._kfree, self._kpmin, self._kpmax, self._koff,
+                                  self._kdims, self._rays_arg, self._orig_arg, self._kint_arg,
+                                  len(self.others), self._band, self._frame, self._stamp, self._cbits)
+            return
         K.grid_distances(self._pfree, self._runs, self._nruns, self._tile_first, self._Rp, self._tp, self._pint,
                          self.d_min, self.delta_d, p, n, r, m,
                          self._dist, self._dir, self._count, self._obs)
@@ -526,14 +565,14 @@ class DepthGridMap:
     def distance(self, depths: dict, points, rho: float = 0.4, method: str = "hybrid",
                  robot_depths: dict | None = None, *, robot_capsules=None,
                  robot_offset: float = 0.03, invalid: str = "unknown",
-                 robot_in_others: str = "unknown", reach=None) -> DistanceResult:
+                 robot_in_others: str = "unknown", reach=None, lazy: bool = True) -> DistanceResult:
         """Distance from control points to what all cameras see together (SPEC §3, §9).
 
         depths, robot_depths : dict camera id -> (H, W) images (see :meth:`set_frames`).
         points : (N, 3) world metres. rho : radius of surveillance (m).
         method : ``"min"``, ``"mean"`` or ``"hybrid"`` (R7 over the principal's pixels,
             one distance per pixel: its nearest obstacle cell).
-        robot_capsules, robot_offset, invalid, robot_in_others, reach : see :meth:`set_frames`.
+        robot_capsules, robot_offset, invalid, robot_in_others, reach, lazy : see :meth:`set_frames`.
 
         Returns a :class:`~depthguard.distance.DistanceResult` with fresh arrays:
         ``distance`` (N,) m, ``inf`` = no obstacle within ``rho``; ``direction``
@@ -541,7 +580,7 @@ class DepthGridMap:
         the point lies in the principal's image and range.
         """
         self.set_frames(depths, robot_depths, robot_offset=robot_offset, robot_capsules=robot_capsules,
-                        invalid=invalid, robot_in_others=robot_in_others, reach=reach)
+                        invalid=invalid, robot_in_others=robot_in_others, reach=reach, lazy=lazy)
         return self.query(points, rho=rho, method=method).copy()
 
     def __repr__(self) -> str:

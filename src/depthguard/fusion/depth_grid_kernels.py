@@ -52,7 +52,7 @@ from depthguard.distance.window import surveillance_window
 __all__ = [
     "D_ZERO", "KIND_SURFACE", "KIND_ROBOT", "KIND_UNKNOWN", "METHOD_MIN", "METHOD_MEAN", "METHOD_HYBRID",
     "frame_state", "build_pyramids", "column_runs", "reach_band", "reach_band_capsules", "tile_first_cells", "RUN_END", "TILE", "capsule_intervals", "MAX_CAPS_PER_PIXEL", "cell_footprint", "cell_cleared", "cell_in_capsules",
-    "grid_distances",
+    "grid_distances", "tile_min_free", "ensure_cells", "grid_distances_lazy",
 ]
 
 KIND_SURFACE, KIND_ROBOT, KIND_UNKNOWN = 0, 1, 2
@@ -903,6 +903,512 @@ def grid_distances(pfree, runs, nruns, tile_first, Rp, tp, pint, dmin, dd,
                     lim2 = best2 if method == METHOD_MIN else rho2
                     found, D2, vx, vy, vz = _column(u, v, runs, nr, px, py, dp, lim2, fx, fy, cx, cy,
                                                     dmin, dd)
+                    if not found:
+                        continue
+                    D = math.sqrt(D2)
+                    if D <= D_ZERO:
+                        D = 0.0
+                        D2 = 0.0
+                    if method == METHOD_MIN:
+                        if D2 < best2 or n == 0:
+                            best2 = D2
+                            dmin_found = D
+                            bx = vx
+                            by = vy
+                            bz = vz
+                            n = 1
+                        continue
+                    n += 1
+                    sD += D
+                    if D < dmin_found:
+                        dmin_found = D
+                    if D > 0.0:
+                        sx += vx / D
+                        sy += vy / D
+                        sz += vz / D
+        if n == 0:
+            continue
+        out_count[i] = n
+        if method == METHOD_MIN:
+            out_distance[i] = dmin_found
+            if dmin_found > 0.0:
+                vx = bx / dmin_found
+                vy = by / dmin_found
+                vz = bz / dmin_found
+            else:
+                continue
+        else:
+            out_distance[i] = sD / n if method == METHOD_MEAN else dmin_found
+            norm = math.sqrt(sx * sx + sy * sy + sz * sz)
+            if norm == 0.0:
+                continue
+            vx = sx / norm
+            vy = sy / norm
+            vz = sz / norm
+        out_direction[i, 0] = Rp[0, 0] * vx + Rp[1, 0] * vy + Rp[2, 0] * vz
+        out_direction[i, 1] = Rp[0, 1] * vx + Rp[1, 1] * vy + Rp[2, 1] * vz
+        out_direction[i, 2] = Rp[0, 2] * vx + Rp[1, 2] * vy + Rp[2, 2] * vz
+
+
+# ---------------------------------------------------------------------------
+# Lazy per-frame work (the default): a principal column's cells are classified
+# on first use within a frame, only over the slices a query needs, and
+# memoised as bits. ``obits[v, u, w]`` / ``cbits[v, u, w]`` (uint64) hold bit
+# ``g & 63`` of word ``g >> 6`` for slice ``g`` in ``0..n_d-1``: obstacle /
+# already classified. ``stamp[v, u]`` is the frame number the pixel's bits
+# belong to; a pixel with an older stamp is reset on first touch, so a new
+# frame costs nothing per pixel. Each cell gets exactly the class that
+# :func:`column_runs` gives it (same rule, same exact stretch shortcuts), so the
+# answers equal the eager runs' (without their run-overflow merging).
+
+_ONE = np.uint64(1)
+_ALL = np.uint64(0xFFFFFFFFFFFFFFFF)
+
+
+@njit(cache=True)
+def tile_min_free(pfree, out):
+    """(ceil(H/TILE), ceil(W/TILE)) float64: per tile the smallest principal free depth.
+    A point with ``dp + rho`` below it has every pixel of the tile in case 1 (R12)."""
+    H = pfree.shape[0]
+    W = pfree.shape[1]
+    for ty in range(out.shape[0]):
+        for tx in range(out.shape[1]):
+            m = np.inf
+            for v in range(ty * TILE, min(H, ty * TILE + TILE)):
+                for u in range(tx * TILE, min(W, tx * TILE + TILE)):
+                    if pfree[v, u] < m:
+                        m = pfree[v, u]
+            out[ty, tx] = m
+
+
+@njit(cache=True, inline="always")
+def _bit(bits, v, u, g):
+    return (bits[v, u, g >> 6] >> np.uint64(g & 63)) & _ONE
+
+
+@njit(cache=True, inline="always")
+def _msb(x):
+    """Index of the highest set bit of a non-zero uint64."""
+    n = 0
+    for s in (32, 16, 8, 4, 2, 1):
+        y = x >> np.uint64(s)
+        if y != np.uint64(0):
+            x = y
+            n += s
+    return n
+
+
+@njit(cache=True, inline="always")
+def _word_range(bits, v, u, w, lo, hi):
+    """Word ``w`` of a pixel's bits with only slices ``lo..hi`` kept."""
+    x = bits[v, u, w]
+    if (hi >> 6) == w and (hi & 63) < 63:
+        x = x & ((_ONE << np.uint64((hi & 63) + 1)) - _ONE)
+    if (lo >> 6) == w:
+        x = x & (_ALL << np.uint64(lo & 63))
+    return x
+
+
+@njit(cache=True)
+def _highest_bit(bits, v, u, lo, hi):
+    """Largest slice in ``lo..hi`` (inside ``0..n_d-1``) whose bit is set, -1 if none."""
+    if lo > hi:
+        return -1
+    w = hi >> 6
+    while w >= (lo >> 6):
+        x = _word_range(bits, v, u, w, lo, hi)
+        if x != np.uint64(0):
+            return w * 64 + _msb(x)
+        w -= 1
+    return -1
+
+
+@njit(cache=True)
+def _lowest_bit(bits, v, u, lo, hi):
+    """Smallest slice in ``lo..hi`` (inside ``0..n_d-1``) whose bit is set, -1 if none."""
+    if lo > hi:
+        return -1
+    w = lo >> 6
+    while w <= (hi >> 6):
+        x = _word_range(bits, v, u, w, lo, hi)
+        if x != np.uint64(0):
+            return w * 64 + _msb(x & (~x + _ONE))
+        w += 1
+    return -1
+
+
+@njit(cache=True)
+def _all_set(bits, v, u, lo, hi):
+    """Every slice ``lo..hi`` (inside ``0..n_d-1``, ``lo <= hi``) has its bit set."""
+    for w in range(lo >> 6, (hi >> 6) + 1):
+        need = _mask_range(w, lo, hi)
+        if (bits[v, u, w] & need) != need:
+            return False
+    return True
+
+
+@njit(cache=True, inline="always")
+def _mask_range(w, lo, hi):
+    m = _ALL
+    if (hi >> 6) == w and (hi & 63) < 63:
+        m = m & ((_ONE << np.uint64((hi & 63) + 1)) - _ONE)
+    if (lo >> 6) == w:
+        m = m & (_ALL << np.uint64(lo & 63))
+    return m
+
+
+@njit(cache=True, inline="always")
+def _col_setup(u, v, pfree, dmin, dd, nd, cap_n, ncaps):
+    """Per pixel: ``(gs, ncp)`` — first slice of the column that may hold an obstacle
+    (``r(df)``) and the number of capsule intervals."""
+    gs = int(math.floor((pfree[v, u] - dmin) / dd))
+    ncp = cap_n[v, u] if ncaps > 0 else 0
+    return gs, ncp
+
+
+@njit(cache=True)
+def _fill_stretch(u, v, g0, g1, gs, direct, ncp, fx, fy, cx, cy, dmin, dd, kfree, kpmin, kpmax, koff,
+                  kdims, rays, origins, kint, nk, caps, ncaps, cap_lo, cap_hi, band, obits, cbits):
+    """Classify slices ``g0..g1`` (inside ``0..n_d-1``, all ``>= gs``) of column ``(u, v)``
+    by the rule of :func:`column_runs` and set their bits."""
+    known_until = g0 - 1
+    known_obst = False
+    span_next = 64
+    sec_g = g0 - 1
+    sec = (False, 0.0, 0.0, 0.0, 0.0, 0.0, 0.0)
+    for g in range(g0, g1 + 1):
+        d1 = dmin + g * dd
+        d2 = d1 + dd
+        incap = ncaps > 0 and _in_caps(cap_lo, cap_hi, ncp, v, u, d1, d2, caps, ncaps, fx, fy, cx, cy, g)
+        if incap:
+            obst = False
+        elif g == gs and direct:
+            obst = True
+        elif nk == 0 or g < band[v, u, 0] or g > band[v, u, 1]:
+            obst = True
+        elif g <= known_until:
+            obst = known_obst
+        else:
+            e = min(g1, band[v, u, 1])
+            for j in range(min(ncp, MAX_CAPS_PER_PIXEL)):
+                if cap_lo[v, u, j] > d1:
+                    e = min(e, int(math.ceil((cap_lo[v, u, j] - dmin) / dd)) - 2)
+            if ncp > MAX_CAPS_PER_PIXEL:
+                e = g
+            span = min(span_next, e - g + 1)
+            settled = False
+            if span > 1:
+                da = d1
+                db = dmin + (g + span) * dd
+                if _range_cleared(kpmin, koff, kdims, rays, origins, kint, nk, u, v, da, db):
+                    known_obst = False
+                    settled = True
+                elif _range_confirmed(kpmax, koff, kdims, rays, origins, kint, nk, u, v, da, db):
+                    known_obst = True
+                    settled = True
+            if settled:
+                known_until = g + span - 1
+                span_next = min(2 * span, 256)
+                obst = known_obst
+            else:
+                span_next = max(span // 4, 1) if span > 1 else min(span_next * 2, 8)
+                if nk == 1:
+                    s1 = sec if sec_g == g else _section(rays, origins, kint, 0, u, v, d1)
+                    s2 = _section(rays, origins, kint, 0, u, v, d2)
+                    sec = s2
+                    sec_g = g + 1
+                    obst = not _cleared_by_sections(kfree, kint, 0, s1, s2)
+                else:
+                    obst = not cell_cleared(kfree, rays, origins, kint, nk, u, v, d1, d2)
+        w = g >> 6
+        b = _ONE << np.uint64(g & 63)
+        cbits[v, u, w] = cbits[v, u, w] | b
+        if obst:
+            obits[v, u, w] = obits[v, u, w] | b
+
+
+@njit(cache=True, inline="always")
+def _needed_slices(u, v, px, py, dp, lim2, fx, fy, cx, cy, dmin, dd, g_lo, g_hi):
+    """Slices ``ga..gb`` of column ``(u, v)`` that can lie within ``sqrt(lim2)`` of the point
+    by the R10 distance (one slice of margin each side), clipped to ``g_lo..g_hi``;
+    ``ga > gb``: none. Along the column ``f(ôd)^2 = A ôd^2 - 2 B ôd + C`` (R3, R10)."""
+    ox = min(max(px, u - 0.5), u + 0.5)
+    oy = min(max(py, v - 0.5), v + 0.5)
+    ax = (ox - cx) / fx
+    ay = (oy - cy) / fy
+    bx = (px - cx) * dp / fx
+    by = (py - cy) * dp / fy
+    A = ax * ax + ay * ay + 1.0
+    B = ax * bx + ay * by + dp
+    C = bx * bx + by * by + dp * dp
+    disc = B * B - A * (C - lim2 * (1.0 + 1e-9) - 1e-12)
+    if not disc >= 0.0:
+        return 1, 0
+    s = math.sqrt(disc) / A
+    dstar = B / A
+    ga = max(g_lo, int(math.floor((dstar - s - dmin) / dd)) - 2)
+    gb = min(g_hi, int(math.floor((dstar + s - dmin) / dd)) + 1)
+    return ga, gb
+
+
+@njit(cache=True)
+def _ensure_pixel(u, v, ga, gb, gs, direct, ncp, fx, fy, cx, cy, dmin, dd, kfree, kpmin, kpmax, koff, kdims,
+                  rays, origins, kint, nk, caps, ncaps, cap_lo, cap_hi, band, frame, stamp, obits, cbits):
+    """Classify the not yet classified slices of ``ga..gb`` (inside the grid, ``>= gs``) of
+    column ``(u, v)`` in this ``frame`` (resetting the pixel's bits on its first touch)."""
+    if stamp[v, u] != frame:
+        for w in range(obits.shape[2]):
+            obits[v, u, w] = np.uint64(0)
+            cbits[v, u, w] = np.uint64(0)
+        stamp[v, u] = frame
+    elif _all_set(cbits, v, u, ga, gb):
+        return
+    g = ga
+    while g <= gb:
+        if _bit(cbits, v, u, g) != np.uint64(0):
+            g += 1
+            continue
+        e = g
+        while e + 1 <= gb and _bit(cbits, v, u, e + 1) == np.uint64(0):
+            e += 1
+        _fill_stretch(u, v, g, e, gs, direct, ncp, fx, fy, cx, cy, dmin, dd, kfree, kpmin, kpmax, koff,
+                      kdims, rays, origins, kint, nk, caps, ncaps, cap_lo, cap_hi, band, obits, cbits)
+        g = e + 1
+
+
+@njit(cache=True, parallel=True)
+def ensure_cells(pfree, pkind, tmin, pint, dmin, dd, nd, kfree, kpmin, kpmax, koff, kdims, rays, origins,
+                 kint, nk, caps, ncaps, cap_lo, cap_hi, cap_n, band, Rp, tp, points, n_points, rho,
+                 frame, stamp, obits, cbits):
+    """Lazy per-frame work (R12): classify every cell that a query of these points can
+    look at — per pixel of each point's region of surveillance outside case 1, the
+    slices within ``rho`` of the point (:func:`_needed_slices`) from ``r(df)`` on, inside
+    the grid — unless already done this ``frame``. Rows of one point's window run in
+    parallel (distinct pixels: no race); points one after another."""
+    H = pfree.shape[0]
+    W = pfree.shape[1]
+    fx = pint[0]
+    fy = pint[1]
+    cx = pint[2]
+    cy = pint[3]
+    rmin = pint[6]
+    NWd = obits.shape[2]
+    for i in range(n_points):
+        X = points[i, 0]
+        Y = points[i, 1]
+        Z = points[i, 2]
+        xc = Rp[0, 0] * X + Rp[0, 1] * Y + Rp[0, 2] * Z + tp[0]
+        yc = Rp[1, 0] * X + Rp[1, 1] * Y + Rp[1, 2] * Z + tp[1]
+        dp = Rp[2, 0] * X + Rp[2, 1] * Y + Rp[2, 2] * Z + tp[2]
+        if not dp > 0.0:
+            continue
+        px = xc * fx / dp + cx
+        py = yc * fy / dp + cy
+        u0, u1, v0, v1 = surveillance_window(xc, yc, dp, rho, fx, fy, cx, cy, rmin, W, H)
+        g_lo = int(math.floor((dp - rho - dmin) / dd))
+        g_hi = int(math.floor((dp + rho - dmin) / dd))
+        rho2 = rho * rho
+        for v in prange(v0, v1 + 1):
+            ty = v // TILE
+            for tx in range(u0 // TILE, u1 // TILE + 1):
+                if tmin[ty, tx] > dp + rho:
+                    continue
+                for u in range(max(u0, tx * TILE), min(u1, tx * TILE + TILE - 1) + 1):
+                    df = pfree[v, u]
+                    if df > dp + rho:                                  # case 1
+                        continue
+                    gs, ncp = _col_setup(u, v, pfree, dmin, dd, nd, cap_n, ncaps)
+                    ga, gb = _needed_slices(u, v, px, py, dp, rho2, fx, fy, cx, cy, dmin, dd, g_lo, g_hi)
+                    ga = max(ga, gs, 0)
+                    gb = min(gb, nd - 1)
+                    if ga > gb:
+                        continue
+                    _ensure_pixel(u, v, ga, gb, gs, pkind[v, u] == KIND_SURFACE, ncp, fx, fy, cx, cy, dmin, dd,
+                                  kfree, kpmin, kpmax, koff, kdims, rays, origins, kint, nk, caps, ncaps,
+                                  cap_lo, cap_hi, band, frame, stamp, obits, cbits)
+
+
+@njit(cache=True, inline="always")
+def _obst_cell(u, v, g, gs, ncp, nd, obits, caps, ncaps, cap_lo, cap_hi, fx, fy, cx, cy, dmin, dd):
+    """Is slice ``g`` of column ``(u, v)`` an obstacle: free before ``r(df)``; inside the
+    grid its memoised bit; outside the grid an obstacle unless inside a padded capsule."""
+    if g < gs:
+        return False
+    if g >= 0 and g < nd:
+        return _bit(obits, v, u, g) != np.uint64(0)
+    d1 = dmin + g * dd
+    return not (ncaps > 0 and _in_caps(cap_lo, cap_hi, ncp, v, u, d1, d1 + dd, caps, ncaps, fx, fy, cx, cy, g))
+
+
+@njit(cache=True)
+def _scan_down(u, v, lo, hi, gs, ncp, nd, obits, caps, ncaps, cap_lo, cap_hi, fx, fy, cx, cy, dmin, dd):
+    """Largest obstacle slice in ``lo..hi``, or ``lo - 1`` if none."""
+    g = hi
+    while g >= lo and g >= nd:
+        if _obst_cell(u, v, g, gs, ncp, nd, obits, caps, ncaps, cap_lo, cap_hi, fx, fy, cx, cy, dmin, dd):
+            return g
+        g -= 1
+    if g >= lo and g >= 0:
+        b = _highest_bit(obits, v, u, max(lo, 0, gs), g)
+        if b >= 0:
+            return b
+        g = -1
+    while g >= lo:
+        if _obst_cell(u, v, g, gs, ncp, nd, obits, caps, ncaps, cap_lo, cap_hi, fx, fy, cx, cy, dmin, dd):
+            return g
+        g -= 1
+    return lo - 1
+
+
+@njit(cache=True)
+def _scan_up(u, v, lo, hi, gs, ncp, nd, obits, caps, ncaps, cap_lo, cap_hi, fx, fy, cx, cy, dmin, dd):
+    """Smallest obstacle slice in ``lo..hi``, or ``hi + 1`` if none."""
+    g = max(lo, gs)
+    while g <= hi and g < 0:
+        if _obst_cell(u, v, g, gs, ncp, nd, obits, caps, ncaps, cap_lo, cap_hi, fx, fy, cx, cy, dmin, dd):
+            return g
+        g += 1
+    if g <= hi and g < nd:
+        b = _lowest_bit(obits, v, u, g, min(hi, nd - 1))
+        if b >= 0:
+            return b
+        g = nd
+    while g <= hi:
+        if _obst_cell(u, v, g, gs, ncp, nd, obits, caps, ncaps, cap_lo, cap_hi, fx, fy, cx, cy, dmin, dd):
+            return g
+        g += 1
+    return hi + 1
+
+
+@njit(cache=True)
+def _column_bits(u, v, gs, ncp, nd, obits, caps, ncaps, cap_lo, cap_hi, px, py, dp, lim2,
+                 fx, fy, cx, cy, dmin, dd, ga, gb):
+    """:func:`_column` over the memoised bits: the nearest obstacle cell of column ``(u, v)``
+    among slices ``ga..gb`` by the R10 distance. ``f`` is unimodal in the slice with its
+    minimum at one of ``gr - 1 .. gr + 1`` (``gr = r(dstar)``): the candidates are those
+    three and the nearest obstacle slice below / above them."""
+    ox = min(max(px, u - 0.5), u + 0.5)                       # R3
+    oy = min(max(py, v - 0.5), v + 0.5)
+    ax = (ox - cx) / fx
+    ay = (oy - cy) / fy
+    bx = (px - cx) * dp / fx
+    by = (py - cy) * dp / fy
+    dstar = (ax * bx + ay * by + dp) / (ax * ax + ay * ay + 1.0)
+    qx = ax * dstar - bx
+    qy = ay * dstar - by
+    qz = dstar - dp
+    if qx * qx + qy * qy + qz * qz > lim2:
+        return False, 0.0, 0.0, 0.0, 0.0
+    gr = int(math.floor((dstar - dmin) / dd))
+    best2 = lim2
+    found = False
+    bvx = 0.0
+    bvy = 0.0
+    bvz = 0.0
+    a = max(ga, gs)
+    for c in range(5):
+        if c < 3:
+            g = gr - 1 + c
+            if g < a or g > gb:
+                continue
+            if not _obst_cell(u, v, g, gs, ncp, nd, obits, caps, ncaps, cap_lo, cap_hi, fx, fy, cx, cy, dmin, dd):
+                continue
+        elif c == 3:
+            g = _scan_down(u, v, a, min(gr - 2, gb), gs, ncp, nd, obits, caps, ncaps, cap_lo, cap_hi,
+                           fx, fy, cx, cy, dmin, dd)
+            if g < a:
+                continue
+        else:
+            g = _scan_up(u, v, max(gr + 2, a), gb, gs, ncp, nd, obits, caps, ncaps, cap_lo, cap_hi,
+                         fx, fy, cx, cy, dmin, dd)
+            if g > gb:
+                continue
+        f2, wx, wy, wz = _f2(g, dmin, dd, dp, ax, ay, bx, by)
+        if f2 < best2 or (not found and f2 == best2):
+            best2 = f2
+            found = True
+            bvx = wx
+            bvy = wy
+            bvz = wz
+    return found, best2, bvx, bvy, bvz
+
+
+@njit(cache=True, parallel=True)
+def grid_distances_lazy(pfree, tmin, obits, cap_n, caps, ncaps, cap_lo, cap_hi, nd, Rp, tp, pint, dmin, dd,
+                        points, n_points, rho, method,
+                        out_distance, out_direction, out_count, out_observed,
+                        fill, pkind, kfree, kpmin, kpmax, koff, kdims, rays, origins, kint, nk, band,
+                        frame, stamp, cbits):
+    """:func:`grid_distances` over the memoised cells: same cases, same R10 distance, same
+    R7 reduction. ``fill`` False: :func:`ensure_cells` was called first with the same
+    points. ``fill`` True: the cells are classified here as they are met (one pass; only
+    on one thread — the points' windows overlap)."""
+    H = pfree.shape[0]
+    W = pfree.shape[1]
+    fx = pint[0]
+    fy = pint[1]
+    cx = pint[2]
+    cy = pint[3]
+    rmin = pint[6]
+    rmax = pint[7]
+    for i in prange(n_points):
+        X = points[i, 0]
+        Y = points[i, 1]
+        Z = points[i, 2]
+        xc = Rp[0, 0] * X + Rp[0, 1] * Y + Rp[0, 2] * Z + tp[0]   # (1)
+        yc = Rp[1, 0] * X + Rp[1, 1] * Y + Rp[1, 2] * Z + tp[1]
+        dp = Rp[2, 0] * X + Rp[2, 1] * Y + Rp[2, 2] * Z + tp[2]
+        out_direction[i, 0] = 0.0
+        out_direction[i, 1] = 0.0
+        out_direction[i, 2] = 0.0
+        out_distance[i] = np.inf
+        out_count[i] = 0
+        if not dp > 0.0:
+            out_observed[i] = False
+            continue
+        px = xc * fx / dp + cx                                     # (2)
+        py = yc * fy / dp + cy
+        out_observed[i] = (dp >= rmin and dp <= rmax and px >= -0.5 and px < W - 0.5
+                           and py >= -0.5 and py < H - 0.5)
+        u0, u1, v0, v1 = surveillance_window(xc, yc, dp, rho, fx, fy, cx, cy, rmin, W, H)
+        rho2 = rho * rho
+        best2 = rho2
+        n = 0
+        sD = 0.0
+        dmin_found = np.inf
+        sx = 0.0
+        sy = 0.0
+        sz = 0.0
+        bx = 0.0
+        by = 0.0
+        bz = 0.0
+        g_lo = int(math.floor((dp - rho - dmin) / dd))
+        g_hi = int(math.floor((dp + rho - dmin) / dd))
+        for v in range(v0, v1 + 1):
+            ty = v // TILE
+            for tx in range(u0 // TILE, u1 // TILE + 1):
+                if tmin[ty, tx] > dp + rho:                       # every pixel in case 1
+                    continue
+                for u in range(max(u0, tx * TILE), min(u1, tx * TILE + TILE - 1) + 1):
+                    df = pfree[v, u]
+                    if df > dp + rho:                              # case 1
+                        continue
+                    gs, ncp = _col_setup(u, v, pfree, dmin, dd, nd, cap_n, ncaps)
+                    ga, gb = _needed_slices(u, v, px, py, dp, rho2, fx, fy, cx, cy, dmin, dd, g_lo, g_hi)
+                    if fill and max(ga, gs, 0) <= min(gb, nd - 1):
+                        _ensure_pixel(u, v, max(ga, gs, 0), min(gb, nd - 1), gs, pkind[v, u] == KIND_SURFACE,
+                                      ncp, fx, fy, cx, cy, dmin, dd, kfree, kpmin, kpmax, koff, kdims, rays,
+                                      origins, kint, nk, caps, ncaps, cap_lo, cap_hi, band, frame, stamp,
+                                      obits, cbits)
+                    a = max(ga, gs)
+                    if a > gb:
+                        continue
+                    if a >= 0 and gb < nd and _lowest_bit(obits, v, u, a, gb) < 0:
+                        continue                                   # no obstacle cell in reach
+                    lim2 = best2 if method == METHOD_MIN else rho2
+                    found, D2, vx, vy, vz = _column_bits(u, v, gs, ncp, nd, obits, caps, ncaps, cap_lo,
+                                                         cap_hi, px, py, dp, lim2, fx, fy, cx, cy,
+                                                         dmin, dd, ga, gb)
                     if not found:
                         continue
                     D = math.sqrt(D2)
