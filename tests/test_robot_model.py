@@ -10,7 +10,6 @@ from depthguard.robot import ControlPoint, available_robots, fit_capsule, load_r
 from depthguard.robot.capsules import point_segment_distance
 from depthguard.transforms import pose, rot_x
 
-from test_robot_kinematics import PRISMATIC_URDF
 
 
 @pytest.fixture(scope="module")
@@ -267,9 +266,9 @@ def test_package_uri_resolution(tmp_path):
     assert [c.name for c in r.control_points] == ["ee", "b"]
 
 
-def test_prismatic_urdf_primitive_geometry(tmp_path):
+def test_prismatic_urdf_primitive_geometry(tmp_path, prismatic_urdf):
     p = tmp_path / "s.urdf"
-    p.write_text(PRISMATIC_URDF)
+    p.write_text(prismatic_urdf)
     r = load_robot(str(p))
     assert r.link_mesh_names == ("rail", "carriage", "arm", "hand")
     np.testing.assert_allclose(r.local_link_meshes()["arm"].bounds, [[0, -0.02, -0.02], [0.3, 0.02, 0.02]])

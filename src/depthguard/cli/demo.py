@@ -56,7 +56,7 @@ def demo(
     out: Path = typer.Option(Path("out/demo"), "--out", help="Output directory."),
     seed: int = typer.Option(0, "--seed", help="Seed of the simulated sensor noise."),
     noiseless: bool = typer.Option(False, "--noiseless", help="Exact rendered depth, no sensor noise."),
-    fusion: str = typer.Option("single", "--fusion", help="single: the principal Kinect (Flacco 2014); grid: both Kinects through the depth grid map (R12; slow on this machine)."),
+    cameras: str = typer.Option("all", "--cameras", help="all: both Kinects through the depth grid map (R12, Flacco 2015); principal: the principal Kinect only (Flacco 2014)."),
     sheets: bool = typer.Option(True, "--sheets/--no-sheets", help="Also write flacco-cell's contact sheets."),
 ) -> None:
     """The closed-loop human-robot cell: scenarios reach and elbow on flacco-cell, a summary table, reports.
@@ -72,8 +72,9 @@ def demo(
     from depthguard.control.scenarios import run_scenario
     from depthguard.progress import track
 
-    if fusion not in ("single", "grid"):
-        raise typer.BadParameter("must be 'single' or 'grid'", param_hint="--fusion")
+    if cameras not in ("all", "principal"):
+        raise typer.BadParameter(f"must be 'all' or 'principal' (got {cameras!r})", param_hint="--cameras")
+    fusion = "grid" if cameras == "all" else "single"
     out = Path(out)
     cfg = LoopConfig(fusion=fusion, noise=not noiseless)
     summaries = []

@@ -21,8 +21,8 @@ def run(
     out: Path = typer.Option(..., "--out", "-o", help="Report folder: summary.json and plots."),
     duration: Optional[float] = typer.Option(None, "--duration", help="Simulated seconds (default: the scenario's)."),
     seed: int = typer.Option(0, "--seed", help="Seed of the cameras' noise."),
-    fusion: str = typer.Option("auto", "--fusion", help="grid: both cameras fused by the depth grid map (R12); single: the principal camera only (Flacco 2014); auto: grid for shadow and camera_dropout, single otherwise."),
-    distance_hz: Optional[float] = typer.Option(None, "--distance-hz", help="Rate of the distance computation (default: every 500 Hz cycle; with auto+grid: 30 Hz, the camera rate, because the depth-grid query is slow on this machine)."),
+    cameras: str = typer.Option("all", "--cameras", help="all: every camera of the rig fused by the depth grid map (R12, Flacco 2015); principal: the principal camera only (Flacco 2014), the one-camera comparison."),
+    distance_hz: Optional[float] = typer.Option(None, "--distance-hz", help="Rate of the distance computation (default: every 500 Hz control cycle, R15)."),
     no_noise: bool = typer.Option(False, "--no-noise", help="Ideal depth images (no sensor noise)."),
     quiet: bool = typer.Option(False, "--quiet", "-q", help="No progress output."),
 ) -> None:
@@ -41,16 +41,13 @@ def run(
     if scenario not in SCENARIOS:
         raise typer.BadParameter(f"unknown scenario {scenario!r}; choose one of {', '.join(SCENARIOS)}",
                                  param_hint="--scenario")
-    if fusion not in ("grid", "single", "auto"):
-        raise typer.BadParameter("must be 'grid', 'single' or 'auto'", param_hint="--fusion")
+    if cameras not in ("all", "principal"):
+        raise typer.BadParameter(f"must be 'all' or 'principal' (got {cameras!r})", param_hint="--cameras")
+    fusion = "grid" if cameras == "all" else "single"
     if duration is not None and not duration > 0:
         raise typer.BadParameter("must be > 0 seconds", param_hint="--duration")
     if distance_hz is not None and not distance_hz > 0:
         raise typer.BadParameter("must be > 0 Hz", param_hint="--distance-hz")
-    if fusion == "auto":
-        fusion = "grid" if scenario in ("shadow", "camera_dropout") else "single"
-        if fusion == "grid" and distance_hz is None:
-            distance_hz = 30.0
     cfg = LoopConfig(fusion=fusion, noise=not no_noise, distance_hz=distance_hz)
 
     def progress(it, total):

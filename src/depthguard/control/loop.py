@@ -267,15 +267,10 @@ class ClosedLoop:
             self.single = DistanceWorkspace(self.cams[0], max_points=16)
 
     def _grid_kw(self, caps) -> dict:
-        """Optional arguments of the grid's ``set_frames`` that this version offers: the box the
-        control points can reach before the next frame (only gray cells there are examined)."""
-        import inspect
-        if not hasattr(self, "_grid_params"):
-            self._grid_params = set(inspect.signature(self.grid.set_frames).parameters)
-        kw = {}
-        if "reach" in self._grid_params and hasattr(self.grid, "robot_reach"):
-            kw["reach"] = self.grid.robot_reach(caps, self.cfg.rho, margin=0.1)
-        return kw
+        """Optional arguments of the grid's ``set_frames``: none. The grid classifies a
+        column's cells lazily, only where the control points' queries look (no ``reach``
+        box needed, and the answers do not depend on one)."""
+        return {}
 
     def _setup_ground_truth(self):
         """Capsules that never move and touch the static scene (the base on its mount) are left out
@@ -435,13 +430,13 @@ class ClosedLoop:
             if not due:
                 pass                                   # hold D, V, obs of the last distance cycle
             elif self.grid is not None:
-                caps = robot.collision_segments(q, cfg.robot_padding)
                 if frames_dirty:
+                    caps = robot.collision_segments(q, cfg.robot_padding)
+                    # robot volume at the frame's joints, like the rendered robot depth (R9, R12);
+                    # between frames the cells memoised for this frame stay valid
                     self.grid.set_frames(depths, rdepths, robot_offset=cfg.robot_offset, robot_capsules=caps,
                                          **self._grid_kw(caps))
                     frames_dirty = False
-                else:
-                    self.grid.set_robot_capsules(caps)
                 res = self.grid.query(P, rho=rho, method=cfg.method)
             else:
                 if frames_dirty:

@@ -18,13 +18,17 @@ the fly (:mod:`~depthguard.fusion.depth_grid_kernels` states the rule);
 paper's explicit table for small grids and the tests check they agree.
 
 On-line work is split as the paper's footnote 1 suggests (frames at 30 Hz,
-distances as fast as possible): :meth:`DepthGridMap.set_frames` settles, once
-per frame, which cells of each principal column are obstacles (the
-confirmation of R12 done per cell, or per stretch of cells where the other
-cameras' min/max pyramids prove a whole stretch cleared or confirmed) and
-stores them as runs; :meth:`DepthGridMap.query` then only looks up, per
-pixel of the region of surveillance, the nearest obstacle cell of its runs.
-``reach`` limits the per-frame work to a box around the robot.
+distances as fast as possible): :meth:`DepthGridMap.set_frames` stores, once
+per frame, the per-pixel states, the other cameras' min/max pyramids and the
+robot volume's depth intervals (a few ms for two 640x480 cameras). Which
+cells of a principal column are obstacles (the confirmation of R12, per cell
+or per stretch of cells where the pyramids prove a whole stretch cleared or
+confirmed) is worked out lazily: the first :meth:`DepthGridMap.query` of a
+frame that looks at a column classifies only the slices within ``rho`` of its
+points and memoises them (per-pixel frame stamp, preallocated bits); later
+queries reuse them. ``set_frames(..., lazy=False)`` is the eager form (every
+column's obstacle runs at once, optionally limited by ``reach``); the tests
+check both give the same answers.
 
 When no camera sees the whole workspace, :class:`MultiPrincipalDepthGrid`
 keeps a map per camera and evaluates each control point with a principal
@@ -315,6 +319,7 @@ class DepthGridMap:
         self._obits = np.zeros(P.shape + (nw,), dtype=np.uint64)
         self._cbits = np.zeros(P.shape + (nw,), dtype=np.uint64)
         self._stamp = np.zeros(P.shape, dtype=np.int64)
+        self._clear = np.zeros(P.shape, dtype=np.int64)
         self._frame = 0
         self._tmin = np.zeros(self._tile_first.shape)
         self.lazy = True
@@ -328,6 +333,7 @@ class DepthGridMap:
         self._dir = np.empty((n, 3))
         self._count = np.empty(n, dtype=np.int64)
         self._obs = np.empty(n, dtype=np.bool_)
+        self._ws = np.empty((n, 10))
 
     def set_frames(self, depths: dict, robot_depths: dict | None = None,
                    robot_offset: float = 0.03, robot_capsules=None, invalid: str = "unknown",
@@ -549,14 +555,15 @@ class DepthGridMap:
                                self._kfree, self._kpmin, self._kpmax, self._koff, self._kdims, self._rays_arg,
                                self._orig_arg, self._kint_arg, len(self.others), self._caps, self._ncaps,
                                self._cap_lo, self._cap_hi, self._cap_n, self._band, self._Rp, self._tp, p, n, r,
-                               self._frame, self._stamp, self._obits, self._cbits)
+                               self._frame, self._stamp, self._obits, self._cbits, self._clear, self._ws)
             K.grid_distances_lazy(self._pfree, self._tmin, self._obits, self._cap_n, self._caps, self._ncaps,
                                   self._cap_lo, self._cap_hi, self.n_d, self._Rp, self._tp, self._pint,
                                   self.d_min, self.delta_d, p, n, r, m,
                                   self._dist, self._dir, self._count, self._obs,
                                   fill, self._pkind, self._kfree, self._kpmin, self._kpmax, self._koff,
                                   self._kdims, self._rays_arg, self._orig_arg, self._kint_arg,
-                                  len(self.others), self._band, self._frame, self._stamp, self._cbits)
+                                  len(self.others), self._band, self._frame, self._stamp, self._cbits,
+                                  self._clear)
             return
         K.grid_distances(self._pfree, self._runs, self._nruns, self._tile_first, self._Rp, self._tp, self._pint,
                          self.d_min, self.delta_d, p, n, r, m,

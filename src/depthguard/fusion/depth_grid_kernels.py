@@ -1037,7 +1037,7 @@ def _lowest_bit(bits, v, u, lo, hi):
     return -1
 
 
-@njit(cache=True)
+@njit(cache=True, inline="always")
 def _all_set(bits, v, u, lo, hi):
     """Every slice ``lo..hi`` (inside ``0..n_d-1``, ``lo <= hi``) has its bit set."""
     for w in range(lo >> 6, (hi >> 6) + 1):
@@ -1153,14 +1153,16 @@ def _needed_slices(u, v, px, py, dp, lim2, fx, fy, cx, cy, dmin, dd, g_lo, g_hi)
 
 @njit(cache=True)
 def _ensure_pixel(u, v, ga, gb, gs, direct, ncp, fx, fy, cx, cy, dmin, dd, kfree, kpmin, kpmax, koff, kdims,
-                  rays, origins, kint, nk, caps, ncaps, cap_lo, cap_hi, band, frame, stamp, obits, cbits):
+                  rays, origins, kint, nk, caps, ncaps, cap_lo, cap_hi, band, frame, stamp, obits, cbits, clear):
     """Classify the not yet classified slices of ``ga..gb`` (inside the grid, ``>= gs``) of
-    column ``(u, v)`` in this ``frame`` (resetting the pixel's bits on its first touch)."""
+    column ``(u, v)`` in this ``frame`` (resetting the pixel's bits on its first touch).
+    ``clear[v, u]``: the largest ``h`` with every slice ``max(gs, 0)..h`` classified free."""
     if stamp[v, u] != frame:
         for w in range(obits.shape[2]):
             obits[v, u, w] = np.uint64(0)
             cbits[v, u, w] = np.uint64(0)
         stamp[v, u] = frame
+        clear[v, u] = max(gs, 0) - 1
     elif _all_set(cbits, v, u, ga, gb):
         return
     g = ga
@@ -1174,17 +1176,23 @@ def _ensure_pixel(u, v, ga, gb, gs, direct, ncp, fx, fy, cx, cy, dmin, dd, kfree
         _fill_stretch(u, v, g, e, gs, direct, ncp, fx, fy, cx, cy, dmin, dd, kfree, kpmin, kpmax, koff,
                       kdims, rays, origins, kint, nk, caps, ncaps, cap_lo, cap_hi, band, obits, cbits)
         g = e + 1
+    h = clear[v, u] + 1
+    hmax = obits.shape[2] * 64          # slices past n_d are never classified
+    while h < hmax and _bit(cbits, v, u, h) != np.uint64(0) and _bit(obits, v, u, h) == np.uint64(0):
+        h += 1
+    clear[v, u] = h - 1
 
 
 @njit(cache=True, parallel=True)
 def ensure_cells(pfree, pkind, tmin, pint, dmin, dd, nd, kfree, kpmin, kpmax, koff, kdims, rays, origins,
                  kint, nk, caps, ncaps, cap_lo, cap_hi, cap_n, band, Rp, tp, points, n_points, rho,
-                 frame, stamp, obits, cbits):
+                 frame, stamp, obits, cbits, clear, ws):
     """Lazy per-frame work (R12): classify every cell that a query of these points can
     look at — per pixel of each point's region of surveillance outside case 1, the
     slices within ``rho`` of the point (:func:`_needed_slices`) from ``r(df)`` on, inside
-    the grid — unless already done this ``frame``. Rows of one point's window run in
-    parallel (distinct pixels: no race); points one after another."""
+    the grid — unless already done this ``frame``. One parallel region over the image
+    rows that the windows cover; a row (and so each pixel) belongs to one thread.
+    ws : (>= n_points, 10) float64 workspace (per point: px, py, dp, window, slices)."""
     H = pfree.shape[0]
     W = pfree.shape[1]
     fx = pint[0]
@@ -1192,7 +1200,9 @@ def ensure_cells(pfree, pkind, tmin, pint, dmin, dd, nd, kfree, kpmin, kpmax, ko
     cx = pint[2]
     cy = pint[3]
     rmin = pint[6]
-    NWd = obits.shape[2]
+    rho2 = rho * rho
+    vlo = H
+    vhi = -1
     for i in range(n_points):
         X = points[i, 0]
         Y = points[i, 1]
@@ -1200,16 +1210,35 @@ def ensure_cells(pfree, pkind, tmin, pint, dmin, dd, nd, kfree, kpmin, kpmax, ko
         xc = Rp[0, 0] * X + Rp[0, 1] * Y + Rp[0, 2] * Z + tp[0]
         yc = Rp[1, 0] * X + Rp[1, 1] * Y + Rp[1, 2] * Z + tp[1]
         dp = Rp[2, 0] * X + Rp[2, 1] * Y + Rp[2, 2] * Z + tp[2]
+        ws[i, 2] = dp
         if not dp > 0.0:
+            ws[i, 5] = 1.0
+            ws[i, 6] = 0.0
             continue
-        px = xc * fx / dp + cx
-        py = yc * fy / dp + cy
+        ws[i, 0] = xc * fx / dp + cx
+        ws[i, 1] = yc * fy / dp + cy
         u0, u1, v0, v1 = surveillance_window(xc, yc, dp, rho, fx, fy, cx, cy, rmin, W, H)
-        g_lo = int(math.floor((dp - rho - dmin) / dd))
-        g_hi = int(math.floor((dp + rho - dmin) / dd))
-        rho2 = rho * rho
-        for v in prange(v0, v1 + 1):
-            ty = v // TILE
+        ws[i, 3] = u0
+        ws[i, 4] = u1
+        ws[i, 5] = v0
+        ws[i, 6] = v1
+        ws[i, 7] = int(math.floor((dp - rho - dmin) / dd))
+        ws[i, 8] = int(math.floor((dp + rho - dmin) / dd))
+        if v0 <= v1:
+            vlo = min(vlo, v0)
+            vhi = max(vhi, v1)
+    for v in prange(vlo, vhi + 1):
+        ty = v // TILE
+        for i in range(n_points):
+            if not (ws[i, 5] <= v and v <= ws[i, 6]):
+                continue
+            px = ws[i, 0]
+            py = ws[i, 1]
+            dp = ws[i, 2]
+            u0 = int(ws[i, 3])
+            u1 = int(ws[i, 4])
+            g_lo = int(ws[i, 7])
+            g_hi = int(ws[i, 8])
             for tx in range(u0 // TILE, u1 // TILE + 1):
                 if tmin[ty, tx] > dp + rho:
                     continue
@@ -1218,14 +1247,16 @@ def ensure_cells(pfree, pkind, tmin, pint, dmin, dd, nd, kfree, kpmin, kpmax, ko
                     if df > dp + rho:                                  # case 1
                         continue
                     gs, ncp = _col_setup(u, v, pfree, dmin, dd, nd, cap_n, ncaps)
+                    if stamp[v, u] == frame and gs >= 0 and g_hi < nd and clear[v, u] >= g_hi:
+                        continue
                     ga, gb = _needed_slices(u, v, px, py, dp, rho2, fx, fy, cx, cy, dmin, dd, g_lo, g_hi)
                     ga = max(ga, gs, 0)
                     gb = min(gb, nd - 1)
-                    if ga > gb:
+                    if ga > gb or (stamp[v, u] == frame and _all_set(cbits, v, u, ga, gb)):
                         continue
                     _ensure_pixel(u, v, ga, gb, gs, pkind[v, u] == KIND_SURFACE, ncp, fx, fy, cx, cy, dmin, dd,
                                   kfree, kpmin, kpmax, koff, kdims, rays, origins, kint, nk, caps, ncaps,
-                                  cap_lo, cap_hi, band, frame, stamp, obits, cbits)
+                                  cap_lo, cap_hi, band, frame, stamp, obits, cbits, clear)
 
 
 @njit(cache=True, inline="always")
@@ -1280,7 +1311,7 @@ def _scan_up(u, v, lo, hi, gs, ncp, nd, obits, caps, ncaps, cap_lo, cap_hi, fx, 
     return hi + 1
 
 
-@njit(cache=True)
+@njit(cache=True, inline="always")
 def _column_bits(u, v, gs, ncp, nd, obits, caps, ncaps, cap_lo, cap_hi, px, py, dp, lim2,
                  fx, fy, cx, cy, dmin, dd, ga, gb):
     """:func:`_column` over the memoised bits: the nearest obstacle cell of column ``(u, v)``
@@ -1313,6 +1344,14 @@ def _column_bits(u, v, gs, ncp, nd, obits, caps, ncaps, cap_lo, cap_hi, px, py, 
                 continue
             if not _obst_cell(u, v, g, gs, ncp, nd, obits, caps, ncaps, cap_lo, cap_hi, fx, fy, cx, cy, dmin, dd):
                 continue
+        elif c == 3 and a >= 0 and gb < nd:                    # all inside the grid: the bits
+            g = _highest_bit(obits, v, u, a, min(gr - 2, gb))
+            if g < 0:
+                continue
+        elif c == 4 and a >= 0 and gb < nd:
+            g = _lowest_bit(obits, v, u, max(gr + 2, a), gb)
+            if g < 0:
+                continue
         elif c == 3:
             g = _scan_down(u, v, a, min(gr - 2, gb), gs, ncp, nd, obits, caps, ncaps, cap_lo, cap_hi,
                            fx, fy, cx, cy, dmin, dd)
@@ -1338,7 +1377,7 @@ def grid_distances_lazy(pfree, tmin, obits, cap_n, caps, ncaps, cap_lo, cap_hi, 
                         points, n_points, rho, method,
                         out_distance, out_direction, out_count, out_observed,
                         fill, pkind, kfree, kpmin, kpmax, koff, kdims, rays, origins, kint, nk, band,
-                        frame, stamp, cbits):
+                        frame, stamp, cbits, clear):
     """:func:`grid_distances` over the memoised cells: same cases, same R10 distance, same
     R7 reduction. ``fill`` False: :func:`ensure_cells` was called first with the same
     points. ``fill`` True: the cells are classified here as they are met (one pass; only
@@ -1394,12 +1433,15 @@ def grid_distances_lazy(pfree, tmin, obits, cap_n, caps, ncaps, cap_lo, cap_hi, 
                     if df > dp + rho:                              # case 1
                         continue
                     gs, ncp = _col_setup(u, v, pfree, dmin, dd, nd, cap_n, ncaps)
+                    if stamp[v, u] == frame and gs >= 0 and g_hi < nd and clear[v, u] >= g_hi:
+                        continue                                   # known free from r(df) to r(dp + rho)
                     ga, gb = _needed_slices(u, v, px, py, dp, rho2, fx, fy, cx, cy, dmin, dd, g_lo, g_hi)
-                    if fill and max(ga, gs, 0) <= min(gb, nd - 1):
+                    if (fill and max(ga, gs, 0) <= min(gb, nd - 1)
+                            and (stamp[v, u] != frame or not _all_set(cbits, v, u, max(ga, gs, 0), min(gb, nd - 1)))):
                         _ensure_pixel(u, v, max(ga, gs, 0), min(gb, nd - 1), gs, pkind[v, u] == KIND_SURFACE,
                                       ncp, fx, fy, cx, cy, dmin, dd, kfree, kpmin, kpmax, koff, kdims, rays,
                                       origins, kint, nk, caps, ncaps, cap_lo, cap_hi, band, frame, stamp,
-                                      obits, cbits)
+                                      obits, cbits, clear)
                     a = max(ga, gs)
                     if a > gb:
                         continue
