@@ -142,29 +142,42 @@ def test_reach_band_gives_the_same_answers():
     assert np.all(far.distance <= full.distance)
 
 
-def test_capsule_intervals_match_corner_test(rng):
-    """Per-pixel capsule intervals (analytic ray-capsule) agree with the 8-corner test."""
+def test_capsule_intervals_match_centre_test(rng):
+    """Per-pixel capsule intervals (analytic ray-capsule) agree with ``Capsule.sdf`` at the
+    cells' centres (R12: a cell whose centre is in the padded volume is never an obstacle),
+    on random capsules, including cells that straddle the surface."""
     cam = _cam("c0", (2.5, 0, 1), w=40, h=30, f=32.0)
-    cap = Capsule.between([-0.2, 0.1, -0.3], [0.1, -0.2, 0.4], 0.25)
-    a, b = cap.segment()
-    caps = np.r_[a, b, cap.radius][None]
-    cc = np.concatenate([caps[:, :3] @ cam.R.T + cam.t, caps[:, 3:6] @ cam.R.T + cam.t, caps[:, 6:]], 1)
-    lo = np.zeros((30, 40, K.MAX_CAPS_PER_PIXEL))
-    hi = np.zeros_like(lo)
-    n = np.zeros((30, 40), dtype=np.int64)
-    K.capsule_intervals(cc, 1, np.array([[0, 39, 0, 29]]), cam.fx, cam.fy, cam.cx, cam.cy, 30, 40, lo, hi, n)
     dd = 0.02
     g = np.arange(int(1.5 / dd), int(3.8 / dd))
-    tested = 0
-    for v in range(0, 30, 3):
-        for u in range(0, 40, 3):
-            d1 = g * dd
-            corners = ref.cell_corners_world(cam, u, v, d1, d1 + dd)
-            inside = np.all(cap.sdf(corners.reshape(-1, 3)).reshape(-1, 8) <= 0, axis=1)
-            by_int = (n[v, u] >= 1) & (lo[v, u, 0] <= d1) & (d1 + dd <= hi[v, u, 0])
-            np.testing.assert_array_equal(inside, by_int)
-            tested += inside.sum()
-    assert tested > 50
+    tested = straddling = 0
+    for _ in range(4):
+        a0, b0 = rng.uniform(-0.3, 0.3, 3), rng.uniform(-0.3, 0.3, 3)
+        cap = Capsule.between(a0, b0, rng.uniform(0.1, 0.3))
+        a, b = cap.segment()
+        caps = np.r_[a, b, cap.radius][None]
+        cc = np.concatenate([caps[:, :3] @ cam.R.T + cam.t, caps[:, 3:6] @ cam.R.T + cam.t, caps[:, 6:]], 1)
+        lo = np.zeros((30, 40, K.MAX_CAPS_PER_PIXEL))
+        hi = np.zeros_like(lo)
+        n = np.zeros((30, 40), dtype=np.int64)
+        K.capsule_intervals(cc, 1, np.array([[0, 39, 0, 29]]), cam.fx, cam.fy, cam.cx, cam.cy, 30, 40, lo, hi, n)
+        for v in range(0, 30, 2):
+            for u in range(0, 40, 2):
+                d1 = g * dd
+                dm = d1 + dd / 2
+                centres = cam.depth_space_to_world(np.stack([np.full_like(dm, u), np.full_like(dm, v), dm], 1))
+                sd = cap.sdf(centres)
+                inside = sd <= 0
+                by_int = (n[v, u] >= 1) & (lo[v, u, 0] <= dm) & (dm <= hi[v, u, 0])
+                sure = np.abs(sd) > 1e-9                      # not on the surface to rounding
+                np.testing.assert_array_equal(inside[sure], by_int[sure])
+                by_cell = np.array([K.cell_in_capsules(cc, 1, cam.fx, cam.fy, cam.cx, cam.cy, u, v, x, x + dd)
+                                    for x in d1])
+                np.testing.assert_array_equal(inside[sure], by_cell[sure])
+                corners = ref.cell_corners_world(cam, u, v, d1, d1 + dd)
+                csd = cap.sdf(corners.reshape(-1, 3)).reshape(-1, 8)
+                straddling += int((inside & np.any(csd > 0, axis=1)).sum())
+                tested += int(inside.sum())
+    assert tested > 200 and straddling > 10
 
 
 # ------------------------------------------------------------------ compact vs explicit map
@@ -414,3 +427,16 @@ def test_lazy_columns_equal_eager_runs(seed, n_cams):
             np.testing.assert_array_equal(r1.observed, r2.observed)
             n_found += int(np.isfinite(r1.distance).sum())
     assert n_found >= 10                      # the comparison is not vacuous
+
+
+def test_capsule_boxes_kernel_equals_numpy_twin(rng):
+    """The capsules' pixel boxes (numba) equal the plain-numpy twin on random capsules,
+    including ones that reach behind the principal camera (the whole image)."""
+    p = _cam("p", (2.5, -0.3, 1.0), w=64, h=48, f=50.0)
+    g = DepthGridMap([p], principal="p", d_min=0.5, d_max=4.0, delta_d=0.05, cache=False)
+    for _ in range(50):
+        n = int(rng.integers(1, 12))
+        a = rng.uniform(-3.0, 3.0, (n, 3))
+        b = a + rng.uniform(-0.5, 0.5, (n, 3))
+        caps = np.concatenate([a, b, rng.uniform(0.01, 0.3, (n, 1))], axis=1)
+        np.testing.assert_array_equal(g._capsule_boxes(caps).copy(), g._capsule_boxes_numpy(caps))

@@ -1,5 +1,7 @@
 """Simulated cameras and the simulated source: rendering + noise, determinism, frames."""
 
+import math
+
 import numpy as np
 import pytest
 
@@ -7,7 +9,7 @@ from depthguard.camera import Camera
 from depthguard.geometry.primitives import Box, Sphere
 from depthguard.render import render_depth
 from depthguard.sim import Scene, load_cell
-from depthguard.sources import Frame, SimSource, SimulatedCamera, intrinsics_for
+from depthguard.sources import SENSOR_MODELS, Frame, SimSource, SimulatedCamera, intrinsics_for
 from depthguard.transforms import look_at, pose
 
 
@@ -99,3 +101,21 @@ def test_bench_group_quick_rows():
                          "sim.c_arm_room.occupancy_10cm_ms"}
     for r in rows.values():
         assert r.value > 0 and r.peer and r.peer_value > 0 and r.unit == "ms"
+
+
+@pytest.mark.parametrize("name", sorted(SENSOR_MODELS))
+def test_presets_have_square_pixels_and_their_nominal_field_of_view(name):
+    """Real depth sensors have square pixels: fx == fy in every mode, and in the native
+    mode (the one closest to the data sheet) both fields of view lie within 4 degrees."""
+    m = SENSOR_MODELS[name]
+    for w, h in m.resolutions:
+        k = intrinsics_for(name, w, h)
+        assert k["fx"] == k["fy"] > 0
+        assert (k["cx"], k["cy"]) == ((w - 1) / 2, (h - 1) / 2)
+    errors = []
+    for w, h in m.resolutions:
+        k = intrinsics_for(name, w, h)
+        hfov = 2 * math.degrees(math.atan(w / 2 / k["fx"]))
+        vfov = 2 * math.degrees(math.atan(h / 2 / k["fy"]))
+        errors.append(max(abs(hfov - m.hfov_deg), abs(vfov - m.vfov_deg)))
+    assert min(errors) <= 4.0, errors

@@ -266,6 +266,22 @@ class ClosedLoop:
             self.grid = None
             self.single = DistanceWorkspace(self.cams[0], max_points=16)
 
+    def _frames_volume(self, frame_q: dict) -> tuple[np.ndarray, np.ndarray]:
+        """The robot's padded capsules at each camera's latest capture joints, together (R12).
+
+        The cameras are not synchronised: a camera's frame shows the robot where it was at
+        that frame's capture, and the others confirm the cells it hid there. The robot
+        occupied those cells at that moment, so they are its own volume, not an obstacle;
+        excluding only the newest pose reports the robot's path as phantom obstacles
+        beside the end effector (seen with two Kinects: 0.058 m at the EE with nothing
+        within 0.5 m). Capture poses differ by at most one camera period of motion."""
+        segs, rads = [], []
+        for qf in {id(v): v for v in frame_q.values()}.values():
+            ab, r = self.robot.collision_segments(qf, self.cfg.robot_padding)
+            segs.append(ab)
+            rads.append(r)
+        return np.concatenate(segs), np.concatenate(rads)
+
     def _grid_kw(self, caps) -> dict:
         """Optional arguments of the grid's ``set_frames``: none. The grid classifies a
         column's cells lazily, only where the control points' queries look (no ``reach``
@@ -390,6 +406,7 @@ class ClosedLoop:
         snapshots = []
         n_distance, next_distance = 0, 0.0
         frames_dirty = False
+        frame_q: dict[str, np.ndarray] = {}     # joints at each camera's latest capture
         react_buf = (np.empty(3), np.empty(n), np.empty(n))
         q_min, q_max, qd_max = (np.ascontiguousarray(a, dtype=np.float64)
                                 for a in (robot.q_min, robot.q_max, robot.qd_max))
@@ -417,6 +434,7 @@ class ClosedLoop:
                 timing["camera_sim"] += t1 - t0
                 timing["self_removal"] += t2 - t1
                 stamps[i] = t
+                frame_q[cid] = q.copy()
                 n_frames[cid] += 1
                 frames_dirty = True
                 if i == 0 and snaps_todo and t >= snaps_todo[0] - 1e-9:
@@ -431,8 +449,8 @@ class ClosedLoop:
                 pass                                   # hold D, V, obs of the last distance cycle
             elif self.grid is not None:
                 if frames_dirty:
-                    caps = robot.collision_segments(q, cfg.robot_padding)
-                    # robot volume at the frame's joints, like the rendered robot depth (R9, R12);
+                    caps = self._frames_volume(frame_q)
+                    # the robot's padded volume at every frame's capture joints (R9, R12);
                     # between frames the cells memoised for this frame stay valid
                     self.grid.set_frames(depths, rdepths, robot_offset=cfg.robot_offset, robot_capsules=caps,
                                          **self._grid_kw(caps))

@@ -300,6 +300,8 @@ class DepthGridMap:
         self._runs = np.zeros(P.shape + (RUNS_PER_COLUMN, 2), dtype=np.int32)
         self._nruns = np.zeros(P.shape, dtype=np.int32)
         self._band = np.zeros(P.shape + (2,), dtype=np.int32)
+        self._band_full = False
+        self._boxes = np.zeros((32, 4), dtype=np.int64)   # capsule_boxes output (grown if needed)
         self._tile_first = np.zeros((-(-P.height // K.TILE), -(-P.width // K.TILE)), dtype=np.int32)
         self._koff = np.zeros((max(nk, 1), levels), dtype=np.int64)
         self._kdims = np.ones((max(nk, 1), levels, 2), dtype=np.int64)
@@ -424,9 +426,12 @@ class DepthGridMap:
 
     def _set_band(self, reach) -> None:
         if reach is None:
-            self._band[..., 0] = -(1 << 30)
-            self._band[..., 1] = 1 << 30
+            if not self._band_full:           # the full band is already there: nothing to write
+                self._band[..., 0] = -(1 << 30)
+                self._band[..., 1] = 1 << 30
+                self._band_full = True
             return
+        self._band_full = False
         P = self.principal
         is_box = (isinstance(reach, tuple) and len(reach) == 2 and np.shape(reach[0]) == (3,)
                   and np.shape(reach[1]) == (3,))
@@ -478,6 +483,15 @@ class DepthGridMap:
     def _capsule_boxes(self, caps: np.ndarray) -> np.ndarray:
         """(C, 4) inclusive pixel boxes holding each capsule's projection (principal frame
         capsules): the projected corners of its axis-aligned bounding box, plus a pixel."""
+        P = self.principal
+        if len(caps) > len(self._boxes):
+            self._boxes = np.zeros((len(caps), 4), dtype=np.int64)
+        boxes = self._boxes[:len(caps)]
+        K.capsule_boxes(caps, len(caps), P.fx, P.fy, P.cx, P.cy, P.height, P.width, boxes)
+        return boxes
+
+    def _capsule_boxes_numpy(self, caps: np.ndarray) -> np.ndarray:
+        """The plain-numpy twin of :func:`~depthguard.fusion.depth_grid_kernels.capsule_boxes`."""
         P = self.principal
         boxes = np.zeros((len(caps), 4), dtype=np.int64)
         sgn = np.array([[x, y, z] for x in (-1, 1) for y in (-1, 1) for z in (-1, 1)], float)

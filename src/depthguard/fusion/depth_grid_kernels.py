@@ -51,7 +51,7 @@ from depthguard.distance.window import surveillance_window
 
 __all__ = [
     "D_ZERO", "KIND_SURFACE", "KIND_ROBOT", "KIND_UNKNOWN", "METHOD_MIN", "METHOD_MEAN", "METHOD_HYBRID",
-    "frame_state", "build_pyramids", "column_runs", "reach_band", "reach_band_capsules", "tile_first_cells", "RUN_END", "TILE", "capsule_intervals", "MAX_CAPS_PER_PIXEL", "cell_footprint", "cell_cleared", "cell_in_capsules",
+    "frame_state", "build_pyramids", "column_runs", "reach_band", "reach_band_capsules", "tile_first_cells", "RUN_END", "TILE", "capsule_intervals", "capsule_boxes", "MAX_CAPS_PER_PIXEL", "cell_footprint", "cell_cleared", "cell_in_capsules",
     "grid_distances", "tile_min_free", "ensure_cells", "grid_distances_lazy",
 ]
 
@@ -126,26 +126,15 @@ def build_pyramids(free, H, W, pmin, pmax, offsets, dims):
         wl = dims[lv, 1]
         op = offsets[lv - 1]
         ol = offsets[lv]
+        # a block past the last row / column repeats it (min / max of an element twice: same result)
         for v in range(hl):
+            r0 = op + 2 * v * wp
+            r1 = op + min(2 * v + 1, hp - 1) * wp
             for u in range(wl):
-                m = np.inf
-                x = -np.inf
-                for dv in range(2):
-                    vv = 2 * v + dv
-                    if vv >= hp:
-                        continue
-                    for du in range(2):
-                        uu = 2 * u + du
-                        if uu >= wp:
-                            continue
-                        a = pmin[op + vv * wp + uu]
-                        b = pmax[op + vv * wp + uu]
-                        if a < m:
-                            m = a
-                        if b > x:
-                            x = b
-                pmin[ol + v * wl + u] = m
-                pmax[ol + v * wl + u] = x
+                u0 = 2 * u
+                u1 = min(2 * u + 1, wp - 1)
+                pmin[ol + v * wl + u] = min(min(pmin[r0 + u0], pmin[r0 + u1]), min(pmin[r1 + u0], pmin[r1 + u1]))
+                pmax[ol + v * wl + u] = max(max(pmax[r0 + u0], pmax[r0 + u1]), max(pmax[r1 + u0], pmax[r1 + u1]))
 
 
 @njit(cache=True, inline="always")
@@ -307,6 +296,23 @@ def _range_confirmed(kpmax, koff, kdims, rays, origins, kint, nk, gx, gy, d1, d2
 
 
 @njit(cache=True)
+def _range_settled(kpmin, kpmax, koff, kdims, rays, origins, kint, nk, gx, gy, d1, d2):
+    """:func:`_range_cleared` (1), else :func:`_range_confirmed` (2), else 0, computing
+    each camera's footprint of the piece once."""
+    conf = True
+    for k in range(nk):
+        seen, u0, u1, v0, v1, zmin, zmax = cell_footprint(rays, origins, kint, k, gx, gy, d1, d2)
+        if not seen:
+            conf = False
+            continue
+        if _box_min(kpmin[k], koff[k], kdims[k], u0, u1, v0, v1) > zmax:
+            return 1
+        if conf and not (_box_max(kpmax[k], koff[k], kdims[k], u0, u1, v0, v1) < zmin):
+            conf = False
+    return 2 if conf else 0
+
+
+@njit(cache=True)
 def _seg_dist2(px, py, pz, cap):
     ax = cap[0]
     ay = cap[1]
@@ -330,25 +336,16 @@ def _seg_dist2(px, py, pz, cap):
 
 @njit(cache=True)
 def cell_in_capsules(caps, ncaps, fx, fy, cx, cy, gx, gy, d1, d2):
-    """True when the cell lies inside one padded robot capsule.
+    """True when the cell's centre lies inside one padded robot capsule (R12;
+    the rule of :func:`capsule_intervals`).
 
     caps : (>= ncaps, 7) end points ``a, b`` (principal camera frame, m) and radius.
-    The cell is convex (hull of its 8 corners) and so is a capsule: the cell
-    is inside iff its 8 corners are (R12, "never obstacles for its own points").
     """
+    d = 0.5 * (d1 + d2)
+    X = (gx - cx) * d / fx
+    Y = (gy - cy) * d / fy
     for c in range(ncaps):
-        r2 = caps[c, 6] * caps[c, 6]
-        inside = True
-        for j in range(8):
-            ux = gx - 0.5 + (j & 1)
-            vy = gy - 0.5 + ((j >> 1) & 1)
-            d = d1 if (j >> 2) == 0 else d2
-            X = (ux - cx) * d / fx
-            Y = (vy - cy) * d / fy
-            if _seg_dist2(X, Y, d, caps[c]) > r2:
-                inside = False
-                break
-        if inside:
+        if _seg_dist2(X, Y, d, caps[c]) <= caps[c, 6] * caps[c, 6]:
             return True
     return False
 
@@ -417,39 +414,67 @@ def _ray_capsule(cx_, cy_, cap):
     return lo, hi
 
 
-MAX_CAPS_PER_PIXEL = 4
+MAX_CAPS_PER_PIXEL = 8
 
 
 @njit(cache=True)
 def capsule_intervals(caps, ncaps, boxes, fx, fy, cx, cy, H, W, out_lo, out_hi, out_n):
     """Per principal pixel, the depth intervals ``[lo, hi]`` where the pixel's
-    cross-section (its 4 corner rays) lies inside each padded robot capsule
-    (R12: cells inside the robot's volume are never obstacles).
+    centre ray lies inside each padded robot capsule (R12: cells inside the
+    robot's volume are never obstacles).
 
-    A cell ``pixel x [d1, d2]`` is inside capsule ``c`` iff its 8 corners are,
-    iff ``lo_c <= d1`` and ``d2 <= hi_c`` (the corners' rays each meet the
-    convex capsule in one interval; ``lo_c, hi_c`` = max / min over the 4).
+    A cell ``pixel x [d1, d2]`` counts as inside the padded volume when its
+    centre, the centre ray at ``(d1 + d2) / 2``, lies in one capsule:
+    ``lo_c <= (d1 + d2) / 2 <= hi_c``. So an excluded cell lies within
+    ``padding`` + half the cell's diagonal of the robot's capsules (R25: within
+    the discretisation), and a cell straddling two capsules of the same arm or
+    the silhouette of a padded link is judged by where its bulk is; a rule
+    needing all 8 corners in one capsule reported such cells at the joints as
+    obstacles a few centimetres from the robot's own control points.
     boxes : (ncaps, 4) int64 inclusive pixel box ``u0, u1, v0, v1`` holding the
         capsule's projection (pixels outside cannot meet it).
     out_lo, out_hi : (H, W, MAX_CAPS_PER_PIXEL) float64; out_n : (H, W) int64
     number of intervals (``MAX_CAPS_PER_PIXEL + 1`` = too many: test cells directly).
+    A ray farther from the capsule's centre than its bounding radius, or from its
+    axis line than its radius (relative margin 1e-6), misses it and is skipped.
     """
     for v in range(H):
         for u in range(W):
             out_n[v, u] = 0
     for c in range(ncaps):
-        for v in range(boxes[c, 2], boxes[c, 3] + 1):
-            for u in range(boxes[c, 0], boxes[c, 1] + 1):
-                lo = -np.inf
-                hi = np.inf
-                for j in range(4):
-                    cxr = (u - 0.5 + (j & 1) - cx) / fx
-                    cyr = (v - 0.5 + (j >> 1) - cy) / fy
-                    a, b = _ray_capsule(cxr, cyr, caps[c])
-                    lo = max(lo, a)
-                    hi = min(hi, b)
-                    if lo > hi:
-                        break
+        u0 = boxes[c, 0]
+        u1 = boxes[c, 1]
+        v0 = boxes[c, 2]
+        v1 = boxes[c, 3]
+        if u0 > u1 or v0 > v1:
+            continue
+        mx = 0.5 * (caps[c, 0] + caps[c, 3])
+        my = 0.5 * (caps[c, 1] + caps[c, 4])
+        mz = 0.5 * (caps[c, 2] + caps[c, 5])
+        ex = caps[c, 3] - caps[c, 0]
+        ey = caps[c, 4] - caps[c, 1]
+        ez = caps[c, 5] - caps[c, 2]
+        rb = (0.5 * math.sqrt(ex * ex + ey * ey + ez * ez) + caps[c, 6]) * (1.0 + 1e-6) + 1e-9
+        rb2 = rb * rb
+        mm = mx * mx + my * my + mz * mz
+        ax = caps[c, 0]
+        ay = caps[c, 1]
+        az = caps[c, 2]
+        rc = caps[c, 6] * (1.0 + 1e-6) + 1e-9
+        rc2 = rc * rc
+        for v in range(v0, v1 + 1):
+            cyr = (v - cy) / fy
+            for u in range(u0, u1 + 1):
+                cxr = (u - cx) / fx
+                rr = cxr * cxr + cyr * cyr + 1.0
+                cm = cxr * mx + cyr * my + mz
+                nx = cyr * ez - ey
+                ny = ex - cxr * ez
+                nz = cxr * ey - cyr * ex
+                an = ax * nx + ay * ny + az * nz
+                if mm - cm * cm / rr > rb2 or an * an > rc2 * (nx * nx + ny * ny + nz * nz):
+                    continue
+                lo, hi = _ray_capsule(cxr, cyr, caps[c])
                 if lo > hi:
                     continue
                 n = out_n[v, u]
@@ -457,6 +482,51 @@ def capsule_intervals(caps, ncaps, boxes, fx, fy, cx, cy, H, W, out_lo, out_hi, 
                     out_lo[v, u, n] = lo
                     out_hi[v, u, n] = hi
                 out_n[v, u] = min(n + 1, MAX_CAPS_PER_PIXEL + 1)
+
+
+@njit(cache=True)
+def capsule_boxes(caps, ncaps, fx, fy, cx, cy, H, W, out):
+    """(ncaps, 4) int64 written into ``out``: the inclusive pixel box ``u0, u1, v0, v1`` holding
+    each capsule's projection (principal frame capsules): the projected corners of its
+    axis-aligned bounding box, plus a pixel; the whole image when a corner has ``z <= 1e-6``."""
+    for i in range(ncaps):
+        full = False
+        pumin = np.inf
+        pumax = -np.inf
+        pvmin = np.inf
+        pvmax = -np.inf
+        lx = min(caps[i, 0], caps[i, 3]) - caps[i, 6]
+        hx = max(caps[i, 0], caps[i, 3]) + caps[i, 6]
+        ly = min(caps[i, 1], caps[i, 4]) - caps[i, 6]
+        hy = max(caps[i, 1], caps[i, 4]) + caps[i, 6]
+        lz = min(caps[i, 2], caps[i, 5]) - caps[i, 6]
+        hz = max(caps[i, 2], caps[i, 5]) + caps[i, 6]
+        for j in range(8):
+            sx = 1.0 if (j >> 2) & 1 else -1.0
+            sy = 1.0 if (j >> 1) & 1 else -1.0
+            sz = 1.0 if j & 1 else -1.0
+            c0 = (lx + hx) / 2 + sx * (hx - lx) / 2
+            c1 = (ly + hy) / 2 + sy * (hy - ly) / 2
+            c2 = (lz + hz) / 2 + sz * (hz - lz) / 2
+            if c2 <= 1e-6:
+                full = True
+                break
+            pu = c0 * fx / c2 + cx
+            pv = c1 * fy / c2 + cy
+            pumin = min(pumin, pu)
+            pumax = max(pumax, pu)
+            pvmin = min(pvmin, pv)
+            pvmax = max(pvmax, pv)
+        if full:
+            out[i, 0] = 0
+            out[i, 1] = W - 1
+            out[i, 2] = 0
+            out[i, 3] = H - 1
+            continue
+        out[i, 0] = max(int(math.floor(pumin + 0.5)) - 1, 0)
+        out[i, 1] = min(int(math.floor(pumax + 0.5)) + 1, W - 1)
+        out[i, 2] = max(int(math.floor(pvmin + 0.5)) - 1, 0)
+        out[i, 3] = min(int(math.floor(pvmax + 0.5)) + 1, H - 1)
 
 
 RUN_END = 1 << 30          # "to the end of the ray" in a run of cells
@@ -483,8 +553,9 @@ def tile_first_cells(runs, nruns, out):
 def _in_caps(cap_lo, cap_hi, ncp, v, u, d1, d2, caps, ncaps, fx, fy, cx, cy, g):
     if ncp > MAX_CAPS_PER_PIXEL:
         return cell_in_capsules(caps, ncaps, fx, fy, cx, cy, u, v, d1, d2)
+    dm = 0.5 * (d1 + d2)
     for j in range(ncp):
-        if cap_lo[v, u, j] <= d1 and d2 <= cap_hi[v, u, j]:
+        if cap_lo[v, u, j] <= dm <= cap_hi[v, u, j]:
             return True
     return False
 
@@ -1071,23 +1142,42 @@ def _fill_stretch(u, v, g0, g1, gs, direct, ncp, fx, fy, cx, cy, dmin, dd, kfree
                   kdims, rays, origins, kint, nk, caps, ncaps, cap_lo, cap_hi, band, obits, cbits):
     """Classify slices ``g0..g1`` (inside ``0..n_d-1``, all ``>= gs``) of column ``(u, v)``
     by the rule of :func:`column_runs` and set their bits."""
-    known_until = g0 - 1
     known_obst = False
     span_next = 64
     sec_g = g0 - 1
     sec = (False, 0.0, 0.0, 0.0, 0.0, 0.0, 0.0)
-    for g in range(g0, g1 + 1):
+    g = g0
+    while g <= g1:
         d1 = dmin + g * dd
         d2 = d1 + dd
         incap = ncaps > 0 and _in_caps(cap_lo, cap_hi, ncp, v, u, d1, d2, caps, ncaps, fx, fy, cx, cy, g)
+        if incap and ncp <= MAX_CAPS_PER_PIXEL:
+            # slices g..h inside an interval holding g: d1 only grows, so inside while d2 <= hi
+            h = g
+            for j in range(ncp):
+                lo = cap_lo[v, u, j]
+                hi = cap_hi[v, u, j]
+                if not (lo <= d1 and d2 <= hi):
+                    continue
+                if dmin + g1 * dd + dd <= hi:
+                    hj = g1
+                else:
+                    hj = min(max(int(math.floor((hi - dmin) / dd)) - 1, g), g1)
+                    while hj > g and not (dmin + hj * dd + dd <= hi):
+                        hj -= 1
+                    while hj < g1 and dmin + (hj + 1) * dd + dd <= hi:
+                        hj += 1
+                h = max(h, hj)
+            for w in range(g >> 6, (h >> 6) + 1):
+                cbits[v, u, w] = cbits[v, u, w] | _mask_range(w, g, h)
+            g = h + 1
+            continue
         if incap:
             obst = False
         elif g == gs and direct:
             obst = True
         elif nk == 0 or g < band[v, u, 0] or g > band[v, u, 1]:
             obst = True
-        elif g <= known_until:
-            obst = known_obst
         else:
             e = min(g1, band[v, u, 1])
             for j in range(min(ncp, MAX_CAPS_PER_PIXEL)):
@@ -1098,33 +1188,40 @@ def _fill_stretch(u, v, g0, g1, gs, direct, ncp, fx, fy, cx, cy, dmin, dd, kfree
             span = min(span_next, e - g + 1)
             settled = False
             if span > 1:
-                da = d1
-                db = dmin + (g + span) * dd
-                if _range_cleared(kpmin, koff, kdims, rays, origins, kint, nk, u, v, da, db):
-                    known_obst = False
-                    settled = True
-                elif _range_confirmed(kpmax, koff, kdims, rays, origins, kint, nk, u, v, da, db):
-                    known_obst = True
+                r = _range_settled(kpmin, kpmax, koff, kdims, rays, origins, kint, nk, u, v, d1,
+                                   dmin + (g + span) * dd)
+                if r != 0:
+                    known_obst = r == 2
                     settled = True
             if settled:
+                # every slice of the settled stretch g..g+span-1 gets known_obst: none of
+                # them is inside a capsule (a capsule starting after g ends the stretch
+                # before it; one started at or before g ends before d2, so before every
+                # later slice), none is r(df) (< g) and all are inside the band
                 known_until = g + span - 1
                 span_next = min(2 * span, 256)
-                obst = known_obst
+                for w in range(g >> 6, (known_until >> 6) + 1):
+                    m = _mask_range(w, g, known_until)
+                    cbits[v, u, w] = cbits[v, u, w] | m
+                    if known_obst:
+                        obits[v, u, w] = obits[v, u, w] | m
+                g = known_until + 1
+                continue
+            span_next = max(span // 4, 1) if span > 1 else min(span_next * 2, 8)
+            if nk == 1:
+                s1 = sec if sec_g == g else _section(rays, origins, kint, 0, u, v, d1)
+                s2 = _section(rays, origins, kint, 0, u, v, d2)
+                sec = s2
+                sec_g = g + 1
+                obst = not _cleared_by_sections(kfree, kint, 0, s1, s2)
             else:
-                span_next = max(span // 4, 1) if span > 1 else min(span_next * 2, 8)
-                if nk == 1:
-                    s1 = sec if sec_g == g else _section(rays, origins, kint, 0, u, v, d1)
-                    s2 = _section(rays, origins, kint, 0, u, v, d2)
-                    sec = s2
-                    sec_g = g + 1
-                    obst = not _cleared_by_sections(kfree, kint, 0, s1, s2)
-                else:
-                    obst = not cell_cleared(kfree, rays, origins, kint, nk, u, v, d1, d2)
+                obst = not cell_cleared(kfree, rays, origins, kint, nk, u, v, d1, d2)
         w = g >> 6
         b = _ONE << np.uint64(g & 63)
         cbits[v, u, w] = cbits[v, u, w] | b
         if obst:
             obits[v, u, w] = obits[v, u, w] | b
+        g += 1
 
 
 @njit(cache=True, inline="always")
@@ -1167,20 +1264,40 @@ def _ensure_pixel(u, v, ga, gb, gs, direct, ncp, fx, fy, cx, cy, dmin, dd, kfree
         return
     g = ga
     while g <= gb:
-        if _bit(cbits, v, u, g) != np.uint64(0):
-            g += 1
-            continue
-        e = g
-        while e + 1 <= gb and _bit(cbits, v, u, e + 1) == np.uint64(0):
-            e += 1
+        g = _lowest_stop(cbits, cbits, v, u, g, gb, False)      # next unclassified slice
+        if g < 0:
+            break
+        e = _lowest_bit(cbits, v, u, g, gb)                    # next classified one after it
+        e = gb if e < 0 else e - 1
         _fill_stretch(u, v, g, e, gs, direct, ncp, fx, fy, cx, cy, dmin, dd, kfree, kpmin, kpmax, koff,
                       kdims, rays, origins, kint, nk, caps, ncaps, cap_lo, cap_hi, band, obits, cbits)
         g = e + 1
-    h = clear[v, u] + 1
     hmax = obits.shape[2] * 64          # slices past n_d are never classified
-    while h < hmax and _bit(cbits, v, u, h) != np.uint64(0) and _bit(obits, v, u, h) == np.uint64(0):
-        h += 1
+    h = clear[v, u] + 1
+    if h < hmax:
+        # first slice from h on that is unclassified or an obstacle
+        h = _lowest_stop(cbits, obits, v, u, h, hmax - 1, True)
+        if h < 0:
+            h = hmax
     clear[v, u] = h - 1
+
+
+@njit(cache=True)
+def _lowest_stop(cbits, obits, v, u, lo, hi, with_obst):
+    """Smallest slice in ``lo..hi`` (inside the bit words) whose ``cbits`` bit is clear or,
+    with ``with_obst``, whose ``obits`` bit is set; -1 if none."""
+    if lo > hi:
+        return -1
+    w = lo >> 6
+    while w <= (hi >> 6):
+        x = ~cbits[v, u, w]
+        if with_obst:
+            x = x | obits[v, u, w]
+        x = x & _mask_range(w, lo, hi)
+        if x != np.uint64(0):
+            return w * 64 + _msb(x & (~x + _ONE))
+        w += 1
+    return -1
 
 
 @njit(cache=True, parallel=True)

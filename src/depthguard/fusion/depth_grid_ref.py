@@ -145,7 +145,7 @@ def grid_distances_numpy(principal: Camera, others: list[Camera], pfree, pkind, 
     * a gray cell (behind the surface, or from ``r(dr)`` / ``r(min_range)`` on
       for a robot / invalid pixel) — obstacle unless another camera clears it
       (outside the grid: never cleared);
-    * cells inside a padded robot capsule (all 8 corners, ``Capsule.sdf``) — never.
+    * cells whose centre lies inside a padded robot capsule (``Capsule.sdf``) — never.
 
     Per pixel the nearest obstacle cell by the R10 distance (R3, R10, R5),
     then R7 over the pixels with ``D <= rho``.
@@ -197,10 +197,11 @@ def grid_distances_numpy(principal: Camera, others: list[Camera], pfree, pkind, 
                                            d1[check], d2[check])
         obst = cand & (direct | ~cleared)
         if capsules and obst.any():
-            corners = cell_corners_world(principal, U[obst], V[obst], d1[obst], d2[obst])
-            inside = np.zeros(corners.shape[0], dtype=bool)
+            centres = principal.depth_space_to_world(
+                np.stack([U[obst], V[obst], 0.5 * (d1[obst] + d2[obst])], axis=1).astype(np.float64))
+            inside = np.zeros(len(centres), dtype=bool)
             for cap in capsules:
-                inside |= np.all(cap.sdf(corners.reshape(-1, 3)).reshape(-1, 8) <= 0.0, axis=1)
+                inside |= cap.sdf(centres) <= 0.0
             obst[obst] = ~inside
         fo = np.where(obst, f, np.inf)
         gi = np.argmin(fo, axis=2)                                 # nearest cell per pixel

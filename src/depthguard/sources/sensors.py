@@ -18,7 +18,7 @@ __all__ = ["SensorModel", "SENSOR_MODELS", "sensor_model", "intrinsics_for"]
 class SensorModel:
     name: str
     resolutions: tuple[tuple[int, int], ...]   # (width, height), first = default
-    hfov_deg: float
+    hfov_deg: float           # nominal field of view (data sheet), degrees
     vfov_deg: float
     min_range: float
     max_range: float
@@ -31,7 +31,15 @@ class SensorModel:
     edge_dropout: float = 0.0 # probability of a missing return at a depth edge
     flying_pixels: bool = False
     flying_fraction: float = 0.0  # share of the edge pixels between two surfaces that fly (ToF)
+    focal_px: tuple[float, ...] = ()   # focal length (pixels, fx = fy) per resolution; () = from hfov
     description: str = ""
+
+    def __post_init__(self):
+        if self.focal_px and len(self.focal_px) != len(self.resolutions):
+            raise ValueError(f"sensor {self.name!r}: focal_px needs one value per resolution "
+                             f"({len(self.resolutions)}), got {len(self.focal_px)}")
+        if any(not (f > 0) for f in self.focal_px):
+            raise ValueError(f"sensor {self.name!r}: focal_px must be > 0 (got {self.focal_px})")
 
 
 SENSOR_MODELS: dict[str, SensorModel] = {
@@ -41,14 +49,19 @@ SENSOR_MODELS: dict[str, SensorModel] = {
                     description="noiseless pinhole: exact rendered depth within range"),
         SensorModel("kinect_v1", ((640, 480),), 57.0, 43.0, 0.4, 4.0, "structured_light",
                     sigma_a=0.0, sigma_z2=0.0012, disparity_bits=3, baseline=0.075, edge_dropout=0.3,
-                    description="Microsoft Kinect v1: 640x480, 57x43 deg, 0.4-4 m, disparity quantised to 1/8 px, "
-                                "noise growing with z^2"),
+                    focal_px=(585.0,),
+                    description="Microsoft Kinect v1: 640x480, f = 585 px (57.4x44.6 deg; data sheet 57x43), "
+                                "0.4-4 m, disparity quantised to 1/8 px, noise growing with z^2"),
         SensorModel("realsense_d435", ((640, 480), (424, 240), (1280, 720)), 87.0, 58.0, 0.2, 6.0, "stereo",
                     sigma_a=0.0005, sigma_z2=0.002, baseline=0.05, edge_dropout=0.2,
-                    description="Intel RealSense D435: 87x58 deg, 0.2-6 m (~10 m max), noise proportional to z^2"),
+                    focal_px=(385.0, 212.0, 640.0),
+                    description="Intel RealSense D435 depth: f = 640 px at 1280x720 (90x59 deg; data sheet "
+                                "87x58), 212 px at 424x240, 385 px at 640x480 (a 4:3 crop, 80x64 deg); "
+                                "0.2-6 m, noise proportional to z^2"),
         SensorModel("tof", ((320, 240), (640, 480)), 70.0, 55.0, 0.3, 8.0, "tof",
                     sigma_a=0.01, flying_pixels=True, flying_fraction=0.5, edge_dropout=0.05,
-                    description="generic time-of-flight: sigma about 1 cm, flying pixels at depth edges"),
+                    description="generic time-of-flight: 70 deg horizontal (square pixels, 55 deg vertical), "
+                                "sigma about 1 cm, flying pixels at depth edges"),
     )
 }
 
@@ -64,8 +77,10 @@ def sensor_model(name: str) -> SensorModel:
 def intrinsics_for(name: str, width: int | None = None, height: int | None = None) -> dict:
     """``width, height, fx, fy, cx, cy, min_range, max_range`` of a sensor preset.
 
-    Focal lengths come from the field of view: ``fx = (W/2) / tan(hfov/2)``;
-    the principal point is the image centre ``((W-1)/2, (H-1)/2)``.
+    Square pixels, as on real depth sensors: ``fx = fy`` = the preset's focal
+    length for that mode (typical calibrated values), or ``(W/2) / tan(hfov/2)``
+    for presets without one; the vertical field of view follows from it. The
+    principal point is the image centre ``((W-1)/2, (H-1)/2)``.
     """
     m = sensor_model(name)
     if width is None and height is None:
@@ -75,7 +90,9 @@ def intrinsics_for(name: str, width: int | None = None, height: int | None = Non
     if (width, height) not in m.resolutions and m.kind != "ideal":
         res = ", ".join(f"{w}x{h}" for w, h in m.resolutions)
         raise ValueError(f"sensor {name!r} has no {width}x{height} mode; modes: {res}")
-    fx = (width / 2) / math.tan(math.radians(m.hfov_deg) / 2)
-    fy = (height / 2) / math.tan(math.radians(m.vfov_deg) / 2)
-    return dict(width=width, height=height, fx=fx, fy=fy, cx=(width - 1) / 2, cy=(height - 1) / 2,
+    if m.focal_px and (width, height) in m.resolutions:
+        f = float(m.focal_px[m.resolutions.index((width, height))])
+    else:
+        f = (width / 2) / math.tan(math.radians(m.hfov_deg) / 2)
+    return dict(width=width, height=height, fx=f, fy=f, cx=(width - 1) / 2, cy=(height - 1) / 2,
                 min_range=m.min_range, max_range=m.max_range)
