@@ -87,8 +87,8 @@ def demo(
 
     table = Table(title=f"depthguard demo: closed loop on flacco-cell (LWR, hexagon at 0.4 m/s, "
                         f"{'principal Kinect' if fusion == 'single' else 'two Kinects, depth grid'}, 500 Hz)")
-    for col in ("scenario", "min true dist [cm]", "collision", "EE RMS clear [mm]", "EE RMS all [mm]",
-                "max repulsion [m/s]", "min task scale", "safe stops", "avoidance [Hz]", "real-time factor"):
+    for col in ("scenario", "min dist\n(cm)", "collision", "EE RMS\nclear (mm)", "EE RMS\nall (mm)",
+                "max rep.\n(m/s)", "min task\nscale", "safe\nstops", "avoidance\n(Hz)", "real-time\nfactor"):
         table.add_column(col, overflow="fold")
     for s in summaries:
         rms = s["ee_tracking_rms_m"]
@@ -99,7 +99,10 @@ def demo(
                       f"{s['ee_max_repulsion_m_s']:.2f}", f"{s['min_task_scale']:.2f}",
                       str(len(s["safe_stops"])), f"{s['avoidance_rate_hz']:.0f}",
                       f"{s['real_time_factor']:.2f} (system {s['real_time_factor_system']:.2f})")
-    Console(width=170).print(table)
+    table.caption = ("min dist: true distance robot <-> people and props; EE RMS clear: tracking error while "
+                     "nothing is within rho; real-time factor: whole simulation (system: distances, robot "
+                     "removal and reaction only)")
+    Console(width=120).print(table)
     if sheets:
         render_contact_sheets(out / "cells", seed=seed, noiseless=noiseless, cells=["flacco-cell"])
     typer.echo(f"wrote {out}/<scenario>/summary.json, ee_path.png, distances.png, repulsion.png, snapshots.png")
