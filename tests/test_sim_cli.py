@@ -66,3 +66,24 @@ def test_colorize_depth_marks_invalid_black_and_orders_near_far():
     assert (rgb[0, 0] == 0).all() and (rgb[0, 3] == 0).all()
     near, far = rgb[0, 1], rgb[0, 2]
     assert near[0] > near[2] and far[2] > far[0]  # near is warm (red), far is cold (blue)
+
+
+def test_demo_summary_table_flags_collisions_and_missing_rms():
+    """The demo's table says YES for a collision and n/a where the EE was never clear."""
+    from rich.console import Console
+
+    from depthguard.cli.demo import summary_table
+
+    base = dict(min_true_distance_m=0.05, ee_tracking_rms_all_m=0.01, ee_max_repulsion_m_s=0.5,
+                min_task_scale=1.0, safe_stops=[], avoidance_rate_hz=300.0, real_time_factor=0.4,
+                real_time_factor_system=0.7)
+    rows = [dict(base, scenario="ok", collision=False, ee_tracking_rms_m=0.0042, min_true_distance_dynamic_m=0.154),
+            dict(base, scenario="bad", collision=True, ee_tracking_rms_m=None,
+                 safe_stops=[{"reason": "stale"}])]
+    con = Console(width=120, record=True, force_terminal=False)
+    con.print(summary_table(rows))
+    text = con.export_text()
+    ok_line = next(l for l in text.splitlines() if "│ ok" in l)
+    bad_line = next(l for l in text.splitlines() if "│ bad" in l)
+    assert "15.4" in ok_line and "4.20" in ok_line and " no " in ok_line
+    assert "YES" in bad_line and "n/a" in bad_line and "5.0" in bad_line

@@ -51,6 +51,30 @@ def _fmt_cm(x):
     return "n/a" if x is None else f"{x * 100:.1f}"
 
 
+def summary_table(summaries: list[dict], fusion: str = "grid"):
+    """The demo's rich table from the scenarios' summaries (as in OUT/summary.json)."""
+    from rich.table import Table
+
+    table = Table(title=f"depthguard demo: closed loop on flacco-cell (LWR, hexagon at 0.4 m/s, "
+                        f"{'principal Kinect' if fusion == 'single' else 'two Kinects, depth grid'}, 500 Hz)")
+    for col in ("scenario", "min dist\n(cm)", "collision", "EE RMS\nclear (mm)", "EE RMS\nall (mm)",
+                "max rep.\n(m/s)", "min task\nscale", "safe\nstops", "avoidance\n(Hz)", "RTF", "RTF\nsystem"):
+        table.add_column(col, overflow="fold")
+    for s in summaries:
+        rms = s["ee_tracking_rms_m"]
+        table.add_row(s["scenario"], _fmt_cm(s["min_true_distance_dynamic_m"] if "min_true_distance_dynamic_m" in s
+                                            else s["min_true_distance_m"]),
+                      "YES" if s["collision"] else "no",
+                      "n/a" if rms is None else f"{rms * 1000:.2f}", f"{s['ee_tracking_rms_all_m'] * 1000:.1f}",
+                      f"{s['ee_max_repulsion_m_s']:.2f}", f"{s['min_task_scale']:.2f}",
+                      str(len(s["safe_stops"])), f"{s['avoidance_rate_hz']:.0f}",
+                      f"{s['real_time_factor']:.2f}", f"{s['real_time_factor_system']:.2f}")
+    table.caption = ("min dist: true distance robot <-> people and props; EE RMS clear: tracking error while "
+                     "nothing is within rho; RTF: real-time factor (simulated s per wall s) of the whole "
+                     "simulation; RTF system: of distances, robot removal and reaction only")
+    return table
+
+
 @app.command()
 def demo(
     out: Path = typer.Option(Path("out/demo"), "--out", help="Output directory."),
@@ -61,7 +85,7 @@ def demo(
 ) -> None:
     """The closed-loop human-robot cell: scenarios reach and elbow on flacco-cell, a summary table, reports.
 
-    About two minutes on a 2-core machine. Each scenario writes
+    About a minute on a 2-core machine. Each scenario writes
     OUT/<scenario>/summary.json and plots (end-effector path, distances of
     every control point, repulsive velocity); OUT/summary.json holds both.
     """
@@ -85,24 +109,7 @@ def demo(
         summaries.append(s)
     (out / "summary.json").write_text(json.dumps(summaries, indent=2))
 
-    table = Table(title=f"depthguard demo: closed loop on flacco-cell (LWR, hexagon at 0.4 m/s, "
-                        f"{'principal Kinect' if fusion == 'single' else 'two Kinects, depth grid'}, 500 Hz)")
-    for col in ("scenario", "min dist\n(cm)", "collision", "EE RMS\nclear (mm)", "EE RMS\nall (mm)",
-                "max rep.\n(m/s)", "min task\nscale", "safe\nstops", "avoidance\n(Hz)", "real-time\nfactor"):
-        table.add_column(col, overflow="fold")
-    for s in summaries:
-        rms = s["ee_tracking_rms_m"]
-        table.add_row(s["scenario"], _fmt_cm(s["min_true_distance_dynamic_m"] if "min_true_distance_dynamic_m" in s
-                                            else s["min_true_distance_m"]),
-                      "YES" if s["collision"] else "no",
-                      "n/a" if rms is None else f"{rms * 1000:.2f}", f"{s['ee_tracking_rms_all_m'] * 1000:.1f}",
-                      f"{s['ee_max_repulsion_m_s']:.2f}", f"{s['min_task_scale']:.2f}",
-                      str(len(s["safe_stops"])), f"{s['avoidance_rate_hz']:.0f}",
-                      f"{s['real_time_factor']:.2f} (system {s['real_time_factor_system']:.2f})")
-    table.caption = ("min dist: true distance robot <-> people and props; EE RMS clear: tracking error while "
-                     "nothing is within rho; real-time factor: whole simulation (system: distances, robot "
-                     "removal and reaction only)")
-    Console(width=120).print(table)
+    Console(width=120).print(summary_table(summaries, fusion))
     if sheets:
         render_contact_sheets(out / "cells", seed=seed, noiseless=noiseless, cells=["flacco-cell"])
     typer.echo(f"wrote {out}/<scenario>/summary.json, ee_path.png, distances.png, repulsion.png, snapshots.png")
