@@ -14,7 +14,17 @@ import math
 import numpy as np
 from numba import njit
 
-__all__ = ["surveillance_window", "ball_row_span", "paper_window"]
+__all__ = ["surveillance_window", "ball_row_span", "paper_window", "grow_pixel_box"]
+
+
+@njit(cache=True, inline="always")
+def grow_pixel_box(X, Y, Z, fx, fy, cx, cy, umin, umax, vmin, vmax):
+    """Project the camera-frame point ``(X, Y, Z)`` (``Z > 0``, m) with the pinhole
+    ``fx, fy, cx, cy`` (R1) and return the sub-pixel box ``(umin, umax, vmin, vmax)``
+    grown to hold it (start from ``inf, -inf, inf, -inf``)."""
+    pu = X * fx / Z + cx
+    pv = Y * fy / Z + cy
+    return min(umin, pu), max(umax, pu), min(vmin, pv), max(vmax, pv)
 
 
 @njit(cache=True)

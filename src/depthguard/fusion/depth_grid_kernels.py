@@ -47,7 +47,7 @@ import math
 import numpy as np
 from numba import njit, prange
 
-from depthguard.distance.window import surveillance_window
+from depthguard.distance.window import grow_pixel_box, surveillance_window
 
 __all__ = [
     "D_ZERO", "KIND_SURFACE", "KIND_ROBOT", "KIND_UNKNOWN", "METHOD_MIN", "METHOD_MEAN", "METHOD_HYBRID",
@@ -227,12 +227,7 @@ def cell_footprint(rays, origins, kint, k, gx, gy, d1, d2):
             if not (Z >= rmin and Z <= rmax):
                 seen = False
                 continue
-            pu = X * fx / Z + cx
-            pv = Y * fy / Z + cy
-            pumin = min(pumin, pu)
-            pumax = max(pumax, pu)
-            pvmin = min(pvmin, pv)
-            pvmax = max(pvmax, pv)
+            pumin, pumax, pvmin, pvmax = grow_pixel_box(X, Y, Z, fx, fy, cx, cy, pumin, pumax, pvmin, pvmax)
     if not seen:
         return False, 0, -1, 0, -1, zmin, zmax
     if not (pumin >= -0.5 and pumax < W - 0.5 and pvmin >= -0.5 and pvmax < H - 0.5):
@@ -511,12 +506,7 @@ def capsule_boxes(caps, ncaps, fx, fy, cx, cy, H, W, out):
             if c2 <= 1e-6:
                 full = True
                 break
-            pu = c0 * fx / c2 + cx
-            pv = c1 * fy / c2 + cy
-            pumin = min(pumin, pu)
-            pumax = max(pumax, pu)
-            pvmin = min(pvmin, pv)
-            pvmax = max(pvmax, pv)
+            pumin, pumax, pvmin, pvmax = grow_pixel_box(c0, c1, c2, fx, fy, cx, cy, pumin, pumax, pvmin, pvmax)
         if full:
             out[i, 0] = 0
             out[i, 1] = W - 1
@@ -591,12 +581,7 @@ def _section(rays, origins, kint, k, gx, gy, d):
         if not (Z >= rmin and Z <= rmax):
             ok = False
             continue
-        pu = X * fx / Z + cx
-        pv = Y * fy / Z + cy
-        pumin = min(pumin, pu)
-        pumax = max(pumax, pu)
-        pvmin = min(pvmin, pv)
-        pvmax = max(pvmax, pv)
+        pumin, pumax, pvmin, pvmax = grow_pixel_box(X, Y, Z, fx, fy, cx, cy, pumin, pumax, pvmin, pvmax)
     return ok, pumin, pumax, pvmin, pvmax, zmin, zmax
 
 

@@ -26,6 +26,8 @@ import math
 import numba as nb
 import numpy as np
 
+from depthguard.distance.window import grow_pixel_box
+
 __all__ = [
     "filter_voxelize", "filter_voxelize_numpy", "keep_mask_numpy", "combine_expected_numpy", "density_max_count",
     "vote_free", "vote_free_numpy",
@@ -224,12 +226,7 @@ def vote_free(lows, voxel_size, depths, cams, margin, footprint, out_free):
                 if z <= 0.0:
                     behind = True
                     break
-                pu = x * fx / z + cx
-                pv = y * fy / z + cy
-                umin = min(umin, pu)
-                umax = max(umax, pu)
-                vmin = min(vmin, pv)
-                vmax = max(vmax, pv)
+                umin, umax, vmin, vmax = grow_pixel_box(x, y, z, fx, fy, cx, cy, umin, umax, vmin, vmax)
                 zmax = max(zmax, z)
             if behind:
                 continue
