@@ -199,12 +199,15 @@ def test_accumulate_keeps_free_until_reset():
     assert fs.occupied.all()
 
 
-@pytest.mark.parametrize("full", [False, True])
+@pytest.mark.parametrize("full,background", [(False, False), (True, False), (False, True)])
 @pytest.mark.parametrize("depth_test", ["centre", "extent"])
-def test_kernel_matches_numpy_twin(full, depth_test):
+def test_kernel_matches_numpy_twin(full, background, depth_test):
     rng = np.random.default_rng(3)
     cams = four_cams()
-    fs = FreeSpaceMap(cams, bounds=(LO, HI), voxel_size=S, margin=0.02,
+    # with a background the box reaches into the floor: voxels inside the shell exist
+    # (5 cm voxels: centres 2.5 cm above the floor, where noise puts the floor inside them)
+    lo = LO - np.array([0.0, 0.0, 0.2]) if background else LO
+    fs = FreeSpaceMap(cams, bounds=(lo, HI), voxel_size=S / 2 if background else S, margin=0.02,
                       footprint="full" if full else "centre", depth_test=depth_test)
     boxes = [BOX, ((0.4, -0.8, 0.0), (0.7, -0.5, 1.1)), FLOOR]
     imgs = []
@@ -214,17 +217,91 @@ def test_kernel_matches_numpy_twin(full, depth_test):
         d[rng.random(d.shape) < 0.05] = 0.0
         d[rng.random(d.shape) < 0.01] = np.nan
         imgs.append(d)
+    if background:
+        bgs = {c.id: floor_background(c) for c in cams}
+        bgs["c3"] = bgs["c3"].copy()
+        bgs["c3"][:, :40] = 0.0          # part of one image without a background
+        fs.set_background(bgs, tolerance=0.05)
     occ = fs.update({c.id: d for c, d in zip(cams, imgs)}).ravel().copy()
+    kw = fs.background_twin_args()
+    assert bool(kw) == background
     ref = free_space_update_numpy(imgs, fs.grid.size, *fs.twin_args(), fs.margin, fs.min_free_views,
-                                  full=full)
+                                  full=full, **kw)
     assert np.array_equal(occ, ref)
     # the rule is exercised both ways: some voxels freed with a surface seen (>= 3 free views)
-    nf, ns = voxel_counts_numpy(imgs, fs.grid.size, *fs.twin_args(), fs.margin, full)
+    nf, ns = voxel_counts_numpy(imgs, fs.grid.size, *fs.twin_args(), fs.margin, full, **kw)
     knf, kns = fs.counts()
     assert np.array_equal(knf.ravel(), nf) and np.array_equal(kns.ravel(), ns)
     assert ((nf >= 1) & (nf < 3) & (ns >= 1)).any() and (nf >= 1).sum() > 500
     if not full:
         assert ((nf >= 3) & (ns >= 1)).any()
+    if background:
+        # the background changed the counts: shell matches dropped; never a free view more
+        nf0, ns0 = voxel_counts_numpy(imgs, fs.grid.size, *fs.twin_args(), fs.margin, full)
+        assert (ns < ns0).sum() > 100 and (nf <= nf0).all()
+        # and removing it restores the plain rule exactly
+        fs.set_background(None)
+        occ0 = fs.update({c.id: d for c, d in zip(cams, imgs)}).ravel().copy()
+        assert np.array_equal(occ0, free_space_update_numpy(imgs, fs.grid.size, *fs.twin_args(), fs.margin,
+                                                            fs.min_free_views, full=full))
+
+
+def floor_background(cam: Camera) -> np.ndarray:
+    """Expected depth of the known shell (the floor slab), rendered with the project's renderer."""
+    from depthguard.render import render_depth
+    return render_depth(cam, [trimesh.creation.box(bounds=np.array(FLOOR, float))])
+
+
+def test_background_frees_the_layer_on_the_floor_and_keeps_what_is_on_or_in_it():
+    # 5 cm voxels, the box reaching 10 cm into the floor slab: layers k = 0, 1 lie inside the
+    # floor, k = 2 (centres 2.5 cm above it) is the free layer along the floor
+    cams = four_cams()
+    s = 0.05
+    lo = np.array([-1.0, -1.0, -0.1])
+    plain = FreeSpaceMap(cams, bounds=(lo, HI), voxel_size=s, margin=0.02)
+    shell = FreeSpaceMap(cams, bounds=(lo, HI), voxel_size=s, margin=0.02)
+    shell.set_background({c.id: floor_background(c) for c in cams}, tolerance=0.02 + 3 * 0.01)
+    # the background is the renderer's floor; the measurement (Embree) agrees with it
+    for c in cams:
+        e, b = embree_depth(c, [FLOOR]), floor_background(c)
+        both = (e > 0) & (b > 0)
+        assert both.mean() > 0.5 and np.percentile(np.abs(e - b)[both], 99) < 2e-3
+    ideal = {c.id: embree_depth(c, [BOX, FLOOR]) for c in cams}
+    truth = truth_occupied(plain.grid, [BOX, FLOOR])
+    c = plain.grid.centres()
+    gap = np.maximum(np.abs(c[:, :2]) - np.array([0.25, 0.2]), 0).max(axis=1).reshape(plain.shape)
+    layer = np.zeros(plain.shape, bool)
+    layer[:, :, 2] = True
+    layer &= (gap > 2 * s) & (plain.view_counts() >= 1)
+    assert layer.sum() > 500
+    rng = np.random.default_rng(11)
+    for trial in range(5):
+        depths = {k: (d + rng.normal(0, 0.01, d.shape).astype(np.float32) * (d > 0)) for k, d in ideal.items()}
+        occ_p = plain.update(depths).copy()
+        occ_s = shell.update(depths).copy()
+        # without the background the noise makes cameras measure the floor inside voxels of
+        # the layer on it: part of it stays occupied; with the background it is free
+        assert occ_p[layer].mean() > 0.02, trial
+        assert occ_s[layer].mean() < 0.1 * occ_p[layer].mean(), trial
+        # nothing that is truly occupied becomes free: the box's interior and the floor itself
+        assert occ_s[truth].all(), trial
+        assert occ_s[:, :, :2].all(), trial
+        # the background only ever frees more (never occupies what the plain rule frees)
+        assert not (occ_s & ~occ_p).any(), trial
+
+
+def test_background_bad_input():
+    cams = four_cams()
+    fs = FreeSpaceMap(cams, bounds=(LO, HI), voxel_size=S)
+    with pytest.raises(ValueError, match="unknown camera"):
+        fs.set_background({"nope": np.zeros((120, 160), np.float32)})
+    with pytest.raises(ValueError, match="shape"):
+        fs.set_background({"c0": np.zeros((10, 10), np.float32)})
+    with pytest.raises(ValueError, match="tolerance"):
+        fs.set_background({}, tolerance=-1.0)
+    full = FreeSpaceMap(cams, bounds=(LO, HI), voxel_size=S, footprint="full")
+    with pytest.raises(ValueError, match="footprint"):
+        full.set_background({})
 
 
 def test_full_footprint_catches_a_thin_pole_the_centre_rule_misses():

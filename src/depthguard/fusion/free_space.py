@@ -32,6 +32,36 @@ voxel (occlusion) never turns it back to occupied — that is the paper's
 "once free it cannot be set occluded by other cameras" — but a camera that
 sees a surface *in* the voxel does, unless three cameras overrule it.
 
+**A known background** (the room's shell: floor, walls, ceiling — what a real
+cell knows exactly and never moves): :meth:`FreeSpaceMap.set_background`
+takes, once, per camera the expected depth ``B`` of that shell at each pixel
+(rendered with :func:`depthguard.render.render_depth`, 0 = nothing) and a
+tolerance ``t``. Then, per camera and voxel (centre depth ``z_c``):
+
+- a measurement matching the shell, ``|d - B| <= t``, is the shell, not a
+  surface *in* the voxel: the camera sees the voxel free if ``d > z_c +
+  margin`` (as before), otherwise it says nothing (instead of "surface");
+- a camera only does so, and only ever sees a voxel free, when the voxel's
+  centre lies in front of the shell at its pixel (``z_c < B``): a voxel whose
+  centre is behind (inside) the shell keeps every surface view it had without
+  a background and gets no free view from such a camera (a measurement beyond
+  its centre is noise there and counts as a surface), so the background never
+  frees it. (``B`` is read at the pixel under the voxel centre: for a
+  centre less than about half a pixel footprint inside the shell, a camera at a
+  grazing angle can still place it in front — as it could without a background.)
+
+Everything else is unchanged. Without it, the noise (sigma 1 cm for ToF)
+makes some camera measure the floor or a wall *inside* the voxels along it,
+so that layer needs three free views; with it one free view and no other
+surface suffice. Choose ``t`` as margin + a few sigma (the reproduction uses
+2 cm + 3 x 1 cm = 5 cm), like the offset of the per-camera filter (R17).
+**Safety consequence:** anything within ``t`` in front of the shell (a hand
+flat on a wall, a foot on the floor) is taken as the shell — the same
+trade-off as the R17 filter's offset: such a voxel is still never freed by a
+camera that measures it in front of its centre, but it no longer counts as a
+surface against other cameras' free views. Only ``footprint="centre"``
+supports a background.
+
 **Over time.** By default every :meth:`FreeSpaceMap.update` starts again from
 "all occupied": the map is a snapshot of the frames given, so a person who
 walks into space that was free is an obstacle in the next update (a sticky
@@ -247,6 +277,9 @@ class FreeSpaceMap:
         self._ns = np.zeros(n, dtype=np.uint8)
         self._free = np.zeros(n, dtype=bool)
         self._occ = np.ones(n, dtype=bool)
+        self._bg = np.zeros(int(sizes.sum()), dtype=np.float32)   # known shell depth, 0 = none
+        self._use_bg = False
+        self.background_tolerance = 0.0
         self.machine = np.zeros(self.grid.shape, dtype=bool)
 
     # ------------------------------------------------------------------ model
@@ -338,6 +371,57 @@ class FreeSpaceMap:
             d = check_depth_image(cam, img)
             np.copyto(seg.reshape(cam.height, cam.width), d, casting="unsafe")
 
+    def set_background(self, backgrounds: Mapping[str, np.ndarray] | None, tolerance: float = 0.05) -> None:
+        """Set (once; the shell never moves) the expected depth of the known static shell.
+
+        Parameters
+        ----------
+        backgrounds : dict camera id -> (H, W) expected depth in metres of the room's fixed
+            shell (floor, walls, ceiling), e.g. :func:`depthguard.render.render_depth` of its
+            meshes; 0 / NaN = nothing known at that pixel. Cameras left out have no
+            background. ``None`` removes the background (back to the plain rule).
+        tolerance : float, metres (default 0.05) — a measurement within this of the
+            background is the shell; margin + a few sigma of the depth noise (module docstring).
+
+        Every later :meth:`update` applies the background rule (module docstring).
+        """
+        if backgrounds is None:
+            self._bg.fill(0.0)
+            self._use_bg = False
+            self.background_tolerance = 0.0
+            return
+        if self.footprint != "centre":
+            raise ValueError("a background is supported only with footprint='centre'")
+        tol = float(tolerance)
+        if not (math.isfinite(tol) and tol >= 0):
+            raise ValueError(f"tolerance must be a finite number >= 0 metres (got {tolerance!r})")
+        if not isinstance(backgrounds, Mapping):
+            raise ValueError("backgrounds must be a dict camera id -> (H, W) expected depth image")
+        unknown = set(backgrounds) - set(self._ids)
+        if unknown:
+            raise ValueError(f"backgrounds has images for unknown camera ids {sorted(unknown)}; known: {self._ids}")
+        for ci, cam in enumerate(self.cameras):
+            seg = self._bg[self.offs[ci]: self.offs[ci] + cam.width * cam.height]
+            img = backgrounds.get(cam.id)
+            if img is None:
+                seg.fill(0.0)
+                continue
+            b = np.asarray(img, dtype=np.float32)
+            if b.shape != (cam.height, cam.width):
+                raise ValueError(f"background of camera {cam.id!r}: shape {b.shape}, expected "
+                                 f"{(cam.height, cam.width)}")
+            np.copyto(seg.reshape(cam.height, cam.width), np.where(np.isfinite(b) & (b > 0), b, 0.0))
+        self.background_tolerance = tol
+        self._use_bg = True
+
+    def background_twin_args(self) -> dict:
+        """Keyword arguments of the numpy twin for the current background (empty if none)."""
+        if not self._use_bg:
+            return {}
+        imgs = [self._bg[self.offs[ci]: self.offs[ci] + c.width * c.height].reshape(c.height, c.width)
+                for ci, c in enumerate(self.cameras)]
+        return {"background": imgs, "bg_tol": self.background_tolerance}
+
     def update(self, depths: Mapping[str, np.ndarray], accumulate: bool = False) -> np.ndarray:
         """R21: fuse one set of depth images into the map.
 
@@ -348,6 +432,8 @@ class FreeSpaceMap:
             cameras free them).
         accumulate : keep the voxels that were free since :meth:`reset` (static scene only).
 
+        With a background set (:meth:`set_background`) its rule applies.
+
         Returns
         -------
         occupied : (nx, ny, nz) bool view of the map's buffer (valid until the next update).
@@ -356,7 +442,7 @@ class FreeSpaceMap:
         self.machine[...] = False  # the machine moves: add its current volume after each update
         free_space_update(self._depth, self.offs, self.widths, self.heights, self.rmin, self.rmax,
                           self.vstart, self.chunk, self.vox, self.pix, self.zc, self.ru, self.rv,
-                          self.half, self.far,
+                          self.half, self.far, self._bg, self.background_tolerance, self._use_bg,
                           self.margin, self.min_free_views, self.footprint == "full", bool(accumulate),
                           self._nf, self._ns, self._free, self._occ)
         return self.occupied

@@ -27,6 +27,22 @@ Per camera, with ``d`` the measured depth (R21):
 - ``z_c - h_c <= d <= z_c + far_c + margin``: it sees a **surface** in the voxel;
 - ``d < z_c - h_c``: the voxel is hidden from that camera: no information.
 
+**Known background** (optional, ``use_bg``): ``bg`` is a second flat buffer
+laid out like ``depth``, the expected depth ``B`` of the known static shell
+(floor, walls, ceiling) at each pixel, 0 = nothing known. Where ``B > 0``:
+
+- a camera never sees **free** a voxel whose centre is not in front of the
+  shell at that pixel: free needs ``d > z_c + far_c + margin`` *and* ``z_c < B``
+  (a measurement beyond the centre of a voxel behind the shell is noise; it
+  counts as a surface);
+- a measurement that matches the shell, ``|d - B| <= bg_tol``, in a voxel
+  whose centre is in front of the shell (``z_c < B``) is the shell, not a
+  surface *in* the voxel: that camera says nothing (instead of "surface").
+
+Everything else is unchanged; with ``use_bg=False`` (or ``B = 0``) the rules
+above are exactly those without a background. Only the centre-pixel mode
+(``full=False``) supports a background.
+
 Combination over the cameras of one update: the voxel is free when
 ``n_free >= min_free_views`` or when ``n_free >= 1`` and no camera sees a
 surface in it (free once is free, but a seen surface needs
@@ -52,7 +68,7 @@ __all__ = ["free_space_update", "free_space_update_numpy", "voxel_counts_numpy"]
 
 @nb.njit(cache=True, parallel=True, nogil=True)
 def free_space_update(depth, offs, widths, heights, rmin, rmax, vstart, chunk, vox, pix, zc, ru, rv,
-                      half, far, margin, min_free_views, full, accumulate,
+                      half, far, bg, bg_tol, use_bg, margin, min_free_views, full, accumulate,
                       n_free, n_surf, free_state, occupied):
     """R21: one update of the free-space map, in place.
 
@@ -66,6 +82,9 @@ def free_space_update(depth, offs, widths, heights, rmin, rmax, vstart, chunk, v
         ``chunk[c, t] : chunk[c, t+1]``.
     vox, pix : (P,) int32; zc : (P,) float32; ru, rv : (P,) uint8;
     half, far : (C,) float64 — the model (module docstring).
+    bg : (sum H*W,) float32 — expected depth of the known shell, laid out like ``depth``, 0 = none;
+        read only when ``use_bg`` (centre-pixel mode only). bg_tol : float, metres — the
+        shell match ``|d - B| <= bg_tol`` (module docstring).
     margin : float, metres; min_free_views : int; full : bool.
     accumulate : bool — keep voxels that ``free_state`` already holds free.
     n_free, n_surf : (N,) uint8 — workspace, overwritten (cameras seeing free / a surface).
@@ -90,6 +109,20 @@ def free_space_update(depth, offs, widths, heights, rmin, rmax, vstart, chunk, v
             H = heights[c]
             off = offs[c]
             if not full:
+                if use_bg:
+                    for k in range(chunk[c, t], chunk[c, t + 1]):
+                        p = pix[k]
+                        d = depth[p]
+                        if d >= lo and d <= hi:
+                            z = zc[k]
+                            B = bg[p]
+                            front = B <= 0.0 or z < B   # centre in front of the known shell
+                            if d > z + f and front:
+                                n_free[vox[k]] += 1
+                            elif d >= z - h:
+                                if not (B > 0.0 and front and abs(np.float64(d) - np.float64(B)) <= bg_tol):
+                                    n_surf[vox[k]] += 1
+                    continue
                 for k in range(chunk[c, t], chunk[c, t + 1]):
                     d = depth[pix[k]]
                     if d >= lo and d <= hi:
@@ -132,11 +165,15 @@ def free_space_update(depth, offs, widths, heights, rmin, rmax, vstart, chunk, v
 
 # ----------------------------------------------------------------- numpy twins
 def voxel_counts_numpy(depths, n_voxels, rmin, rmax, start, vox, pix, offs, zc, ru, rv, half, far,
-                       margin, full):
+                       margin, full, background=None, bg_tol=0.0):
     """Plain-numpy twin of the per-camera tests: ``(n_free, n_surface)`` per voxel, (N,) each.
 
     ``depths`` is a list of (H, W) images in camera order; the model as in the kernel.
+    ``background``: optional list of (H, W) expected shell depths (0 = none) in camera
+    order, with the match tolerance ``bg_tol`` (centre-pixel mode only).
     """
+    if background is not None and full:
+        raise ValueError("a background is supported only with full=False (centre pixel)")
     n_free = np.zeros(n_voxels, dtype=np.int64)
     n_surf = np.zeros(n_voxels, dtype=np.int64)
     for c, img in enumerate(depths):
@@ -165,22 +202,30 @@ def voxel_counts_numpy(depths, n_voxels, rmin, rmax, start, vox, pix, offs, zc, 
             ok = valid_px.ravel()[q]
         z = zc[sl].astype(np.float64)
         d = d.astype(np.float64)
-        free = ok & (d > z + far[c] + margin)
-        surf = ok & ~free & (d >= z - half[c])
+        if background is None:
+            free = ok & (d > z + far[c] + margin)
+            surf = ok & ~free & (d >= z - half[c])
+        else:
+            B = np.asarray(background[c], dtype=np.float32).ravel()[q].astype(np.float64)
+            front = (B <= 0) | (z < B)
+            shell = (B > 0) & front & (np.abs(np.float64(d) - np.float64(B)) <= bg_tol)
+            free = ok & (d > z + far[c] + margin) & front
+            surf = ok & ~free & (d >= z - half[c]) & ~shell
         np.add.at(n_free, v_idx, free)
         np.add.at(n_surf, v_idx, surf)
     return n_free, n_surf
 
 
 def free_space_update_numpy(depths, n_voxels, rmin, rmax, start, vox, pix, offs, zc, ru, rv, half, far,
-                            margin, min_free_views, full=False, previous_free=None):
+                            margin, min_free_views, full=False, previous_free=None, background=None, bg_tol=0.0):
     """Plain-numpy twin of :func:`free_space_update`: (N,) bool ``occupied``.
 
     free = n_free >= min_free_views  or  (n_free >= 1 and n_surface == 0),
-    or'ed with ``previous_free`` when given (accumulation).
+    or'ed with ``previous_free`` when given (accumulation). ``background``, ``bg_tol``:
+    see :func:`voxel_counts_numpy`.
     """
     n_free, n_surf = voxel_counts_numpy(depths, n_voxels, rmin, rmax, start, vox, pix, offs, zc, ru, rv,
-                                        half, far, margin, full)
+                                        half, far, margin, full, background, bg_tol)
     free = (n_free >= min_free_views) | ((n_free >= 1) & (n_surf == 0))
     if previous_free is not None:
         free |= previous_free
