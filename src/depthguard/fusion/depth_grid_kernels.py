@@ -608,6 +608,19 @@ def _cleared_by_sections(kfree, kint, k, s1, s2):
     return True
 
 
+@njit(cache=True, inline="always")
+def _confirmed_cell(kfree, rays, origins, kint, nk, u, v, g, d1, d2, sec, sec_g):
+    """Is cell ``g`` (depths ``[d1, d2]``) of principal pixel ``(u, v)`` confirmed, i.e. not
+    cleared by the other cameras (R12)? Returns ``(obstacle, sec, sec_g)``: with one other
+    camera, consecutive cells share a cross-section, so the far one (``sec``, valid for cell
+    ``sec_g``) is kept and only 4 corners are projected per cell, not 8."""
+    if nk == 1:
+        s1 = sec if sec_g == g else _section(rays, origins, kint, 0, u, v, d1)
+        s2 = _section(rays, origins, kint, 0, u, v, d2)
+        return not _cleared_by_sections(kfree, kint, 0, s1, s2), s2, g + 1
+    return not cell_cleared(kfree, rays, origins, kint, nk, u, v, d1, d2), sec, sec_g
+
+
 @njit(cache=True, parallel=True)
 def column_runs(pfree, pkind, pint, dmin, dd, nd, kfree, kpmin, kpmax, koff, kdims, rays, origins,
                 kint, nk, caps, ncaps, cap_lo, cap_hi, cap_n, band, runs, nruns):
@@ -699,15 +712,8 @@ def column_runs(pfree, pkind, pint, dmin, dd, nd, kfree, kpmin, kpmax, koff, kdi
                         # one stretch test per miss, its length shrinking fast: the cost
                         # stays within a small factor of the cell-by-cell test
                         span_next = max(span // 4, 1) if span > 1 else min(span_next * 2, 8)
-                        if nk == 1:
-                            # consecutive cells share a cross-section: project 4 corners, not 8
-                            s1 = sec if sec_g == g else _section(rays, origins, kint, 0, u, v, d1)
-                            s2 = _section(rays, origins, kint, 0, u, v, d2)
-                            sec = s2
-                            sec_g = g + 1
-                            obst = not _cleared_by_sections(kfree, kint, 0, s1, s2)
-                        else:
-                            obst = not cell_cleared(kfree, rays, origins, kint, nk, u, v, d1, d2)
+                        obst, sec, sec_g = _confirmed_cell(kfree, rays, origins, kint, nk, u, v, g, d1, d2,
+                                                           sec, sec_g)
                 if obst:
                     if in_run:
                         runs[v, u, nr - 1, 1] = g
@@ -1193,14 +1199,7 @@ def _fill_stretch(u, v, g0, g1, gs, direct, ncp, fx, fy, cx, cy, dmin, dd, kfree
                 g = known_until + 1
                 continue
             span_next = max(span // 4, 1) if span > 1 else min(span_next * 2, 8)
-            if nk == 1:
-                s1 = sec if sec_g == g else _section(rays, origins, kint, 0, u, v, d1)
-                s2 = _section(rays, origins, kint, 0, u, v, d2)
-                sec = s2
-                sec_g = g + 1
-                obst = not _cleared_by_sections(kfree, kint, 0, s1, s2)
-            else:
-                obst = not cell_cleared(kfree, rays, origins, kint, nk, u, v, d1, d2)
+            obst, sec, sec_g = _confirmed_cell(kfree, rays, origins, kint, nk, u, v, g, d1, d2, sec, sec_g)
         w = g >> 6
         b = _ONE << np.uint64(g & 63)
         cbits[v, u, w] = cbits[v, u, w] | b
