@@ -68,6 +68,18 @@ def _eps(cam, points, rho, delta_d):
     return 2 * pix + np.sqrt(pix ** 2 + delta_d ** 2)
 
 
+def _with_robot(prims, cams):
+    """A "robot" of two capsule links through joints ``a, b, c``, rendered into every camera
+    with the scene (``depths``) and alone (``rdepths``, for R9 removal), and its padded
+    volume ``caps`` (R12)."""
+    a, b, c = np.array([-0.3, 0.5, -0.4]), np.array([0.2, 0.4, 0.5]), np.array([0.6, -0.1, 0.6])
+    links = [Capsule.between(a, b, 0.08), Capsule.between(b, c, 0.06)]
+    rdepths = {cam.id: render_depth(cam, [lk.mesh() for lk in links]) for cam in cams}
+    depths = {cam.id: render_depth(cam, [p.mesh() for p in prims] + [lk.mesh() for lk in links])
+              for cam in cams}
+    return a, b, c, depths, rdepths, [Capsule.between(a, b, 0.12), Capsule.between(b, c, 0.1)]
+
+
 def _twin(grid, depths, points, rho, method, robot_depths=None, capsules=None, invalid="unknown"):
     rd = robot_depths or {}
     pf, pk = ref.frame_state_numpy(grid.principal, depths[grid.principal.id], rd.get(grid.principal.id),
@@ -101,13 +113,7 @@ def test_grid_kernel_equals_numpy_twin(method, seed, n_cams):
     classified at once, no shortcut)."""
     rng = np.random.default_rng(seed)
     prims, cams, depths = _scene(rng, n_cams)
-    # a "robot": two capsules rendered into every camera and removed (R9), padded volume excluded
-    a, b, c = np.array([-0.3, 0.5, -0.4]), np.array([0.2, 0.4, 0.5]), np.array([0.6, -0.1, 0.6])
-    links = [Capsule.between(a, b, 0.08), Capsule.between(b, c, 0.06)]
-    rdepths = {cam.id: render_depth(cam, [lk.mesh() for lk in links]) for cam in cams}
-    depths = {cam.id: render_depth(cam, [p.mesh() for p in prims] + [lk.mesh() for lk in links])
-              for cam in cams}
-    caps = [Capsule.between(a, b, 0.12), Capsule.between(b, c, 0.1)]
+    a, b, c, depths, rdepths, caps = _with_robot(prims, cams)
     grid = DepthGridMap(cams, "c0", 1.0, 4.6, 0.03, cache=False)
     P = np.vstack([rng.uniform(-0.8, 0.8, (10, 3)), (a + b) / 2, b, (b + c) / 2, c])
     res = grid.distance(depths, P, 0.4, method, rdepths, robot_capsules=caps)
@@ -397,20 +403,14 @@ def test_lazy_columns_equal_eager_runs(seed, n_cams):
     thread (classify while looking up) and two (classify first), and after a new frame."""
     rng = np.random.default_rng(seed)
     prims, cams, depths = _scene(rng, n_cams)
-    a, b, c = np.array([-0.3, 0.5, -0.4]), np.array([0.2, 0.4, 0.5]), np.array([0.6, -0.1, 0.6])
-    links = [Capsule.between(a, b, 0.08), Capsule.between(b, c, 0.06)]
-    rdepths = {cam.id: render_depth(cam, [lk.mesh() for lk in links]) for cam in cams}
-    depths = {cam.id: render_depth(cam, [p.mesh() for p in prims] + [lk.mesh() for lk in links])
-              for cam in cams}
-    caps = [Capsule.between(a, b, 0.12), Capsule.between(b, c, 0.1)]
+    a, b, c, depths, rdepths, caps = _with_robot(prims, cams)
     lazy = DepthGridMap(cams, "c0", 1.0, 4.6, 0.03, cache=False)
     eager = DepthGridMap(cams, "c0", 1.0, 4.6, 0.03, cache=False)
     n_found = 0
     for frame in range(2):
         if frame == 1:                        # a new frame: one camera sees an extra sphere
-            extra = Sphere(radius=0.15, world_from_local=_T(*rng.uniform(-0.5, 0.5, 3))).mesh()
-            depths[cams[1].id] = render_depth(cams[1], [p.mesh() for p in prims] + [extra]
-                                              + [lk.mesh() for lk in links])
+            extra = Sphere(radius=0.15, world_from_local=_T(*rng.uniform(-0.5, 0.5, 3)))
+            depths[cams[1].id] = _with_robot(prims + [extra], cams[1:2])[3][cams[1].id]
         lazy.set_frames(depths, rdepths, robot_capsules=caps)
         eager.set_frames(depths, rdepths, robot_capsules=caps, lazy=False)
         assert lazy.lazy and not eager.lazy
