@@ -399,8 +399,9 @@ def test_property_random_scenes():
 def test_lazy_columns_equal_eager_runs(seed, n_cams):
     """The lazy per-frame work (cells classified on first use, memoised per pixel with a
     frame stamp) gives exactly the eager answer (every column's runs at set_frames), for
-    several queries within a frame (memo reused, new points needing new slices), on one
-    thread (classify while looking up) and two (classify first), and after a new frame."""
+    several queries within a frame (memo reused, new points needing new slices, the same
+    points again, points moved a little), on one thread (classify while looking up) and
+    two (classify first), after a new frame and after a change of the robot's volume."""
     rng = np.random.default_rng(seed)
     prims, cams, depths = _scene(rng, n_cams)
     a, b, c, depths, rdepths, caps = _with_robot(prims, cams)
@@ -415,9 +416,17 @@ def test_lazy_columns_equal_eager_runs(seed, n_cams):
         eager.set_frames(depths, rdepths, robot_capsules=caps, lazy=False)
         assert lazy.lazy and not eager.lazy
         assert np.all(eager._nruns < 8)       # no run merging in the eager form: exact comparison
-        for q in range(4):
-            P = np.vstack([rng.uniform(-0.8, 0.8, (6, 3)), a + (b - a) * rng.random(), c])
-            method = ("hybrid", "min", "mean", "hybrid")[q]
+        for q in range(6):
+            if q < 4:
+                P = np.vstack([rng.uniform(-0.8, 0.8, (6, 3)), a + (b - a) * rng.random(), c])
+            elif q == 5:                      # the points move a little (a control cycle later)
+                P = P + rng.normal(0.0, 0.01, P.shape)
+            # q == 4: the same points again: every column they need is memoised
+            if frame == 1 and q == 5:         # the robot's volume changes within the frame
+                caps = [Capsule.between(a + 0.02, b + 0.02, 0.12), Capsule.between(b + 0.02, c + 0.02, 0.1)]
+                lazy.set_robot_capsules(caps)
+                eager.set_frames(depths, rdepths, robot_capsules=caps, lazy=False)
+            method = ("hybrid", "min", "mean", "hybrid", "hybrid", "hybrid")[q]
             threads = 2 if q == 2 else None
             r1 = lazy.query(P, 0.4, method, threads=threads).copy()
             r2 = eager.query(P, 0.4, method).copy()

@@ -48,6 +48,7 @@ import numpy as np
 from depthguard.camera import Camera, check_depth_image
 from depthguard.distance.api import DistanceResult, check_points, check_rho
 from depthguard.fusion import depth_grid_kernels as K
+from depthguard.fusion import depth_grid_lazy as L
 
 __all__ = ["DepthGridMap", "MultiPrincipalDepthGrid", "default_cache_dir"]
 
@@ -321,7 +322,8 @@ class DepthGridMap:
         self._obits = np.zeros(P.shape + (nw,), dtype=np.uint64)
         self._cbits = np.zeros(P.shape + (nw,), dtype=np.uint64)
         self._stamp = np.zeros(P.shape, dtype=np.int64)
-        self._clear = np.zeros(P.shape, dtype=np.int64)
+        self._clear = np.zeros(P.shape, dtype=np.int32)
+        self._free_to = np.zeros(P.shape)
         self._frame = 0
         self._tmin = np.zeros(self._tile_first.shape)
         self.lazy = True
@@ -336,6 +338,7 @@ class DepthGridMap:
         self._count = np.empty(n, dtype=np.int64)
         self._obs = np.empty(n, dtype=np.bool_)
         self._ws = np.empty((n, 10))
+        self._axbuf = np.empty((n, self.principal.width))
 
     def set_frames(self, depths: dict, robot_depths: dict | None = None,
                    robot_offset: float = 0.03, robot_capsules=None, invalid: str = "unknown",
@@ -414,7 +417,7 @@ class DepthGridMap:
         self.lazy = bool(lazy)
         self.set_robot_capsules(robot_capsules)
         if self.lazy:
-            K.tile_min_free(self._pfree, self._tmin)
+            L.tile_min_free(self._pfree, self._tmin)
             self.has_frames = True
             return
         K.column_runs(self._pfree, self._pkind, self._pint, self.d_min, self.delta_d, self.n_d,
@@ -479,6 +482,8 @@ class DepthGridMap:
             self._caps = np.zeros((1, 7))
         self._ncaps = len(caps)
         self._frame += 1          # memoised cells (lazy) were classified with the old volume
+        np.copyto(self._free_to, self._pfree)
+        self._clear.fill(-1)
 
     def _capsule_boxes(self, caps: np.ndarray) -> np.ndarray:
         """(C, 4) inclusive pixel boxes holding each capsule's projection (principal frame
@@ -565,19 +570,20 @@ class DepthGridMap:
 
             fill = numba.get_num_threads() == 1
             if not fill:
-                K.ensure_cells(self._pfree, self._pkind, self._tmin, self._pint, self.d_min, self.delta_d, self.n_d,
+                L.ensure_cells(self._pfree, self._pkind, self._tmin, self._pint, self.d_min, self.delta_d, self.n_d,
                                self._kfree, self._kpmin, self._kpmax, self._koff, self._kdims, self._rays_arg,
                                self._orig_arg, self._kint_arg, len(self.others), self._caps, self._ncaps,
                                self._cap_lo, self._cap_hi, self._cap_n, self._band, self._Rp, self._tp, p, n, r,
-                               self._frame, self._stamp, self._obits, self._cbits, self._clear, self._ws)
-            K.grid_distances_lazy(self._pfree, self._tmin, self._obits, self._cap_n, self._caps, self._ncaps,
+                               self._frame, self._stamp, self._obits, self._cbits, self._clear, self._free_to,
+                               self._ws)
+            L.grid_distances_lazy(self._pfree, self._tmin, self._obits, self._cap_n, self._caps, self._ncaps,
                                   self._cap_lo, self._cap_hi, self.n_d, self._Rp, self._tp, self._pint,
                                   self.d_min, self.delta_d, p, n, r, m,
                                   self._dist, self._dir, self._count, self._obs,
                                   fill, self._pkind, self._kfree, self._kpmin, self._kpmax, self._koff,
                                   self._kdims, self._rays_arg, self._orig_arg, self._kint_arg,
                                   len(self.others), self._band, self._frame, self._stamp, self._cbits,
-                                  self._clear)
+                                  self._clear, self._free_to, self._axbuf)
             return
         K.grid_distances(self._pfree, self._runs, self._nruns, self._tile_first, self._Rp, self._tp, self._pint,
                          self.d_min, self.delta_d, p, n, r, m,

@@ -1,0 +1,631 @@
+"""Lazy per-frame work of the depth grid map (the default; SPEC §3, R10–R12).
+
+A principal column's cells are classified on first use within a frame, only
+over the slices a query needs, and memoised as bits (the eager form, every
+column's obstacle runs at once, is :func:`depthguard.fusion.depth_grid_kernels.column_runs`).
+``obits[v, u, w]`` / ``cbits[v, u, w]`` (uint64) hold bit
+``g & 63`` of word ``g >> 6`` for slice ``g`` in ``0..n_d-1``: obstacle /
+already classified. ``stamp[v, u]`` is the frame number the pixel's bits
+belong to; a pixel with an older stamp is reset on first touch, so a new
+frame costs nothing per pixel. Each cell gets exactly the class that
+:func:`~depthguard.fusion.depth_grid_kernels.column_runs` gives it (same rule, same exact stretch shortcuts), so the
+answers equal the eager runs' (without their run-overflow merging).
+
+Per query and principal pixel the cheap tests come first (R12 case 1, the
+column's memoised free stretch, the pixel column's distance to the point),
+so that only the columns that can hold an obstacle within ``rho`` pay for
+the slice arithmetic; the per-point and per-row terms of the R10 distance
+are computed once per point / row (the same expressions as the eager form,
+so the answers are bit-identical to it).
+"""
+
+from __future__ import annotations
+
+import math
+
+import numpy as np
+from numba import njit, prange
+
+from depthguard.distance.window import surveillance_window
+from depthguard.fusion.depth_grid_kernels import (D_ZERO, KIND_SURFACE, MAX_CAPS_PER_PIXEL, METHOD_MEAN,
+                                                  METHOD_MIN, TILE, _confirmed_cell, _f2, _in_caps,
+                                                  _range_settled)
+
+__all__ = ["tile_min_free", "ensure_cells", "grid_distances_lazy"]
+
+_ONE = np.uint64(1)
+_ALL = np.uint64(0xFFFFFFFFFFFFFFFF)
+
+
+@njit(cache=True)
+def tile_min_free(pfree, out):
+    """(ceil(H/TILE), ceil(W/TILE)) float64: per tile the smallest principal free depth.
+    A point with ``dp + rho`` below it has every pixel of the tile in case 1 (R12)."""
+    H = pfree.shape[0]
+    W = pfree.shape[1]
+    for ty in range(out.shape[0]):
+        for tx in range(out.shape[1]):
+            m = np.inf
+            for v in range(ty * TILE, min(H, ty * TILE + TILE)):
+                for u in range(tx * TILE, min(W, tx * TILE + TILE)):
+                    if pfree[v, u] < m:
+                        m = pfree[v, u]
+            out[ty, tx] = m
+
+
+@njit(cache=True, inline="always")
+def _bit(bits, v, u, g):
+    return (bits[v, u, g >> 6] >> np.uint64(g & 63)) & _ONE
+
+
+@njit(cache=True, inline="always")
+def _msb(x):
+    """Index of the highest set bit of a non-zero uint64."""
+    n = 0
+    for s in (32, 16, 8, 4, 2, 1):
+        y = x >> np.uint64(s)
+        if y != np.uint64(0):
+            x = y
+            n += s
+    return n
+
+
+@njit(cache=True, inline="always")
+def _word_range(bits, v, u, w, lo, hi):
+    """Word ``w`` of a pixel's bits with only slices ``lo..hi`` kept."""
+    x = bits[v, u, w]
+    if (hi >> 6) == w and (hi & 63) < 63:
+        x = x & ((_ONE << np.uint64((hi & 63) + 1)) - _ONE)
+    if (lo >> 6) == w:
+        x = x & (_ALL << np.uint64(lo & 63))
+    return x
+
+
+@njit(cache=True)
+def _highest_bit(bits, v, u, lo, hi):
+    """Largest slice in ``lo..hi`` (inside ``0..n_d-1``) whose bit is set, -1 if none."""
+    if lo > hi:
+        return -1
+    w = hi >> 6
+    while w >= (lo >> 6):
+        x = _word_range(bits, v, u, w, lo, hi)
+        if x != np.uint64(0):
+            return w * 64 + _msb(x)
+        w -= 1
+    return -1
+
+
+@njit(cache=True)
+def _lowest_bit(bits, v, u, lo, hi):
+    """Smallest slice in ``lo..hi`` (inside ``0..n_d-1``) whose bit is set, -1 if none."""
+    if lo > hi:
+        return -1
+    w = lo >> 6
+    while w <= (hi >> 6):
+        x = _word_range(bits, v, u, w, lo, hi)
+        if x != np.uint64(0):
+            return w * 64 + _msb(x & (~x + _ONE))
+        w += 1
+    return -1
+
+
+@njit(cache=True, inline="always")
+def _all_set(bits, v, u, lo, hi):
+    """Every slice ``lo..hi`` (inside ``0..n_d-1``, ``lo <= hi``) has its bit set."""
+    for w in range(lo >> 6, (hi >> 6) + 1):
+        need = _mask_range(w, lo, hi)
+        if (bits[v, u, w] & need) != need:
+            return False
+    return True
+
+
+@njit(cache=True, inline="always")
+def _mask_range(w, lo, hi):
+    m = _ALL
+    if (hi >> 6) == w and (hi & 63) < 63:
+        m = m & ((_ONE << np.uint64((hi & 63) + 1)) - _ONE)
+    if (lo >> 6) == w:
+        m = m & (_ALL << np.uint64(lo & 63))
+    return m
+
+
+@njit(cache=True, inline="always")
+def _col_setup(u, v, pfree, dmin, dd, nd, cap_n, ncaps):
+    """Per pixel: ``(gs, ncp)`` — first slice of the column that may hold an obstacle
+    (``r(df)``) and the number of capsule intervals."""
+    gs = int(math.floor((pfree[v, u] - dmin) / dd))
+    ncp = cap_n[v, u] if ncaps > 0 else 0
+    return gs, ncp
+
+
+@njit(cache=True)
+def _fill_stretch(u, v, g0, g1, gs, direct, ncp, fx, fy, cx, cy, dmin, dd, kfree, kpmin, kpmax, koff,
+                  kdims, rays, origins, kint, nk, caps, ncaps, cap_lo, cap_hi, band, obits, cbits):
+    """Classify slices ``g0..g1`` (inside ``0..n_d-1``, all ``>= gs``) of column ``(u, v)``
+    by the rule of :func:`column_runs` and set their bits."""
+    known_obst = False
+    span_next = 64
+    sec_g = g0 - 1
+    sec = (False, 0.0, 0.0, 0.0, 0.0, 0.0, 0.0)
+    g = g0
+    while g <= g1:
+        d1 = dmin + g * dd
+        d2 = d1 + dd
+        incap = ncaps > 0 and _in_caps(cap_lo, cap_hi, ncp, v, u, d1, d2, caps, ncaps, fx, fy, cx, cy, g)
+        if incap and ncp <= MAX_CAPS_PER_PIXEL:
+            # slices g..h inside an interval holding g: d1 only grows, so inside while d2 <= hi
+            h = g
+            for j in range(ncp):
+                lo = cap_lo[v, u, j]
+                hi = cap_hi[v, u, j]
+                if not (lo <= d1 and d2 <= hi):
+                    continue
+                if dmin + g1 * dd + dd <= hi:
+                    hj = g1
+                else:
+                    hj = min(max(int(math.floor((hi - dmin) / dd)) - 1, g), g1)
+                    while hj > g and not (dmin + hj * dd + dd <= hi):
+                        hj -= 1
+                    while hj < g1 and dmin + (hj + 1) * dd + dd <= hi:
+                        hj += 1
+                h = max(h, hj)
+            for w in range(g >> 6, (h >> 6) + 1):
+                cbits[v, u, w] = cbits[v, u, w] | _mask_range(w, g, h)
+            g = h + 1
+            continue
+        if incap:
+            obst = False
+        elif g == gs and direct:
+            obst = True
+        elif nk == 0 or g < band[v, u, 0] or g > band[v, u, 1]:
+            obst = True
+        else:
+            e = min(g1, band[v, u, 1])
+            for j in range(min(ncp, MAX_CAPS_PER_PIXEL)):
+                if cap_lo[v, u, j] > d1:
+                    e = min(e, int(math.ceil((cap_lo[v, u, j] - dmin) / dd)) - 2)
+            if ncp > MAX_CAPS_PER_PIXEL:
+                e = g
+            span = min(span_next, e - g + 1)
+            settled = False
+            if span > 1:
+                r = _range_settled(kpmin, kpmax, koff, kdims, rays, origins, kint, nk, u, v, d1,
+                                   dmin + (g + span) * dd)
+                if r != 0:
+                    known_obst = r == 2
+                    settled = True
+            if settled:
+                # every slice of the settled stretch g..g+span-1 gets known_obst: none of
+                # them is inside a capsule (a capsule starting after g ends the stretch
+                # before it; one started at or before g ends before d2, so before every
+                # later slice), none is r(df) (< g) and all are inside the band
+                known_until = g + span - 1
+                span_next = min(2 * span, 256)
+                for w in range(g >> 6, (known_until >> 6) + 1):
+                    m = _mask_range(w, g, known_until)
+                    cbits[v, u, w] = cbits[v, u, w] | m
+                    if known_obst:
+                        obits[v, u, w] = obits[v, u, w] | m
+                g = known_until + 1
+                continue
+            span_next = max(span // 4, 1) if span > 1 else min(span_next * 2, 8)
+            obst, sec, sec_g = _confirmed_cell(kfree, rays, origins, kint, nk, u, v, g, d1, d2, sec, sec_g)
+        w = g >> 6
+        b = _ONE << np.uint64(g & 63)
+        cbits[v, u, w] = cbits[v, u, w] | b
+        if obst:
+            obits[v, u, w] = obits[v, u, w] | b
+        g += 1
+
+
+@njit(cache=True, inline="always")
+def _needed_slices(ax, ay, bx, by, dp, lim2, dmin, dd, g_lo, g_hi):
+    """Slices ``ga..gb`` of a principal column that can lie within ``sqrt(lim2)`` of the point
+    by the R10 distance (one slice of margin each side), clipped to ``g_lo..g_hi``;
+    ``ga > gb``: none (the whole column is farther). Along the column
+    ``f(ôd)^2 = A ôd^2 - 2 B ôd + C`` (R3, R10) with the terms of :func:`_ray_x` and
+    :func:`_point_terms`. Reciprocals instead of divisions: the range only has to hold
+    every slice within reach, which the slice of margin on each side covers."""
+    A = ax * ax + ay * ay + 1.0
+    B = ax * bx + ay * by + dp
+    C = bx * bx + by * by + dp * dp
+    disc = B * B - A * (C - lim2 * (1.0 + 1e-9) - 1e-12)
+    if not disc >= 0.0:
+        return 1, 0
+    ia = 1.0 / A
+    s = math.sqrt(disc) * ia
+    dstar = B * ia
+    idd = 1.0 / dd                  # a constant of the call: hoisted by the compiler
+    ga = max(g_lo, int(math.floor((dstar - s - dmin) * idd)) - 2)
+    gb = min(g_hi, int(math.floor((dstar + s - dmin) * idd)) + 1)
+    return ga, gb
+
+
+@njit(cache=True, inline="always")
+def _ray_x(px, u, cx, fx):
+    """``ax`` of column ``u`` (R3: the pixel point nearest to the point's projection,
+    back-projected to unit depth); ``_ray_x(py, v, cy, fy)`` is ``ay``."""
+    return (min(max(px, u - 0.5), u + 0.5) - cx) / fx
+
+
+@njit(cache=True, inline="always")
+def _point_terms(px, py, dp, fx, fy, cx, cy):
+    """``(bx, by)``: the point's camera-frame x and y, from its projection (R3, R10)."""
+    return (px - cx) * dp / fx, (py - cy) * dp / fy
+
+
+@njit(cache=True)
+def _ensure_pixel(u, v, ga, gb, gs, direct, ncp, fx, fy, cx, cy, dmin, dd, kfree, kpmin, kpmax, koff, kdims,
+                  rays, origins, kint, nk, caps, ncaps, cap_lo, cap_hi, band, frame, stamp, obits, cbits, clear,
+                  free_to):
+    """Classify the not yet classified slices of ``ga..gb`` (inside the grid, ``>= gs``) of
+    column ``(u, v)`` in this ``frame`` (resetting the pixel's bits on its first touch).
+    ``clear[v, u]``: the largest ``h`` with every slice ``max(gs, 0)..h`` classified free
+    (-1 for a pixel not yet touched in this frame: every frame starts with -1);
+    ``free_to[v, u]``: the principal depth up to which the column is known free —
+    its free depth ``df`` (R12 case 1; what every frame starts with), raised here to
+    ``d_min + (clear + 1) delta_d`` when ``r(df)`` lies inside the grid."""
+    if stamp[v, u] != frame:
+        for w in range(obits.shape[2]):
+            obits[v, u, w] = np.uint64(0)
+            cbits[v, u, w] = np.uint64(0)
+        stamp[v, u] = frame
+        clear[v, u] = max(gs, 0) - 1
+    elif _all_set(cbits, v, u, ga, gb):
+        return
+    g = ga
+    while g <= gb:
+        g = _lowest_stop(cbits, cbits, v, u, g, gb, False)      # next unclassified slice
+        if g < 0:
+            break
+        e = _lowest_bit(cbits, v, u, g, gb)                    # next classified one after it
+        e = gb if e < 0 else e - 1
+        _fill_stretch(u, v, g, e, gs, direct, ncp, fx, fy, cx, cy, dmin, dd, kfree, kpmin, kpmax, koff,
+                      kdims, rays, origins, kint, nk, caps, ncaps, cap_lo, cap_hi, band, obits, cbits)
+        g = e + 1
+    hmax = obits.shape[2] * 64          # slices past n_d are never classified
+    h = clear[v, u] + 1
+    if h < hmax:
+        # first slice from h on that is unclassified or an obstacle
+        h = _lowest_stop(cbits, obits, v, u, h, hmax - 1, True)
+        if h < 0:
+            h = hmax
+    clear[v, u] = h - 1
+    if gs >= 0:
+        free_to[v, u] = max(free_to[v, u], dmin + h * dd)
+
+
+@njit(cache=True)
+def _lowest_stop(cbits, obits, v, u, lo, hi, with_obst):
+    """Smallest slice in ``lo..hi`` (inside the bit words) whose ``cbits`` bit is clear or,
+    with ``with_obst``, whose ``obits`` bit is set; -1 if none."""
+    if lo > hi:
+        return -1
+    w = lo >> 6
+    while w <= (hi >> 6):
+        x = ~cbits[v, u, w]
+        if with_obst:
+            x = x | obits[v, u, w]
+        x = x & _mask_range(w, lo, hi)
+        if x != np.uint64(0):
+            return w * 64 + _msb(x & (~x + _ONE))
+        w += 1
+    return -1
+
+
+@njit(cache=True, parallel=True)
+def ensure_cells(pfree, pkind, tmin, pint, dmin, dd, nd, kfree, kpmin, kpmax, koff, kdims, rays, origins,
+                 kint, nk, caps, ncaps, cap_lo, cap_hi, cap_n, band, Rp, tp, points, n_points, rho,
+                 frame, stamp, obits, cbits, clear, free_to, ws):
+    """Lazy per-frame work (R12): classify every cell that a query of these points can
+    look at — per pixel of each point's region of surveillance outside case 1, the
+    slices within ``rho`` of the point (:func:`_needed_slices`) from ``r(df)`` on, inside
+    the grid — unless already done this ``frame``. One parallel region over the image
+    rows that the windows cover; a row (and so each pixel) belongs to one thread.
+    ws : (>= n_points, 10) float64 workspace (per point: px, py, dp, window, slices)."""
+    H = pfree.shape[0]
+    W = pfree.shape[1]
+    fx = pint[0]
+    fy = pint[1]
+    cx = pint[2]
+    cy = pint[3]
+    rmin = pint[6]
+    rho2 = rho * rho
+    vlo = H
+    vhi = -1
+    for i in range(n_points):
+        X = points[i, 0]
+        Y = points[i, 1]
+        Z = points[i, 2]
+        xc = Rp[0, 0] * X + Rp[0, 1] * Y + Rp[0, 2] * Z + tp[0]
+        yc = Rp[1, 0] * X + Rp[1, 1] * Y + Rp[1, 2] * Z + tp[1]
+        dp = Rp[2, 0] * X + Rp[2, 1] * Y + Rp[2, 2] * Z + tp[2]
+        ws[i, 2] = dp
+        if not dp > 0.0:
+            ws[i, 5] = 1.0
+            ws[i, 6] = 0.0
+            continue
+        ws[i, 0] = xc * fx / dp + cx
+        ws[i, 1] = yc * fy / dp + cy
+        u0, u1, v0, v1 = surveillance_window(xc, yc, dp, rho, fx, fy, cx, cy, rmin, W, H)
+        ws[i, 3] = u0
+        ws[i, 4] = u1
+        ws[i, 5] = v0
+        ws[i, 6] = v1
+        ws[i, 7] = int(math.floor((dp - rho - dmin) / dd))
+        ws[i, 8] = int(math.floor((dp + rho - dmin) / dd))
+        if v0 <= v1:
+            vlo = min(vlo, v0)
+            vhi = max(vhi, v1)
+    for v in prange(vlo, vhi + 1):
+        ty = v // TILE
+        for i in range(n_points):
+            if not (ws[i, 5] <= v and v <= ws[i, 6]):
+                continue
+            px = ws[i, 0]
+            py = ws[i, 1]
+            dp = ws[i, 2]
+            u0 = int(ws[i, 3])
+            u1 = int(ws[i, 4])
+            g_lo = int(ws[i, 7])
+            g_hi = int(ws[i, 8])
+            far = dp + rho
+            bx, by = _point_terms(px, py, dp, fx, fy, cx, cy)
+            ay = _ray_x(py, v, cy, fy)
+            for tx in range(u0 // TILE, u1 // TILE + 1):
+                if tmin[ty, tx] > far:
+                    continue
+                for u in range(max(u0, tx * TILE), min(u1, tx * TILE + TILE - 1) + 1):
+                    if free_to[v, u] > far:
+                        continue                                       # case 1 / known free
+                    ga, gb = _needed_slices(_ray_x(px, u, cx, fx), ay, bx, by, dp, rho2, dmin, dd, g_lo, g_hi)
+                    if ga > gb or (ga >= 0 and clear[v, u] >= gb):
+                        continue                                       # too far / known free
+                    gs, ncp = _col_setup(u, v, pfree, dmin, dd, nd, cap_n, ncaps)
+                    ga = max(ga, gs, 0)
+                    gb = min(gb, nd - 1)
+                    if ga > gb or (stamp[v, u] == frame and _all_set(cbits, v, u, ga, gb)):
+                        continue
+                    _ensure_pixel(u, v, ga, gb, gs, pkind[v, u] == KIND_SURFACE, ncp, fx, fy, cx, cy, dmin, dd,
+                                  kfree, kpmin, kpmax, koff, kdims, rays, origins, kint, nk, caps, ncaps,
+                                  cap_lo, cap_hi, band, frame, stamp, obits, cbits, clear, free_to)
+
+
+@njit(cache=True, inline="always")
+def _obst_cell(u, v, g, gs, ncp, nd, obits, caps, ncaps, cap_lo, cap_hi, fx, fy, cx, cy, dmin, dd):
+    """Is slice ``g`` of column ``(u, v)`` an obstacle: free before ``r(df)``; inside the
+    grid its memoised bit; outside the grid an obstacle unless inside a padded capsule."""
+    if g < gs:
+        return False
+    if g >= 0 and g < nd:
+        return _bit(obits, v, u, g) != np.uint64(0)
+    d1 = dmin + g * dd
+    return not (ncaps > 0 and _in_caps(cap_lo, cap_hi, ncp, v, u, d1, d1 + dd, caps, ncaps, fx, fy, cx, cy, g))
+
+
+@njit(cache=True)
+def _scan_down(u, v, lo, hi, gs, ncp, nd, obits, caps, ncaps, cap_lo, cap_hi, fx, fy, cx, cy, dmin, dd):
+    """Largest obstacle slice in ``lo..hi``, or ``lo - 1`` if none."""
+    g = hi
+    while g >= lo and g >= nd:
+        if _obst_cell(u, v, g, gs, ncp, nd, obits, caps, ncaps, cap_lo, cap_hi, fx, fy, cx, cy, dmin, dd):
+            return g
+        g -= 1
+    if g >= lo and g >= 0:
+        b = _highest_bit(obits, v, u, max(lo, 0, gs), g)
+        if b >= 0:
+            return b
+        g = -1
+    while g >= lo:
+        if _obst_cell(u, v, g, gs, ncp, nd, obits, caps, ncaps, cap_lo, cap_hi, fx, fy, cx, cy, dmin, dd):
+            return g
+        g -= 1
+    return lo - 1
+
+
+@njit(cache=True)
+def _scan_up(u, v, lo, hi, gs, ncp, nd, obits, caps, ncaps, cap_lo, cap_hi, fx, fy, cx, cy, dmin, dd):
+    """Smallest obstacle slice in ``lo..hi``, or ``hi + 1`` if none."""
+    g = max(lo, gs)
+    while g <= hi and g < 0:
+        if _obst_cell(u, v, g, gs, ncp, nd, obits, caps, ncaps, cap_lo, cap_hi, fx, fy, cx, cy, dmin, dd):
+            return g
+        g += 1
+    if g <= hi and g < nd:
+        b = _lowest_bit(obits, v, u, g, min(hi, nd - 1))
+        if b >= 0:
+            return b
+        g = nd
+    while g <= hi:
+        if _obst_cell(u, v, g, gs, ncp, nd, obits, caps, ncaps, cap_lo, cap_hi, fx, fy, cx, cy, dmin, dd):
+            return g
+        g += 1
+    return hi + 1
+
+
+@njit(cache=True, inline="always")
+def _column_bits(u, v, gs, ncp, nd, obits, caps, ncaps, cap_lo, cap_hi, ax, ay, bx, by, dp, lim2,
+                 fx, fy, cx, cy, dmin, dd, ga, gb):
+    """:func:`~depthguard.fusion.depth_grid_kernels._column` over the memoised bits: the
+    nearest obstacle cell of column ``(u, v)`` (ray terms ``ax, ay`` of :func:`_ray_x`,
+    point terms ``bx, by`` of :func:`_point_terms`) among slices ``ga..gb`` by the R10
+    distance. ``f`` is unimodal in the slice with its minimum at one of
+    ``gr - 1 .. gr + 1`` (``gr = r(dstar)``): the candidates are those three and the
+    nearest obstacle slice below / above them."""
+    dstar = (ax * bx + ay * by + dp) / (ax * ax + ay * ay + 1.0)
+    qx = ax * dstar - bx
+    qy = ay * dstar - by
+    qz = dstar - dp
+    if qx * qx + qy * qy + qz * qz > lim2:
+        return False, 0.0, 0.0, 0.0, 0.0
+    gr = int(math.floor((dstar - dmin) / dd))
+    best2 = lim2
+    found = False
+    bvx = 0.0
+    bvy = 0.0
+    bvz = 0.0
+    a = max(ga, gs)
+    for c in range(5):
+        if c < 3:
+            g = gr - 1 + c
+            if g < a or g > gb:
+                continue
+            if not _obst_cell(u, v, g, gs, ncp, nd, obits, caps, ncaps, cap_lo, cap_hi, fx, fy, cx, cy, dmin, dd):
+                continue
+        elif c == 3 and a >= 0 and gb < nd:                    # all inside the grid: the bits
+            g = _highest_bit(obits, v, u, a, min(gr - 2, gb))
+            if g < 0:
+                continue
+        elif c == 4 and a >= 0 and gb < nd:
+            g = _lowest_bit(obits, v, u, max(gr + 2, a), gb)
+            if g < 0:
+                continue
+        elif c == 3:
+            g = _scan_down(u, v, a, min(gr - 2, gb), gs, ncp, nd, obits, caps, ncaps, cap_lo, cap_hi,
+                           fx, fy, cx, cy, dmin, dd)
+            if g < a:
+                continue
+        else:
+            g = _scan_up(u, v, max(gr + 2, a), gb, gs, ncp, nd, obits, caps, ncaps, cap_lo, cap_hi,
+                         fx, fy, cx, cy, dmin, dd)
+            if g > gb:
+                continue
+        f2, wx, wy, wz = _f2(g, dmin, dd, dp, ax, ay, bx, by)
+        if f2 < best2 or (not found and f2 == best2):
+            best2 = f2
+            found = True
+            bvx = wx
+            bvy = wy
+            bvz = wz
+    return found, best2, bvx, bvy, bvz
+
+
+@njit(cache=True, parallel=True)
+def grid_distances_lazy(pfree, tmin, obits, cap_n, caps, ncaps, cap_lo, cap_hi, nd, Rp, tp, pint, dmin, dd,
+                        points, n_points, rho, method,
+                        out_distance, out_direction, out_count, out_observed,
+                        fill, pkind, kfree, kpmin, kpmax, koff, kdims, rays, origins, kint, nk, band,
+                        frame, stamp, cbits, clear, free_to, axbuf):
+    """:func:`~depthguard.fusion.depth_grid_kernels.grid_distances` over the memoised cells: same cases, same R10 distance, same
+    R7 reduction. ``fill`` False: :func:`ensure_cells` was called first with the same
+    points. ``fill`` True: the cells are classified here as they are met (one pass; only
+    on one thread — the points' windows overlap). axbuf : (>= n_points, W) float64
+    workspace (each point's column terms ``ax``)."""
+    H = pfree.shape[0]
+    W = pfree.shape[1]
+    fx = pint[0]
+    fy = pint[1]
+    cx = pint[2]
+    cy = pint[3]
+    rmin = pint[6]
+    rmax = pint[7]
+    for i in prange(n_points):
+        X = points[i, 0]
+        Y = points[i, 1]
+        Z = points[i, 2]
+        xc = Rp[0, 0] * X + Rp[0, 1] * Y + Rp[0, 2] * Z + tp[0]   # (1)
+        yc = Rp[1, 0] * X + Rp[1, 1] * Y + Rp[1, 2] * Z + tp[1]
+        dp = Rp[2, 0] * X + Rp[2, 1] * Y + Rp[2, 2] * Z + tp[2]
+        out_direction[i, 0] = 0.0
+        out_direction[i, 1] = 0.0
+        out_direction[i, 2] = 0.0
+        out_distance[i] = np.inf
+        out_count[i] = 0
+        if not dp > 0.0:
+            out_observed[i] = False
+            continue
+        px = xc * fx / dp + cx                                     # (2)
+        py = yc * fy / dp + cy
+        out_observed[i] = (dp >= rmin and dp <= rmax and px >= -0.5 and px < W - 0.5
+                           and py >= -0.5 and py < H - 0.5)
+        u0, u1, v0, v1 = surveillance_window(xc, yc, dp, rho, fx, fy, cx, cy, rmin, W, H)
+        rho2 = rho * rho
+        best2 = rho2
+        n = 0
+        sD = 0.0
+        dmin_found = np.inf
+        sx = 0.0
+        sy = 0.0
+        sz = 0.0
+        bx = 0.0
+        by = 0.0
+        bz = 0.0
+        g_lo = int(math.floor((dp - rho - dmin) / dd))
+        g_hi = int(math.floor((dp + rho - dmin) / dd))
+        far = dp + rho
+        bx_, by_ = _point_terms(px, py, dp, fx, fy, cx, cy)
+        for u in range(u0, u1 + 1):
+            axbuf[i, u] = _ray_x(px, u, cx, fx)
+        for v in range(v0, v1 + 1):
+            ty = v // TILE
+            ay = _ray_x(py, v, cy, fy)
+            for tx in range(u0 // TILE, u1 // TILE + 1):
+                if tmin[ty, tx] > far:                            # every pixel in case 1
+                    continue
+                for u in range(max(u0, tx * TILE), min(u1, tx * TILE + TILE - 1) + 1):
+                    if free_to[v, u] > far:
+                        continue                                   # case 1 / known free to r(dp + rho)
+                    ax = axbuf[i, u]
+                    ga, gb = _needed_slices(ax, ay, bx_, by_, dp, rho2, dmin, dd, g_lo, g_hi)
+                    if ga > gb or (ga >= 0 and clear[v, u] >= gb):
+                        continue                                   # too far from the point / known free
+                    gs, ncp = _col_setup(u, v, pfree, dmin, dd, nd, cap_n, ncaps)
+                    if (fill and max(ga, gs, 0) <= min(gb, nd - 1)
+                            and (stamp[v, u] != frame or not _all_set(cbits, v, u, max(ga, gs, 0), min(gb, nd - 1)))):
+                        _ensure_pixel(u, v, max(ga, gs, 0), min(gb, nd - 1), gs, pkind[v, u] == KIND_SURFACE,
+                                      ncp, fx, fy, cx, cy, dmin, dd, kfree, kpmin, kpmax, koff, kdims, rays,
+                                      origins, kint, nk, caps, ncaps, cap_lo, cap_hi, band, frame, stamp,
+                                      obits, cbits, clear, free_to)
+                    a = max(ga, gs)
+                    if a > gb:
+                        continue
+                    lim2 = best2 if method == METHOD_MIN else rho2
+                    found, D2, vx, vy, vz = _column_bits(u, v, gs, ncp, nd, obits, caps, ncaps, cap_lo,
+                                                         cap_hi, ax, ay, bx_, by_, dp, lim2, fx, fy, cx, cy,
+                                                         dmin, dd, ga, gb)
+                    if not found:
+                        continue
+                    D = math.sqrt(D2)
+                    if D <= D_ZERO:
+                        D = 0.0
+                        D2 = 0.0
+                    if method == METHOD_MIN:
+                        if D2 < best2 or n == 0:
+                            best2 = D2
+                            dmin_found = D
+                            bx = vx
+                            by = vy
+                            bz = vz
+                            n = 1
+                        continue
+                    n += 1
+                    sD += D
+                    if D < dmin_found:
+                        dmin_found = D
+                    if D > 0.0:
+                        iD = 1.0 / D
+                        sx += vx * iD
+                        sy += vy * iD
+                        sz += vz * iD
+        if n == 0:
+            continue
+        out_count[i] = n
+        if method == METHOD_MIN:
+            out_distance[i] = dmin_found
+            if dmin_found > 0.0:
+                vx = bx / dmin_found
+                vy = by / dmin_found
+                vz = bz / dmin_found
+            else:
+                continue
+        else:
+            out_distance[i] = sD / n if method == METHOD_MEAN else dmin_found
+            norm = math.sqrt(sx * sx + sy * sy + sz * sz)
+            if norm == 0.0:
+                continue
+            vx = sx / norm
+            vy = sy / norm
+            vz = sz / norm
+        out_direction[i, 0] = Rp[0, 0] * vx + Rp[1, 0] * vy + Rp[2, 0] * vz
+        out_direction[i, 1] = Rp[0, 1] * vx + Rp[1, 1] * vy + Rp[2, 1] * vz
+        out_direction[i, 2] = Rp[0, 2] * vx + Rp[1, 2] * vy + Rp[2, 2] * vz
