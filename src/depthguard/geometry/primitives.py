@@ -9,6 +9,9 @@ that ground truth (distance, occupancy) is analytic, not sampled.
 
 from __future__ import annotations
 
+import functools
+import math
+
 from dataclasses import dataclass, field
 
 import numpy as np
@@ -181,13 +184,18 @@ def sdf_union(primitives, points: np.ndarray) -> np.ndarray:
 def _frame_along(a: np.ndarray, b: np.ndarray) -> np.ndarray:
     """Pose whose origin is the midpoint of ``a b`` and whose z axis points along it."""
     z = b - a
-    n = np.linalg.norm(z)
+    n = math.sqrt(float(z @ z))
     z = z / n if n > 0 else np.array([0.0, 0.0, 1.0])
-    x = np.cross(z, [0.0, 0.0, 1.0]) if abs(z[2]) < 0.9 else np.cross(z, [1.0, 0.0, 0.0])
-    x /= np.linalg.norm(x)
-    y = np.cross(z, x)
+    z0, z1, z2 = (float(c) for c in z)
+    # x = z x e_z (or z x e_x near the vertical), normalised; y = z x x (plain floats: this
+    # runs for every capsule of every person at every control cycle)
+    x0, x1, x2 = (z1, -z0, 0.0) if abs(z2) < 0.9 else (0.0, z2, -z1)
+    nx = math.sqrt(x0 * x0 + x1 * x1 + x2 * x2)
+    x0, x1, x2 = x0 / nx, x1 / nx, x2 / nx
     T = np.eye(4)
-    T[:3, :3] = np.stack([x, y, z], axis=1)
+    T[:3, 0] = (x0, x1, x2)
+    T[:3, 1] = (z1 * x2 - z2 * x1, z2 * x0 - z0 * x2, z0 * x1 - z1 * x0)
+    T[:3, 2] = (z0, z1, z2)
     T[:3, 3] = (a + b) / 2
     return T
 
@@ -198,20 +206,33 @@ def _uv_sphere(r: float, n: int) -> Mesh:
 
 def _capsule_mesh(r: float, length: float, n: int) -> Mesh:
     """Capsule (sphere when ``length == 0``) as a UV mesh: ``n`` around, ``n//2`` rings per cap."""
+    v0, zsign, faces = _capsule_template(float(r), int(n))
+    v = v0.copy()
+    v[:, 2] += zsign * (length / 2)
+    return Mesh(v, faces)
+
+
+@functools.lru_cache(maxsize=128)
+def _capsule_template(r: float, n: int) -> tuple[np.ndarray, np.ndarray, np.ndarray]:
+    """The capsule mesh of :func:`_capsule_mesh` at length 0 (read-only, memoised: people and
+    robot links ask for the same few radii at every frame), the side (-1 bottom cap, +1 top
+    cap) of each vertex, and the faces."""
     m = max(n // 4, 2)  # rings per hemisphere (excluding the pole)
     az = np.linspace(0, 2 * np.pi, n, endpoint=False)
-    rings = []  # (z, radius)
-    h = length / 2
+    rings = []  # (z, radius, side)
     for i in range(1, m + 1):  # bottom hemisphere from the pole upward
         t = -np.pi / 2 + np.pi / 2 * i / m
-        rings.append((-h + r * np.sin(t), r * np.cos(t)))
+        rings.append((r * np.sin(t), r * np.cos(t), -1.0))
     for i in range(0, m):  # top hemisphere
         t = np.pi / 2 * i / m
-        rings.append((h + r * np.sin(t), r * np.cos(t)))
-    verts = [[0.0, 0.0, -h - r]]
-    for z, rr in rings:
+        rings.append((r * np.sin(t), r * np.cos(t), 1.0))
+    verts = [[0.0, 0.0, -r]]
+    side = [-1.0]
+    for z, rr, sd in rings:
         verts += [[rr * np.cos(a), rr * np.sin(a), z] for a in az]
-    verts.append([0.0, 0.0, h + r])
+        side += [sd] * n
+    verts.append([0.0, 0.0, r])
+    side.append(1.0)
     v = np.asarray(verts)
     top = len(v) - 1
     f = []
@@ -227,4 +248,8 @@ def _capsule_mesh(r: float, length: float, n: int) -> Mesh:
     for j in range(n):  # top fan
         k = (j + 1) % n
         f.append([top, last + j, last + k])
-    return Mesh(v, np.asarray(f, dtype=np.int32))
+    faces = np.asarray(f, dtype=np.int32)
+    zs = np.asarray(side)
+    for a in (v, zs, faces):
+        a.setflags(write=False)
+    return v, zs, faces
