@@ -325,6 +325,7 @@ class DepthGridMap:
         self._clear = np.zeros(P.shape, dtype=np.int32)
         self._free_to = np.zeros(P.shape)
         self._frame = 0
+        self._queried = -1        # the frame of the last query (the first query of a frame prefills)
         self._tmin = np.zeros(self._tile_first.shape)
         self.lazy = True
         self._rays_arg = self.rays if nk else np.zeros((1, 1, 1, 3))
@@ -529,7 +530,9 @@ class DepthGridMap:
         threads : numba threads for this call. Default: one thread below
             ``PARALLEL_MIN_POINTS`` points (a parallel region costs more than it
             saves for a few points, and waits for the slowest thread on a busy
-            machine), all threads from there.
+            machine), all threads from there — except the first query of a frame
+            (lazy), which classifies the cells on all threads first (a few ms of
+            work that splits well over image rows), then looks up on one.
 
         The arrays of the result are views of reused buffers, overwritten by
         the next query: ``.copy()`` the result to keep it.
@@ -546,16 +549,24 @@ class DepthGridMap:
         if n > self._cap:
             self._alloc_points(n)
         prev = None
+        prefill = False
         if threads is None and n < PARALLEL_MIN_POINTS:
             threads = 1
+            prefill = self.lazy and self._queried != self._frame
         if threads is not None:
             import numba
 
             if int(threads) < 1:
                 raise ValueError(f"threads must be >= 1 (got {threads!r})")
             prev = numba.get_num_threads()
+            prefill = prefill and prev > 1
             numba.set_num_threads(min(int(threads), numba.config.NUMBA_NUM_THREADS))
+        self._queried = self._frame
         try:
+            if prefill:
+                numba.set_num_threads(prev)
+                self._ensure(p, n, r)
+                numba.set_num_threads(1)
             self._run_query(p, n, r, m)
         finally:
             if prev is not None:
@@ -564,18 +575,22 @@ class DepthGridMap:
                 numba.set_num_threads(prev)
         return DistanceResult(self._dist[:n], self._dir[:n], self._obs[:n], self._count[:n])
 
+    def _ensure(self, p, n, r) -> None:
+        """Classify (lazy, on the current numba threads) every cell a query of ``p`` needs."""
+        L.ensure_cells(self._pfree, self._pkind, self._tmin, self._pint, self.d_min, self.delta_d, self.n_d,
+                       self._kfree, self._kpmin, self._kpmax, self._koff, self._kdims, self._rays_arg,
+                       self._orig_arg, self._kint_arg, len(self.others), self._caps, self._ncaps,
+                       self._cap_lo, self._cap_hi, self._cap_n, self._band, self._Rp, self._tp, p, n, r,
+                       self._frame, self._stamp, self._obits, self._cbits, self._clear, self._free_to,
+                       self._ws)
+
     def _run_query(self, p, n, r, m) -> None:
         if self.lazy:
             import numba
 
             fill = numba.get_num_threads() == 1
             if not fill:
-                L.ensure_cells(self._pfree, self._pkind, self._tmin, self._pint, self.d_min, self.delta_d, self.n_d,
-                               self._kfree, self._kpmin, self._kpmax, self._koff, self._kdims, self._rays_arg,
-                               self._orig_arg, self._kint_arg, len(self.others), self._caps, self._ncaps,
-                               self._cap_lo, self._cap_hi, self._cap_n, self._band, self._Rp, self._tp, p, n, r,
-                               self._frame, self._stamp, self._obits, self._cbits, self._clear, self._free_to,
-                               self._ws)
+                self._ensure(p, n, r)
             L.grid_distances_lazy(self._pfree, self._tmin, self._obits, self._cap_n, self._caps, self._ncaps,
                                   self._cap_lo, self._cap_hi, self.n_d, self._Rp, self._tp, self._pint,
                                   self.d_min, self.delta_d, p, n, r, m,
