@@ -27,7 +27,7 @@ import math
 import numpy as np
 from numba import njit, prange
 
-from depthguard.distance.window import ball_row_span, surveillance_window
+from depthguard.distance.window import ball_row_span, start_point, surveillance_window
 
 __all__ = [
     "METHOD_MIN", "METHOD_MEAN", "METHOD_HYBRID", "METHODS",
@@ -255,24 +255,10 @@ def _one_point(i, d0, R, t, fx, fy, cx, cy, min_range, max_range, points, rho, m
                out_distance, out_direction, out_count, out_observed):
     """Control point ``i`` of :func:`depth_space_distances`."""
     H, W = d0.shape
-    X = points[i, 0]
-    Y = points[i, 1]
-    Z = points[i, 2]
-    xc = R[0, 0] * X + R[0, 1] * Y + R[0, 2] * Z + t[0]       # (1)
-    yc = R[1, 0] * X + R[1, 1] * Y + R[1, 2] * Z + t[1]
-    dp = R[2, 0] * X + R[2, 1] * Y + R[2, 2] * Z + t[2]
-    out_direction[i, 0] = 0.0
-    out_direction[i, 1] = 0.0
-    out_direction[i, 2] = 0.0
-    out_distance[i] = np.inf
-    out_count[i] = 0
-    if not dp > 0.0:
-        out_observed[i] = False
+    ok, xc, yc, dp, px, py = start_point(i, points, R, t, fx, fy, cx, cy, min_range, max_range, W, H,
+                                         out_distance, out_direction, out_count, out_observed)
+    if not ok:
         return
-    px = xc * fx / dp + cx                                     # (2)
-    py = yc * fy / dp + cy
-    out_observed[i] = (dp >= min_range and dp <= max_range and px >= -0.5 and px < W - 0.5
-                       and py >= -0.5 and py < H - 0.5)
     u0, u1, v0, v1 = surveillance_window(xc, yc, dp, rho, fx, fy, cx, cy, min_range, W, H)
     if u0 > u1 or v0 > v1:
         return

@@ -14,7 +14,7 @@ import math
 import numpy as np
 from numba import njit
 
-__all__ = ["surveillance_window", "ball_row_span", "paper_window", "grow_pixel_box"]
+__all__ = ["surveillance_window", "ball_row_span", "paper_window", "grow_pixel_box", "start_point"]
 
 
 @njit(cache=True, inline="always")
@@ -25,6 +25,35 @@ def grow_pixel_box(X, Y, Z, fx, fy, cx, cy, umin, umax, vmin, vmax):
     pu = X * fx / Z + cx
     pv = Y * fy / Z + cy
     return min(umin, pu), max(umax, pu), min(vmin, pv), max(vmax, pv)
+
+
+@njit(cache=True, inline="always")
+def start_point(i, points, R, t, fx, fy, cx, cy, min_range, max_range, W, H,
+                out_distance, out_direction, out_count, out_observed):
+    """Control point ``i`` of ``points`` (N, 3) world metres in a camera ``R, t`` (world ->
+    camera) for a distance kernel: eq. (1) its camera-frame ``xc, yc`` and depth ``dp``,
+    eq. (2) its projection ``px, py``. Sets the point's outputs to "nothing within rho"
+    (``inf``, count 0, zero direction) and ``observed`` (R26: in the image and range).
+    Returns ``(dp > 0, xc, yc, dp, px, py)``; nothing else holds when ``dp <= 0``."""
+    X = points[i, 0]
+    Y = points[i, 1]
+    Z = points[i, 2]
+    xc = R[0, 0] * X + R[0, 1] * Y + R[0, 2] * Z + t[0]       # (1)
+    yc = R[1, 0] * X + R[1, 1] * Y + R[1, 2] * Z + t[1]
+    dp = R[2, 0] * X + R[2, 1] * Y + R[2, 2] * Z + t[2]
+    out_direction[i, 0] = 0.0
+    out_direction[i, 1] = 0.0
+    out_direction[i, 2] = 0.0
+    out_distance[i] = np.inf
+    out_count[i] = 0
+    if not dp > 0.0:
+        out_observed[i] = False
+        return False, xc, yc, dp, 0.0, 0.0
+    px = xc * fx / dp + cx                                     # (2)
+    py = yc * fy / dp + cy
+    out_observed[i] = (dp >= min_range and dp <= max_range and px >= -0.5 and px < W - 0.5
+                       and py >= -0.5 and py < H - 0.5)
+    return True, xc, yc, dp, px, py
 
 
 @njit(cache=True)

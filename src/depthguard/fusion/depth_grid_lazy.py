@@ -26,10 +26,10 @@ import math
 import numpy as np
 from numba import njit, prange
 
-from depthguard.distance.window import surveillance_window
-from depthguard.fusion.depth_grid_kernels import (D_ZERO, KIND_SURFACE, MAX_CAPS_PER_PIXEL, METHOD_MEAN,
-                                                  METHOD_MIN, TILE, _confirmed_cell, _f2, _in_caps,
-                                                  _range_settled)
+from depthguard.distance.window import start_point, surveillance_window
+from depthguard.fusion.depth_grid_kernels import (KIND_SURFACE, MAX_CAPS_PER_PIXEL, METHOD_MIN, TILE,
+                                                  _confirmed_cell, _f2, _finish_point, _fold_pixel,
+                                                  _in_caps, _range_settled)
 
 __all__ = ["tile_min_free", "ensure_cells", "grid_distances_lazy"]
 
@@ -520,24 +520,10 @@ def grid_distances_lazy(pfree, tmin, obits, cap_n, caps, ncaps, cap_lo, cap_hi, 
     rmin = pint[6]
     rmax = pint[7]
     for i in prange(n_points):
-        X = points[i, 0]
-        Y = points[i, 1]
-        Z = points[i, 2]
-        xc = Rp[0, 0] * X + Rp[0, 1] * Y + Rp[0, 2] * Z + tp[0]   # (1)
-        yc = Rp[1, 0] * X + Rp[1, 1] * Y + Rp[1, 2] * Z + tp[1]
-        dp = Rp[2, 0] * X + Rp[2, 1] * Y + Rp[2, 2] * Z + tp[2]
-        out_direction[i, 0] = 0.0
-        out_direction[i, 1] = 0.0
-        out_direction[i, 2] = 0.0
-        out_distance[i] = np.inf
-        out_count[i] = 0
-        if not dp > 0.0:
-            out_observed[i] = False
+        ok, xc, yc, dp, px, py = start_point(i, points, Rp, tp, fx, fy, cx, cy, rmin, rmax, W, H,
+                                             out_distance, out_direction, out_count, out_observed)
+        if not ok:
             continue
-        px = xc * fx / dp + cx                                     # (2)
-        py = yc * fy / dp + cy
-        out_observed[i] = (dp >= rmin and dp <= rmax and px >= -0.5 and px < W - 0.5
-                           and py >= -0.5 and py < H - 0.5)
         u0, u1, v0, v1 = surveillance_window(xc, yc, dp, rho, fx, fy, cx, cy, rmin, W, H)
         rho2 = rho * rho
         best2 = rho2
@@ -585,47 +571,7 @@ def grid_distances_lazy(pfree, tmin, obits, cap_n, caps, ncaps, cap_lo, cap_hi, 
                                                          dmin, dd, ga, gb)
                     if not found:
                         continue
-                    D = math.sqrt(D2)
-                    if D <= D_ZERO:
-                        D = 0.0
-                        D2 = 0.0
-                    if method == METHOD_MIN:
-                        if D2 < best2 or n == 0:
-                            best2 = D2
-                            dmin_found = D
-                            bx = vx
-                            by = vy
-                            bz = vz
-                            n = 1
-                        continue
-                    n += 1
-                    sD += D
-                    if D < dmin_found:
-                        dmin_found = D
-                    if D > 0.0:
-                        iD = 1.0 / D
-                        sx += vx * iD
-                        sy += vy * iD
-                        sz += vz * iD
-        if n == 0:
-            continue
-        out_count[i] = n
-        if method == METHOD_MIN:
-            out_distance[i] = dmin_found
-            if dmin_found > 0.0:
-                vx = bx / dmin_found
-                vy = by / dmin_found
-                vz = bz / dmin_found
-            else:
-                continue
-        else:
-            out_distance[i] = sD / n if method == METHOD_MEAN else dmin_found
-            norm = math.sqrt(sx * sx + sy * sy + sz * sz)
-            if norm == 0.0:
-                continue
-            vx = sx / norm
-            vy = sy / norm
-            vz = sz / norm
-        out_direction[i, 0] = Rp[0, 0] * vx + Rp[1, 0] * vy + Rp[2, 0] * vz
-        out_direction[i, 1] = Rp[0, 1] * vx + Rp[1, 1] * vy + Rp[2, 1] * vz
-        out_direction[i, 2] = Rp[0, 2] * vx + Rp[1, 2] * vy + Rp[2, 2] * vz
+                    n, best2, dmin_found, bx, by, bz, sD, sx, sy, sz = _fold_pixel(
+                        method, D2, vx, vy, vz, n, best2, dmin_found, bx, by, bz, sD, sx, sy, sz)
+        _finish_point(i, method, n, dmin_found, bx, by, bz, sD, sx, sy, sz, Rp, out_distance, out_direction,
+                      out_count)
