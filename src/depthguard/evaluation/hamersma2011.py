@@ -302,6 +302,8 @@ def _evaluate(room: Room, cams, label, voxels, setups, seed, quick, out, log, ca
                 sweep[mg] = FreeSpaceMap(cams, (room.lo, room.hi), vs, margin=mg)
                 sweep[mg].set_background(bg, tolerance=SHELL_TOLERANCE)
         sweep_acc = {mg: Confusion(0, 0, 0, 0) for mg in sweep}
+        sweep_occ: dict = {mg: {} for mg in sweep}
+        sweep_verdicts: dict = {mg: {} for mg in sweep}
         seer = FreeSpaceMap(cams, (room.lo, room.hi), vs, margin=0.0)   # noiseless, centre, no margin
         grid = maps[PRODUCT].grid
         acc = {k: {} for k in maps}
@@ -351,8 +353,9 @@ def _evaluate(room: Room, cams, label, voxels, setups, seed, quick, out, log, ca
                               <= 0.5 * vs + room.margin + 1e-9).sum())
             acc.setdefault("near_surface_missed_paper", {})[setup] = near_p
             for mg, fs_m in sweep.items():
-                occ_m, _ = _reconstruct(fs_m, noisy[setup], machine, self_pad)
+                occ_m, mach_m = _reconstruct(fs_m, noisy[setup], machine, self_pad)
                 sweep_acc[mg] = sweep_acc[mg] + confusion(occ_m, truth_, mask=~mach)
+                sweep_occ[mg][setup] = (occ_m, mach_m)
             per = {}
             for name, (m, thin) in _object_masks(room, setup, room.lo, room.hi, vs).items():
                 n = int((m & ~mach).sum())
@@ -384,6 +387,10 @@ def _evaluate(room: Room, cams, label, voxels, setups, seed, quick, out, log, ca
             for name, axes in _motion_specs():
                 m, _ = _clamped_motion(room, q0, axes, S, name)
                 rows.append(_verdict_row(setup, m, occ, truth, grid, mach, recon_paper[setup]))
+                for mg, per in sweep_occ.items():       # the margin trade-off: base motions only
+                    occ_m, mach_m = per[setup]
+                    v = _verdict_row(setup, m, occ_m, truth, grid, mach_m)["verdict"]
+                    sweep_verdicts[mg][v] = sweep_verdicts[mg].get(v, 0) + 1
             verdicts += rows
             if approach and not quick:
                 # approach a contact in steps of S (the paper's "k x" rows): the motion whose true
@@ -403,6 +410,8 @@ def _evaluate(room: Room, cams, label, voxels, setups, seed, quick, out, log, ca
                         if row["truth"] == "S":
                             break
         r["verdicts"][vs] = verdicts
+        for mg, counts in sweep_verdicts.items():
+            r["margin_sweep"][vs][mg]["verdicts"] = counts
 
         # ------------------------------------------------ calibration study
         if calibration:
@@ -654,12 +663,15 @@ def report_markdown(res: dict) -> str:
                 L.append(f"Margin trade-off at {vs * 100:.0f} cm (product `shell`, the same frames; the product's "
                          f"margin is {MARGIN * 100:.0f} cm = 2 sigma of the ToF noise):")
                 L.append("")
-                L.append("| margin (cm) | free % | object % | free seen as object | object seen as free |")
-                L.append("|---|---|---|---|---|")
+                L.append("| margin (cm) | free % | object % | free seen as object | object seen as free | "
+                         "verdicts of the base motions (u = unsafe) |")
+                L.append("|---|---|---|---|---|---|")
                 for mg, d in sorted(sw.items(), key=lambda x: float(x[0])):
                     c = _conf(d)
-                    L.append(f"| {float(mg) * 100:.1f} | {100 * c.free_accuracy:.2f} | {100 * c.object_accuracy:.2f} | "
-                             f"{c.free_as_object} | {c.object_as_free} |")
+                    vd = d.get("verdicts") or {}
+                    vtxt = ", ".join(f"{k} {vd.get(k, 0)}" for k in ("s", "ts", "tts", "u")) if vd else "–"
+                    L.append(f"| {float(mg) * 100:.1f} | {100 * c.free_accuracy:.3f} | {100 * c.object_accuracy:.2f} | "
+                             f"{c.free_as_object} | {c.object_as_free} | {vtxt} |")
                 ok = [float(mg) for mg, d in sw.items() if 100 * _conf(d).free_accuracy >= GOALS["free"]]
                 L.append("")
                 L.append((f"Free >= {GOALS['free']} % needs a margin of at most {max(ok) * 100:.1f} cm here"
@@ -667,7 +679,8 @@ def report_markdown(res: dict) -> str:
                                      f"{GOALS['free']} % here")
                          + ": a smaller margin frees the voxels whose centre lies just in front of a surface, and "
                            "lets the noise free more of the objects' boundary voxels (object seen as free). The "
-                           "product keeps 2 sigma; choose the margin from this table and the verdicts below.")
+                           "product keeps 2 sigma; choose the margin from this table (the verdict column counts the "
+                           "base motions only, without the approach series below).")
             L.append("")
         for vs in res["voxels"]:
             rows = rr["verdicts"][vs]
