@@ -54,6 +54,7 @@ __all__ = ["DepthGridMap", "MultiPrincipalDepthGrid", "default_cache_dir"]
 
 _FORMAT = 1
 PARALLEL_MIN_POINTS = 16     # below this many points a query runs on one thread (steadier)
+ENSURE_CHUNK_ROWS = 4        # image rows per parallel work item of the per-frame classification
 RUNS_PER_COLUMN = 8          # obstacle runs kept per principal column; more are merged (safe side)
 _METHODS = {"min": K.METHOD_MIN, "mean": K.METHOD_MEAN, "hybrid": K.METHOD_HYBRID}
 
@@ -324,6 +325,7 @@ class DepthGridMap:
         self._stamp = np.zeros(P.shape, dtype=np.int64)
         self._clear = np.zeros(P.shape, dtype=np.int32)
         self._free_to = np.zeros(P.shape)
+        self._span = np.zeros((2,) + P.shape, dtype=np.int32)   # merged slice range per pixel
         self._frame = 0
         self._queried = -1        # the frame of the last query (the first query of a frame prefills)
         self._tmin = np.zeros(self._tile_first.shape)
@@ -530,9 +532,10 @@ class DepthGridMap:
         threads : numba threads for this call. Default: one thread below
             ``PARALLEL_MIN_POINTS`` points (a parallel region costs more than it
             saves for a few points, and waits for the slowest thread on a busy
-            machine), all threads from there — except the first query of a frame
-            (lazy), which classifies the cells on all threads first (a few ms of
-            work that splits well over image rows), then looks up on one.
+            machine), all threads from there. The first query of a frame (lazy)
+            classifies the cells it needs first, per pixel over the merged slice
+            range of all points, on all threads by default (a few ms of work that
+            splits well over image rows), then looks up.
 
         The arrays of the result are views of reused buffers, overwritten by
         the next query: ``.copy()`` the result to keep it.
@@ -549,24 +552,25 @@ class DepthGridMap:
         if n > self._cap:
             self._alloc_points(n)
         prev = None
-        prefill = False
-        if threads is None and n < PARALLEL_MIN_POINTS:
+        auto = threads is None and n < PARALLEL_MIN_POINTS
+        if auto:
             threads = 1
-            prefill = self.lazy and self._queried != self._frame
+        prefill = self.lazy and self._queried != self._frame
         if threads is not None:
             import numba
 
             if int(threads) < 1:
                 raise ValueError(f"threads must be >= 1 (got {threads!r})")
             prev = numba.get_num_threads()
-            prefill = prefill and prev > 1
             numba.set_num_threads(min(int(threads), numba.config.NUMBA_NUM_THREADS))
         self._queried = self._frame
         try:
-            if prefill:
-                numba.set_num_threads(prev)
+            if prefill:                       # the frame's cells, merged per pixel (and on all
+                if auto:                      # threads unless the caller chose)
+                    numba.set_num_threads(prev)
                 self._ensure(p, n, r)
-                numba.set_num_threads(1)
+                if auto:
+                    numba.set_num_threads(1)
             self._run_query(p, n, r, m)
         finally:
             if prev is not None:
@@ -576,13 +580,21 @@ class DepthGridMap:
         return DistanceResult(self._dist[:n], self._dir[:n], self._obs[:n], self._count[:n])
 
     def _ensure(self, p, n, r) -> None:
-        """Classify (lazy, on the current numba threads) every cell a query of ``p`` needs."""
+        """Classify (lazy, on the current numba threads) every cell a query of ``p`` needs.
+        Rows are handed out in chunks of a few (the work gathers around the robot, so two
+        contiguous halves of the image would leave one thread idle)."""
+        import numba
+
+        with numba.parallel_chunksize(ENSURE_CHUNK_ROWS):
+            self._ensure_rows(p, n, r)
+
+    def _ensure_rows(self, p, n, r) -> None:
         L.ensure_cells(self._pfree, self._pkind, self._tmin, self._pint, self.d_min, self.delta_d, self.n_d,
                        self._kfree, self._kpmin, self._kpmax, self._koff, self._kdims, self._rays_arg,
                        self._orig_arg, self._kint_arg, len(self.others), self._caps, self._ncaps,
                        self._cap_lo, self._cap_hi, self._cap_n, self._band, self._Rp, self._tp, p, n, r,
                        self._frame, self._stamp, self._obits, self._cbits, self._clear, self._free_to,
-                       self._ws)
+                       self._ws, self._span)
 
     def _run_query(self, p, n, r, m) -> None:
         if self.lazy:

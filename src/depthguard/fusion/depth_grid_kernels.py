@@ -412,7 +412,7 @@ def _ray_capsule(cx_, cy_, cap):
 MAX_CAPS_PER_PIXEL = 8
 
 
-@njit(cache=True)
+@njit(cache=True, parallel=True)
 def capsule_intervals(caps, ncaps, boxes, fx, fy, cx, cy, H, W, out_lo, out_hi, out_n):
     """Per principal pixel, the depth intervals ``[lo, hi]`` where the pixel's
     centre ray lies inside each padded robot capsule (R12: cells inside the
@@ -433,32 +433,29 @@ def capsule_intervals(caps, ncaps, boxes, fx, fy, cx, cy, H, W, out_lo, out_hi, 
     A ray farther from the capsule's centre than its bounding radius, or from its
     axis line than its radius (relative margin 1e-6), misses it and is skipped.
     """
-    for v in range(H):
+    for v in prange(H):                       # a row per thread; per pixel the capsules in order
         for u in range(W):
             out_n[v, u] = 0
-    for c in range(ncaps):
-        u0 = boxes[c, 0]
-        u1 = boxes[c, 1]
-        v0 = boxes[c, 2]
-        v1 = boxes[c, 3]
-        if u0 > u1 or v0 > v1:
-            continue
-        mx = 0.5 * (caps[c, 0] + caps[c, 3])
-        my = 0.5 * (caps[c, 1] + caps[c, 4])
-        mz = 0.5 * (caps[c, 2] + caps[c, 5])
-        ex = caps[c, 3] - caps[c, 0]
-        ey = caps[c, 4] - caps[c, 1]
-        ez = caps[c, 5] - caps[c, 2]
-        rb = (0.5 * math.sqrt(ex * ex + ey * ey + ez * ez) + caps[c, 6]) * (1.0 + 1e-6) + 1e-9
-        rb2 = rb * rb
-        mm = mx * mx + my * my + mz * mz
-        ax = caps[c, 0]
-        ay = caps[c, 1]
-        az = caps[c, 2]
-        rc = caps[c, 6] * (1.0 + 1e-6) + 1e-9
-        rc2 = rc * rc
-        for v in range(v0, v1 + 1):
-            cyr = (v - cy) / fy
+        cyr = (v - cy) / fy
+        for c in range(ncaps):
+            u0 = boxes[c, 0]
+            u1 = boxes[c, 1]
+            if u0 > u1 or not (boxes[c, 2] <= v <= boxes[c, 3]):
+                continue
+            mx = 0.5 * (caps[c, 0] + caps[c, 3])
+            my = 0.5 * (caps[c, 1] + caps[c, 4])
+            mz = 0.5 * (caps[c, 2] + caps[c, 5])
+            ex = caps[c, 3] - caps[c, 0]
+            ey = caps[c, 4] - caps[c, 1]
+            ez = caps[c, 5] - caps[c, 2]
+            rb = (0.5 * math.sqrt(ex * ex + ey * ey + ez * ez) + caps[c, 6]) * (1.0 + 1e-6) + 1e-9
+            rb2 = rb * rb
+            mm = mx * mx + my * my + mz * mz
+            ax = caps[c, 0]
+            ay = caps[c, 1]
+            az = caps[c, 2]
+            rc = caps[c, 6] * (1.0 + 1e-6) + 1e-9
+            rc2 = rc * rc
             for u in range(u0, u1 + 1):
                 cxr = (u - cx) / fx
                 rr = cxr * cxr + cyr * cyr + 1.0

@@ -316,13 +316,17 @@ def _lowest_stop(cbits, obits, v, u, lo, hi, with_obst):
 @njit(cache=True, parallel=True)
 def ensure_cells(pfree, pkind, tmin, pint, dmin, dd, nd, kfree, kpmin, kpmax, koff, kdims, rays, origins,
                  kint, nk, caps, ncaps, cap_lo, cap_hi, cap_n, band, Rp, tp, points, n_points, rho,
-                 frame, stamp, obits, cbits, clear, free_to, ws):
+                 frame, stamp, obits, cbits, clear, free_to, ws, span):
     """Lazy per-frame work (R12): classify every cell that a query of these points can
     look at — per pixel of each point's region of surveillance outside case 1, the
     slices within ``rho`` of the point (:func:`_needed_slices`) from ``r(df)`` on, inside
     the grid — unless already done this ``frame``. One parallel region over the image
-    rows that the windows cover; a row (and so each pixel) belongs to one thread.
-    ws : (>= n_points, 10) float64 workspace (per point: px, py, dp, window, slices)."""
+    rows that the windows cover; a row (and so each pixel) belongs to one thread. Per
+    pixel the points' slice ranges are merged first (``lo..hi`` from the smallest to the
+    largest slice any point needs) and classified in one pass: long stretches let the
+    pyramids settle many cells at once (R12 classes do not depend on the order).
+    ws : (>= n_points, 10) float64 workspace (per point: px, py, dp, window, slices).
+    span : (2, H, W) int32 workspace (per pixel: the merged range)."""
     H = pfree.shape[0]
     W = pfree.shape[1]
     fx = pint[0]
@@ -359,6 +363,15 @@ def ensure_cells(pfree, pkind, tmin, pint, dmin, dd, nd, kfree, kpmin, kpmax, ko
             vhi = max(vhi, v1)
     for v in prange(vlo, vhi + 1):
         ty = v // TILE
+        ulo = W
+        uhi = -1
+        for i in range(n_points):
+            if ws[i, 5] <= v and v <= ws[i, 6]:
+                ulo = min(ulo, int(ws[i, 3]))
+                uhi = max(uhi, int(ws[i, 4]))
+        for u in range(ulo, uhi + 1):
+            span[0, v, u] = nd
+            span[1, v, u] = -1
         for i in range(n_points):
             if not (ws[i, 5] <= v and v <= ws[i, 6]):
                 continue
@@ -384,11 +397,18 @@ def ensure_cells(pfree, pkind, tmin, pint, dmin, dd, nd, kfree, kpmin, kpmax, ko
                     gs, ncp = _col_setup(u, v, pfree, dmin, dd, nd, cap_n, ncaps)
                     ga = max(ga, gs, 0)
                     gb = min(gb, nd - 1)
-                    if ga > gb or (stamp[v, u] == frame and _all_set(cbits, v, u, ga, gb)):
-                        continue
-                    _ensure_pixel(u, v, ga, gb, gs, pkind[v, u] == KIND_SURFACE, ncp, fx, fy, cx, cy, dmin, dd,
-                                  kfree, kpmin, kpmax, koff, kdims, rays, origins, kint, nk, caps, ncaps,
-                                  cap_lo, cap_hi, band, frame, stamp, obits, cbits, clear, free_to)
+                    if ga <= gb:
+                        span[0, v, u] = min(span[0, v, u], ga)
+                        span[1, v, u] = max(span[1, v, u], gb)
+        for u in range(ulo, uhi + 1):
+            ga = span[0, v, u]
+            gb = span[1, v, u]
+            if ga > gb or (stamp[v, u] == frame and _all_set(cbits, v, u, ga, gb)):
+                continue
+            gs, ncp = _col_setup(u, v, pfree, dmin, dd, nd, cap_n, ncaps)
+            _ensure_pixel(u, v, ga, gb, gs, pkind[v, u] == KIND_SURFACE, ncp, fx, fy, cx, cy, dmin, dd,
+                          kfree, kpmin, kpmax, koff, kdims, rays, origins, kint, nk, caps, ncaps,
+                          cap_lo, cap_hi, band, frame, stamp, obits, cbits, clear, free_to)
 
 
 @njit(cache=True, inline="always")
