@@ -7,9 +7,11 @@ column's obstacle runs at once, is :func:`depthguard.fusion.depth_grid_kernels.c
 ``g & 63`` of word ``g >> 6`` for slice ``g`` in ``0..n_d-1``: obstacle /
 already classified. ``stamp[v, u]`` is the frame number the pixel's bits
 belong to; a pixel with an older stamp is reset on first touch, so a new
-frame costs nothing per pixel. Each cell gets exactly the class that
-:func:`~depthguard.fusion.depth_grid_kernels.column_runs` gives it (same rule, same exact stretch shortcuts), so the
-answers equal the eager runs' (without their run-overflow merging).
+frame costs no work on the bits, only two fills of (H, W) arrays (``free_to``
+and ``clear``, the per-pixel free stretch). Each cell gets exactly the class
+that :func:`~depthguard.fusion.depth_grid_kernels.column_runs` gives it (same
+rule, same exact stretch shortcuts), so the answers equal the eager runs'
+(without their run-overflow merging).
 
 Per query and principal pixel the cheap tests come first (R12 case 1, the
 column's memoised free stretch, the pixel column's distance to the point),
