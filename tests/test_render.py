@@ -169,6 +169,27 @@ def test_kernel_matches_numpy_twin(seed):
             np.testing.assert_array_equal(r.face_index(), f2)
 
 
+def test_renderers_reused_with_moving_meshes_match_the_twin():
+    """One serial and one parallel renderer, each called again and again as meshes move and
+    faces turn away: every call equals a fresh numpy render. (The parallel kernel once left a
+    culled face's slot holding the previous call's triangle, drawn again from the 2nd call.)"""
+    rng = np.random.default_rng(11)
+    T = look_at(np.array([0.0, -2.5, 1.0]), np.zeros(3), np.array([0, 0, 1.0]))
+    cam = camera(w=64, h=48, f=55.0, T=T)
+    box = Box(size=(0.6, 0.3, 0.4))
+    rs = [Renderer(cam, near=0.3), Renderer(cam, near=0.3, parallel=True)]
+    for _ in range(6):
+        axis = rng.normal(size=3)
+        meshes = [box.moved(look_at(rng.uniform(-0.3, 0.3, 3), axis, np.array([0, 0, 1.0]))).mesh(),
+                  Sphere(radius=0.2, segments=12).moved(look_at(rng.uniform(-0.5, 0.5, 3), axis,
+                                                                np.array([0, 0, 1.0]))).mesh()]
+        d2, lab2, _ = render_depth_numpy(cam, meshes, near=0.3)
+        for r in rs:
+            d, lab = r.render(meshes)
+            np.testing.assert_allclose(d, d2, rtol=0, atol=1e-6)
+            np.testing.assert_array_equal(lab, lab2)
+
+
 def test_shared_edges_no_cracks_no_double_draw():
     """A fan of triangles around a centre that is a pixel centre, with edges through pixel
     centres: every pixel inside the polygon is drawn exactly once (the top-left rule)."""
@@ -411,3 +432,34 @@ def test_bench_group_quick_rows():
         assert r.unit == "ms" and r.peer == "embree"
         assert np.isfinite(r.value) and r.value > 0
         assert np.isfinite(r.peer_value) and r.peer_value > 0
+
+
+def test_composite_of_separate_renders_is_the_joint_render():
+    """Static scene rendered once + people + robot rendered per frame, combined per pixel by
+    ``nearest_depth``: bit for bit the image of all meshes rendered together (the closed loop's
+    camera simulation relies on it)."""
+    from depthguard.render import Renderer
+    from depthguard.render.composite import nearest_depth
+    from depthguard.sim import load_cell
+    from depthguard.sim.people import Key, Person
+
+    cell = load_cell("flacco-cell")
+    robot = cell.rig.robot
+    rng = np.random.default_rng(3)
+    static = [p.mesh() for p in cell.scene.static]
+    for cam in cell.rig.cameras:
+        r_all, r_part = Renderer(cam), Renderer(cam)
+        base = np.array(r_part.render(static)[0], copy=True)
+        for _ in range(3):
+            q = np.clip(robot.q_home + rng.uniform(-0.8, 0.8, robot.dof), robot.q_min, robot.q_max)
+            arm = robot.link_meshes(q)
+            xy = tuple(rng.uniform(-1.2, 0.2, 2))
+            people = [p.mesh() for p in Person(name="p", keys=[Key(0.0, xy, 0.5)]).primitives(0.0)]
+            want = np.array(r_all.render(static + people + arm)[0], copy=True)
+            got = base.copy()
+            nearest_depth(got, r_part.render(people)[0])
+            nearest_depth(got, r_part.render(arm)[0])
+            assert (want > 0).mean() > 0.3 and (want != base).sum() > 1000   # the arm / person show
+            assert np.array_equal(got, want)
+    with pytest.raises(ValueError, match="one shape"):
+        nearest_depth(np.zeros((2, 3), np.float32), np.zeros((3, 2), np.float32))

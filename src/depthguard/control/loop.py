@@ -6,7 +6,10 @@ One control cycle (500 Hz, ``dt = 2 ms``) at time ``t``:
    next frame is due and it still delivers, the scene at ``t`` with the
    robot at its *current* joints is rendered and passed through the
    camera's noise model (the robot occludes); the robot alone is rendered at
-   the same joints for self removal (R9). The frame's stamp is ``t``.
+   the same joints for self removal (R9). The frame's stamp is ``t``. The
+   static scene is rendered once per camera at set-up and each frame renders
+   only the robot and the moving obstacles, combined per pixel with it (the
+   same image, :mod:`depthguard.render.composite`).
 2. **Distances** of the 9 control points at the *current* joints from the
    latest frames (the robot has moved since them): the depth grid map over
    all cameras (R12), or one camera's depth-space distance (R3–R9).
@@ -26,7 +29,11 @@ One control cycle (500 Hz, ``dt = 2 ms``) at time ``t``:
 5. **Ground truth** (not part of the system): the robot's collision capsules
    against the true obstacles (``scene.true_distance`` + the scenario's
    scripted primitives), sampled along each capsule axis every
-   ``gt_step`` m (overestimates by at most ``gt_step/2``).
+   ``gt_step`` m (overestimates by at most ``gt_step/2``); one numba pass
+   over the packed primitives (:mod:`depthguard.geometry.packed`).
+
+Numba runs on ``LoopConfig.threads`` threads (default: all) while the loop
+runs; the results do not depend on the thread count.
 """
 
 from __future__ import annotations
@@ -40,6 +47,7 @@ import numpy as np
 from depthguard.control.reaction import reaction
 from depthguard.control.sns import SNSWorkspace, sns_velocity
 from depthguard.control.trajectory import Hexagon
+from depthguard.render.composite import nearest_depth
 
 __all__ = ["LoopConfig", "LoopResult", "ClosedLoop", "SafetySupervisor", "solve_ik", "stop_reasons"]
 
@@ -65,7 +73,7 @@ class LoopConfig:
     robot_offset: float = 0.08       # m, R9 self-removal margin (Kinect v1: ~2.7 cm disparity step at 3 m)
     robot_padding: float = 0.05      # m, robot volume padding: grid cells inside are never obstacles (R12)
     invalid: str = "far"             # R28 policy for invalid pixels, see ClosedLoop
-    threads: int = 1                 # numba threads while the loop runs (9-point kernels: serial is faster)
+    threads: int | None = None       # numba threads while the loop runs (None: all; renders, frame work)
     distance_hz: float | None = None  # None: distances at every control cycle (R15); else this rate
     grid_delta_d: float = 0.01       # m, depth slice of the grid (R10)
     gt_step: float = 0.01            # m, ground-truth sampling along capsule axes
@@ -77,6 +85,8 @@ class LoopConfig:
             v = getattr(self, name)
             if not (np.isfinite(v) and v > 0):
                 raise ValueError(f"LoopConfig.{name} must be > 0, got {v!r}")
+        if self.threads is not None and not (isinstance(self.threads, int) and self.threads >= 1):
+            raise ValueError(f"LoopConfig.threads must be an integer >= 1 or None (all), got {self.threads!r}")
         if self.invalid not in ("far", "unknown"):
             raise ValueError(f"LoopConfig.invalid must be 'far' or 'unknown', got {self.invalid!r}")
         if self.fusion not in ("grid", "single"):
@@ -232,14 +242,24 @@ class ClosedLoop:
             cams = cams[:1]
         self.cams = cams
         self.principal = principal
-        self.extra = extra_obstacles or (lambda t: [])
+        self._extra_fn = extra_obstacles or (lambda t: [])
+        self._extra_memo: tuple[float, list] | None = None
         self.dropout = dict(dropout or {})
         for cid in self.dropout:
             if cid not in [c.id for c in cams]:
                 raise ValueError(f"dropout names unknown camera {cid!r}")
         self.sims = {c.id: SimulatedCamera(c, seed=seed, noiseless=not cfg.noise) for c in cams}
         from depthguard.render import Renderer
-        self.robot_renderers = {c.id: Renderer(c) for c in cams}
+        import numba
+        self.threads = max(1, min(int(cfg.threads or numba.config.NUMBA_NUM_THREADS), numba.config.NUMBA_NUM_THREADS))
+        par = self.threads > 1
+        # camera simulation: the static scene is rendered once per camera; per frame only the
+        # robot (also the self-removal image, R9) and the moving obstacles are rendered and
+        # combined with it per pixel (the same image as rendering everything, render/composite.py)
+        self.robot_renderers = {c.id: Renderer(c, parallel=par) for c in cams}
+        self.dyn_renderers = {c.id: Renderer(c, parallel=par) for c in cams}
+        self.static_depth = {c.id: np.array(Renderer(c).render(self._static_meshes)[0], copy=True) for c in cams}
+        self._ideal = {c.id: np.zeros(c.shape, dtype=np.float32) for c in cams}
         self._setup_distance()
         self.data = self.robot.create_data()
         self.sns_ws = SNSWorkspace(3, self.robot.dof)
@@ -309,11 +329,24 @@ class ClosedLoop:
             touching[i] = np.min(true_distance(self.scene.static, pts) - r0[i]) <= 0.005
         keep = moved | ~touching
         self.gt_caps = np.nonzero(keep)[0]
-        self._gt_u = [np.linspace(0.0, 1.0, k)[:, None] for k in self.gt_n]
+        # the sample points of every kept capsule axis at once: capsule index and parameter u
+        self._gt_cap = np.concatenate([np.full(self.gt_n[i], i, dtype=np.intp) for i in self.gt_caps]
+                                      or [np.zeros(0, dtype=np.intp)])
+        self._gt_u = np.concatenate([np.linspace(0.0, 1.0, self.gt_n[i]) for i in self.gt_caps]
+                                    or [np.zeros(0)])[:, None]
+        from depthguard.geometry.packed import PackedSolids
+        self._gt_static, self._gt_static_rest = PackedSolids.split(self.scene.static)
         names = [c.name or c.link for c in self.robot.capsules]
         self.excluded_caps = [names[i] for i in range(len(names)) if not keep[i]]
 
     # ------------------------------------------------------------ pieces
+    def extra(self, t: float) -> list:
+        """The scenario's scripted primitives at ``t`` (the last time's answer is kept: a camera
+        frame and the ground truth of the same cycle ask for the same ``t``)."""
+        if self._extra_memo is None or self._extra_memo[0] != t:
+            self._extra_memo = (t, list(self._extra_fn(t)))
+        return self._extra_memo[1]
+
     def obstacles_at(self, t: float) -> list:
         """Every obstacle at ``t``: the cell's static objects, its people and props if
         ``cell_dynamic``, and the scenario's scripted primitives."""
@@ -329,23 +362,23 @@ class ClosedLoop:
         ``gt_step/2``; ``<= 0`` = collision (an axis point inside an obstacle reads ``-radius``)."""
         from depthguard.sim.ground_truth import true_distance
         ab, r = self.robot.collision_segments(q)
-        pts, rad = [P], [np.zeros(len(P))]
-        for i in self.gt_caps:
-            u = self._gt_u[i]
-            pts.append(ab[i, 0] * (1 - u) + ab[i, 1] * u)
-            rad.append(np.full(len(u), r[i]))
-        X = np.concatenate(pts)
+        m = len(P)
+        c, u = self._gt_cap, self._gt_u
+        X = np.concatenate([P, ab[c, 0] * (1.0 - u) + ab[c, 1] * u])
+        r_all = np.concatenate([np.zeros(m), r[c]])
         dyn = ([] if not self.cell_dynamic else list(self.scene.dynamic_at(t))) + list(self.extra(t))
         sd_dyn = np.asarray(true_distance(dyn, X), dtype=np.float64)                  # 0 inside
-        sd = np.minimum(sd_dyn, true_distance(self.scene.static, X))
-        r_all = np.concatenate(rad)
+        sd_static = self._gt_static.sdf_min(X)
+        for prim in self._gt_static_rest:
+            np.minimum(sd_static, prim.sdf(X), out=sd_static)
+        sd = np.minimum(sd_dyn, np.maximum(sd_static, 0.0))
         d = sd - r_all
-        m = len(P)
         return np.maximum(d[:m], 0.0), float(d[m:].min()), float((sd_dyn - r_all)[m:].min())
 
-    def _env_meshes(self, t: float) -> list:
+    def _dynamic_meshes(self, t: float) -> list:
+        """Meshes of everything but the static scene and the robot at ``t``."""
         dyn = list(self.scene.dynamic_at(t)) if self.cell_dynamic else []
-        return self._static_meshes + [p.mesh() for p in dyn + list(self.extra(t))]
+        return [p.mesh() for p in dyn + list(self.extra(t))]
 
     # ------------------------------------------------------------ run
     def run(self, duration: float, progress: Callable | None = None,
@@ -386,7 +419,7 @@ class ClosedLoop:
             steps = progress(steps, T)
         import numba
         threads_before = numba.get_num_threads()
-        numba.set_num_threads(max(1, min(int(self.cfg.threads), numba.config.NUMBA_NUM_THREADS)))
+        numba.set_num_threads(self.threads)
         try:
             return self._run(T, steps, locals())
         finally:
@@ -420,19 +453,23 @@ class ClosedLoop:
                 if cid in self.dropout and t >= self.dropout[cid]:
                     continue
                 t0 = time.perf_counter()
-                robot_meshes = robot.link_meshes(q)
-                scene_meshes = self._env_meshes(t)
-                d = self.sims[cid].capture(scene_meshes + robot_meshes, stamp=t)
+                rd, _ = self.robot_renderers[cid].render(robot.link_meshes(q))   # self removal (R9)
+                rdepths[cid] = np.array(rd, copy=True)
+                t1 = time.perf_counter()
+                ideal = self._ideal[cid]
+                np.copyto(ideal, self.static_depth[cid])
+                dyn = self._dynamic_meshes(t)
+                if dyn:
+                    nearest_depth(ideal, self.dyn_renderers[cid].render(dyn)[0])
+                nearest_depth(ideal, rd)                       # the robot occludes, as on a real cell
+                d = self.sims[cid].measure(ideal, stamp=t)
                 if cfg.invalid == "far":
                     cam = self.cams[i]
                     d = np.where(d > 0, d, np.float32(cam.max_range - 1e-3)).astype(np.float32)
                 depths[cid] = d
-                t1 = time.perf_counter()
-                rd, _ = self.robot_renderers[cid].render(robot_meshes)
-                rdepths[cid] = np.array(rd, copy=True)
                 t2 = time.perf_counter()
-                timing["camera_sim"] += t1 - t0
-                timing["self_removal"] += t2 - t1
+                timing["self_removal"] += t1 - t0
+                timing["camera_sim"] += t2 - t1
                 stamps[i] = t
                 frame_q[cid] = q.copy()
                 n_frames[cid] += 1

@@ -413,7 +413,9 @@ def render_packed_parallel(vw, n_v, faces, n_f, mesh_off, n_meshes, face_label, 
         _transform_one(vw, R, t, vc, i)
     for f in prange(n_f):
         s = 2 * f
-        box[s + 1, 2] = 1
+        box[s, 2] = 1        # both slots empty unless the face fills them: a culled face leaves
+        box[s, 3] = 0        # its slots untouched, and they still hold the previous call's
+        box[s + 1, 2] = 1    # triangles (drawn again: wrong pixels from the second call on)
         box[s + 1, 3] = 0
         _setup_face(f, vc, faces, face_label, mesh_off, near, cull_back, fx, fy, cx, cy, W, H,
                     tri, box, slot_label, s)

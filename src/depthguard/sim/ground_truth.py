@@ -32,6 +32,7 @@ from typing import Sequence
 import numpy as np
 
 from depthguard.geometry.mesh import Mesh, as_mesh
+from depthguard.geometry.packed import PackedSolids
 from depthguard.geometry.primitives import Primitive
 
 __all__ = ["MeshSolid", "true_distance", "occupancy", "grid_shape", "voxel_centres"]
@@ -81,8 +82,9 @@ def true_distance(obstacles: Sequence[Primitive], points: np.ndarray) -> np.ndar
         p = p[None]
     if p.ndim != 2 or p.shape[1] != 3:
         raise ValueError(f"points must have shape (N, 3), got {np.shape(points)}")
-    out = np.full(len(p), np.inf)
-    for prim in obstacles:
+    packed, rest = PackedSolids.split(obstacles)
+    out = packed.sdf_min(p)                       # boxes, spheres, capsules, cylinders: one numba pass
+    for prim in rest:                             # mesh solids: their own sdf
         np.minimum(out, prim.sdf(p), out=out)
     return np.maximum(out, 0.0)
 
