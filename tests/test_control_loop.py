@@ -139,3 +139,16 @@ def test_camera_dropout_stops_and_says_why():
     assert 2.05 <= stops[0]["t_start"] <= 2.15
     assert stops[0]["t_stopped"] == pytest.approx(stops[0]["t_start"] + 0.5, abs=0.01)
     assert np.abs(res.qd[res.t > stops[0]["t_stopped"] + 0.01]).max() == 0.0
+
+
+@pytest.mark.slow
+def test_loop_results_do_not_depend_on_the_thread_count():
+    """The loop runs numba (renders, the grid's frame work) on all threads by default: one and
+    two threads give the same run, bit for bit, through a reaction to the person."""
+    s1, r1 = _run("reach", 3.0, threads=1)
+    s2, r2 = _run("reach", 3.0, threads=2)
+    assert s1["ee_max_repulsion_m_s"] > 0.2          # the person came close: the grid was exercised
+    for k in ("D", "q", "rep", "gt_robot", "observed"):
+        assert np.array_equal(getattr(r1, k), getattr(r2, k)), k
+    with pytest.raises(ValueError, match="threads"):
+        LoopConfig(threads=0)
