@@ -2,10 +2,12 @@
 
 import dataclasses
 
+import numba
 import numpy as np
 import pytest
 from scipy.stats import norm
 
+from depthguard.sources import noise
 from depthguard.sources.noise import NoiseWorkspace, apply_noise, depth_edges, depth_edges_kernel, kinect_quantise
 from depthguard.sources.sensors import sensor_model
 
@@ -173,7 +175,8 @@ def test_edge_kernel_matches_numpy_twin(rng):
         e_ref, o_ref = depth_edges(img)
         z = np.nan_to_num(img.astype(np.float64))
         edge, other = np.empty(z.shape, bool), np.empty(z.shape)
-        n, n_valid = depth_edges_kernel(z, 0.03, 0.02, edge, other)
+        starts = np.empty((2, z.shape[0] + 1), np.int64)
+        n, n_valid = depth_edges_kernel(z, 0.03, 0.02, edge, other, starts[0], starts[1])
         np.testing.assert_array_equal(edge, e_ref)
         np.testing.assert_array_equal(other, o_ref)
         assert n == e_ref.sum() and n_valid == (z > 0).sum()
@@ -191,3 +194,66 @@ def test_noise_kernel_matches_numpy_twin(rng, name):
         b = apply_noise(img, m, FX, np.random.default_rng(seed), use_numpy=True)
         np.testing.assert_array_equal(a == 0, b == 0)
         np.testing.assert_allclose(a, b, rtol=1e-6, atol=1e-7)
+
+
+def parallel_test_images(rng):
+    """Odd-sized images with holes, NaN / inf, empty rows and columns, depth steps and silhouettes."""
+    imgs = [random_scene_image(rng, 97, 131) for _ in range(2)]
+    img = random_scene_image(rng, 97, 131)
+    img[10:14] = 0.0                      # whole rows without a valid pixel
+    img[:, 60] = 0.0                      # a column of nothing: silhouettes on both sides
+    img[40:50, 70:90] = np.inf
+    img[-1, :] = 0.5                      # a near strip along the bottom border
+    imgs.append(img)
+    imgs.append(np.zeros((97, 131), np.float32))   # nothing valid: no draws at all
+    return imgs
+
+
+PARALLEL_MODELS = {
+    "kinect_v1": sensor_model("kinect_v1"),
+    "kinect_v1+sigma_a": dataclasses.replace(sensor_model("kinect_v1"), sigma_a=0.002),   # second normal
+    "realsense_d435": sensor_model("realsense_d435"),
+    "tof": sensor_model("tof"),
+    "ideal+dropout": dataclasses.replace(sensor_model("ideal"), edge_dropout=0.3),      # kind 0 in the kernel
+}
+
+
+@pytest.mark.parametrize("name", list(PARALLEL_MODELS))
+def test_parallel_kernels_bit_identical_to_numpy_twins_on_1_and_2_threads(rng, name):
+    m = PARALLEL_MODELS[name]
+    params = noise._params(m, FX)
+    lo, hi = m.min_range, m.max_range
+    thread_counts = sorted({1, min(2, numba.config.NUMBA_NUM_THREADS)})
+    ws = NoiseWorkspace((97, 131))   # reused across images: no state may leak from call to call
+    prev = numba.get_num_threads()
+    try:
+        for seed, img in enumerate(parallel_test_images(rng)):
+            z = np.where(np.isfinite(img) & (img > 0), img, 0).astype(np.float64)
+            e_ref, o_ref = depth_edges(z)
+            valid = z > 0
+            n_e, n_v = int(e_ref.sum()), int(valid.sum())
+            g, g2, u_fly, u_drop = (a.copy() for a in noise._draws(m, np.random.default_rng(seed), ws, n_e, n_v))
+            ref = noise.measure_numpy(z, e_ref, o_ref, g, g2, u_fly, u_drop, *params, lo, hi)
+            ref_apply = apply_noise(img, m, FX, np.random.default_rng(seed), use_numpy=True)
+            for threads in thread_counts:
+                numba.set_num_threads(threads)
+                ws.edge[...] = True
+                ws.other[...] = -1.0
+                ws.valid_start[...] = -1
+                ws.edge_start[...] = -1
+                counts = depth_edges_kernel(z, noise.EDGE_JUMP_ABS, noise.EDGE_JUMP_REL, ws.edge, ws.other,
+                                            ws.valid_start, ws.edge_start)
+                assert np.array_equal(np.asarray(counts), [n_e, n_v])
+                assert np.array_equal(ws.edge, e_ref) and np.array_equal(ws.other, o_ref)
+                assert np.array_equal(ws.valid_start, np.concatenate([[0], np.cumsum(valid.sum(axis=1))]))
+                assert np.array_equal(ws.edge_start, np.concatenate([[0], np.cumsum(e_ref.sum(axis=1))]))
+                out = np.full(z.shape, np.nan, np.float32)
+                noise.measure_kernel(z, ws.edge, ws.other, ws.valid_start, ws.edge_start, g, g2, u_fly, u_drop,
+                                     *params, lo, hi, out)
+                assert np.array_equal(out, ref)
+                got = apply_noise(img, m, FX, np.random.default_rng(seed), ws=ws)
+                assert np.array_equal(got, ref_apply)
+                if m.kind != "ideal":
+                    assert np.array_equal(got, ref)
+    finally:
+        numba.set_num_threads(prev)

@@ -17,6 +17,7 @@ origin is on the floor under the pelvis.
 
 from __future__ import annotations
 
+import bisect
 import math
 from dataclasses import dataclass, field
 from typing import Sequence
@@ -144,18 +145,27 @@ class Person:
 
     def pose_at(self, t: float) -> PersonPose:
         """Floor position, heading and world hand targets at time ``t``."""
+        return self._resolve(*self._between(t))
+
+    def _between(self, t: float) -> tuple[Key, Key, float]:
+        """The keys around ``t`` and the eased blend ``s`` from the first to the second."""
         ks = self.keys
         if t <= ks[0].t or len(ks) == 1:
-            return self._resolve(ks[0], ks[0], 0.0)
+            return ks[0], ks[0], 0.0
         if t >= ks[-1].t:
-            return self._resolve(ks[-1], ks[-1], 0.0)
-        i = int(np.searchsorted([k.t for k in ks], t, side="right")) - 1
+            return ks[-1], ks[-1], 0.0
+        i = bisect.bisect_right([k.t for k in ks], t) - 1
         a, b = ks[i], ks[i + 1]
         if self.interp == "step":
-            return self._resolve(a, a, 0.0)
+            return a, a, 0.0
         s = (t - a.t) / (b.t - a.t)
         s = s * s * (3 - 2 * s)  # smooth step: start and stop gently
-        return self._resolve(a, b, s)
+        return a, b, s
+
+    def _xy_at(self, t: float) -> np.ndarray:
+        """The floor position of :meth:`pose_at` alone (the same arithmetic, without the hands)."""
+        a, b, s = self._between(t)
+        return (1 - s) * np.asarray(a.xy, float) + s * np.asarray(b.xy, float)
 
     def _resolve(self, a: Key, b: Key, s: float) -> PersonPose:
         xy = (1 - s) * np.asarray(a.xy, float) + s * np.asarray(b.xy, float)
@@ -210,16 +220,18 @@ class Person:
         if not self.is_present(t):
             return []
         p = self.pose_at(t)
-        return self.primitives_at(p, self.leg_swing(t))
+        return self.primitives_at(p, self.leg_swing(t, p))
 
-    def leg_swing(self, t: float) -> float:
+    def leg_swing(self, t: float, p: PersonPose | None = None) -> float:
         """Swing angle (rad) of the left leg at time ``t`` (the right leg swings opposite): grows
-        with the forward walking speed (full ±25° from 1 m/s); 0 when standing or stepping back."""
+        with the forward walking speed (full ±25° from 1 m/s); 0 when standing or stepping back.
+        ``p``: the pose at ``t`` if the caller has it."""
         if not self.gait or not self.shape.legs or self.interp == "step":
             return 0.0
         dt = 0.05
-        p = self.pose_at(t)
-        vel = (self.pose_at(t + dt).xy - self.pose_at(t - dt).xy) / (2 * dt)
+        if p is None:
+            p = self.pose_at(t)
+        vel = (self._xy_at(t + dt) - self._xy_at(t - dt)) / (2 * dt)
         v = max(float(vel @ [math.cos(p.heading), math.sin(p.heading)]), 0.0)
         return math.radians(25.0) * min(v, 1.0) * math.sin(2 * math.pi * 0.9 * t)
 

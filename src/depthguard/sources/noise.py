@@ -32,10 +32,16 @@ noise), as many more if a Kinect has ``sigma_a > 0``; then, per edge pixel
 in raster order, one uniform for flying pixels (ToF) and one for dropout. The output is a
 deterministic function of the input and the generator's state.
 
-The per-pixel work is one numba kernel (:func:`measure_kernel`, with
-:func:`depth_edges_kernel`); :func:`measure_numpy` and :func:`depth_edges`
-are their plain-numpy twins, used by the tests. :class:`NoiseWorkspace`
-holds the scratch buffers, reused from call to call.
+The per-pixel work is two numba kernels, :func:`depth_edges_kernel` then
+:func:`measure_kernel`, both run in parallel over image rows (``prange``).
+The draws are still made once, serially, in raster order: the edge kernel
+also counts the valid and the edge pixels of every row and turns the counts
+into exclusive prefix sums (the index of each row's first normal and first
+per-edge uniform), so every row of the measurement kernel knows where its
+draws start. The result is therefore bit-identical whatever the number of
+numba threads (and to the serial loop). :func:`measure_numpy` and
+:func:`depth_edges` are the plain-numpy twins, used by the tests.
+:class:`NoiseWorkspace` holds the scratch buffers, reused from call to call.
 """
 
 from __future__ import annotations
@@ -63,8 +69,14 @@ class NoiseWorkspace:
         n = self.shape[0] * self.shape[1]
         self.gauss = np.empty(n, np.float32)            # N(0, 1) per valid pixel, raster order
         self.gauss2 = np.empty(n, np.float32)           # second N(0, 1) (Kinect sigma_a only)
+        self.u_fly = np.empty(n, np.float64)            # U[0, 1) per edge pixel, raster order (ToF)
+        self.u_drop = np.empty(n, np.float64)           # U[0, 1) per edge pixel, raster order (dropout)
         self.other = np.empty(self.shape, np.float64)   # depth across the edge
         self.edge = np.empty(self.shape, np.bool_)
+        # (H + 1,) int64: [v] = valid / edge pixels in rows < v (exclusive prefix sums; [H] = total),
+        # i.e. the index of row v's first normal / first per-edge uniform
+        self.valid_start = np.zeros(self.shape[0] + 1, np.int64)
+        self.edge_start = np.zeros(self.shape[0] + 1, np.int64)
 
 
 def depth_sigma(model: SensorModel, z: np.ndarray | float) -> np.ndarray | float:
@@ -131,16 +143,27 @@ def depth_edges(depth: np.ndarray, jump_abs: float = EDGE_JUMP_ABS,
     return edge, other
 
 
-@numba.njit(cache=True)
-def depth_edges_kernel(z, jump_abs, jump_rel, edge, other):
-    """Kernel of :func:`depth_edges`: ``z`` (H, W) float64 with 0 = invalid; fills ``edge`` (H, W)
-    bool and ``other`` (H, W) float64; returns ``(number of edge pixels, number of valid pixels)``."""
+@numba.njit(cache=True, parallel=True, nogil=True)
+def depth_edges_kernel(z, jump_abs, jump_rel, edge, other, valid_start, edge_start):
+    """Kernel of :func:`depth_edges`, in parallel over the image rows.
+
+    z : (H, W) float64, metres, 0 = invalid (no NaN); jump_abs (m), jump_rel (m per m) : the edge
+    threshold. Fills ``edge`` (H, W) bool and ``other`` (H, W) float64 (metres, as
+    :func:`depth_edges`), and ``valid_start``, ``edge_start`` (H + 1,) int64 with the exclusive
+    prefix sums of the valid / edge pixels per row (``[v]`` = count in rows ``< v``, ``[H]`` =
+    total): the offsets of each row's draws for :func:`measure_kernel`.
+    Returns ``(number of edge pixels, number of valid pixels)``; independent of the thread count.
+    """
     H, W = z.shape
+    if edge.shape != z.shape or other.shape != z.shape:
+        raise ValueError("depth_edges_kernel: edge and other must have the shape of z")
+    if valid_start.shape[0] != H + 1 or edge_start.shape[0] != H + 1:
+        raise ValueError("depth_edges_kernel: valid_start and edge_start need H + 1 elements")
     du = (-1, 1, 0, 0)
     dv = (0, 0, -1, 1)
-    n = 0
-    n_valid = 0
-    for v in range(H):
+    for v in numba.prange(H):
+        n = 0
+        n_valid = 0
         for u in range(W):
             zp = z[v, u]
             e = False
@@ -168,25 +191,49 @@ def depth_edges_kernel(z, jump_abs, jump_rel, edge, other):
             other[v, u] = oth
             if e:
                 n += 1
-    return n, n_valid
+        valid_start[v + 1] = n_valid   # per-row counts, summed below
+        edge_start[v + 1] = n
+    valid_start[0] = 0
+    edge_start[0] = 0
+    for v in range(H):                 # serial exclusive prefix sums (H elements)
+        valid_start[v + 1] += valid_start[v]
+        edge_start[v + 1] += edge_start[v]
+    return edge_start[H], valid_start[H]
 
 
 # ------------------------------------------------------------- measurement
-@numba.njit(cache=True)
-def measure_kernel(z, edge, other, gauss, gauss2, u_fly, u_drop, kind, fb, steps, sigma_a, sigma_z2,
-                   flying_fraction, edge_dropout, lo, hi, out):
-    """Measured depth of every pixel (module docstring), into ``out`` (H, W) float32.
+@numba.njit(cache=True, parallel=True, nogil=True)
+def measure_kernel(z, edge, other, valid_start, edge_start, gauss, gauss2, u_fly, u_drop, kind, fb,
+                   steps, sigma_a, sigma_z2, flying_fraction, edge_dropout, lo, hi, out):
+    """Measured depth of every pixel (module docstring), into ``out`` (H, W) float32, metres, 0 = invalid.
 
-    z, other : (H, W) float64; gauss, gauss2 : normals per valid pixel in raster order (gauss2 used
-    only by a Kinect with sigma_a > 0);
-    edge : (H, W) bool; u_fly, u_drop : uniforms per edge pixel in raster order (length 0 when
-    unused); kind : 0 ideal, 1 structured light, 2 stereo, 3 tof; fb : fx·baseline (pixel·m);
-    steps : disparity steps per pixel (2**bits).
+    Runs in parallel over the image rows: row ``v`` takes its normals from index
+    ``valid_start[v]`` and its per-edge uniforms from ``edge_start[v]`` on, so the result is
+    the same as the serial raster-order loop whatever the thread count.
+
+    z, other : (H, W) float64, metres (z: 0 = invalid; other: depth across the edge, 0 = nothing);
+    edge : (H, W) bool, edge pixels (valid ones only), as filled by :func:`depth_edges_kernel`;
+    valid_start, edge_start : (H + 1,) int64, exclusive prefix sums of the valid / edge pixels per
+    row, as filled by :func:`depth_edges_kernel`;
+    gauss, gauss2 : (n_valid,) float32 N(0, 1) per valid pixel in raster order (gauss2 used only by
+    a Kinect with sigma_a > 0, else may be empty);
+    u_fly, u_drop : (n_edges,) float64 U[0, 1) per edge pixel in raster order (length 0 when unused);
+    kind : 0 ideal, 1 structured light, 2 stereo, 3 tof; fb : fx·baseline (pixel·m);
+    steps : disparity steps per pixel (2**bits); sigma_a (m), sigma_z2 (1/m) : noise terms;
+    flying_fraction, edge_dropout : probabilities per edge pixel; lo, hi : valid range, metres.
     """
     H, W = z.shape
-    k = 0
-    i = 0
-    for v in range(H):
+    if valid_start.shape[0] != H + 1 or edge_start.shape[0] != H + 1:
+        raise ValueError("measure_kernel: valid_start and edge_start need H + 1 elements")
+    if gauss.shape[0] < valid_start[H]:
+        raise ValueError("measure_kernel: fewer normals than valid pixels")
+    n_fly = u_fly.shape[0]
+    n_drop = u_drop.shape[0]
+    if (n_fly > 0 and n_fly < edge_start[H]) or (n_drop > 0 and n_drop < edge_start[H]):
+        raise ValueError("measure_kernel: fewer uniforms than edge pixels")
+    for v in numba.prange(H):
+        i = valid_start[v]   # index of this row's first normal
+        k = edge_start[v]    # index of this row's first per-edge uniform
         for u in range(W):
             zp = z[v, u]
             m = 0.0
@@ -204,9 +251,9 @@ def measure_kernel(z, edge, other, gauss, gauss2, u_fly, u_drop, kind, fb, steps
                     m = zp
                 i += 1
                 if edge[v, u]:
-                    if u_fly.shape[0] > 0 and other[v, u] > 0.0 and u_fly[k] < flying_fraction:
+                    if n_fly > 0 and other[v, u] > 0.0 and u_fly[k] < flying_fraction:
                         m = zp + (u_fly[k] / flying_fraction) * (other[v, u] - zp)
-                    if u_drop.shape[0] > 0 and u_drop[k] < edge_dropout:
+                    if n_drop > 0 and u_drop[k] < edge_dropout:
                         m = 0.0
                     k += 1
             if m < lo or m > hi:
@@ -251,16 +298,25 @@ def measure_numpy(z, edge, other, gauss, gauss2, u_fly, u_drop, kind, fb, steps,
 
 
 def _draws(model: SensorModel, rng: np.random.Generator, ws: NoiseWorkspace, n_edges: int, n_valid: int):
-    """The random draws of one measurement, in the documented order."""
+    """The random draws of one measurement, in the documented order, into views of ``ws``.
+
+    Returns ``(gauss, gauss2, u_fly, u_drop)``: (n_valid,) float32 normals, the second ones
+    (n_valid,) or (0,), and (n_edges,) or (0,) float64 uniforms.
+    """
     gauss = ws.gauss[:n_valid]
     rng.standard_normal(out=gauss, dtype=np.float32)
     gauss2 = ws.gauss2[:0]
     if model.kind == "structured_light" and model.sigma_a > 0:
         gauss2 = ws.gauss2[:n_valid]
         rng.standard_normal(out=gauss2, dtype=np.float32)
-    empty = np.zeros(0)
-    u_fly = rng.random(n_edges) if (model.kind == "tof" and model.flying_pixels and model.flying_fraction > 0) else empty
-    u_drop = rng.random(n_edges) if model.edge_dropout > 0 else empty
+    u_fly = ws.u_fly[:0]
+    if model.kind == "tof" and model.flying_pixels and model.flying_fraction > 0:
+        u_fly = ws.u_fly[:n_edges]
+        rng.random(out=u_fly)       # the same stream as rng.random(n_edges)
+    u_drop = ws.u_drop[:0]
+    if model.edge_dropout > 0:
+        u_drop = ws.u_drop[:n_edges]
+        rng.random(out=u_drop)
     return gauss, gauss2, u_fly, u_drop
 
 
@@ -295,6 +351,9 @@ def apply_noise(ideal: np.ndarray, model: SensorModel, fx: float, rng: np.random
     Returns
     -------
     (H, W) float32 metres, 0 = invalid.
+
+    The kernels run in parallel over the image rows on numba's threads; the result
+    does not depend on the thread count (bit-identical to the numpy twins).
     """
     d = np.asarray(ideal)
     if d.ndim != 2:
@@ -321,7 +380,8 @@ def apply_noise(ideal: np.ndarray, model: SensorModel, fx: float, rng: np.random
         out[...] = measure_numpy(z, edge, other, g, g2, u_fly, u_drop, kind, fb, steps, sa, sz2,
                                  ff, ed, lo, hi)
         return out
-    n_edges, n_valid = depth_edges_kernel(z, EDGE_JUMP_ABS, EDGE_JUMP_REL, ws.edge, ws.other)
-    g, g2, u_fly, u_drop = _draws(model, rng, ws, n_edges, n_valid)
-    return measure_kernel(z, ws.edge, ws.other, g, g2, u_fly, u_drop, kind, fb, steps, sa, sz2,
-                          ff, ed, lo, hi, out)
+    n_edges, n_valid = depth_edges_kernel(z, EDGE_JUMP_ABS, EDGE_JUMP_REL, ws.edge, ws.other,
+                                          ws.valid_start, ws.edge_start)
+    g, g2, u_fly, u_drop = _draws(model, rng, ws, int(n_edges), int(n_valid))
+    return measure_kernel(z, ws.edge, ws.other, ws.valid_start, ws.edge_start, g, g2, u_fly, u_drop,
+                          kind, fb, steps, sa, sz2, ff, ed, lo, hi, out)
