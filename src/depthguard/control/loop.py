@@ -47,6 +47,7 @@ import numpy as np
 from depthguard.control.reaction import reaction
 from depthguard.control.sns import SNSWorkspace, sns_velocity
 from depthguard.control.trajectory import Hexagon
+from depthguard.geometry.packed import PackedSolids
 from depthguard.render.composite import nearest_depth
 
 __all__ = ["LoopConfig", "LoopResult", "ClosedLoop", "SafetySupervisor", "solve_ik", "stop_reasons"]
@@ -334,8 +335,8 @@ class ClosedLoop:
                                       or [np.zeros(0, dtype=np.intp)])
         self._gt_u = np.concatenate([np.linspace(0.0, 1.0, self.gt_n[i]) for i in self.gt_caps]
                                     or [np.zeros(0)])[:, None]
-        from depthguard.geometry.packed import PackedSolids
         self._gt_static, self._gt_static_rest = PackedSolids.split(self.scene.static)
+        self._gt_dyn_memo = None
         names = [c.name or c.link for c in self.robot.capsules]
         self.excluded_caps = [names[i] for i in range(len(names)) if not keep[i]]
 
@@ -360,14 +361,19 @@ class ClosedLoop:
         robot's capsules (all but ``excluded_caps``) to the obstacles: the distance of points on
         each capsule axis (every ``gt_step``) minus the radius, so an overestimate by at most
         ``gt_step/2``; ``<= 0`` = collision (an axis point inside an obstacle reads ``-radius``)."""
-        from depthguard.sim.ground_truth import true_distance
         ab, r = self.robot.collision_segments(q)
         m = len(P)
         c, u = self._gt_cap, self._gt_u
         X = np.concatenate([P, ab[c, 0] * (1.0 - u) + ab[c, 1] * u])
         r_all = np.concatenate([np.zeros(m), r[c]])
         dyn = ([] if not self.cell_dynamic else list(self.scene.dynamic_at(t))) + list(self.extra(t))
-        sd_dyn = np.asarray(true_distance(dyn, X), dtype=np.float64)                  # 0 inside
+        memo = self._gt_dyn_memo
+        if memo is None or len(memo[0]) != len(dyn) or any(a is not b for a, b in zip(memo[0], dyn)):
+            memo = self._gt_dyn_memo = (dyn, *PackedSolids.split(dyn))   # the same solids: packed once
+        sd_dyn = memo[1].sdf_min(X)
+        for prim in memo[2]:
+            np.minimum(sd_dyn, prim.sdf(X), out=sd_dyn)
+        sd_dyn = np.maximum(sd_dyn, 0.0)                                                # 0 inside
         sd_static = self._gt_static.sdf_min(X)
         for prim in self._gt_static_rest:
             np.minimum(sd_static, prim.sdf(X), out=sd_static)

@@ -125,6 +125,7 @@ class Person:
     carries: Sequence[Carry] = ()
     interp: str = "linear"
     gait: bool = True   # swing the legs while walking (1.8 steps/s, up to ±25°)
+    _memo: tuple | None = field(default=None, init=False, repr=False, compare=False)
 
     def __post_init__(self):
         if not self.keys:
@@ -220,7 +221,12 @@ class Person:
         if not self.is_present(t):
             return []
         p = self.pose_at(t)
-        return self.primitives_at(p, self.leg_swing(t, p))
+        swing = self.leg_swing(t, p)
+        key = (p.xy.tobytes(), p.heading, None if p.left is None else p.left.tobytes(),
+               None if p.right is None else p.right.tobytes(), swing)
+        if self._memo is None or self._memo[0] != key:   # a person who stands still: the same solids
+            self._memo = (key, self.primitives_at(p, swing))
+        return list(self._memo[1])
 
     def leg_swing(self, t: float, p: PersonPose | None = None) -> float:
         """Swing angle (rad) of the left leg at time ``t`` (the right leg swings opposite): grows
