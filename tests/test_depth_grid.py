@@ -441,6 +441,46 @@ def test_lazy_columns_equal_eager_runs(seed, n_cams):
     assert n_found >= 10                      # the comparison is not vacuous
 
 
+def test_frames_of_changed_cameras_only_give_the_same_answers():
+    """``set_frames(..., changed=[id])`` (the other cameras keep their loaded states) answers
+    exactly like loading every camera, through new frames of another camera and of the
+    principal, a camera that stops delivering and comes back; a camera left out of
+    ``changed`` really keeps its old frame (the skip is not a no-op)."""
+    rng = np.random.default_rng(5)
+    prims, cams, depths = _scene(rng, 3)
+    a, b, c, depths, rdepths, caps = _with_robot(prims, cams)
+    full = DepthGridMap(cams, "c0", 1.0, 4.6, 0.03, cache=False)
+    part = DepthGridMap(cams, "c0", 1.0, 4.6, 0.03, cache=False)
+    stale = DepthGridMap(cams, "c0", 1.0, 4.6, 0.03, cache=False)
+    P = np.vstack([rng.uniform(-0.6, 0.6, (12, 3)), a + (b - a) * 0.5, c])
+    frames = dict(depths)
+    differs = False
+    for step, cid in enumerate([None, "c1", "c0", "c2", "drop c2", "back c2"]):
+        changed = None
+        if cid in ("c0", "c1", "c2"):
+            ball = Sphere(radius=0.2, world_from_local=_T(*rng.uniform(-0.4, 0.4, 3)))
+            cam = next(k for k in cams if k.id == cid)
+            frames[cid] = _with_robot(prims + [ball], [cam])[3][cid]
+            changed = [cid]
+        elif cid == "drop c2":
+            frames.pop("c2")
+            changed = []
+        elif cid == "back c2":
+            frames["c2"] = depths["c2"]
+            changed = []                          # a camera that had no frame is loaded regardless
+        full.set_frames(frames, rdepths, robot_capsules=caps)
+        part.set_frames(frames, rdepths, robot_capsules=caps, changed=changed)
+        stale.set_frames(frames, rdepths, robot_capsules=caps, changed=None if step == 0 else [])
+        r1, r2, r3 = (g.query(P, 0.4, "hybrid").copy() for g in (full, part, stale))
+        np.testing.assert_array_equal(r1.distance, r2.distance)
+        np.testing.assert_array_equal(r1.direction, r2.direction)
+        np.testing.assert_array_equal(r1.observed, r2.observed)
+        differs |= not np.array_equal(r1.distance, r3.distance)
+    assert differs
+    with pytest.raises(ValueError, match="changed names unknown"):
+        part.set_frames(frames, rdepths, robot_capsules=caps, changed=["nope"])
+
+
 def test_capsule_boxes_kernel_equals_numpy_twin(rng):
     """The capsules' pixel boxes (numba) equal the plain-numpy twin on random capsules,
     including ones that reach behind the principal camera (the whole image)."""

@@ -445,6 +445,7 @@ class ClosedLoop:
         snapshots = []
         n_distance, next_distance = 0, 0.0
         frames_dirty = False
+        new_frames: set[str] = set()            # cameras with a frame the grid has not loaded yet
         frame_q: dict[str, np.ndarray] = {}     # joints at each camera's latest capture
         react_buf = (np.empty(3), np.empty(n), np.empty(n))
         q_min, q_max, qd_max = (np.ascontiguousarray(a, dtype=np.float64)
@@ -480,6 +481,7 @@ class ClosedLoop:
                 frame_q[cid] = q.copy()
                 n_frames[cid] += 1
                 frames_dirty = True
+                new_frames.add(cid)
                 if i == 0 and snaps_todo and t >= snaps_todo[0] - 1e-9:
                     snaps_todo.pop(0)
                     snapshots.append((t, cid, depths[cid].copy()))
@@ -496,8 +498,9 @@ class ClosedLoop:
                     # the robot's padded volume at every frame's capture joints (R9, R12);
                     # between frames the cells memoised for this frame stay valid
                     self.grid.set_frames(depths, rdepths, robot_offset=cfg.robot_offset, robot_capsules=caps,
-                                         **self._grid_kw(caps))
+                                         changed=new_frames, **self._grid_kw(caps))
                     frames_dirty = False
+                    new_frames = set()
                 res = self.grid.query(P, rho=rho, method=cfg.method)
             else:
                 if frames_dirty:

@@ -193,6 +193,8 @@ class DepthGridMap:
         self._caps_world = np.zeros((0, 7))
         self._alloc_points(16)
         self.has_frames = False
+        self._loaded_options = None           # (robot_offset, invalid, robot_in_others) of the last frames
+        self._loaded_with_frame: set = set()  # cameras that had a frame in the last set_frames
 
     # ------------------------------------------------------------ off-line map (R11)
     def _key(self) -> str:
@@ -345,7 +347,8 @@ class DepthGridMap:
 
     def set_frames(self, depths: dict, robot_depths: dict | None = None,
                    robot_offset: float = 0.03, robot_capsules=None, invalid: str = "unknown",
-                   robot_in_others: str = "unknown", reach=None, lazy: bool = True) -> None:
+                   robot_in_others: str = "unknown", reach=None, lazy: bool = True,
+                   changed=None) -> None:
         """Load one frame per camera (R9, R28); call once per camera frame.
 
         depths : dict camera id -> (H, W) float metres (0 / NaN / out of range =
@@ -385,6 +388,13 @@ class DepthGridMap:
             (per-pixel frame stamp, preallocated bits). False: every column's
             obstacle runs now (the eager form; same answers unless a column has
             more than ``RUNS_PER_COLUMN`` runs, which are then merged on the safe side).
+        changed : optional ids of the cameras whose frame (or robot depth) is new since
+            the previous call; the others keep the per-pixel states and pyramids computed
+            then (cameras that are not synchronised deliver one at a time). ``None``
+            (default): every camera is loaded again. A camera that was not loaded by the
+            previous call with the same ``robot_offset``, ``invalid`` and
+            ``robot_in_others`` is loaded regardless; the robot volume and the memo are
+            always renewed.
         """
         if not isinstance(depths, dict):
             raise ValueError("depths must be a dict camera id -> depth image")
@@ -407,8 +417,31 @@ class DepthGridMap:
         P = self.principal
         if P.id not in depths:
             raise ValueError(f"depths has no frame of the principal camera {P.id!r}")
-        self._state(P, depths[P.id], robot_depths.get(P.id), off, self._pfree, self._pkind, False)
+        options = (off, invalid, robot_in_others)
+        if changed is None or options != self._loaded_options:
+            fresh = set(known)
+        else:
+            fresh = set(changed)
+            extra = fresh - known
+            if extra:
+                raise ValueError(f"changed names unknown camera(s) {sorted(extra)}; cameras: {sorted(known)}")
+            # a camera loaded last time from nothing (no frame) must be loaded once its frame comes
+            fresh |= {cid for cid in known if (cid in depths) != (cid in self._loaded_with_frame)}
+        # a failure half-way leaves a mix of old and new states: no frames until the next call
+        self.has_frames = False
+        self._loaded_options = None
+        self._load_frames(fresh, depths, robot_depths, off, robot_in_others, reach, lazy, robot_capsules)
+        self._loaded_options = options
+        self._loaded_with_frame = {cid for cid in known if cid in depths}
+
+    def _load_frames(self, fresh, depths, robot_depths, off, robot_in_others, reach, lazy, robot_capsules) -> None:
+        """The loading part of :meth:`set_frames` (arguments checked there)."""
+        P = self.principal
+        if P.id in fresh:
+            self._state(P, depths[P.id], robot_depths.get(P.id), off, self._pfree, self._pkind, False)
         for k, cam in enumerate(self.others):
+            if cam.id not in fresh:
+                continue
             if cam.id in depths:
                 self._state(cam, depths[cam.id], robot_depths.get(cam.id), off,
                             self._kfree[k], self._kkind, robot_in_others == "free")
