@@ -152,3 +152,20 @@ def test_loop_results_do_not_depend_on_the_thread_count():
         assert np.array_equal(getattr(r1, k), getattr(r2, k)), k
     with pytest.raises(ValueError, match="threads"):
         LoopConfig(threads=0)
+    # the frames were simulated on the camera thread and used one latency after capture
+    cfg = LoopConfig()
+    L, period, dt = cfg.latency, 1.0 / cfg.camera_hz, cfg.dt
+    assert L == pytest.approx(period)
+    assert r1.frame_age.min() >= L - 1e-9 and r1.frame_age.max() <= L + period + 2 * dt
+    with pytest.raises(ValueError, match="camera_latency"):
+        LoopConfig(camera_latency=-0.01)
+
+
+@pytest.mark.slow
+def test_latency_zero_uses_each_frame_at_its_capture_cycle():
+    """Without latency a frame is used in the cycle it was captured (its age is below one camera
+    period at every cycle), and the run reacts to the person as with latency."""
+    s, res = _run("reach", 3.0, camera_latency=0.0)
+    period = 1.0 / LoopConfig().camera_hz
+    assert res.frame_age.min() == 0.0 and res.frame_age.max() < period + 2 * LoopConfig().dt
+    assert s["ee_max_repulsion_m_s"] > 0.2 and not s["collision"]

@@ -6,12 +6,15 @@ One control cycle (500 Hz, ``dt = 2 ms``) at time ``t``:
    next frame is due and it still delivers, the scene at ``t`` with the
    robot at its *current* joints is rendered and passed through the
    camera's noise model (the robot occludes); the robot alone is rendered at
-   the same joints for self removal (R9). The frame's stamp is ``t``. The
+   the same joints for self removal (R9). The frame's stamp is its capture
+   time ``t``; it is **delivered** ``camera_latency`` later (default one
+   camera period, as a Kinect's frame; 0 = at once) and simulated meanwhile
+   on a second thread (:mod:`depthguard.control.camera_pipeline`). The
    static scene is rendered once per camera at set-up and each frame renders
    only the robot and the moving obstacles, combined per pixel with it (the
    same image, :mod:`depthguard.render.composite`).
 2. **Distances** of the 9 control points at the *current* joints from the
-   latest frames (the robot has moved since them): the depth grid map over
+   latest delivered frames (the robot has moved since their capture): the depth grid map over
    all cameras (R12), or one camera's depth-space distance (R3–R9).
 3. **Supervision** (R26, R27), the speed override ``k ∈ [0, 1]`` ramps to 0
    in ``stop_time`` while any of these holds, and back to 1 in
@@ -44,6 +47,7 @@ from typing import Callable
 
 import numpy as np
 
+from depthguard.control.camera_pipeline import CameraPipeline
 from depthguard.control.reaction import reaction
 from depthguard.control.sns import SNSWorkspace, sns_velocity
 from depthguard.control.trajectory import Hexagon
@@ -61,6 +65,7 @@ class LoopConfig:
     alpha: float = 5.0               # shape factor (R13, R14)
     control_hz: float = 500.0
     camera_hz: float = 30.0
+    camera_latency: float | None = None   # s from capture to delivery (None: one camera period); camera_pipeline.py
     stale_periods: float = 3.0       # R27: frame age limit in camera periods
     stop_time: float = 0.5           # s, override ramp 1 -> 0
     resume_time: float = 1.0         # s, override ramp 0 -> 1
@@ -86,6 +91,8 @@ class LoopConfig:
             v = getattr(self, name)
             if not (np.isfinite(v) and v > 0):
                 raise ValueError(f"LoopConfig.{name} must be > 0, got {v!r}")
+        if self.camera_latency is not None and not (np.isfinite(self.camera_latency) and self.camera_latency >= 0):
+            raise ValueError(f"LoopConfig.camera_latency must be >= 0 s or None, got {self.camera_latency!r}")
         if self.threads is not None and not (isinstance(self.threads, int) and self.threads >= 1):
             raise ValueError(f"LoopConfig.threads must be an integer >= 1 or None (all), got {self.threads!r}")
         if self.invalid not in ("far", "unknown"):
@@ -98,6 +105,11 @@ class LoopConfig:
     @property
     def dt(self) -> float:
         return 1.0 / self.control_hz
+
+    @property
+    def latency(self) -> float:
+        """Seconds from a frame's capture to its delivery (default one camera period)."""
+        return 1.0 / self.camera_hz if self.camera_latency is None else float(self.camera_latency)
 
 
 class SafetySupervisor:
@@ -344,9 +356,10 @@ class ClosedLoop:
     def extra(self, t: float) -> list:
         """The scenario's scripted primitives at ``t`` (the last time's answer is kept: a camera
         frame and the ground truth of the same cycle ask for the same ``t``)."""
-        if self._extra_memo is None or self._extra_memo[0] != t:
-            self._extra_memo = (t, list(self._extra_fn(t)))
-        return self._extra_memo[1]
+        memo = self._extra_memo                          # one read: the camera thread asks too
+        if memo is None or memo[0] != t:
+            memo = self._extra_memo = (t, list(self._extra_fn(t)))
+        return memo[1]
 
     def obstacles_at(self, t: float) -> list:
         """Every obstacle at ``t``: the cell's static objects, its people and props if
@@ -380,6 +393,28 @@ class ClosedLoop:
         sd = np.minimum(sd_dyn, np.maximum(sd_static, 0.0))
         d = sd - r_all
         return np.maximum(d[:m], 0.0), float(d[m:].min()), float((sd_dyn - r_all)[m:].min())
+
+    def _simulate_frame(self, i: int, t: float, q: np.ndarray):
+        """Camera ``i``'s frame captured at ``t`` with the robot at ``q`` (may run on the camera
+        thread, see camera_pipeline.py): ``(measured depth, robot depth, robot render seconds,
+        scene seconds)``, new arrays. The robot alone is rendered for self removal (R9) and
+        combined with the static scene (rendered once) and the moving obstacles; the camera's
+        noise model turns the ideal image into the measured one."""
+        cam = self.cams[i]
+        cid = cam.id
+        t0 = time.perf_counter()
+        rd = np.array(self.robot_renderers[cid].render(self.robot.link_meshes(q))[0], copy=True)
+        t1 = time.perf_counter()
+        ideal = self._ideal[cid]
+        np.copyto(ideal, self.static_depth[cid])
+        dyn = self._dynamic_meshes(t)
+        if dyn:
+            nearest_depth(ideal, self.dyn_renderers[cid].render(dyn)[0])
+        nearest_depth(ideal, rd)                       # the robot occludes, as on a real cell
+        d = self.sims[cid].measure(ideal, stamp=t)
+        if self.cfg.invalid == "far":
+            d = np.where(d > 0, d, np.float32(cam.max_range - 1e-3)).astype(np.float32)
+        return d, rd, t1 - t0, time.perf_counter() - t1
 
     def _dynamic_meshes(self, t: float) -> list:
         """Meshes of everything but the static scene and the robot at ``t``."""
@@ -426,9 +461,11 @@ class ClosedLoop:
         import numba
         threads_before = numba.get_num_threads()
         numba.set_num_threads(self.threads)
+        cams_sim = CameraPipeline(self._simulate_frame, cam_ids, cfg.latency, timing)
         try:
             return self._run(T, steps, locals())
         finally:
+            cams_sim.close()
             numba.set_num_threads(threads_before)
 
     def _run(self, T, steps, env) -> LoopResult:
@@ -443,48 +480,36 @@ class ClosedLoop:
         wall0 = time.perf_counter()
         snaps_todo = sorted(float(x) for x in snapshot_times)
         snapshots = []
+        react_buf = (np.empty(3), np.empty(n), np.empty(n))
+        q_min, q_max, qd_max = (np.ascontiguousarray(a, dtype=np.float64)
+                                for a in (robot.q_min, robot.q_max, robot.qd_max))
+        cams_sim = env["cams_sim"]
         n_distance, next_distance = 0, 0.0
         frames_dirty = False
         new_frames: set[str] = set()            # cameras with a frame the grid has not loaded yet
         frame_q: dict[str, np.ndarray] = {}     # joints at each camera's latest capture
-        react_buf = (np.empty(3), np.empty(n), np.empty(n))
-        q_min, q_max, qd_max = (np.ascontiguousarray(a, dtype=np.float64)
-                                for a in (robot.q_min, robot.q_max, robot.qd_max))
+        cams_sim.start(q, [i for i, c in enumerate(cam_ids) if not (c in self.dropout and self.dropout[c] <= 0.0)])
         for k in steps:
             t = k * dt
-            # 1. vision
+            # 1. vision: capture the frames due now, deliver those whose latency has passed
             for i, cid in enumerate(cam_ids):
                 if t + 1e-9 < next_frame[i]:
                     continue
                 next_frame[i] = phase[i] + (np.floor((t - phase[i]) / period + 1e-9) + 1) * period
                 if cid in self.dropout and t >= self.dropout[cid]:
                     continue
-                t0 = time.perf_counter()
-                rd, _ = self.robot_renderers[cid].render(robot.link_meshes(q))   # self removal (R9)
-                rdepths[cid] = np.array(rd, copy=True)
-                t1 = time.perf_counter()
-                ideal = self._ideal[cid]
-                np.copyto(ideal, self.static_depth[cid])
-                dyn = self._dynamic_meshes(t)
-                if dyn:
-                    nearest_depth(ideal, self.dyn_renderers[cid].render(dyn)[0])
-                nearest_depth(ideal, rd)                       # the robot occludes, as on a real cell
-                d = self.sims[cid].measure(ideal, stamp=t)
-                if cfg.invalid == "far":
-                    cam = self.cams[i]
-                    d = np.where(d > 0, d, np.float32(cam.max_range - 1e-3)).astype(np.float32)
+                cams_sim.capture(i, t, q)
+            for i, cid, t_cap, q_cap, d, rd in cams_sim.deliver(t):
                 depths[cid] = d
-                t2 = time.perf_counter()
-                timing["self_removal"] += t1 - t0
-                timing["camera_sim"] += t2 - t1
-                stamps[i] = t
-                frame_q[cid] = q.copy()
+                rdepths[cid] = rd
+                stamps[i] = t_cap
+                frame_q[cid] = q_cap
                 n_frames[cid] += 1
                 frames_dirty = True
                 new_frames.add(cid)
-                if i == 0 and snaps_todo and t >= snaps_todo[0] - 1e-9:
+                if i == 0 and snaps_todo and t_cap >= snaps_todo[0] - 1e-9:
                     snaps_todo.pop(0)
-                    snapshots.append((t, cid, depths[cid].copy()))
+                    snapshots.append((t_cap, cid, d.copy()))
             # 2. distances at the current pose
             t0 = time.perf_counter()
             robot.forward(q, data)

@@ -26,7 +26,7 @@ from depthguard.control.repulsion import check_reaction_params, repulsive_veloci
 __all__ = ["reaction", "reaction_numpy"]
 
 
-@numba.njit(cache=True)
+@numba.njit(cache=True, nogil=True)
 def _reaction_kernel(D, V, J, q, q_min, q_max, qd_max, dt, rho, v_max, alpha, k, tol, rep, lo, hi):
     m = D.shape[0]
     n = q.shape[0]

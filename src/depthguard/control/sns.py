@@ -180,7 +180,7 @@ def _box_step(x: np.ndarray, d: np.ndarray, lo: np.ndarray, hi: np.ndarray) -> f
 
 
 # --------------------------------------------------------------------- numba kernel
-@numba.njit(cache=True)
+@numba.njit(cache=True, nogil=True)
 def _pinv_rank_nb(A, out):
     """``out[:] = A⁺`` (n, m) via SVD; returns the rank (singular values > RANK_TOL)."""
     U, S, Vt = np.linalg.svd(A, False)
@@ -199,7 +199,7 @@ def _pinv_rank_nb(A, out):
     return r
 
 
-@numba.njit(cache=True)
+@numba.njit(cache=True, nogil=True)
 def _tsf_nb(a, b, lo, hi, W):
     n = a.shape[0]
     s_max = np.inf
@@ -228,7 +228,7 @@ def _tsf_nb(a, b, lo, hi, W):
     return s_max, j
 
 
-@numba.njit(cache=True)
+@numba.njit(cache=True, nogil=True)
 def _sns_kernel(J, xd, lo, hi, qd0, use_qd0, max_iter, qd, W, P, JW, qd_N, best_W, best_qdN, a, b, tmp):
     """SNS (Algorithm 1) into preallocated buffers; returns (scale, iterations, beta).
 

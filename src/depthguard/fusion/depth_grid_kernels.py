@@ -66,7 +66,7 @@ _FX, _FY, _CX, _CY, _W, _H, _RMIN, _RMAX = range(8)
 D_ZERO = 1e-9
 
 
-@njit(cache=True)
+@njit(cache=True, nogil=True)
 def frame_state(depth, robot_depth, use_robot, min_range, max_range, robot_offset,
                 invalid_free, robot_free, out_free, out_kind):
     """Per-pixel state of one depth frame (R1, R9, R28).
@@ -105,7 +105,7 @@ def frame_state(depth, robot_depth, use_robot, min_range, max_range, robot_offse
             out_kind[v, u] = KIND_SURFACE
 
 
-@njit(cache=True)
+@njit(cache=True, nogil=True)
 def build_pyramids(free, H, W, pmin, pmax, offsets, dims):
     """Min- and max-pyramids of a free-depth image: level ``l`` holds the
     minimum (maximum) over aligned ``2^l x 2^l`` blocks (level 0 is the image).
@@ -178,7 +178,7 @@ def _box_max(pyr, offsets, dims, u0, u1, v0, v1):
     return m
 
 
-@njit(cache=True)
+@njit(cache=True, nogil=True)
 def cell_footprint(rays, origins, kint, k, gx, gy, d1, d2):
     """Footprint of the principal-grid frustum piece ``pixel (gx, gy) x [d1, d2]``
     in camera ``k`` (R11).
@@ -239,7 +239,7 @@ def cell_footprint(rays, origins, kint, k, gx, gy, d1, d2):
     return True, u0, u1, v0, v1, zmin, zmax
 
 
-@njit(cache=True)
+@njit(cache=True, nogil=True)
 def cell_cleared(kfree, rays, origins, kint, nk, gx, gy, d1, d2):
     """True when some other camera clears the piece ``pixel (gx, gy) x [d1, d2]``:
     it sees it whole and every footprint pixel is free beyond ``dend_k``
@@ -261,7 +261,7 @@ def cell_cleared(kfree, rays, origins, kint, nk, gx, gy, d1, d2):
     return False
 
 
-@njit(cache=True)
+@njit(cache=True, nogil=True)
 def _range_cleared(kpyr, koff, kdims, rays, origins, kint, nk, gx, gy, d1, d2):
     """Fast sufficient test that the whole piece ``[d1, d2]`` of a column is
     cleared by one camera, from the min-pyramid (a superset of the footprint).
@@ -275,7 +275,7 @@ def _range_cleared(kpyr, koff, kdims, rays, origins, kint, nk, gx, gy, d1, d2):
     return False
 
 
-@njit(cache=True)
+@njit(cache=True, nogil=True)
 def _range_confirmed(kpmax, koff, kdims, rays, origins, kint, nk, gx, gy, d1, d2):
     """Fast sufficient test that every cell of the piece ``[d1, d2]`` of a column
     is confirmed by every other camera: each camera sees the piece whole and the
@@ -290,7 +290,7 @@ def _range_confirmed(kpmax, koff, kdims, rays, origins, kint, nk, gx, gy, d1, d2
     return True
 
 
-@njit(cache=True)
+@njit(cache=True, nogil=True)
 def _range_settled(kpmin, kpmax, koff, kdims, rays, origins, kint, nk, gx, gy, d1, d2):
     """:func:`_range_cleared` (1), else :func:`_range_confirmed` (2), else 0, computing
     each camera's footprint of the piece once."""
@@ -307,7 +307,7 @@ def _range_settled(kpmin, kpmax, koff, kdims, rays, origins, kint, nk, gx, gy, d
     return 2 if conf else 0
 
 
-@njit(cache=True)
+@njit(cache=True, nogil=True)
 def _seg_dist2(px, py, pz, cap):
     ax = cap[0]
     ay = cap[1]
@@ -329,7 +329,7 @@ def _seg_dist2(px, py, pz, cap):
     return dx * dx + dy * dy + dz * dz
 
 
-@njit(cache=True)
+@njit(cache=True, nogil=True)
 def cell_in_capsules(caps, ncaps, fx, fy, cx, cy, gx, gy, d1, d2):
     """True when the cell's centre lies inside one padded robot capsule (R12;
     the rule of :func:`capsule_intervals`).
@@ -412,7 +412,7 @@ def _ray_capsule(cx_, cy_, cap):
 MAX_CAPS_PER_PIXEL = 8
 
 
-@njit(cache=True, parallel=True)
+@njit(cache=True, parallel=True, nogil=True)
 def capsule_intervals(caps, ncaps, boxes, fx, fy, cx, cy, H, W, out_lo, out_hi, out_n):
     """Per principal pixel, the depth intervals ``[lo, hi]`` where the pixel's
     centre ray lies inside each padded robot capsule (R12: cells inside the
@@ -476,7 +476,7 @@ def capsule_intervals(caps, ncaps, boxes, fx, fy, cx, cy, H, W, out_lo, out_hi, 
                 out_n[v, u] = min(n + 1, MAX_CAPS_PER_PIXEL + 1)
 
 
-@njit(cache=True)
+@njit(cache=True, nogil=True)
 def capsule_boxes(caps, ncaps, fx, fy, cx, cy, H, W, out):
     """(ncaps, 4) int64 written into ``out``: the inclusive pixel box ``u0, u1, v0, v1`` holding
     each capsule's projection (principal frame capsules): the projected corners of its
@@ -520,7 +520,7 @@ RUN_END = 1 << 30          # "to the end of the ray" in a run of cells
 TILE = 8                   # principal pixels per tile side (query skips whole tiles)
 
 
-@njit(cache=True)
+@njit(cache=True, nogil=True)
 def tile_first_cells(runs, nruns, out):
     """(ceil(H/TILE), ceil(W/TILE)) int32: per tile, the smallest first obstacle cell
     of its columns (``RUN_END`` if none); a point whose reach ends before it skips the tile."""
@@ -618,7 +618,7 @@ def _confirmed_cell(kfree, rays, origins, kint, nk, u, v, g, d1, d2, sec, sec_g)
     return not cell_cleared(kfree, rays, origins, kint, nk, u, v, d1, d2), sec, sec_g
 
 
-@njit(cache=True, parallel=True)
+@njit(cache=True, parallel=True, nogil=True)
 def column_runs(pfree, pkind, pint, dmin, dd, nd, kfree, kpmin, kpmax, koff, kdims, rays, origins,
                 kint, nk, caps, ncaps, cap_lo, cap_hi, cap_n, band, runs, nruns):
     """Per frame: the obstacle cells of every principal column as runs (R12).
@@ -738,7 +738,7 @@ def column_runs(pfree, pkind, pint, dmin, dd, nd, kfree, kpmin, kpmax, koff, kdi
             nruns[v, u] = nr
 
 
-@njit(cache=True)
+@njit(cache=True, nogil=True)
 def reach_band(lo, hi, Rwp, o, fx, fy, cx, cy, dmin, dd, pad, band):
     """Per principal pixel, the slices whose cells can meet the world box
     ``[lo, hi]`` (R12 work limited to where control points can reach).
@@ -786,7 +786,7 @@ def reach_band(lo, hi, Rwp, o, fx, fy, cx, cy, dmin, dd, pad, band):
                 band[v, u, 1] = int(math.floor((min(t1, 1e6) - dmin) / dd)) + 1
 
 
-@njit(cache=True)
+@njit(cache=True, nogil=True)
 def reach_band_capsules(caps, ncaps, boxes, fx, fy, cx, cy, dmin, dd, band):
     """Per principal pixel, the slices whose cells can meet one of the capsules
     ``caps`` (principal frame, (C, 7) a, b, radius; already grown by the reach
@@ -880,7 +880,7 @@ def _f2(g, dmin, dd, dp, ax, ay, bx, by):
     return wx * wx + wy * wy + wz * wz, wx, wy, wz
 
 
-@njit(cache=True)
+@njit(cache=True, nogil=True)
 def _column(u, v, runs, nr, px, py, dp, lim2, fx, fy, cx, cy, dmin, dd):
     """Nearest obstacle cell of the principal pixel ``(u, v)``'s column (R10, R12)
     among its obstacle runs, by the R10 distance.
@@ -930,7 +930,7 @@ def _column(u, v, runs, nr, px, py, dp, lim2, fx, fy, cx, cy, dmin, dd):
     return found, best2, bvx, bvy, bvz
 
 
-@njit(cache=True, parallel=True)
+@njit(cache=True, parallel=True, nogil=True)
 def grid_distances(pfree, runs, nruns, tile_first, Rp, tp, pint, dmin, dd,
                    points, n_points, rho, method,
                    out_distance, out_direction, out_count, out_observed):

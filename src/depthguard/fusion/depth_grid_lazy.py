@@ -39,7 +39,7 @@ _ONE = np.uint64(1)
 _ALL = np.uint64(0xFFFFFFFFFFFFFFFF)
 
 
-@njit(cache=True)
+@njit(cache=True, nogil=True)
 def tile_min_free(pfree, out):
     """(ceil(H/TILE), ceil(W/TILE)) float64: per tile the smallest principal free depth.
     A point with ``dp + rho`` below it has every pixel of the tile in case 1 (R12)."""
@@ -83,7 +83,7 @@ def _word_range(bits, v, u, w, lo, hi):
     return x
 
 
-@njit(cache=True)
+@njit(cache=True, nogil=True)
 def _highest_bit(bits, v, u, lo, hi):
     """Largest slice in ``lo..hi`` (inside ``0..n_d-1``) whose bit is set, -1 if none."""
     if lo > hi:
@@ -97,7 +97,7 @@ def _highest_bit(bits, v, u, lo, hi):
     return -1
 
 
-@njit(cache=True)
+@njit(cache=True, nogil=True)
 def _lowest_bit(bits, v, u, lo, hi):
     """Smallest slice in ``lo..hi`` (inside ``0..n_d-1``) whose bit is set, -1 if none."""
     if lo > hi:
@@ -140,7 +140,7 @@ def _col_setup(u, v, pfree, dmin, dd, nd, cap_n, ncaps):
     return gs, ncp
 
 
-@njit(cache=True)
+@njit(cache=True, nogil=True)
 def _fill_stretch(u, v, g0, g1, gs, direct, ncp, fx, fy, cx, cy, dmin, dd, kfree, kpmin, kpmax, koff,
                   kdims, rays, origins, kint, nk, caps, ncaps, cap_lo, cap_hi, band, obits, cbits):
     """Classify slices ``g0..g1`` (inside ``0..n_d-1``, all ``>= gs``) of column ``(u, v)``
@@ -256,7 +256,7 @@ def _point_terms(px, py, dp, fx, fy, cx, cy):
     return (px - cx) * dp / fx, (py - cy) * dp / fy
 
 
-@njit(cache=True)
+@njit(cache=True, nogil=True)
 def _ensure_pixel(u, v, ga, gb, gs, direct, ncp, fx, fy, cx, cy, dmin, dd, kfree, kpmin, kpmax, koff, kdims,
                   rays, origins, kint, nk, caps, ncaps, cap_lo, cap_hi, band, frame, stamp, obits, cbits, clear,
                   free_to):
@@ -297,7 +297,7 @@ def _ensure_pixel(u, v, ga, gb, gs, direct, ncp, fx, fy, cx, cy, dmin, dd, kfree
         free_to[v, u] = max(free_to[v, u], dmin + h * dd)
 
 
-@njit(cache=True)
+@njit(cache=True, nogil=True)
 def _lowest_stop(cbits, obits, v, u, lo, hi, with_obst):
     """Smallest slice in ``lo..hi`` (inside the bit words) whose ``cbits`` bit is clear or,
     with ``with_obst``, whose ``obits`` bit is set; -1 if none."""
@@ -315,7 +315,7 @@ def _lowest_stop(cbits, obits, v, u, lo, hi, with_obst):
     return -1
 
 
-@njit(cache=True, parallel=True)
+@njit(cache=True, parallel=True, nogil=True)
 def ensure_cells(pfree, pkind, tmin, pint, dmin, dd, nd, kfree, kpmin, kpmax, koff, kdims, rays, origins,
                  kint, nk, caps, ncaps, cap_lo, cap_hi, cap_n, band, Rp, tp, points, n_points, rho,
                  frame, stamp, obits, cbits, clear, free_to, ws, span):
@@ -425,7 +425,7 @@ def _obst_cell(u, v, g, gs, ncp, nd, obits, caps, ncaps, cap_lo, cap_hi, fx, fy,
     return not (ncaps > 0 and _in_caps(cap_lo, cap_hi, ncp, v, u, d1, d1 + dd, caps, ncaps, fx, fy, cx, cy, g))
 
 
-@njit(cache=True)
+@njit(cache=True, nogil=True)
 def _scan_down(u, v, lo, hi, gs, ncp, nd, obits, caps, ncaps, cap_lo, cap_hi, fx, fy, cx, cy, dmin, dd):
     """Largest obstacle slice in ``lo..hi``, or ``lo - 1`` if none."""
     g = hi
@@ -445,7 +445,7 @@ def _scan_down(u, v, lo, hi, gs, ncp, nd, obits, caps, ncaps, cap_lo, cap_hi, fx
     return lo - 1
 
 
-@njit(cache=True)
+@njit(cache=True, nogil=True)
 def _scan_up(u, v, lo, hi, gs, ncp, nd, obits, caps, ncaps, cap_lo, cap_hi, fx, fy, cx, cy, dmin, dd):
     """Smallest obstacle slice in ``lo..hi``, or ``hi + 1`` if none."""
     g = max(lo, gs)
@@ -522,7 +522,7 @@ def _column_bits(u, v, gs, ncp, nd, obits, caps, ncaps, cap_lo, cap_hi, ax, ay, 
     return found, best2, bvx, bvy, bvz
 
 
-@njit(cache=True, parallel=True)
+@njit(cache=True, parallel=True, nogil=True)
 def grid_distances_lazy(pfree, tmin, obits, cap_n, caps, ncaps, cap_lo, cap_hi, nd, Rp, tp, pint, dmin, dd,
                         points, n_points, rho, method,
                         out_distance, out_direction, out_count, out_observed,

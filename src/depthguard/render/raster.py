@@ -100,7 +100,7 @@ def _edge(x0, y0, x1, y1):
     return A, B, px, py
 
 
-@njit(cache=True)
+@njit(cache=True, nogil=True)
 def _setup_one(x0, y0, iz0, x1, y1, iz1, x2, y2, iz2, W, H, tri, box, s):
     """Screen-space setup of one triangle into slot ``s``; 1 if it may cover a pixel, else 0
     (slot marked empty). ``(x_i, y_i)`` pixel coordinates, ``iz_i = 1/z_i``."""
@@ -242,7 +242,7 @@ def _inside(x, A0, X0, r0, t0, A1, X1, r1, t1, A2, X2, r2, t2):
     return True
 
 
-@njit(cache=True)
+@njit(cache=True, nogil=True)
 def _raster_rows(r0, r1, tri, box, slot_label, n_slots, wbuf, sbuf, depth, labels, face_ids):
     """Z-buffer slots ``0 .. n_slots-1`` into rows ``r0 .. r1-1``.
 
@@ -354,7 +354,7 @@ def _raster_rows(r0, r1, tri, box, slot_label, n_slots, wbuf, sbuf, depth, label
                 face_ids[v, u] = -1
 
 
-@njit(cache=True)
+@njit(cache=True, nogil=True)
 def check_and_label(vw, n_v, faces, mesh_off, n_meshes, face_label):
     """Check the packed input and write ``face_label``.
 
@@ -375,7 +375,7 @@ def check_and_label(vw, n_v, faces, mesh_off, n_meshes, face_label):
     return 0, -1
 
 
-@njit(cache=True)
+@njit(cache=True, nogil=True)
 def render_packed(vw, n_v, faces, n_f, mesh_off, n_meshes, face_label, R, t, fx, fy, cx, cy,
                   near, cull_back, vc, tri, box, slot_label, wbuf, sbuf, depth, labels, face_ids):
     """Render packed buffers on one core (see the module docstring for shapes).
@@ -398,7 +398,7 @@ def render_packed(vw, n_v, faces, n_f, mesh_off, n_meshes, face_label, R, t, fx,
     return 0, -1, n
 
 
-@njit(cache=True, parallel=True)
+@njit(cache=True, parallel=True, nogil=True)
 def render_packed_parallel(vw, n_v, faces, n_f, mesh_off, n_meshes, face_label, R, t, fx, fy, cx, cy,
                            near, cull_back, vc, tri, box, slot_label, n_bands, wbuf, sbuf,
                            depth, labels, face_ids):

@@ -224,9 +224,10 @@ class Person:
         swing = self.leg_swing(t, p)
         key = (p.xy.tobytes(), p.heading, None if p.left is None else p.left.tobytes(),
                None if p.right is None else p.right.tobytes(), swing)
-        if self._memo is None or self._memo[0] != key:   # a person who stands still: the same solids
-            self._memo = (key, self.primitives_at(p, swing))
-        return list(self._memo[1])
+        memo = self._memo                                # one read: safe if another thread asks too
+        if memo is None or memo[0] != key:               # a person who stands still: the same solids
+            memo = self._memo = (key, self.primitives_at(p, swing))
+        return list(memo[1])
 
     def leg_swing(self, t: float, p: PersonPose | None = None) -> float:
         """Swing angle (rad) of the left leg at time ``t`` (the right leg swings opposite): grows
