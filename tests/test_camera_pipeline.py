@@ -60,3 +60,17 @@ def test_bad_latency_is_refused():
     for bad in (-0.01, float("nan"), float("inf")):
         with pytest.raises(ValueError, match="latency"):
             CameraPipeline(_fake([]), ["a"], bad, {})
+
+
+def test_not_threaded_frames_still_arrive_after_the_latency_from_the_callers_thread():
+    """Without a thread-safe numba threading layer the loop simulates each frame at capture in
+    its own thread; the latency still applies."""
+    from depthguard.control.camera_pipeline import threadsafe_numba
+    assert isinstance(threadsafe_numba(), bool)
+    log = []
+    p = CameraPipeline(_fake(log), ["a"], 0.05, {"self_removal": 0.0, "camera_sim": 0.0}, threaded=False)
+    assert not p.threaded
+    p.capture(0, 1.0, np.zeros(2))
+    assert list(p.deliver(1.04)) == [] and log[0][2] == threading.current_thread().name
+    assert [t for _, _, t, *_ in p.deliver(1.05)] == [1.0]
+    p.close()

@@ -14,7 +14,9 @@ cycles go on; the loop waits for a frame only if it is not ready at its
 delivery time. Each frame is a pure function of its capture time and
 joints, so the run is the same, bit for bit, however the threads are
 scheduled. With ``latency == 0`` a frame is simulated and delivered at once,
-in the loop's own thread.
+in the loop's own thread; so it is, with the latency still applied, when
+numba's threading layer cannot be entered from two threads at once
+(:func:`threadsafe_numba`).
 
 Before the first cycle (``start``) every camera delivers at ``t = 0`` the
 frame it captured at ``-latency`` with the robot at rest in its start
@@ -29,14 +31,32 @@ from collections import deque
 from concurrent.futures import Future, ThreadPoolExecutor
 from typing import Callable
 
+import numba
 import numpy as np
 
-__all__ = ["CameraPipeline"]
+__all__ = ["CameraPipeline", "threadsafe_numba"]
 
 
 def _one_numba_thread():
     import numba
     numba.set_num_threads(1)
+
+
+@numba.njit(parallel=True, cache=True)
+def _touch(x):
+    for i in numba.prange(x.shape[0]):
+        x[i] = i
+
+
+def threadsafe_numba() -> bool:
+    """True when numba's threading layer may be entered from two Python threads at once
+    (``omp``, ``tbb``); the ``workqueue`` fallback aborts the process if it is."""
+    try:
+        layer = numba.threading_layer()
+    except ValueError:                   # not chosen until the first parallel launch
+        _touch(np.zeros(2))
+        layer = numba.threading_layer()
+    return layer in ("omp", "tbb")
 
 
 class CameraPipeline:
@@ -50,7 +70,8 @@ class CameraPipeline:
     seconds, ``camera_wait`` the time the loop waited for a late frame.
     """
 
-    def __init__(self, simulate: Callable, camera_ids: list[str], latency: float, timing: dict):
+    def __init__(self, simulate: Callable, camera_ids: list[str], latency: float, timing: dict,
+                 threaded: bool = True):
         latency = float(latency)
         if not (np.isfinite(latency) and latency >= 0.0):
             raise ValueError(f"camera latency must be >= 0 s, got {latency!r}")
@@ -61,7 +82,13 @@ class CameraPipeline:
         timing.setdefault("camera_wait", 0.0)
         self._pending: deque = deque()     # (t_deliver, i, t_capture, q_capture, Future | result)
         self._pool = (ThreadPoolExecutor(max_workers=1, thread_name_prefix="depthguard-cameras",
-                                         initializer=_one_numba_thread) if latency > 0.0 else None)
+                                         initializer=_one_numba_thread)
+                      if latency > 0.0 and threaded else None)
+
+    @property
+    def threaded(self) -> bool:
+        """Whether the frames are simulated on the camera thread."""
+        return self._pool is not None
 
     def start(self, q0: np.ndarray, cameras=None) -> None:
         """Frames captured at ``-latency`` with the robot at ``q0``, delivered at ``t = 0``
@@ -75,7 +102,7 @@ class CameraPipeline:
     def capture(self, i: int, t: float, q: np.ndarray) -> None:
         """Camera ``i`` captures a frame at ``t`` with the robot at ``q``."""
         q = np.array(q, dtype=np.float64)
-        if self._pool is None:
+        if self._pool is None:                 # simulated now, delivered after the latency
             job = self.simulate(i, t, q)
         else:
             job = self._pool.submit(self.simulate, i, t, q)

@@ -47,7 +47,7 @@ from typing import Callable
 
 import numpy as np
 
-from depthguard.control.camera_pipeline import CameraPipeline
+from depthguard.control.camera_pipeline import CameraPipeline, threadsafe_numba
 from depthguard.control.reaction import reaction
 from depthguard.control.sns import SNSWorkspace, sns_velocity
 from depthguard.control.trajectory import Hexagon
@@ -79,7 +79,7 @@ class LoopConfig:
     robot_offset: float = 0.08       # m, R9 self-removal margin (Kinect v1: ~2.7 cm disparity step at 3 m)
     robot_padding: float = 0.05      # m, robot volume padding: grid cells inside are never obstacles (R12)
     invalid: str = "far"             # R28 policy for invalid pixels, see ClosedLoop
-    threads: int | None = None       # numba threads while the loop runs (None: all; renders, frame work)
+    threads: int | None = None       # numba threads of the loop (None: all, but one for the camera thread)
     distance_hz: float | None = None  # None: distances at every control cycle (R15); else this rate
     grid_delta_d: float = 0.01       # m, depth slice of the grid (R10)
     gt_step: float = 0.01            # m, ground-truth sampling along capsule axes
@@ -460,8 +460,11 @@ class ClosedLoop:
             steps = progress(steps, T)
         import numba
         threads_before = numba.get_num_threads()
-        numba.set_num_threads(self.threads)
-        cams_sim = CameraPipeline(self._simulate_frame, cam_ids, cfg.latency, timing)
+        # with latency the frames are simulated on a camera thread that takes one core
+        threaded = cfg.latency > 0 and threadsafe_numba()
+        n_all = numba.config.NUMBA_NUM_THREADS
+        numba.set_num_threads(self.threads if cfg.threads else max(1, n_all - 1) if threaded else n_all)
+        cams_sim = CameraPipeline(self._simulate_frame, cam_ids, cfg.latency, timing, threaded=threaded)
         try:
             return self._run(T, steps, locals())
         finally:
