@@ -12,7 +12,10 @@ reaction, ground truth); goal >= 1. ``loop.real_time_factor_system``: the
 same without the camera simulation and the ground truth — what would run
 on a real cell. Simulated time: quick 0.5 s, full 4 s (both set-ups). The
 depth grid classifies its cells lazily (on first use within a frame, only
-where the 9 points' queries look), so a new frame costs a few ms.
+where the 9 points' queries look), so a new frame costs a few ms. The
+cameras' frames arrive one camera period after capture (the loop's default
+``camera_latency``) and are simulated meanwhile on a camera thread that takes
+one of the cores; the control cycles run on the others.
 """
 
 from __future__ import annotations
@@ -32,7 +35,8 @@ def bench_loop(ctx: BenchContext) -> list[BenchRow]:
     run_scenario("reach", duration=0.01, seed=ctx.seed, config=LoopConfig(fusion="single"), write=False)
     s2, _ = run_scenario("reach", duration=dur2, seed=ctx.seed, write=False)
     s1, _ = run_scenario("reach", duration=dur1, seed=ctx.seed, config=LoopConfig(fusion="single"), write=False)
-    note2 = f"scenario reach, {dur2:g} s simulated, 500 Hz control, 2 Kinect 640x480 at 30 Hz, depth grid"
+    note2 = (f"scenario reach, {dur2:g} s simulated, 500 Hz control, 2 Kinect 640x480 at 30 Hz "
+             f"(frames one period late, simulated on a camera thread), depth grid")
     return [
         BenchRow("loop.avoidance_rate_hz", s2["avoidance_rate_hz"], "Hz", paper=300.0,
                  peer="principal camera only", peer_value=s1["avoidance_rate_hz"], note=note2),
