@@ -197,3 +197,22 @@ def test_walking_swings_the_legs_above_the_floor():
         fa, fb = a[np.argmin(a[:, 2])], b[np.argmin(b[:, 2])]
         hip_x = walker.pose_at(t).xy[0]
         assert (fa[0] - hip_x) == pytest.approx(-(fb[0] - hip_x), abs=1e-9)
+
+
+def test_primitives_are_those_of_the_pose_also_when_kept_for_a_still_person():
+    """``primitives(t)`` keeps the last solids while the pose does not change (a person who stands
+    or holds a reach); every answer equals the solids built afresh from the pose at ``t``."""
+    p = Person("p", [Key(0.0, (0.0, 0.0), 0.0), Key(1.0, (0.0, 0.0), 0.0),
+                     Key(2.0, (0.0, 0.0), 0.0, right=(0.4, -0.2, 1.2)), Key(3.0, (1.0, 0.0), 0.3)])
+    pts = np.random.default_rng(0).uniform(-1.0, 1.5, (200, 3))
+    from depthguard.geometry import sdf_union
+    seen = []
+    for t in (0.1, 0.5, 0.9, 1.5, 1.6, 2.5, 2.5, 2.6, 3.5, 4.0):
+        got = p.primitives(t)
+        pose_t = p.pose_at(t)
+        fresh = p.primitives_at(pose_t, p.leg_swing(t, pose_t))
+        assert [g.name for g in got] == [f.name for f in fresh]
+        np.testing.assert_array_equal(sdf_union(got, pts), sdf_union(fresh, pts))
+        seen.append(got)
+    assert seen[0][0] is seen[1][0] is seen[2][0]          # standing still: kept
+    assert seen[3][0] is not seen[4][0]                    # reaching: new solids
