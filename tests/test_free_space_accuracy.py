@@ -65,3 +65,32 @@ def test_calibration_disturbance_stays_within_bounds():
             assert (a.fx, a.width, a.id) == (b.fx, b.width, b.id)
         moved = [np.abs(b.world_from_camera - a.world_from_camera).max() for a, b in zip(cams, out)]
         assert min(moved) > 0
+
+
+def test_product_fuses_consecutive_frames_with_a_margin_of_two_fused_sigma():
+    """The reproduction's product: 3 consecutive frames per camera (independent noise) fused by
+    StillFusion; margin 2 sigma and shell tolerance 5 sigma of the fused depth of the ToF model."""
+    from depthguard.evaluation import hamersma2011 as H
+    from depthguard.fusion.temporal import StillFusion
+    from depthguard.sources.sensors import sensor_model
+
+    room = H.load_room()
+    cams = room.cameras[:2]
+    setup = room.setups[0]
+    tof = sensor_model("tof")
+    margin, tol = H.product_margins(room, cams)
+    c3 = StillFusion(3, tof.sigma_a).factor
+    assert margin == pytest.approx(2 * c3 * tof.sigma_a) and tol == pytest.approx(5 * c3 * tof.sigma_a)
+    assert 0.013 < margin < 0.014
+    ideal = H.ideal_frames(room, setup, cameras=cams)
+    frames = [H.measured_frames(room, setup, ideal, 0, cameras=cams, frame=k) for k in range(H.STILL_FRAMES)]
+    c0 = cams[0].id
+    assert not np.array_equal(frames[0][c0], frames[1][c0])          # each frame its own noise
+    fused = H.still_frames(room, setup, ideal, 0, cameras=cams)
+    f = H.still_fusion(room, cams)
+    for c in cams:
+        np.testing.assert_array_equal(fused[c.id], f.fuse([fr[c.id] for fr in frames]))
+    # where all three agree the fused depth is nearer the truth than a single frame
+    z = ideal[c0]
+    flat = (z > 0) & (np.ptp(np.stack([fr[c0] for fr in frames]), axis=0) < 0.03)
+    assert np.std((fused[c0] - z)[flat]) < 0.8 * np.std((frames[0][c0] - z)[flat])
