@@ -1,7 +1,7 @@
 """Bench group ``sim``: simulated frames and ground truth (issue 2 §6–7).
 
-Rows (median milliseconds after a warm-up; the noise kernels and the
-renders run on the default numba threads):
+Rows (median milliseconds after a warm-up; the noise kernels run on the
+default numba threads, the renders on one):
 
 - ``sim.noise.kinect_640x480_ms``: the Kinect v1 model (disparity noise and
   quantisation, edge dropout, range) on one 640x480 image of random depths
