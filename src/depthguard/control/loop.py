@@ -32,11 +32,12 @@ One control cycle (500 Hz, ``dt = 2 ms``) at time ``t``:
 5. **Ground truth** (not part of the system): the robot's collision capsules
    against the true obstacles (``scene.true_distance`` + the scenario's
    scripted primitives), sampled along each capsule axis every
-   ``gt_step`` m (overestimates by at most ``gt_step/2``); one numba pass
-   over the packed primitives (:mod:`depthguard.geometry.packed`).
+   ``gt_step`` m (overestimates by at most ``gt_step/2``):
+   :mod:`depthguard.control.loop_truth`.
 
-Numba runs on ``LoopConfig.threads`` threads (default: all) while the loop
-runs; the results do not depend on the thread count.
+Numba runs on ``LoopConfig.threads`` threads while the loop runs (default:
+all but the one the camera thread takes); the results do not depend on the
+thread count.
 """
 
 from __future__ import annotations
@@ -48,10 +49,10 @@ from typing import Callable
 import numpy as np
 
 from depthguard.control.camera_pipeline import CameraPipeline, threadsafe_numba
+from depthguard.control.loop_truth import LoopTruth
 from depthguard.control.reaction import reaction
 from depthguard.control.sns import SNSWorkspace, sns_velocity
 from depthguard.control.trajectory import Hexagon
-from depthguard.geometry.packed import PackedSolids
 from depthguard.render.composite import nearest_depth
 
 __all__ = ["LoopConfig", "LoopResult", "ClosedLoop", "SafetySupervisor", "solve_ik", "stop_reasons"]
@@ -282,7 +283,8 @@ class ClosedLoop:
         p0, _ = self.hexagon.at(0.0)
         self.q_start = solve_ik(self.robot, p0, q_start)
         self.cp_names = [c.name for c in self.robot.control_points]
-        self._setup_ground_truth()
+        self.truth = LoopTruth(self.robot, self.scene.static, self.q_start, cfg.gt_step)
+        self.excluded_caps = self.truth.excluded
 
     # ------------------------------------------------------------ set-up
     def _setup_distance(self):
@@ -321,37 +323,6 @@ class ClosedLoop:
         box needed, and the answers do not depend on one)."""
         return {}
 
-    def _setup_ground_truth(self):
-        """Capsules that never move and touch the static scene (the base on its mount) are left out
-        of the ground truth; every other capsule counts (reported in the summary)."""
-        from depthguard.sim.ground_truth import true_distance
-        q = self.q_start
-        ab0, r0 = self.robot.collision_segments(q)
-        rng = np.random.default_rng(1)
-        moved = np.zeros(len(ab0), dtype=bool)
-        for _ in range(3):
-            q2 = np.clip(q + rng.uniform(-0.5, 0.5, q.shape), self.robot.q_min, self.robot.q_max)
-            ab2, _ = self.robot.collision_segments(q2)
-            moved |= np.abs(ab2 - ab0).reshape(len(ab0), -1).max(axis=1) > 1e-9
-        lengths = np.linalg.norm(ab0[:, 1] - ab0[:, 0], axis=1)
-        self.gt_n = np.maximum(2, np.ceil(lengths / self.cfg.gt_step).astype(int) + 1)
-        touching = np.zeros(len(ab0), dtype=bool)
-        for i in range(len(ab0)):
-            u = np.linspace(0.0, 1.0, self.gt_n[i])[:, None]
-            pts = ab0[i, 0] * (1 - u) + ab0[i, 1] * u
-            touching[i] = np.min(true_distance(self.scene.static, pts) - r0[i]) <= 0.005
-        keep = moved | ~touching
-        self.gt_caps = np.nonzero(keep)[0]
-        # the sample points of every kept capsule axis at once: capsule index and parameter u
-        self._gt_cap = np.concatenate([np.full(self.gt_n[i], i, dtype=np.intp) for i in self.gt_caps]
-                                      or [np.zeros(0, dtype=np.intp)])
-        self._gt_u = np.concatenate([np.linspace(0.0, 1.0, self.gt_n[i]) for i in self.gt_caps]
-                                    or [np.zeros(0)])[:, None]
-        self._gt_static, self._gt_static_rest = PackedSolids.split(self.scene.static)
-        self._gt_dyn_memo = None
-        names = [c.name or c.link for c in self.robot.capsules]
-        self.excluded_caps = [names[i] for i in range(len(names)) if not keep[i]]
-
     # ------------------------------------------------------------ pieces
     def extra(self, t: float) -> list:
         """The scenario's scripted primitives at ``t`` (the last time's answer is kept: a camera
@@ -369,30 +340,12 @@ class ClosedLoop:
             out += list(self.scene.dynamic_at(t))
         return out + list(self.extra(t))
 
-    def ground_truth(self, P: np.ndarray, q: np.ndarray, t: float) -> tuple[np.ndarray, float]:
-        """True distances at ``t``: (m,) control points ``P`` to the obstacles (0 inside) and the
-        robot's capsules (all but ``excluded_caps``) to the obstacles: the distance of points on
-        each capsule axis (every ``gt_step``) minus the radius, so an overestimate by at most
-        ``gt_step/2``; ``<= 0`` = collision (an axis point inside an obstacle reads ``-radius``)."""
-        ab, r = self.robot.collision_segments(q)
-        m = len(P)
-        c, u = self._gt_cap, self._gt_u
-        X = np.concatenate([P, ab[c, 0] * (1.0 - u) + ab[c, 1] * u])
-        r_all = np.concatenate([np.zeros(m), r[c]])
+    def ground_truth(self, P: np.ndarray, q: np.ndarray, t: float) -> tuple[np.ndarray, float, float]:
+        """True distances at ``t`` (:class:`~depthguard.control.loop_truth.LoopTruth`): the control
+        points ``P`` to the obstacles (0 inside), the robot's capsules (all but ``excluded_caps``)
+        to every obstacle and to the moving ones alone (``<= 0`` = collision)."""
         dyn = ([] if not self.cell_dynamic else list(self.scene.dynamic_at(t))) + list(self.extra(t))
-        memo = self._gt_dyn_memo
-        if memo is None or len(memo[0]) != len(dyn) or any(a is not b for a, b in zip(memo[0], dyn)):
-            memo = self._gt_dyn_memo = (dyn, *PackedSolids.split(dyn))   # the same solids: packed once
-        sd_dyn = memo[1].sdf_min(X)
-        for prim in memo[2]:
-            np.minimum(sd_dyn, prim.sdf(X), out=sd_dyn)
-        sd_dyn = np.maximum(sd_dyn, 0.0)                                                # 0 inside
-        sd_static = self._gt_static.sdf_min(X)
-        for prim in self._gt_static_rest:
-            np.minimum(sd_static, prim.sdf(X), out=sd_static)
-        sd = np.minimum(sd_dyn, np.maximum(sd_static, 0.0))
-        d = sd - r_all
-        return np.maximum(d[:m], 0.0), float(d[m:].min()), float((sd_dyn - r_all)[m:].min())
+        return self.truth(P, q, dyn)
 
     def _simulate_frame(self, i: int, t: float, q: np.ndarray):
         """Camera ``i``'s frame captured at ``t`` with the robot at ``q`` (may run on the camera
