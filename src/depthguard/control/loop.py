@@ -379,11 +379,29 @@ class ClosedLoop:
             snapshot_times: tuple[float, ...] = ()) -> LoopResult:
         """Simulate ``duration`` seconds; ``progress(iterable, total)`` wraps the cycle loop (e.g. track);
         the principal camera's first frame at or after each of ``snapshot_times`` is kept."""
-        cfg, robot = self.cfg, self.robot
+        cfg = self.cfg
         if not (np.isfinite(duration) and duration > 0):
             raise ValueError(f"duration must be > 0 s, got {duration!r}")
-        dt = cfg.dt
-        T = int(round(duration / dt))
+        T = int(round(duration / cfg.dt))
+        steps = range(T) if progress is None else progress(range(T), T)
+        timing = dict(camera_sim=0.0, self_removal=0.0, distance=0.0, reaction=0.0, ground_truth=0.0)
+        import numba
+        threads_before = numba.get_num_threads()
+        # with latency the frames are simulated on a camera thread that takes one core
+        threaded = cfg.latency > 0 and threadsafe_numba()
+        n_all = numba.config.NUMBA_NUM_THREADS
+        numba.set_num_threads(self.threads if cfg.threads else max(1, n_all - 1) if threaded else n_all)
+        cams_sim = CameraPipeline(self._simulate_frame, [c.id for c in self.cams], cfg.latency, timing,
+                                  threaded=threaded)
+        try:
+            return self._run(T, steps, snapshot_times, cams_sim, timing)
+        finally:
+            cams_sim.close()
+            numba.set_num_threads(threads_before)
+
+    def _run(self, T: int, steps, snapshot_times, cams_sim: CameraPipeline, timing: dict) -> LoopResult:
+        """The ``T`` control cycles (module docstring, steps 1-5)."""
+        cfg, robot, dt = self.cfg, self.robot, self.cfg.dt
         n, m = robot.dof, len(self.cp_names)
         cam_ids = [c.id for c in self.cams]
         nc = len(cam_ids)
@@ -396,50 +414,21 @@ class ClosedLoop:
         n_frames = {c: 0 for c in cam_ids}
         age_limit = cfg.stale_periods * period
         sup = SafetySupervisor(dt, cfg.stop_time, cfg.resume_time)
-
         R = {k: np.zeros(s) for k, s in dict(q=(T, n), qd=(T, n), ee=(T, 3), ee_des=(T, 3), D=(T, m),
                                                rep=(T, 3), gt_cp=(T, m), frame_age=(T, nc)).items()}
         R["observed"] = np.zeros((T, m), dtype=bool)
         for k in ("scale", "override", "gt_robot", "gt_robot_dyn", "t"):
             R[k] = np.zeros(T)
-        timing = dict(camera_sim=0.0, self_removal=0.0, distance=0.0, reaction=0.0, ground_truth=0.0)
-
         q = self.q_start.copy()
         tau = 0.0
         data = self.data
         rho, alpha = cfg.rho, cfg.alpha
-        steps = range(T)
-        if progress is not None:
-            steps = progress(steps, T)
-        import numba
-        threads_before = numba.get_num_threads()
-        # with latency the frames are simulated on a camera thread that takes one core
-        threaded = cfg.latency > 0 and threadsafe_numba()
-        n_all = numba.config.NUMBA_NUM_THREADS
-        numba.set_num_threads(self.threads if cfg.threads else max(1, n_all - 1) if threaded else n_all)
-        cams_sim = CameraPipeline(self._simulate_frame, cam_ids, cfg.latency, timing, threaded=threaded)
-        try:
-            return self._run(T, steps, locals())
-        finally:
-            cams_sim.close()
-            numba.set_num_threads(threads_before)
-
-    def _run(self, T, steps, env) -> LoopResult:
-        snapshot_times = env["snapshot_times"]
-        cfg, robot, dt = self.cfg, self.robot, self.cfg.dt
-        n, m, cam_ids, nc, period = env["n"], env["m"], env["cam_ids"], env["nc"], env["period"]
-        next_frame, phase, stamps = env["next_frame"], env["phase"], env["stamps"]
-        depths, rdepths, n_frames, age_limit, sup = (env["depths"], env["rdepths"], env["n_frames"],
-                                                     env["age_limit"], env["sup"])
-        R, timing = env["R"], env["timing"]
-        q, tau, data, rho, alpha = env["q"], env["tau"], env["data"], env["rho"], env["alpha"]
         wall0 = time.perf_counter()
         snaps_todo = sorted(float(x) for x in snapshot_times)
         snapshots = []
         react_buf = (np.empty(3), np.empty(n), np.empty(n))
         q_min, q_max, qd_max = (np.ascontiguousarray(a, dtype=np.float64)
                                 for a in (robot.q_min, robot.q_max, robot.qd_max))
-        cams_sim = env["cams_sim"]
         n_distance, next_distance = 0, 0.0
         frames_dirty = False
         new_frames: set[str] = set()            # cameras with a frame the grid has not loaded yet
