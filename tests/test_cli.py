@@ -39,3 +39,15 @@ def test_bench_rejects_unknown_group():
                          capture_output=True, text=True)
     assert res.returncode == 2
     assert "nosuchgroup" in (res.stderr + res.stdout)
+
+
+def test_run_rejects_bad_camera_latency_and_records_the_latency(tmp_path):
+    runner = CliRunner()
+    res = runner.invoke(app, ["run", "-s", "empty", "-o", str(tmp_path / "x"), "--camera-latency", "-0.1"])
+    assert res.exit_code == 2 and "--camera-latency" in res.output
+    out = tmp_path / "r"
+    res = runner.invoke(app, ["run", "-s", "empty", "-o", str(out), "--duration", "0.2", "--camera-latency", "0.05",
+                              "--quiet"])
+    assert res.exit_code == 0, res.output
+    s = json.loads((out / "summary.json").read_text())
+    assert s["params"]["camera_latency_s"] == 0.05

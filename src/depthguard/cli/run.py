@@ -24,11 +24,13 @@ def run(
     cameras: str = typer.Option("all", "--cameras", help="all: every camera of the rig fused by the depth grid map (R12, Flacco 2015); principal: the principal camera only (Flacco 2014), the one-camera comparison."),
     distance_hz: Optional[float] = typer.Option(None, "--distance-hz", help="Rate of the distance computation (default: every 500 Hz control cycle, R15)."),
     no_noise: bool = typer.Option(False, "--no-noise", help="Ideal depth images (no sensor noise)."),
+    camera_latency: Optional[float] = typer.Option(None, "--camera-latency", help="Seconds from a frame's capture to its delivery (default: one camera period; 0: each frame is used in the cycle it is captured)."),
     quiet: bool = typer.Option(False, "--quiet", "-q", help="No progress output."),
 ) -> None:
     """Run the LWR's hexagon task on flacco-cell with a scenario's obstacles, closing the loop.
 
-    Cameras at 30 Hz with their noise model, distances and reactions at every
+    Cameras at 30 Hz with their noise model (each frame delivered one camera
+    period after its capture), distances and reactions at every
     500 Hz control cycle (repulsion at the end effector, joint-velocity limits
     for the other control points, SNS), safe stop on stale frames. Writes
     DIR/summary.json (min_true_distance_m, collision, ee_tracking_rms_m,
@@ -48,7 +50,9 @@ def run(
         raise typer.BadParameter("must be > 0 seconds", param_hint="--duration")
     if distance_hz is not None and not distance_hz > 0:
         raise typer.BadParameter("must be > 0 Hz", param_hint="--distance-hz")
-    cfg = LoopConfig(fusion=fusion, noise=not no_noise, distance_hz=distance_hz)
+    if camera_latency is not None and not (0.0 <= camera_latency < 1.0):
+        raise typer.BadParameter("must be >= 0 and below 1 second", param_hint="--camera-latency")
+    cfg = LoopConfig(fusion=fusion, noise=not no_noise, distance_hz=distance_hz, camera_latency=camera_latency)
 
     def progress(it, total):
         return track(it, f"scenario {scenario}", total=total, quiet=quiet)

@@ -92,6 +92,7 @@ def summarize(res, scenario: str, description: str, config, hexagon, extra: dict
         "ground_truth_excludes_capsules": res.excluded_capsules,
         "params": {"rho_m": config.rho, "v_max_m_s": config.v_max, "alpha": config.alpha,
                    "control_hz": config.control_hz, "camera_hz": config.camera_hz,
+                   "camera_latency_s": config.latency,
                    "stale_limit_s": config.stale_periods / config.camera_hz,
                    "noise": config.noise, "method": config.method,
                    "hexagon_center_m": list(hexagon.center), "hexagon_radius_m": hexagon.radius,
