@@ -38,8 +38,7 @@ __all__ = ["CameraPipeline", "threadsafe_numba"]
 
 
 def _one_numba_thread():
-    import numba
-    numba.set_num_threads(1)
+    numba.set_num_threads(1)       # the camera thread keeps to its core
 
 
 @numba.njit(parallel=True, cache=True)
