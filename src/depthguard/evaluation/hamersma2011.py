@@ -224,7 +224,10 @@ def _shell_map(room: Room, cams, vs, margin: float | None = None, tolerance: flo
 
 def product_margins(room: Room, cams=None) -> tuple[float, float]:
     """``(margin, shell tolerance)`` of the product: 2 and 2 + 3 sigma of the fused depth."""
-    sig = still_fusion(room, cams).sigma(0.0)     # ToF: the noise does not depend on the depth
+    fusion = still_fusion(room, cams)
+    if fusion.sigma_z2 != 0.0:        # one margin for the whole room needs depth-independent noise
+        raise ValueError("the product's margin assumes depth-independent sensor noise (sigma_z2 = 0)")
+    sig = fusion.sigma(0.0)
     return 2.0 * sig, 5.0 * sig
 
 

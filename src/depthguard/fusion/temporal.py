@@ -32,7 +32,7 @@ noise ``c_n * sigma`` where the samples agreed; a free-space margin of
 from __future__ import annotations
 
 import math
-from dataclasses import dataclass
+from dataclasses import dataclass, field
 from typing import Sequence
 
 import numba
@@ -102,6 +102,8 @@ class StillFusion:
     sigma_a: float
     sigma_z2: float = 0.0
     p: float = 0.999
+    factor: float = field(init=False)     # c_n: noise of the median / noise of one sample
+    k: float = field(init=False)          # agreement limit on the spread, in sigma
 
     def __post_init__(self):
         _check_n(self.n)
