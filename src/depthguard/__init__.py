@@ -8,6 +8,7 @@ The public surface (SPEC §9)::
     res = dg.depth_space_distance(cam, depth, points, rho=0.4, method="hybrid")
     grid = dg.DepthGridMap(rig.cameras, principal="cam0", d_min=0.3, d_max=3.7, delta_d=0.01)
     fs = dg.FreeSpaceMap(rig.cameras, bounds=(lo, hi), voxel_size=0.05)
+    monitor = dg.Monitor(rig)   # push_frame(dg.Frame(...)), push_joints(stamp, q), step(t) -> Reaction
 
 Names are imported lazily so that ``import depthguard`` stays fast and the
 numba kernels compile only when they are used.
@@ -38,6 +39,10 @@ _EXPORTS = {
     "DepthGridMap": "depthguard.fusion.depth_grid",
     "FreeSpaceMap": "depthguard.fusion.free_space",
     "VoxelFilter": "depthguard.fusion.voxels",
+    "Monitor": "depthguard.runtime.monitor",
+    "MonitorConfig": "depthguard.config",
+    "Reaction": "depthguard.runtime.result",
+    "Frame": "depthguard.sources.frame",
 }
 
 __all__ = sorted(_EXPORTS)

@@ -17,6 +17,7 @@ import yaml
 from pydantic import BaseModel, ConfigDict, Field, ValidationError, field_validator, model_validator
 
 from depthguard.camera import Camera, CameraError
+from depthguard.config import MonitorConfig
 from depthguard.geometry.mesh import Mesh, load_mesh
 from depthguard.geometry.primitives import Box, Capsule, Cylinder, Primitive, Sphere
 from depthguard.transforms import as_rigid, look_at, pose, quat_to_matrix
@@ -243,6 +244,7 @@ class RigSpec(_Strict):
     cameras: list[CameraSpec] = Field(min_length=1)
     robot: Optional[RobotSpec] = None
     objects: list[ObjectSpec] = Field(default_factory=list)
+    monitor: Optional[MonitorConfig] = None
 
     @field_validator("version")
     @classmethod
@@ -272,6 +274,18 @@ class Workspace:
         p = np.asarray(points, dtype=float).reshape(-1, 3)
         return np.all((p >= self.lo) & (p <= self.hi), axis=1)
 
+    def depth_span(self, cam: Camera) -> tuple[float, float]:
+        """``(d_min, d_max)`` m: the box's depth range in ``cam``, clipped to the camera's range
+        (the depth grid's span, R10); ``ValueError`` when the box lies outside that range."""
+        corners = np.array([[x, y, z] for x in (self.lo[0], self.hi[0]) for y in (self.lo[1], self.hi[1])
+                            for z in (self.lo[2], self.hi[2])])
+        d = corners @ np.asarray(cam.R).T[:, 2] + cam.t[2]
+        d_min = max(float(cam.min_range), float(d.min()))
+        d_max = min(float(cam.max_range), float(d.max()))
+        if d_max <= d_min:
+            raise ValueError(f"camera {cam.id}: the workspace lies outside its depth range")
+        return d_min, d_max
+
 
 @dataclass(frozen=True, eq=False)
 class StaticObject:
@@ -293,6 +307,7 @@ class Rig:
     objects: list[StaticObject] = field(default_factory=list)
     path: Optional[Path] = None
     description: str = ""
+    monitor: MonitorConfig = field(default_factory=MonitorConfig)   # the rig's ``monitor:`` section
 
     def camera(self, camera_id: str) -> Camera:
         for c in self.cameras:
@@ -360,7 +375,7 @@ class Rig:
             robot, q0 = _make_robot(spec.robot, base_dir, src)
         return cls(name=spec.name, cameras=cameras, workspace=ws, robot=robot, robot_q0=q0,
                    objects=objects, path=Path(source) if isinstance(source, Path) else None,
-                   description=spec.description)
+                   description=spec.description, monitor=spec.monitor or MonitorConfig())
 
 
 def _make_object(o: ObjectSpec, base_dir: Path) -> StaticObject:

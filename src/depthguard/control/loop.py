@@ -52,6 +52,7 @@ from depthguard.control.camera_pipeline import CameraPipeline, threadsafe_numba
 from depthguard.control.loop_truth import LoopTruth
 from depthguard.control.reaction import reaction
 from depthguard.control.sns import SNSWorkspace, sns_velocity
+from depthguard.control.supervisor import SafetySupervisor, stop_reasons
 from depthguard.control.trajectory import Hexagon
 from depthguard.render.composite import nearest_depth
 
@@ -111,68 +112,6 @@ class LoopConfig:
     def latency(self) -> float:
         """Seconds from a frame's capture to its delivery (default one camera period)."""
         return 1.0 / self.camera_hz if self.camera_latency is None else float(self.camera_latency)
-
-
-class SafetySupervisor:
-    """Speed override ``k``: ramps to 0 while a stop reason holds, back to 1 after (R26, R27).
-
-    ``update(t, reasons)`` with ``reasons`` a dict ``key -> message`` of the
-    conditions that hold now; returns ``k``. ``episodes`` lists each
-    condition's first/last time and message.
-    """
-
-    def __init__(self, dt: float, stop_time: float, resume_time: float):
-        self.dt = dt
-        self.down = dt / stop_time
-        self.up = dt / resume_time
-        self.k = 1.0
-        self.episodes: list[dict] = []
-        self._open: dict[str, dict] = {}
-
-    def update(self, t: float, reasons: dict[str, str]) -> float:
-        for key, msg in reasons.items():
-            ep = self._open.get(key)
-            if ep is None:
-                ep = {"reason": msg, "key": key, "t_start": round(t, 4), "t_end": None, "t_stopped": None}
-                self._open[key] = ep
-                self.episodes.append(ep)
-        for key in [k for k in self._open if k not in reasons]:
-            self._open.pop(key)["t_end"] = round(t, 4)
-        if reasons:
-            self.k = max(0.0, self.k - self.down)
-            if self.k == 0.0:
-                for ep in self._open.values():
-                    if ep["t_stopped"] is None:
-                        ep["t_stopped"] = round(t, 4)
-        else:
-            self.k = min(1.0, self.k + self.up)
-        return self.k
-
-
-def stop_reasons(ages, age_limit: float, camera_ids, observed, D, V, names) -> dict[str, str]:
-    """The conditions that make the supervisor stop the robot, ``key -> message`` (R26, R27).
-
-    ``ages`` (n_cam,) s since each camera's last frame (``inf`` before the
-    first); ``observed`` (m,) bool; ``D`` (m,) m; ``V`` (m, 3). Rules:
-    a frame older than ``age_limit`` (stale data, R27); a control point that
-    no camera can judge (``observed = False``, R26: the worst case, not free);
-    a control point inside an obstacle frustum (finite ``D`` that is 0 or has
-    no direction: no way to flee, and R14 gives no limit without ``V``).
-    ``D = inf`` (nothing within ρ) is never a reason.
-    """
-    reasons = {}
-    for i, cid in enumerate(camera_ids):
-        if ages[i] > age_limit + 1e-9:
-            reasons[f"stale:{cid}"] = (f"camera {cid}: no frame for more than {age_limit * 1e3:.0f} ms "
-                                       f"- stale data (R27)")
-    for j in np.nonzero(~np.asarray(observed, dtype=bool))[0]:
-        reasons[f"unobserved:{names[j]}"] = f"control point {names[j]} is not observed by any camera (R26)"
-    D = np.asarray(D, dtype=np.float64)
-    inside = np.isfinite(D) & ((D <= 0.0) | (np.linalg.norm(V, axis=1) == 0.0))
-    for j in np.nonzero(inside)[0]:
-        reasons[f"inside:{names[j]}"] = (f"control point {names[j]} lies inside an obstacle frustum "
-                                         f"(D = 0, no direction)")
-    return reasons
 
 
 def solve_ik(robot, target: np.ndarray, q0: np.ndarray, iters: int = 500, tol: float = 1e-6) -> np.ndarray:
@@ -532,11 +471,4 @@ class ClosedLoop:
 
 def _depth_span(cam, workspace) -> tuple[float, float]:
     """Depth range of the workspace box in ``cam`` (clipped to the camera's range) for the grid (R10)."""
-    lo, hi = np.asarray(workspace.lo, float), np.asarray(workspace.hi, float)
-    corners = np.array([[x, y, z] for x in (lo[0], hi[0]) for y in (lo[1], hi[1]) for z in (lo[2], hi[2])])
-    d = corners @ np.asarray(cam.R).T[:, 2] + cam.t[2]
-    d_min = max(float(cam.min_range), float(d.min()))
-    d_max = min(float(cam.max_range), float(d.max()))
-    if d_max <= d_min:
-        raise ValueError(f"camera {cam.id}: the workspace lies outside its depth range")
-    return d_min, d_max
+    return workspace.depth_span(cam)

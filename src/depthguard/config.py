@@ -1,0 +1,163 @@
+"""``MonitorConfig``: every product default of the runtime, defined once (R27–R30, R32).
+
+A rig file may carry a ``monitor:`` section with any of these fields; it is
+validated when the rig loads (:meth:`depthguard.rig.Rig.load`), and a bad
+value gives a :class:`~depthguard.rig.RigError` naming the file, the field
+and the problem, like the rest of the rig. The runtime
+(:class:`depthguard.runtime.Monitor`) reads nothing else.
+
+The model sits beside ``rig.py`` rather than in ``runtime/`` because the rig
+validates it when it loads, and ``rig.py`` is imported by everything above it.
+
+Units: metres, seconds, hertz. ``None`` means "derived": the text of each
+field says from what.
+"""
+
+from __future__ import annotations
+
+import math
+import re
+from typing import Literal, Optional
+
+from pydantic import BaseModel, ConfigDict, Field, field_validator, model_validator
+
+__all__ = ["MonitorConfig", "WatchPoint", "CAMERA_ID_PATTERN", "check_camera_id"]
+
+_Vec3 = tuple[float, float, float]
+
+#: camera ids must name a Zenoh key chunk and a file: letters, digits, ``_ - .``
+CAMERA_ID_PATTERN = re.compile(r"^[A-Za-z0-9_][A-Za-z0-9_.\-]*$")
+
+
+def check_camera_id(cid: str) -> str:
+    """``cid`` if it can name a Zenoh key chunk (no ``/ * $ #`` or spaces), else ``ValueError``."""
+    if not isinstance(cid, str) or not CAMERA_ID_PATTERN.match(cid):
+        raise ValueError(f"camera id {cid!r} cannot name a Zenoh key: use letters, digits, '_', '-' or '.'")
+    return cid
+
+
+class WatchPoint(BaseModel):
+    """A fixed point of the cell watched like a control point (a door, a hand-over spot)."""
+    model_config = ConfigDict(extra="forbid", frozen=True)
+    name: str = Field(min_length=1)
+    position: _Vec3
+
+
+class MonitorConfig(BaseModel):
+    """Settings of :class:`depthguard.runtime.Monitor` (the ``monitor:`` section of a rig).
+
+    Distances (R3–R12): ``rho`` radius of surveillance; ``method`` R7
+    aggregation; ``delta_d`` depth slice of the grid (R10); ``principal`` the
+    grid's principal camera (default: the rig's first camera).
+
+    Self removal (R9, R30): ``robot_offset`` a pixel is the robot's where
+    ``measured >= robot_depth - robot_offset`` (covers the sensor's noise and
+    the robot's motion during the exposure); ``robot_padding`` grid cells
+    whose centre lies within this of the robot's capsules are its own;
+    ``robot_in_others`` what a robot pixel of a non-principal camera says
+    (``"unknown"``: free up to the robot, unknown behind it).
+
+    Invalid pixels (R28, R32): ``invalid = "unknown"`` (the safe default: the
+    ray is unknown from the near range on) or ``"free"`` (simulated cells
+    without walls only). ``silhouette_px``: invalid pixels within this many
+    pixels of the robot's rendered silhouette take the robot's meaning
+    (free up to the robot, unknown behind it) instead of "unknown from the
+    near range" — the dropout at the robot's own depth edges is not an
+    obstacle in front of the robot (0 turns the rule off).
+
+    Supervision (R26, R27): ``camera_stale_s`` a camera whose newest frame
+    is older than this is stale (default: 3 periods of ``camera_hz``);
+    ``joints_stale_s`` likewise for the joint stream; ``joint_history_s``
+    how far back joint states are kept for capture-time self removal (a
+    frame stamped before the oldest kept state is refused, R30);
+    ``joint_wait_s`` how long a frame stamped after the newest joint state
+    waits for the joints to catch up before it is refused.
+
+    Reaction (R13, R14): ``v_max``, ``alpha`` of the repulsion and the
+    limits; ``stop_time`` / ``resume_time`` the override's ramps from 1 to 0
+    and back; ``control_hz`` the rate ``step`` is called at (its ``dt``).
+
+    ``watch_points``: fixed points reported like control points (distance,
+    direction, observed); they do not change the reaction. ``cell``: the
+    name under ``depthguard/<cell>/...`` of the Zenoh publications;
+    ``zenoh_listen``: where the monitor's Zenoh session listens (loopback
+    unless told otherwise).
+    """
+
+    model_config = ConfigDict(extra="forbid", frozen=True)
+
+    rho: float = Field(0.4, gt=0.0, le=5.0)
+    method: Literal["min", "mean", "hybrid"] = "hybrid"
+    delta_d: float = Field(0.01, gt=0.0, le=0.5)
+    principal: Optional[str] = None
+    cameras: Optional[tuple[str, ...]] = None
+    robot_offset: float = Field(0.08, ge=0.0, le=1.0)
+    robot_padding: float = Field(0.05, ge=0.0, le=0.5)
+    robot_in_others: Literal["unknown", "free"] = "unknown"
+    invalid: Literal["unknown", "free"] = "unknown"
+    silhouette_px: int = Field(4, ge=0, le=64)
+    camera_hz: float = Field(30.0, gt=0.0, le=1000.0)
+    camera_stale_s: Optional[float] = Field(None, gt=0.0, le=10.0)
+    joints_stale_s: float = Field(0.05, gt=0.0, le=10.0)
+    joint_history_s: float = Field(1.0, gt=0.0, le=60.0)
+    joint_wait_s: float = Field(0.05, ge=0.0, le=1.0)
+    control_hz: float = Field(500.0, gt=0.0, le=10000.0)
+    v_max: float = Field(1.5, gt=0.0, le=10.0)
+    alpha: float = Field(5.0, gt=0.0, le=100.0)
+    stop_time: float = Field(0.5, gt=0.0, le=10.0)
+    resume_time: float = Field(1.0, gt=0.0, le=60.0)
+    watch_points: tuple[WatchPoint, ...] = ()
+    cell: Optional[str] = None
+    zenoh_listen: str = "tcp/127.0.0.1:0"
+
+    @field_validator("cameras")
+    @classmethod
+    def _ids(cls, v):
+        if v is not None:
+            if not v:
+                raise ValueError("cameras must name at least one camera (or be left out: all)")
+            for c in v:
+                check_camera_id(c)
+            if len(set(v)) != len(v):
+                raise ValueError(f"cameras repeats an id: {list(v)}")
+        return v
+
+    @field_validator("cell")
+    @classmethod
+    def _cell(cls, v):
+        if v is not None:
+            check_camera_id(v)
+        return v
+
+    @model_validator(mode="after")
+    def _finite(self) -> "MonitorConfig":
+        for name, value in self:
+            if isinstance(value, float) and not math.isfinite(value):
+                raise ValueError(f"{name} must be finite (got {value})")
+        names = [w.name for w in self.watch_points]
+        if len(set(names)) != len(names):
+            raise ValueError(f"watch point names must be unique (got {names})")
+        return self
+
+    # ------------------------------------------------------------- derived
+    @property
+    def dt(self) -> float:
+        """Seconds between two control cycles (1 / ``control_hz``)."""
+        return 1.0 / self.control_hz
+
+    @property
+    def camera_stale_limit(self) -> float:
+        """Seconds after which a camera's newest frame is stale (R27)."""
+        return 3.0 / self.camera_hz if self.camera_stale_s is None else float(self.camera_stale_s)
+
+    def with_changes(self, **changes) -> "MonitorConfig":
+        """A validated copy with ``changes`` applied (``ValueError`` naming the field on a bad value)."""
+        from pydantic import ValidationError
+
+        data = self.model_dump()
+        data.update(changes)
+        try:
+            return MonitorConfig.model_validate(data)
+        except ValidationError as exc:
+            raise ValueError("; ".join(f"{'.'.join(str(p) for p in e['loc']) or 'monitor'}: "
+                                       f"{e['msg'].removeprefix('Value error, ')}" for e in exc.errors())) from None

@@ -1,0 +1,82 @@
+"""The speed override and the conditions that stop the robot (R26, R27).
+
+:class:`SafetySupervisor` ramps the override ``k`` to 0 while any stop
+reason holds and back to 1 once none does, and keeps each episode (first and
+last time, message). :func:`stop_reasons` lists the reasons of one cycle.
+Used by the runtime (:class:`depthguard.runtime.Monitor`) and the simulated
+closed loop.
+"""
+
+from __future__ import annotations
+
+import numpy as np
+
+__all__ = ["SafetySupervisor", "stop_reasons"]
+
+
+class SafetySupervisor:
+    """Speed override ``k``: ramps to 0 while a stop reason holds, back to 1 after (R26, R27).
+
+    ``update(t, reasons)`` with ``reasons`` a dict ``key -> message`` of the
+    conditions that hold now; returns ``k``. ``episodes`` lists each
+    condition's first/last time and message.
+    """
+
+    def __init__(self, dt: float, stop_time: float, resume_time: float):
+        self.dt = dt
+        self.stop_time, self.resume_time = stop_time, resume_time
+        self.down = dt / stop_time
+        self.up = dt / resume_time
+        self.k = 1.0
+        self.episodes: list[dict] = []
+        self._open: dict[str, dict] = {}
+
+    def update(self, t: float, reasons: dict[str, str], dt: float | None = None) -> float:
+        """The override after this cycle; ``dt`` (s) since the previous cycle when it is not the
+        fixed ``dt`` given at construction (a monitor stepped at an irregular rate)."""
+        if dt is not None:
+            self.down = max(0.0, dt) / self.stop_time
+            self.up = max(0.0, dt) / self.resume_time
+        for key, msg in reasons.items():
+            ep = self._open.get(key)
+            if ep is None:
+                ep = {"reason": msg, "key": key, "t_start": round(t, 4), "t_end": None, "t_stopped": None}
+                self._open[key] = ep
+                self.episodes.append(ep)
+        for key in [k for k in self._open if k not in reasons]:
+            self._open.pop(key)["t_end"] = round(t, 4)
+        if reasons:
+            self.k = max(0.0, self.k - self.down)
+            if self.k == 0.0:
+                for ep in self._open.values():
+                    if ep["t_stopped"] is None:
+                        ep["t_stopped"] = round(t, 4)
+        else:
+            self.k = min(1.0, self.k + self.up)
+        return self.k
+
+
+def stop_reasons(ages, age_limit: float, camera_ids, observed, D, V, names) -> dict[str, str]:
+    """The conditions that make the supervisor stop the robot, ``key -> message`` (R26, R27).
+
+    ``ages`` (n_cam,) s since each camera's last frame (``inf`` before the
+    first); ``observed`` (m,) bool; ``D`` (m,) m; ``V`` (m, 3). Rules:
+    a frame older than ``age_limit`` (stale data, R27); a control point that
+    no camera can judge (``observed = False``, R26: the worst case, not free);
+    a control point inside an obstacle frustum (finite ``D`` that is 0 or has
+    no direction: no way to flee, and R14 gives no limit without ``V``).
+    ``D = inf`` (nothing within ρ) is never a reason.
+    """
+    reasons = {}
+    for i, cid in enumerate(camera_ids):
+        if ages[i] > age_limit + 1e-9:
+            reasons[f"stale:{cid}"] = (f"camera {cid}: no frame for more than {age_limit * 1e3:.0f} ms "
+                                       f"- stale data (R27)")
+    for j in np.nonzero(~np.asarray(observed, dtype=bool))[0]:
+        reasons[f"unobserved:{names[j]}"] = f"control point {names[j]} is not observed by any camera (R26)"
+    D = np.asarray(D, dtype=np.float64)
+    inside = np.isfinite(D) & ((D <= 0.0) | (np.linalg.norm(V, axis=1) == 0.0))
+    for j in np.nonzero(inside)[0]:
+        reasons[f"inside:{names[j]}"] = (f"control point {names[j]} lies inside an obstacle frustum "
+                                         f"(D = 0, no direction)")
+    return reasons

@@ -1,0 +1,61 @@
+"""The expected depth of the known scene in one camera (R9, R16, R17, R30).
+
+The static CAD scene does not move: it is rendered once per camera. The
+robot moves: it is rendered at the joints of each frame's **capture** (R30),
+into a preallocated image. Both are the same z-buffer renderer
+(:class:`depthguard.render.Renderer`), so the expected depth of the whole
+known scene is the per-pixel nearest of the two
+(:func:`depthguard.render.composite.nearest_depth`).
+
+One object per camera and per thread: the renderer's buffers are reused.
+"""
+
+from __future__ import annotations
+
+import numpy as np
+
+from depthguard.render import Renderer
+from depthguard.render.composite import nearest_depth
+
+__all__ = ["ExpectedDepth"]
+
+
+class ExpectedDepth:
+    """Expected depth of camera ``cam`` (a :class:`~depthguard.camera.Camera`).
+
+    robot : a :class:`~depthguard.robot.RobotModel` or None.
+    static_meshes : list of world :class:`~depthguard.geometry.Mesh` (the rig's objects).
+    parallel : the renderer's numba threads (False: one thread, for worker threads).
+
+    ``static`` is the (H, W) float32 static scene in metres (0 = nothing);
+    :meth:`robot` renders the robot at ``q`` and returns a reused (H, W) float32
+    image (copy it to keep it); :meth:`known` the nearest of both.
+    """
+
+    def __init__(self, cam, robot=None, static_meshes=(), parallel: bool = False):
+        self.camera = cam
+        self.robot_model = robot
+        self._renderer = Renderer(cam, parallel=parallel)
+        meshes = list(static_meshes)
+        self.static = (np.array(self._renderer.render(meshes)[0], dtype=np.float32, copy=True) if meshes
+                       else np.zeros(cam.shape, dtype=np.float32))
+        self._robot = np.zeros(cam.shape, dtype=np.float32)
+        self._known = np.zeros(cam.shape, dtype=np.float32)
+
+    def robot(self, q) -> np.ndarray:
+        """(H, W) float32 m: the robot's link meshes at joints ``q`` (0 where no robot); reused buffer."""
+        if self.robot_model is None:
+            self._robot.fill(0.0)
+            return self._robot
+        qa = np.asarray(q, dtype=np.float64).reshape(-1)
+        if qa.shape[0] != self.robot_model.dof or not np.all(np.isfinite(qa)):
+            raise ValueError(f"expected {self.robot_model.dof} finite joint values, got {qa.tolist()}")
+        np.copyto(self._robot, self._renderer.render(self.robot_model.link_meshes(qa))[0])
+        return self._robot
+
+    def known(self, q) -> np.ndarray:
+        """(H, W) float32 m: static scene and robot at ``q`` together (R16); reused buffer."""
+        rd = self.robot(q)
+        np.copyto(self._known, self.static)
+        nearest_depth(self._known, rd)
+        return self._known

@@ -1,0 +1,310 @@
+"""Frames in, off the control path: per-camera workers and the fusion worker (R9, R28–R30).
+
+A frame goes through two threads before a control cycle can use it:
+
+1. its camera's **worker** (:class:`CameraWorker`) checks the image, looks
+   up the joints at the frame's capture stamp in the joint history (R30:
+   interpolated, never extrapolated; a frame outside the history is refused
+   and counted), and renders the robot at those joints into the camera
+   (R9). Only the newest frame waiting is processed: a camera that delivers
+   faster than it can be processed loses its older frames (counted as
+   ``dropped``), never the newest one.
+2. the **fusion worker** (:class:`FusionWorker`) loads the newest product of
+   every camera into the *back* depth grid (R10–R12: per-pixel states, the
+   robot's padded volume at every camera's capture joints), classifies the
+   cells that the robot's control points and watch points can reach within
+   ``rho`` (the lazy grid's per-frame memo, filled here rather than in the
+   first control cycle), and swaps it with the *front* grid in one
+   assignment. ``step`` queries the front grid only, under the buffer's own
+   lock, which the fusion worker takes only after a swap: a control cycle
+   never waits for a frame and never sees half of one.
+
+Numba runs on one thread in each worker, so that the control thread keeps a
+core (the kernels release the GIL).
+"""
+
+from __future__ import annotations
+
+import math
+import threading
+import time
+from dataclasses import dataclass, field
+
+import numpy as np
+
+from depthguard.camera import check_depth_image
+from depthguard.filtering.expected import ExpectedDepth
+from depthguard.runtime.joints import JointHistory, OutsideHistory
+
+__all__ = ["CameraProduct", "CameraWorker", "GridBuffer", "FusionWorker"]
+
+
+@dataclass
+class CameraProduct:
+    """One camera frame ready for fusion: depth and robot depth (H, W) float32 m, the capture
+    stamp (s), the joints at capture (dof,), and the wall time (``perf_counter``) of its push."""
+    depth: np.ndarray
+    robot_depth: np.ndarray
+    stamp: float
+    q: np.ndarray
+    pushed_at: float
+    version: int
+
+
+class CameraWorker:
+    """The thread of one camera (module docstring, step 1).
+
+    ``offer(frame, pushed_at)`` from any thread; the newest product is in
+    ``product`` (replaced whole under ``lock``) and ``on_product()`` is called
+    after each. Counters: ``frames`` processed, ``dropped`` (a newer frame came
+    first), ``refused`` by reason key in ``refusals`` with ``last_refusal``.
+    """
+
+    def __init__(self, cam, robot, static_meshes, joints: JointHistory, joint_wait_s: float,
+                 on_product, name: str | None = None):
+        self.camera = cam
+        self.id = cam.id
+        self.expected = ExpectedDepth(cam, robot, static_meshes)
+        self.joints = joints
+        self.joint_wait_s = float(joint_wait_s)
+        self.on_product = on_product
+        self.lock = threading.Lock()
+        self._wake = threading.Condition(self.lock)
+        self._inbox = None              # (frame, pushed_at)
+        self._busy = False
+        self.product: CameraProduct | None = None
+        self.frames = 0
+        self.dropped = 0
+        self.refusals: dict[str, int] = {}
+        self.last_refusal: str | None = None
+        self._version = 0
+        self._stop = False
+        self._thread = threading.Thread(target=self._run, name=name or f"depthguard-camera-{cam.id}", daemon=True)
+        self._thread.start()
+
+    @property
+    def refused(self) -> int:
+        return sum(self.refusals.values())
+
+    def offer(self, frame, pushed_at: float) -> None:
+        with self._wake:
+            if self._inbox is not None:
+                self.dropped += 1
+            self._inbox = (frame, pushed_at)
+            self._wake.notify()
+
+    def idle(self) -> bool:
+        with self.lock:
+            return self._inbox is None and not self._busy
+
+    def close(self, timeout: float = 2.0) -> None:
+        with self._wake:
+            self._stop = True
+            self._wake.notify()
+        self._thread.join(timeout)
+
+    def _refuse(self, key: str, message: str) -> None:
+        with self.lock:
+            self.refusals[key] = self.refusals.get(key, 0) + 1
+            self.last_refusal = f"camera {self.id}: {message}"
+
+    def _run(self) -> None:
+        import numba
+
+        numba.set_num_threads(1)
+        while True:
+            with self._wake:
+                while self._inbox is None and not self._stop:
+                    self._wake.wait()
+                if self._stop:
+                    return
+                frame, pushed_at = self._inbox
+                self._inbox = None
+                self._busy = True
+            try:
+                self._process(frame, pushed_at)
+            except Exception as exc:          # a bad frame never kills the camera's thread
+                self._refuse("error", f"frame at {frame.stamp:.6f} s: {exc}")
+            finally:
+                with self.lock:
+                    self._busy = False
+
+    def _process(self, frame, pushed_at: float) -> None:
+        try:
+            depth = check_depth_image(self.camera, frame.depth)
+        except ValueError as exc:
+            self._refuse("bad_image", str(exc))
+            return
+        stamp = float(frame.stamp)
+        if not math.isfinite(stamp):
+            self._refuse("bad_stamp", f"frame stamp {stamp!r} is not finite")
+            return
+        deadline = time.perf_counter() + self.joint_wait_s
+        while True:
+            try:
+                q = self.joints.at(stamp)
+                break
+            except OutsideHistory as exc:
+                # joints may lag the frame by a little: wait for them, never extrapolate (R30)
+                if exc.kind in ("future", "empty") and time.perf_counter() < deadline and not self._stop:
+                    with self.lock:
+                        newer = self._inbox is not None
+                    if not newer:
+                        time.sleep(0.0005)
+                        continue
+                key = {"future": "future", "too_old": "too_old", "empty": "no_joints"}[exc.kind]
+                self._refuse(key, f"frame at {stamp:.6f} s refused: {exc} (R30)")
+                return
+        rd = np.array(self.expected.robot(q), copy=True)
+        d = np.array(depth, dtype=np.float32, copy=True)
+        with self.lock:
+            self._version += 1
+            self.product = CameraProduct(d, rd, stamp, q, pushed_at, self._version)
+            self.frames += 1
+        self.on_product(self.id)
+
+
+@dataclass
+class GridBuffer:
+    """One of the two depth grids (front / back) with what it holds: per camera the version,
+    capture stamp, push time and capture joints of the frame loaded."""
+    grid: object
+    camera_ids: tuple[str, ...]
+    lock: threading.Lock = field(default_factory=threading.Lock)
+    versions: dict = field(default_factory=dict)
+    stamps: dict = field(default_factory=dict)
+    pushed_at: dict = field(default_factory=dict)
+    q_caps: dict = field(default_factory=dict)
+    loaded: bool = False
+    generation: int = 0
+
+
+class FusionWorker:
+    """The fusion thread (module docstring, step 2).
+
+    ``make_grid(camera_ids)`` builds a depth grid map over those cameras (principal
+    first); ``settings()`` returns the current ``(config, camera ids, predicted points)``
+    — the points (N, 3) world whose cells are classified before the swap.
+    ``front`` is the buffer ``step`` reads; ``swap_lock`` guards the assignment.
+    """
+
+    def __init__(self, workers: dict, make_grid, settings, robot):
+        self.workers = workers
+        self.make_grid = make_grid
+        self.settings = settings
+        self.robot = robot
+        self.swap_lock = threading.Lock()
+        self.front: GridBuffer | None = None
+        self._back: GridBuffer | None = None
+        self._wake = threading.Condition()
+        self._pending = False
+        self._busy = False
+        self._stop = False
+        self.builds = 0
+        self.build_seconds: list[float] = []
+        self.errors = 0
+        self.last_error: str | None = None
+        self._thread = threading.Thread(target=self._run, name="depthguard-fusion", daemon=True)
+        self._thread.start()
+
+    def notify(self, _camera_id: str | None = None) -> None:
+        with self._wake:
+            self._pending = True
+            self._wake.notify()
+
+    def idle(self) -> bool:
+        with self._wake:
+            return not self._pending and not self._busy
+
+    def close(self, timeout: float = 2.0) -> None:
+        with self._wake:
+            self._stop = True
+            self._wake.notify()
+        self._thread.join(timeout)
+
+    def _run(self) -> None:
+        import numba
+
+        numba.set_num_threads(1)
+        while True:
+            with self._wake:
+                while not self._pending and not self._stop:
+                    self._wake.wait()
+                if self._stop:
+                    return
+                self._pending = False
+                self._busy = True
+            try:
+                t0 = time.perf_counter()
+                if self._build():
+                    self.builds += 1
+                    self.build_seconds.append(time.perf_counter() - t0)
+                    if len(self.build_seconds) > 4096:
+                        del self.build_seconds[:2048]
+            except Exception as exc:
+                self.errors += 1
+                self.last_error = f"fusion: {type(exc).__name__}: {exc}"
+            finally:
+                with self._wake:
+                    self._busy = False
+
+    def _products(self, camera_ids) -> dict:
+        out = {}
+        for cid in camera_ids:
+            w = self.workers.get(cid)
+            if w is None:
+                continue
+            with w.lock:
+                p = w.product
+            if p is not None:
+                out[cid] = p
+        return out
+
+    def _build(self) -> bool:
+        cfg, camera_ids, points = self.settings()
+        products = self._products(camera_ids)
+        # the grid is over the cameras with a frame; the principal (first) must have one
+        cams = tuple(c for c in camera_ids if c in products)
+        if not cams or cams[0] != camera_ids[0]:
+            return False
+        back = self._back
+        if back is None or back.camera_ids != cams:
+            back = GridBuffer(self.make_grid(cams), cams)
+        with back.lock:                       # a control cycle may still read it (the old front)
+            changed = {c for c in cams if back.versions.get(c) != products[c].version} if back.loaded else None
+            if changed == set():
+                return False
+            depths = {c: products[c].depth for c in cams}
+            rdepths = {c: products[c].robot_depth for c in cams}
+            segs, rads = [], []
+            for qf in {id(p.q): p.q for p in products.values()}.values():
+                ab, r = self.robot.collision_segments(qf, cfg.robot_padding)
+                segs.append(ab)
+                rads.append(r)
+            caps = (np.concatenate(segs), np.concatenate(rads))
+            back.loaded = False
+            back.grid.set_frames(depths, rdepths, robot_offset=cfg.robot_offset, robot_capsules=caps,
+                                 invalid=cfg.invalid, robot_in_others=cfg.robot_in_others,
+                                 changed=changed, **_silhouette_kw(back.grid, cfg))
+            if points is not None and len(points):
+                back.grid.query(points, rho=cfg.rho, method=cfg.method, threads=1)   # classify ahead
+            for c in cams:
+                p = products[c]
+                back.versions[c] = p.version
+                back.stamps[c] = p.stamp
+                back.pushed_at[c] = p.pushed_at
+                back.q_caps[c] = p.q
+            back.loaded = True
+            back.generation += 1
+        with self.swap_lock:
+            self._back, self.front = self.front, back
+        return True
+
+
+def _silhouette_kw(grid, cfg) -> dict:
+    """``silhouette_px`` for grids that take it (R32)."""
+    import inspect
+
+    if "silhouette_px" in inspect.signature(grid.set_frames).parameters:
+        return {"silhouette_px": cfg.silhouette_px}
+    return {}

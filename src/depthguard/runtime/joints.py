@@ -1,0 +1,149 @@
+"""A short history of timestamped joint states, for capture-time self removal (R30).
+
+A camera frame shows the robot where it was when the frame was exposed, not
+where it is when the frame reaches the computer. :class:`JointHistory` keeps
+the last ``span_s`` seconds of joint states and answers ``at(stamp)``: the
+joints linearly interpolated at ``stamp``, or the reason why it cannot —
+before the oldest state kept ("too old") or after the newest ("in the
+future"). Nothing is ever extrapolated: a frame outside the history is
+refused by the monitor and counted, never used with the wrong joints.
+
+Thread-safe: ``push`` from the joint thread, ``at`` / ``latest`` from any
+other. Storage is a preallocated ring (no allocation per state).
+"""
+
+from __future__ import annotations
+
+import math
+import threading
+
+import numpy as np
+
+__all__ = ["JointHistory", "OutsideHistory"]
+
+
+class OutsideHistory(LookupError):
+    """A stamp outside the joint history; ``kind`` is ``"too_old"``, ``"future"`` or ``"empty"``."""
+
+    def __init__(self, kind: str, message: str):
+        super().__init__(message)
+        self.kind = kind
+
+
+class JointHistory:
+    """Ring of ``(stamp, q)`` with stamps strictly increasing (R30).
+
+    dof : joints per state. span_s : seconds kept behind the newest state.
+    capacity : states kept at most (default: enough for 2 kHz over ``span_s``).
+    q_min, q_max : optional (dof,) limits; a state outside them is refused.
+    """
+
+    def __init__(self, dof: int, span_s: float = 1.0, capacity: int | None = None,
+                 q_min=None, q_max=None):
+        if int(dof) < 1:
+            raise ValueError(f"dof must be >= 1 (got {dof!r})")
+        if not (math.isfinite(span_s) and span_s > 0):
+            raise ValueError(f"span_s must be > 0 s (got {span_s!r})")
+        self.dof = int(dof)
+        self.span_s = float(span_s)
+        cap = int(capacity) if capacity is not None else int(math.ceil(span_s * 2000)) + 16
+        self._t = np.full(cap, -np.inf)
+        self._q = np.zeros((cap, self.dof))
+        self._n = 0            # states stored (<= cap)
+        self._head = 0         # index of the next write
+        self._lock = threading.Lock()
+        self.q_min = None if q_min is None else np.asarray(q_min, dtype=np.float64)
+        self.q_max = None if q_max is None else np.asarray(q_max, dtype=np.float64)
+        self.refused = 0
+        self.last_refusal: str | None = None
+
+    # ------------------------------------------------------------ writing
+    def push(self, stamp: float, q) -> bool:
+        """Add a state; returns False (and counts it) when it is refused: a stamp not after the
+        newest, non-finite values, a wrong length, or joints outside the limits."""
+        qa = np.asarray(q, dtype=np.float64).reshape(-1)
+        reason = None
+        if qa.shape[0] != self.dof:
+            reason = f"joint state has {qa.shape[0]} values, the robot has {self.dof} joints"
+        elif not (math.isfinite(stamp) and np.all(np.isfinite(qa))):
+            reason = "joint state with a non-finite stamp or value"
+        elif self.q_min is not None and np.any((qa < self.q_min - 1e-6) | (qa > self.q_max + 1e-6)):
+            j = int(np.argmax((qa < self.q_min - 1e-6) | (qa > self.q_max + 1e-6)))
+            reason = (f"joint {j} = {qa[j]:.4f} rad is outside its limits "
+                      f"[{self.q_min[j]:.4f}, {self.q_max[j]:.4f}]")
+        with self._lock:
+            if reason is None and self._n and stamp <= self._t[(self._head - 1) % len(self._t)]:
+                reason = (f"joint state stamped {stamp:.6f} s is not after the newest "
+                          f"({self._t[(self._head - 1) % len(self._t)]:.6f} s)")
+            if reason is not None:
+                self.refused += 1
+                self.last_refusal = reason
+                return False
+            self._t[self._head] = stamp
+            self._q[self._head] = qa
+            self._head = (self._head + 1) % len(self._t)
+            self._n = min(self._n + 1, len(self._t))
+        return True
+
+    def clear(self) -> None:
+        with self._lock:
+            self._n = 0
+            self._head = 0
+            self._t.fill(-np.inf)
+
+    # ------------------------------------------------------------ reading
+    def _window(self) -> tuple[float, float]:
+        cap = len(self._t)
+        newest = self._t[(self._head - 1) % cap]
+        oldest = self._t[(self._head - self._n) % cap]
+        return max(oldest, newest - self.span_s), newest
+
+    def latest(self) -> tuple[float, np.ndarray] | None:
+        """``(stamp, q copy)`` of the newest state, or None before the first."""
+        with self._lock:
+            if not self._n:
+                return None
+            i = (self._head - 1) % len(self._t)
+            return float(self._t[i]), self._q[i].copy()
+
+    @property
+    def newest_stamp(self) -> float:
+        with self._lock:
+            return float(self._t[(self._head - 1) % len(self._t)]) if self._n else -math.inf
+
+    def at(self, stamp: float, out: np.ndarray | None = None) -> np.ndarray:
+        """(dof,) joints linearly interpolated at ``stamp`` (R30); raises :class:`OutsideHistory`
+        when ``stamp`` lies before the oldest kept state (older than ``span_s`` behind the
+        newest) or after the newest."""
+        with self._lock:
+            if not self._n:
+                raise OutsideHistory("empty", "no joint state received yet")
+            lo, hi = self._window()
+            if stamp > hi:
+                raise OutsideHistory("future", f"stamp {stamp:.6f} s is after the newest joint state "
+                                                f"({hi:.6f} s)")
+            if stamp < lo:
+                raise OutsideHistory("too_old", f"stamp {stamp:.6f} s is before the oldest joint state kept "
+                                                 f"({lo:.6f} s)")
+            cap = len(self._t)
+            # binary search over the ring in logical order (0 = oldest)
+            a, b = 0, self._n - 1
+            base = (self._head - self._n) % cap
+            while b - a > 1:
+                mid = (a + b) // 2
+                if self._t[(base + mid) % cap] <= stamp:
+                    a = mid
+                else:
+                    b = mid
+            ia, ib = (base + a) % cap, (base + b) % cap
+            ta, tb = self._t[ia], self._t[ib]
+            res = out if out is not None else np.empty(self.dof)
+            if self._n == 1 or tb <= ta or stamp <= ta:
+                res[:] = self._q[ia]
+            elif stamp >= tb:
+                res[:] = self._q[ib]
+            else:
+                w = (stamp - ta) / (tb - ta)
+                np.multiply(self._q[ia], 1.0 - w, out=res)
+                res += w * self._q[ib]
+            return res

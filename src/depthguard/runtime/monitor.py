@@ -1,0 +1,361 @@
+"""``Monitor``: the one runtime of a cell — frames and joints in, a reaction out (R29).
+
+    monitor = Monitor(rig)                       # settings: rig.monitor (the rig's monitor: section)
+    monitor.push_joints(stamp, q)                # any thread, at the joint rate
+    monitor.push_frame(Frame(camera_id, depth, stamp))    # any thread, at the camera rate
+    reaction = monitor.step(t)                   # the control thread, at the control rate
+
+Model and data apart: the rig and the :class:`~depthguard.config.MonitorConfig`
+describe the cell; the monitor holds the state (joint history, per-camera
+workers, two depth grids, the supervisor). Frames are processed off the
+control path (:mod:`depthguard.runtime.ingest`); ``step`` never waits for a
+frame:
+
+1. joints: ``q`` given, or the newest state received; stale joints (older
+   than ``joints_stale_s``) stop the robot (R27);
+2. distances of the control points at ``q`` and of the watch points, from
+   the front depth grid (R12): ``inf`` = nothing within rho, ``observed``
+   False = cannot judge (R26);
+3. supervision: a stale or missing camera frame, stale joints, an
+   unobserved control point, a control point inside an obstacle frustum
+   → the override ramps to 0 (R26, R27), with the reasons;
+4. reaction: repulsion at the end effector (R13), joint-velocity limits
+   from the other control points and the joint limits (R14), both times the
+   override.
+
+Every clock is the caller's: stamps of frames and joints and the ``t`` of
+``step`` are seconds on one clock (``time.monotonic()`` for a live cell,
+simulated time for a simulator or a recording replayed fast).
+"""
+
+from __future__ import annotations
+
+import math
+import threading
+import time
+
+import numpy as np
+
+from depthguard.config import MonitorConfig
+from depthguard.control.reaction import reaction as reaction_of
+from depthguard.control.supervisor import SafetySupervisor, stop_reasons
+from depthguard.runtime.ingest import CameraWorker, FusionWorker
+from depthguard.runtime.joints import JointHistory
+from depthguard.runtime.result import CameraStatus, Reaction
+
+__all__ = ["Monitor"]
+
+
+class Monitor:
+    """The runtime of one cell (module docstring).
+
+    rig : a :class:`~depthguard.rig.Rig` with a robot and cameras.
+    config : a :class:`~depthguard.config.MonitorConfig` (default: ``rig.monitor``).
+    sinks : callables ``sink(reaction)`` called with every reaction, from the
+        thread that calls ``step`` — keep them quick, or wrap them in
+        :class:`depthguard.runtime.sinks.SinkFanout`.
+
+    Use as a context manager, or call :meth:`close`.
+    """
+
+    def __init__(self, rig, config: MonitorConfig | None = None, *, sinks=()):
+        if rig.robot is None:
+            raise ValueError(f"rig {rig.name!r} has no robot: the monitor needs one (robot: in the rig file)")
+        self.rig = rig
+        self.robot = rig.robot
+        cfg = config if config is not None else rig.monitor
+        if not isinstance(cfg, MonitorConfig):
+            raise ValueError(f"config must be a MonitorConfig (got {type(cfg).__name__})")
+        self._cameras = {c.id: c for c in rig.cameras}
+        ids = list(cfg.cameras) if cfg.cameras is not None else [c.id for c in rig.cameras]
+        for c in ids:
+            if c not in self._cameras:
+                raise ValueError(f"monitor.cameras names {c!r}, which the rig {rig.name!r} does not have; "
+                                 f"cameras: {', '.join(self._cameras)}")
+        self.config = cfg
+        self._settings_lock = threading.Lock()
+        self._camera_ids = self._ordered(ids, cfg.principal)
+        self.joints = JointHistory(self.robot.dof, cfg.joint_history_s, q_min=self.robot.q_min,
+                                   q_max=self.robot.q_max)
+        self._static = rig.static_meshes()
+        self._workers: dict[str, CameraWorker] = {}
+        self.fusion = FusionWorker(self._workers, self._make_grid, self._fusion_settings, self.robot)
+        for cid in self._camera_ids:
+            self._start_worker(cid)
+        self._added_at: dict[str, float] = {}
+        self.sinks = list(sinks)
+        # control-thread state (preallocated)
+        self._data = self.robot.create_data()
+        self._cp_names = tuple(c.name for c in self.robot.control_points)
+        self._watch = np.array([w.position for w in cfg.watch_points], dtype=np.float64).reshape(-1, 3)
+        self._names = self._cp_names + tuple(w.name for w in cfg.watch_points)
+        m = len(self._names)
+        self._P = np.zeros((m, 3))
+        self._is_watch = np.arange(m) >= len(self._cp_names)
+        self._q_min, self._q_max, self._qd_max = (np.ascontiguousarray(a, dtype=np.float64) for a in
+                                                  (self.robot.q_min, self.robot.q_max, self.robot.qd_max))
+        self._react_buf = (np.empty(3), np.empty(self.robot.dof), np.empty(self.robot.dof))
+        self._sup = SafetySupervisor(cfg.dt, cfg.stop_time, cfg.resume_time)
+        self._t_last: float | None = None
+        self._last_q: np.ndarray | None = None
+        self._seen: dict[str, int] = {}          # camera -> version already used by a cycle
+        self.frame_to_reaction_s: list[float] = []
+        self.step_s: list[float] = []
+        self.cycles = 0
+        self._closed = False
+
+    # ------------------------------------------------------------ set-up
+    @staticmethod
+    def _ordered(ids, principal) -> tuple[str, ...]:
+        ids = list(ids)
+        p = principal if principal is not None else ids[0]
+        if p not in ids:
+            raise ValueError(f"monitor.principal {p!r} is not among the monitored cameras {ids}")
+        return tuple([p] + [c for c in ids if c != p])
+
+    def _start_worker(self, cid: str) -> None:
+        self._workers[cid] = CameraWorker(self._cameras[cid], self.robot, self._static, self.joints,
+                                          self.config.joint_wait_s, self.fusion.notify)
+
+    def _make_grid(self, cams: tuple[str, ...]):
+        from depthguard.fusion.depth_grid import DepthGridMap
+
+        cameras = [self._cameras[c] for c in cams]
+        d_min, d_max = self.rig.workspace.depth_span(cameras[0])
+        return DepthGridMap(cameras, principal=cams[0], d_min=d_min, d_max=d_max, delta_d=self.config.delta_d)
+
+    def _fusion_settings(self):
+        """(config, camera ids, points whose cells to classify ahead) for the fusion worker."""
+        with self._settings_lock:
+            cfg, ids = self.config, self._camera_ids
+        latest = self.joints.latest()
+        pts = None
+        if latest is not None:
+            data = self.robot.create_data()
+            self.robot.forward(latest[1], data)
+            pts = np.concatenate([data.cp_positions, self._watch]) if len(self._watch) else data.cp_positions
+        return cfg, ids, pts
+
+    # ------------------------------------------------------------ inputs (any thread)
+    @property
+    def camera_ids(self) -> tuple[str, ...]:
+        """The monitored cameras, principal first."""
+        return self._camera_ids
+
+    def push_joints(self, stamp: float, q) -> bool:
+        """A joint state ``q`` (dof,) rad measured at ``stamp`` (s). Returns False when it is refused
+        (stamp not after the newest, non-finite, wrong length, outside the joint limits); the
+        refusals are counted in ``stats()``."""
+        return self.joints.push(float(stamp), q)
+
+    def push_frame(self, frame) -> None:
+        """A depth frame (:class:`~depthguard.sources.Frame`: camera id, (H, W) metres, capture
+        stamp). Returns at once; the frame is processed on its camera's worker thread. A frame of
+        a camera that is not monitored (removed) is counted as refused."""
+        w = self._workers.get(frame.camera_id)
+        if w is None:
+            if frame.camera_id not in self._cameras:
+                raise ValueError(f"frame of unknown camera {frame.camera_id!r}; the rig's cameras: "
+                                 f"{', '.join(self._cameras)}")
+            self._unmonitored = getattr(self, "_unmonitored", 0) + 1
+            return
+        w.offer(frame, time.perf_counter())
+
+    # ------------------------------------------------------------ changes while running
+    def set_rho(self, rho: float) -> None:
+        """Change the radius of surveillance (m) while running."""
+        self.update_config(rho=rho)
+
+    def update_config(self, **changes) -> MonitorConfig:
+        """Apply validated changes to the running configuration (``rho``, ``camera_stale_s``,
+        ``joints_stale_s``, ``stop_time``, ``resume_time``, ``v_max``, ``alpha``, ``method``);
+        ``ValueError`` naming the field on a bad value or one that cannot change while running."""
+        allowed = {"rho", "camera_stale_s", "joints_stale_s", "stop_time", "resume_time", "v_max", "alpha",
+                   "method", "camera_hz"}
+        bad = set(changes) - allowed
+        if bad:
+            raise ValueError(f"cannot change {', '.join(sorted(bad))} while running; changeable: "
+                             f"{', '.join(sorted(allowed))}")
+        with self._settings_lock:
+            self.config = self.config.with_changes(**changes)
+            self._sup.stop_time, self._sup.resume_time = self.config.stop_time, self.config.resume_time
+        self.fusion.notify()
+        return self.config
+
+    def add_camera(self, camera_id: str, t: float | None = None) -> None:
+        """Monitor one more of the rig's cameras; it is used from its first frame, and is not
+        awaited (no stale reason) until then."""
+        if camera_id not in self._cameras:
+            raise ValueError(f"rig {self.rig.name!r} has no camera {camera_id!r}")
+        with self._settings_lock:
+            if camera_id in self._camera_ids:
+                return
+            self._start_worker(camera_id)
+            self._camera_ids = self._camera_ids + (camera_id,)
+        self._added_at[camera_id] = -math.inf if t is None else float(t)
+
+    def remove_camera(self, camera_id: str) -> None:
+        """Stop monitoring a camera: its frames are no longer awaited nor used. The principal
+        can be removed: the next camera becomes principal."""
+        with self._settings_lock:
+            if camera_id not in self._camera_ids:
+                raise ValueError(f"camera {camera_id!r} is not monitored; monitored: {', '.join(self._camera_ids)}")
+            if len(self._camera_ids) == 1:
+                raise ValueError("cannot remove the last monitored camera")
+            self._camera_ids = tuple(c for c in self._camera_ids if c != camera_id)
+            w = self._workers.pop(camera_id)
+        w.close()
+        self._seen.pop(camera_id, None)
+        self.fusion.notify()
+
+    # ------------------------------------------------------------ the control cycle
+    def step(self, t: float, q=None) -> Reaction:
+        """The reaction at time ``t`` (s) with the robot at ``q`` (dof,) rad — default: the newest
+        joint state received. Never waits for a frame (module docstring)."""
+        t_wall = time.perf_counter()
+        cfg = self.config
+        robot, data = self.robot, self._data
+        latest = self.joints.latest()
+        joints_age = math.inf if latest is None else t - latest[0]
+        if q is None:
+            q = latest[1] if latest is not None else (self._last_q if self._last_q is not None
+                                                       else np.asarray(self.rig.robot_q0, dtype=np.float64))
+        q = np.asarray(q, dtype=np.float64)
+        self._last_q = q
+        robot.forward(q, data)
+        m_cp = len(self._cp_names)
+        self._P[:m_cp] = data.cp_positions
+        if len(self._watch):
+            self._P[m_cp:] = self._watch
+        m = len(self._names)
+        D = np.full(m, np.inf)
+        V = np.zeros((m, 3))
+        obs = np.zeros(m, dtype=bool)
+        stamps: dict[str, float] = {}
+        with self.fusion.swap_lock:
+            buf = self.fusion.front
+            if buf is not None:
+                buf.lock.acquire()
+        if buf is not None:
+            try:
+                if buf.loaded:
+                    res = buf.grid.query(self._P, rho=cfg.rho, method=cfg.method, threads=1)
+                    D[:] = res.distance
+                    V[:] = res.direction
+                    obs[:] = res.observed
+                    stamps = dict(buf.stamps)
+                    now = time.perf_counter()
+                    for c, v in buf.versions.items():
+                        if self._seen.get(c) != v:
+                            self._seen[c] = v
+                            self.frame_to_reaction_s.append(now - buf.pushed_at[c])
+            finally:
+                buf.lock.release()
+        # supervision (R26, R27)
+        with self._settings_lock:
+            ids = self._camera_ids
+        limit = cfg.camera_stale_limit
+        cams: dict[str, CameraStatus] = {}
+        ages = np.empty(len(ids))
+        for i, c in enumerate(ids):
+            w = self._workers.get(c)
+            st = stamps.get(c)
+            age = math.inf if st is None else t - st
+            awaited = not (st is None and c in self._added_at)     # added, no frame yet: not awaited
+            ages[i] = age if awaited else 0.0
+            state = "waiting" if st is None else ("stale" if age > limit + 1e-9 else "fresh")
+            cams[c] = CameraStatus(age, state, w.frames if w else 0, w.refused if w else 0,
+                                   -math.inf if st is None else st)
+        reasons = stop_reasons(ages, limit, ids, obs[:m_cp], D[:m_cp], V[:m_cp], self._cp_names)
+        if joints_age > cfg.joints_stale_s + 1e-9:
+            reasons["stale:joints"] = (f"joint states: none for more than {cfg.joints_stale_s * 1e3:.0f} ms "
+                                       f"- stale data (R27)" if latest is not None else
+                                       "joint states: none received yet (R27)")
+        dt = cfg.dt if self._t_last is None else min(max(t - self._t_last, 0.0), 1.0)
+        self._t_last = t
+        k = self._sup.update(t, reasons, dt=dt)
+        rep, lo, hi = reaction_of(D[:m_cp], V[:m_cp], data.cp_jacobians, q, self._q_min, self._q_max,
+                                  self._qd_max, cfg.dt, cfg.rho, cfg.v_max, cfg.alpha, k, out=self._react_buf)
+        step_s = time.perf_counter() - t_wall
+        self.cycles += 1
+        self.step_s.append(step_s)
+        if len(self.step_s) > 100_000:
+            del self.step_s[:50_000]
+        r = Reaction(t=float(t), override=float(k), repulsion=rep.copy(), qd_min=lo.copy(), qd_max=hi.copy(),
+                     names=self._names, distance=D, direction=V, observed=obs, is_watch=self._is_watch,
+                     reasons=reasons, cameras=cams, joints_age_s=float(joints_age), q=q.copy(),
+                     frame_stamps=stamps, step_s=step_s)
+        for s in self.sinks:
+            s(r)
+        return r
+
+    # ------------------------------------------------------------ state
+    @property
+    def episodes(self) -> list[dict]:
+        """Every stop episode so far: reason, key, t_start, t_end, t_stopped."""
+        return self._sup.episodes
+
+    def idle(self) -> bool:
+        """True when every frame pushed so far has been processed and swapped in."""
+        return all(w.idle() for w in list(self._workers.values())) and self.fusion.idle()
+
+    def flush(self, timeout: float = 10.0) -> None:
+        """Wait until every frame pushed so far is in the front grid (tests, replays as fast
+        as possible); ``TimeoutError`` after ``timeout`` s."""
+        end = time.perf_counter() + timeout
+        while not self.idle():
+            if time.perf_counter() > end:
+                raise TimeoutError(f"monitor: frames still in processing after {timeout} s")
+            time.sleep(0.0002)
+
+    def stats(self) -> dict:
+        """Counters: per camera frames used / dropped / refused by reason; joints refused; fusion
+        builds and errors; cycles."""
+        cams = {}
+        for c, w in list(self._workers.items()):
+            with w.lock:
+                cams[c] = {"frames": w.frames, "dropped": w.dropped, "refused": dict(w.refusals),
+                           "last_refusal": w.last_refusal}
+        return {"cameras": cams, "joints_refused": self.joints.refused,
+                "joints_last_refusal": self.joints.last_refusal, "fusion_builds": self.fusion.builds,
+                "fusion_errors": self.fusion.errors, "fusion_last_error": self.fusion.last_error,
+                "cycles": self.cycles, "frames_of_removed_cameras": getattr(self, "_unmonitored", 0)}
+
+    def close(self) -> None:
+        if self._closed:
+            return
+        self._closed = True
+        for w in list(self._workers.values()):
+            w.close()
+        self.fusion.close()
+        for s in self.sinks:
+            close = getattr(s, "close", None)
+            if close is not None:
+                close()
+
+    def __enter__(self) -> "Monitor":
+        return self
+
+    def __exit__(self, *exc) -> None:
+        self.close()
+
+
+def warm_up(rig, config: MonitorConfig | None = None) -> float:
+    """Compile every kernel of the monitor's path (numba, ``cache=True``: from the disk cache
+    after the first time) on a throwaway monitor fed with the known scene's expected depth, so
+    that no clock of a run includes compilation. Returns the seconds it took."""
+    from depthguard.filtering.expected import ExpectedDepth
+    from depthguard.sources.frame import Frame
+
+    t0 = time.perf_counter()
+    q0 = np.asarray(rig.robot_q0, dtype=np.float64)
+    with Monitor(rig, config) as mon:
+        mon.push_joints(0.0, q0)
+        mon.push_joints(0.001, q0)
+        for cid in mon.camera_ids:
+            cam = rig.camera(cid)
+            mon.push_frame(Frame(cid, np.array(ExpectedDepth(cam, rig.robot, rig.static_meshes()).known(q0)),
+                                 0.0005))
+        mon.flush(timeout=600.0)
+        mon.step(0.001)
+    return time.perf_counter() - t0

@@ -1,0 +1,107 @@
+"""What one control cycle of the monitor returns: :class:`Reaction` (R13, R14, R26, R27, R29).
+
+Every array is a fresh copy: a reaction may be kept, queued to a sink or
+sent to another thread. "No obstacle within rho" and "cannot judge" are
+different values everywhere (SPEC §7): ``distance`` is ``inf`` for the first,
+``observed`` is False for the second (and then the distance says nothing).
+"""
+
+from __future__ import annotations
+
+import math
+from dataclasses import dataclass, field
+
+import numpy as np
+
+__all__ = ["Reaction", "CameraStatus"]
+
+
+@dataclass(frozen=True)
+class CameraStatus:
+    """One camera as the monitor saw it in a cycle.
+
+    ``age_s``: seconds since the capture of its newest frame in use (``inf``
+    before the first); ``state``: ``"fresh"``, ``"stale"`` (older than its
+    limit, R27), ``"waiting"`` (no frame yet); ``frames``: frames used so
+    far; ``refused``: frames refused so far (bad image, stamp outside the
+    joint history, R30); ``stamp``: capture stamp of the frame in use.
+    """
+    age_s: float
+    state: str
+    frames: int = 0
+    refused: int = 0
+    stamp: float = -math.inf
+
+
+@dataclass(frozen=True)
+class Reaction:
+    """The monitor's answer for one control cycle at time ``t`` (s, the monitor's clock).
+
+    override : speed override ``k`` in [0, 1] for the robot's commanded motion
+        (0 = stop); ramps with the configured stop and resume times.
+    repulsion : (3,) m/s, world, repulsive velocity of the end effector (R13),
+        to be added to the commanded end-effector velocity.
+    qd_min, qd_max : (dof,) rad/s joint-velocity limits from the other control
+        points (R14) and the joint position limits, already times ``override``.
+    names : the control points, then the watch points.
+    distance : (m,) m, ``inf`` = nothing within ``rho``; meaningful only where observed.
+    direction : (m, 3) world unit vectors towards the nearest obstacle (0 where none).
+    observed : (m,) bool, False = no camera can judge the point (R26).
+    is_watch : (m,) bool, True for the watch points.
+    reasons : ``key -> sentence``, the conditions that hold now and stop the robot
+        (stale camera or joints, unobserved or enclosed control point).
+    cameras : camera id -> :class:`CameraStatus`.
+    joints_age_s : seconds since the newest joint state (``inf`` before the first).
+    q : (dof,) the joints the distances were computed at.
+    frame_stamps : camera id -> capture stamp of the frame this cycle used.
+    step_s : wall seconds the cycle took inside ``step``.
+    """
+    t: float
+    override: float
+    repulsion: np.ndarray
+    qd_min: np.ndarray
+    qd_max: np.ndarray
+    names: tuple[str, ...]
+    distance: np.ndarray
+    direction: np.ndarray
+    observed: np.ndarray
+    is_watch: np.ndarray
+    reasons: dict[str, str]
+    cameras: dict[str, CameraStatus]
+    joints_age_s: float
+    q: np.ndarray
+    frame_stamps: dict[str, float] = field(default_factory=dict)
+    step_s: float = 0.0
+
+    @property
+    def stopped(self) -> bool:
+        return self.override <= 0.0
+
+    def nearest(self) -> tuple[str | None, float]:
+        """``(name, distance)`` of the nearest observed control point with an obstacle within
+        rho, ``(None, inf)`` when there is none."""
+        d = np.where(self.observed & ~self.is_watch, self.distance, np.inf)
+        if not np.any(np.isfinite(d)):
+            return None, math.inf
+        i = int(np.argmin(d))
+        return self.names[i], float(d[i])
+
+    def to_dict(self) -> dict:
+        """The JSON-lines record of this cycle (schema in ``docs/MONITOR.md``): ``distance`` is
+        ``null`` when nothing is within rho, and ``observed`` says whether it could be judged."""
+        pts = []
+        for i, n in enumerate(self.names):
+            d = float(self.distance[i])
+            if math.isnan(d):
+                raise ValueError(f"reaction at t={self.t}: distance of {n} is NaN (a bug: never written as 'none')")
+            pts.append({"name": n, "watch": bool(self.is_watch[i]),
+                        "distance": round(d, 6) if math.isfinite(d) else None,
+                        "direction": [round(float(x), 6) for x in self.direction[i]] if math.isfinite(d) else None,
+                        "observed": bool(self.observed[i])})
+        return {"t": round(float(self.t), 6), "override": round(float(self.override), 6),
+                "repulsion": [round(float(x), 6) for x in self.repulsion],
+                "points": pts, "reasons": dict(self.reasons),
+                "cameras": {c: {"age_s": (round(s.age_s, 6) if math.isfinite(s.age_s) else None),
+                                "state": s.state, "frames": s.frames, "refused": s.refused}
+                            for c, s in self.cameras.items()},
+                "joints_age_s": round(self.joints_age_s, 6) if math.isfinite(self.joints_age_s) else None}

@@ -1,0 +1,238 @@
+"""Where the monitor's reactions go (R31): a JSON-lines log, a callback, zenoh topics.
+
+A sink is any callable ``sink(reaction: Reaction) -> None`` with an optional
+``close()``. The monitor calls its sinks at the control rate (500 Hz), so it
+hands them to a :class:`SinkFanout`: the control thread only enqueues, and one
+background thread calls every sink. Schemas: ``docs/MONITOR.md``.
+"""
+
+from __future__ import annotations
+
+import json
+import re
+import threading
+import time
+from collections import deque
+from pathlib import Path
+from typing import Callable, Sequence
+
+from depthguard.progress import log
+from depthguard.runtime.result import Reaction
+
+__all__ = ["SinkError", "JsonlLog", "CallbackSink", "ZenohPublisher", "SinkFanout", "reaction_keys"]
+
+_CELL = re.compile(r"^[A-Za-z0-9_\-.]+$")
+
+
+class SinkError(ValueError):
+    """A sink cannot be opened or used as asked."""
+
+
+class JsonlLog:
+    """One line per reaction, ``json.dumps(reaction.to_dict(), allow_nan=False)`` (``docs/MONITOR.md``).
+
+    The file must not exist (a run never overwrites a log). Lines are flushed
+    every ``flush_every`` reactions and on :meth:`close`. A NaN or inf that
+    reached the record raises ``ValueError`` instead of being written.
+    """
+
+    def __init__(self, path: str | Path, flush_every: int = 100):
+        self.path = Path(path)
+        if int(flush_every) < 1:
+            raise SinkError(f"flush_every must be >= 1 (got {flush_every})")
+        self.flush_every = int(flush_every)
+        try:
+            self._fh = open(self.path, "x", encoding="utf-8")
+        except FileExistsError:
+            raise SinkError(f"log {self.path} exists already; choose a new file") from None
+        self.lines = 0
+
+    def __call__(self, reaction: Reaction) -> None:
+        if self._fh is None:
+            raise SinkError(f"log {self.path} is closed")
+        self._fh.write(json.dumps(reaction.to_dict(), allow_nan=False) + "\n")
+        self.lines += 1
+        if self.lines % self.flush_every == 0:
+            self._fh.flush()
+
+    def close(self) -> None:
+        if self._fh is not None:
+            self._fh.close()
+            self._fh = None
+
+
+class CallbackSink:
+    """Calls ``fn(reaction)`` for every reaction (and ``on_close()`` once, if given)."""
+
+    def __init__(self, fn: Callable[[Reaction], None], on_close: Callable[[], None] | None = None):
+        if not callable(fn):
+            raise SinkError(f"CallbackSink needs a callable (got {type(fn).__name__})")
+        self.fn = fn
+        self.on_close = on_close
+
+    def __call__(self, reaction: Reaction) -> None:
+        self.fn(reaction)
+
+    def close(self) -> None:
+        if self.on_close is not None:
+            self.on_close()
+            self.on_close = None
+
+
+def reaction_keys(cell: str) -> dict[str, str]:
+    """The zenoh keys of ``cell``: ``reaction``, ``distances``, ``health`` -> ``depthguard/<cell>/<name>``."""
+    if not isinstance(cell, str) or not _CELL.match(cell):
+        raise SinkError(f"cell name {cell!r} cannot name a zenoh key: use letters, digits, '_', '-', '.'")
+    return {n: f"depthguard/{cell}/{n}" for n in ("reaction", "distances", "health")}
+
+
+class ZenohPublisher:
+    """Publishes reactions on ``depthguard/<cell>/{reaction,distances,health}`` (UTF-8 JSON).
+
+    ``reaction``: the whole ``to_dict()`` record; ``distances``: ``{"t", "points"}``;
+    ``health``: ``{"t", "override", "reasons", "cameras", "joints_age_s"}``.
+    All three go out together, at most ``rate_hz`` times per second of ``clock``
+    (wall time), except that a reaction whose override or set of reason keys
+    differs from the last published one is always published. ``published`` /
+    ``skipped`` count reactions. The session is a loopback zenoh peer unless
+    ``session`` is given (then it is not closed here).
+    """
+
+    def __init__(self, cell: str, session=None, listen: str = "tcp/127.0.0.1:0", rate_hz: float = 50.0,
+                 connect: Sequence[str] = (), clock: Callable[[], float] = time.monotonic):
+        if not rate_hz > 0:
+            raise SinkError(f"rate_hz must be > 0 (got {rate_hz})")
+        self.keys = reaction_keys(cell)
+        self.period = 1.0 / float(rate_hz)
+        self._clock = clock
+        self._own = session is None
+        if session is None:
+            import zenoh
+
+            from depthguard.distributed.settings import zenoh_config
+            session = zenoh.open(zenoh_config([listen], list(connect)))
+        self.session = session
+        self._pubs = {n: session.declare_publisher(k) for n, k in self.keys.items()}
+        self._last_time = -float("inf")
+        self._last_state: tuple | None = None
+        self.published = 0
+        self.skipped = 0
+
+    def __call__(self, reaction: Reaction) -> None:
+        if self._pubs is None:
+            raise SinkError("ZenohPublisher is closed")
+        now = self._clock()
+        state = (float(reaction.override), frozenset(reaction.reasons))
+        if state == self._last_state and now - self._last_time < self.period:
+            self.skipped += 1
+            return
+        rec = reaction.to_dict()
+        health = {k: rec[k] for k in ("t", "override", "reasons", "cameras", "joints_age_s")}
+        for name, body in (("reaction", rec), ("distances", {"t": rec["t"], "points": rec["points"]}),
+                           ("health", health)):
+            self._pubs[name].put(json.dumps(body, allow_nan=False).encode("utf-8"))
+        self._last_time, self._last_state = now, state
+        self.published += 1
+
+    def close(self) -> None:
+        if self._pubs is None:
+            return
+        for p in self._pubs.values():
+            try:
+                p.undeclare()
+            except Exception:  # noqa: BLE001 - closing anyway
+                pass
+        self._pubs = None
+        if self._own:
+            self.session.close()
+
+
+def _name(sink) -> str:
+    return getattr(sink, "name", None) or type(sink).__name__
+
+
+class SinkFanout:
+    """Calls every sink from one background thread fed by a bounded queue.
+
+    ``fanout(reaction)`` never blocks: when ``maxsize`` reactions are waiting,
+    the oldest is dropped and ``dropped`` counts it (the log then has a gap at
+    that time; report ``dropped``). A sink that raises is disabled: its message
+    goes to ``errors`` (``"<sink>: <message>"``) and to the log, the other sinks
+    go on. :meth:`close` delivers what is queued, then closes every sink.
+    """
+
+    def __init__(self, sinks: Sequence[Callable[[Reaction], None]], maxsize: int = 1024):
+        if int(maxsize) < 1:
+            raise SinkError(f"maxsize must be >= 1 (got {maxsize})")
+        self.sinks = list(sinks)
+        self.maxsize = int(maxsize)
+        self.dropped = 0
+        self.delivered = 0
+        self.errors: list[str] = []
+        self._enabled = [True] * len(self.sinks)
+        self._queue: deque[Reaction] = deque()
+        self._cond = threading.Condition()
+        self._closing = False
+        self._thread = threading.Thread(target=self._run, name="depthguard-sinks", daemon=True)
+        self._thread.start()
+
+    @property
+    def disabled(self) -> list[str]:
+        """Names of the sinks disabled after an exception."""
+        return [_name(s) for s, on in zip(self.sinks, self._enabled) if not on]
+
+    def __call__(self, reaction: Reaction) -> None:
+        with self._cond:
+            if self._closing:
+                raise SinkError("SinkFanout is closed")
+            if len(self._queue) >= self.maxsize:
+                self._queue.popleft()
+                self.dropped += 1
+            self._queue.append(reaction)
+            self._cond.notify()
+
+    def _run(self) -> None:
+        while True:
+            with self._cond:
+                while not self._queue and not self._closing:
+                    self._cond.wait()
+                if not self._queue:
+                    return                          # closing and drained
+                reaction = self._queue.popleft()
+            for i, sink in enumerate(self.sinks):
+                if self._enabled[i]:
+                    try:
+                        sink(reaction)
+                    except Exception as exc:  # noqa: BLE001 - a sink must never stop the others
+                        self._fail(i, exc)
+            self.delivered += 1
+
+    def _fail(self, i: int, exc: Exception, when: str = "") -> None:
+        self._enabled[i] = False
+        msg = f"{_name(self.sinks[i])}: {type(exc).__name__}: {exc}"
+        self.errors.append(msg)
+        log(f"sink disabled{when}: {msg}")
+
+    def close(self, timeout: float | None = 10.0) -> None:
+        """Deliver what is queued (waiting at most ``timeout`` s, the rest counts as ``dropped``),
+        then close every sink."""
+        with self._cond:
+            if self._closing:
+                return
+            self._closing = True
+            self._cond.notify()
+        self._thread.join(timeout)
+        if self._thread.is_alive():                 # a slow sink: give up on the rest of the queue
+            with self._cond:
+                left = len(self._queue)
+                self._queue.clear()
+                self.dropped += left
+            log(f"sinks: {left} reactions dropped, not delivered within {timeout} s at close")
+            self._thread.join(timeout)
+        for i, sink in enumerate(self.sinks):
+            close = getattr(sink, "close", None)
+            if close is not None:
+                try:
+                    close()
+                except Exception as exc:  # noqa: BLE001 - close the others anyway
+                    self._fail(i, exc, " at close")

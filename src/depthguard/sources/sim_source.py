@@ -1,0 +1,230 @@
+"""The simulator as a source: ``sim:CELL[:OPTION...]`` frames and ``sim`` joint states (R29, R31).
+
+A built-in cell (``depthguard.sim.load_cell``) or a user's rig (then the scene
+is the rig's static objects and the robot at rest) seen by the rig's cameras
+with their noise models. The robot **obeys the monitor**: it follows the
+cell's scripted joint path, but its path time advances at the speed override
+of the latest reaction (``SimWorld.on_reaction``, a sink), so a stop stops it.
+
+Options after the cell name, separated by ``:``:
+
+- a situation of the cell (``reach``, ``carry``, ...): the scene starts there;
+- ``alone``: no people and no props (the robot alone in its cell);
+- ``dark``: every pixel that sees a person or a prop returns no measurement
+  (dark clothing), so the person is only "unknown";
+- ``noiseless``: ideal images;
+- ``seed=N``: the noise seed.
+
+Cameras deliver at ``camera_hz`` (each with its own phase: not synchronised);
+each frame is rendered at its capture time with the robot where it was then,
+and stamped with that time. The scene loops over its scripted duration.
+"""
+
+from __future__ import annotations
+
+import math
+import threading
+
+import numpy as np
+
+from depthguard.filtering.expected import ExpectedDepth
+from depthguard.render import Renderer
+from depthguard.render.composite import nearest_depth
+from depthguard.runtime.joints import JointHistory
+from depthguard.sources.base import register_joints, register_source
+from depthguard.sources.frame import Frame
+
+__all__ = ["SimWorld", "SimFrames", "SimJoints", "parse_sim_spec"]
+
+_FLAGS = ("alone", "dark", "noiseless")
+
+
+def parse_sim_spec(arg: str) -> dict:
+    """``"flacco-cell:reach:dark"`` -> ``{"cell": ..., "situation": ..., "alone": ..., ...}``."""
+    parts = [p.strip() for p in arg.split(":")] if arg else []
+    out = {"cell": parts[0] if parts and parts[0] else "flacco-cell", "situation": None, "seed": 0,
+           **{f: False for f in _FLAGS}}
+    for p in parts[1:]:
+        if p in _FLAGS:
+            out[p] = True
+        elif p.startswith("seed="):
+            try:
+                out["seed"] = int(p[5:])
+            except ValueError:
+                raise ValueError(f"sim source: seed must be an integer (got {p!r})") from None
+        elif p:
+            if out["situation"] is not None:
+                raise ValueError(f"sim source: two situations given ({out['situation']!r}, {p!r})")
+            out["situation"] = p
+    return out
+
+
+class SimWorld:
+    """The simulated cell shared by its frame and joint sources (module docstring).
+
+    ``advance(t)`` moves the robot to run time ``t`` in ticks of ``1 / joint_hz``
+    (path time advances by ``override * dt`` each tick); ``history`` holds its joints.
+    """
+
+    def __init__(self, cell_name: str, rig=None, situation: str | None = None, alone: bool = False,
+                 dark: bool = False, noiseless: bool = False, seed: int = 0, joint_hz: float = 500.0,
+                 camera_hz: float = 30.0):
+        from depthguard.sim import load_cell
+        from depthguard.sim.scene import Scene
+
+        if rig is None or cell_name:
+            cell = load_cell(cell_name)
+            self.rig, self.scene = (rig or cell.rig), cell.scene
+            self.start = cell.time_of(situation) if situation else 0.0
+        else:
+            if situation:
+                raise ValueError("sim source: a rig file's scene has no situations")
+            self.rig = rig
+            self.scene = Scene(rig.objects, robot=rig.robot, robot_q0=rig.robot_q0, duration=0.0)
+            self.start = 0.0
+        if self.rig.robot is None:
+            raise ValueError(f"sim source: rig {self.rig.name!r} has no robot")
+        self.robot = self.rig.robot
+        self.alone, self.dark, self.noiseless, self.seed = alone, dark, noiseless, seed
+        self.joint_hz, self.camera_hz = float(joint_hz), float(camera_hz)
+        self.history = JointHistory(self.robot.dof, span_s=5.0)
+        self._lock = threading.Lock()
+        self.override = 1.0
+        self._tau = self.start          # path time of the robot
+        self._tick = 0                  # next joint tick index (time = tick / joint_hz)
+        self._path_end = float(getattr(getattr(self.scene, "robot_path", None), "_t", [0.0])[-1]) \
+            if self.scene.robot_path is not None else 0.0
+
+    def on_reaction(self, reaction) -> None:
+        """A sink: the robot takes the override of each reaction (speed scaling of its path)."""
+        self.override = float(reaction.override)
+
+    def scene_time(self, t: float) -> float:
+        """The scene's time at run time ``t`` (it loops over its scripted duration)."""
+        s = self.start + t
+        d = self.scene.duration
+        return s % d if d > 0 else s
+
+    def _path_q(self, tau: float) -> np.ndarray:
+        if self._path_end > 0:
+            tau = tau % self._path_end
+        return self.scene.robot_q(tau)
+
+    def advance(self, t: float) -> list[tuple[float, np.ndarray]]:
+        """Move the robot to run time ``t``; the new ``(stamp, q)`` states, in order."""
+        new = []
+        with self._lock:
+            dt = 1.0 / self.joint_hz
+            while self._tick * dt <= t + 1e-12:
+                ts = self._tick * dt
+                if self._tick > 0:
+                    self._tau += self.override * dt
+                q = self._path_q(self._tau)
+                self.history.push(ts, q)
+                new.append((ts, q))
+                self._tick += 1
+        return new
+
+    def dynamic(self, t: float) -> list:
+        return [] if self.alone else list(self.scene.dynamic_at(self.scene_time(t)))
+
+
+class SimJoints:
+    """Joint source ``sim``: the simulated robot's joint states (``states_until``)."""
+
+    def __init__(self, world: SimWorld):
+        self.world = world
+        self.done = False
+        self.lost = None
+
+    def states_until(self, t: float) -> list[tuple[float, np.ndarray]]:
+        return self.world.advance(t)
+
+    def close(self) -> None:
+        pass
+
+
+class SimFrames:
+    """Frame source ``sim:...``: every rig camera's frames, rendered at their capture times."""
+
+    def __init__(self, world: SimWorld, cameras=None):
+        from depthguard.sources import SimulatedCamera
+
+        self.world = world
+        rig = world.rig
+        cams = [rig.camera(c) for c in cameras] if cameras else list(rig.cameras)
+        self.camera_ids = [c.id for c in cams]
+        self._cams = cams
+        static = rig.static_meshes()
+        self._expected = {c.id: ExpectedDepth(c, world.robot, static) for c in cams}
+        self._dyn = {c.id: Renderer(c) for c in cams}
+        self._sims = {c.id: SimulatedCamera(c, seed=world.seed, noiseless=world.noiseless) for c in cams}
+        period = 1.0 / world.camera_hz
+        self._period = period
+        self._next = {c.id: i * 0.37 * period for i, c in enumerate(cams)}   # unsynchronised phases
+        self._stopped: dict[str, float] = {}
+        self.done = False
+        self.lost = None
+
+    def stop_camera(self, camera_id: str, after: float = -math.inf) -> None:
+        """Fault injection: camera ``camera_id`` delivers nothing captured after ``after`` s."""
+        self._stopped[camera_id] = after
+
+    def resume_camera(self, camera_id: str) -> None:
+        self._stopped.pop(camera_id, None)
+
+    def render(self, camera_id: str, t: float, q: np.ndarray) -> np.ndarray:
+        """The measured (H, W) float32 depth of camera ``camera_id`` at run time ``t``, robot at ``q``."""
+        ex = self._expected[camera_id]
+        ideal = np.array(ex.known(q), copy=True)
+        dyn = self.world.dynamic(t)
+        person = None
+        if dyn:
+            person = np.array(self._dyn[camera_id].render([p.mesh() for p in dyn])[0], copy=True)
+            nearest_depth(ideal, person)
+        d = self._sims[camera_id].measure(ideal, stamp=t)
+        if self.world.dark and person is not None:
+            d[(person > 0) & (person <= ideal + 1e-6)] = 0.0      # dark clothing: no return
+        return d
+
+    def frames_until(self, t: float) -> list[Frame]:
+        self.world.advance(t)
+        out = []
+        for cid in self.camera_ids:
+            while self._next[cid] <= t + 1e-12:
+                tc = self._next[cid]
+                self._next[cid] = tc + self._period
+                if cid in self._stopped and tc >= self._stopped[cid]:
+                    continue
+                newest = self.world.history.newest_stamp
+                q = self.world.history.at(min(tc, newest) if tc - newest < 1e-6 else tc)
+                out.append(Frame(cid, self.render(cid, tc, q), tc))
+        out.sort(key=lambda f: f.stamp)
+        return out
+
+    def close(self) -> None:
+        pass
+
+
+def _world(arg: str, rig, context: dict) -> SimWorld:
+    world = context.get("sim_world")
+    if world is None:
+        spec = parse_sim_spec(arg or context.get("sim_spec", ""))
+        cell = spec["cell"] if (arg or rig is None) else ""
+        world = SimWorld(cell, rig=rig, situation=spec["situation"], alone=spec["alone"], dark=spec["dark"],
+                         noiseless=spec["noiseless"], seed=spec["seed"])
+        context["sim_world"] = world
+    return world
+
+
+@register_source("sim")
+def open_sim_frames(arg: str, rig, context: dict) -> SimFrames:
+    """``sim:CELL[:OPTION...]`` (module docstring); with a rig and no cell, the rig's own scene."""
+    context.setdefault("sim_spec", arg)
+    return SimFrames(_world(arg, rig, context))
+
+
+@register_joints("sim")
+def open_sim_joints(arg: str, rig, context: dict) -> SimJoints:
+    """``sim``: the joint states of the simulated robot of the ``sim:`` frame source."""
+    return SimJoints(_world(arg, rig, context))
