@@ -17,6 +17,7 @@ _COMMAND_MODULES = [
     "depthguard.cli.demo",
     "depthguard.cli.run",
     "depthguard.cli.freespace",
+    "depthguard.cli.monitor",
 ]
 
 for _m in _COMMAND_MODULES:

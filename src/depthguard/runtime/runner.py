@@ -44,6 +44,7 @@ class RunStats:
         self.unobserved_cycles = 0
         self._t_prev = None
         self.last = None
+        self.interrupted = False          # stopped by Ctrl-C (the summary is still written)
 
     def __call__(self, r) -> None:
         if self.cycles == 0:
@@ -112,7 +113,6 @@ def run(monitor, frame_sources: list, joint_source, *, duration: float | None = 
         raise ValueError(f"duration must be > 0 s (got {duration!r})")
     stop = stop or threading.Event()
     stats = RunStats()
-    dt = monitor.config.dt
     wall0 = time.perf_counter()
 
     def all_done() -> bool:
@@ -128,29 +128,48 @@ def run(monitor, frame_sources: list, joint_source, *, duration: float | None = 
             return r.t + 1.0 / status_hz
         return next_status
 
-    next_status = 0.0
-    if fast:
-        k = 0
-        while not stop.is_set():
-            t = k * dt
-            if duration is not None and t > duration + 1e-12:
-                break
-            if joint_source is not None:
-                for ts, q in joint_source.states_until(t):
-                    monitor.push_joints(ts, q)
-            n = sum(_push_frames(monitor, s.frames_until(t)) for s in frame_sources)
-            if n:
-                monitor.flush()
-            next_status = emit(monitor.step(t), next_status)
-            if all_done():
-                break
-            k += 1
+    try:
+        if fast:
+            return _run_fast(monitor, frame_sources, joint_source, duration, stop, emit, all_done, stats, wall0)
+        return _run_real_time(monitor, frame_sources, joint_source, duration, stop, emit, all_done, stats, wall0)
+    except KeyboardInterrupt:
+        stats.interrupted = True
+        stop.set()
         return stats, time.perf_counter() - wall0
 
+
+def _run_fast(monitor, frame_sources, joint_source, duration, stop, emit, all_done, stats, wall0):
+    """Fast mode (module docstring): joints, then frames due by ``t``, processed to the end, then a step."""
+    dt = monitor.config.dt
+    next_status = 0.0
+    k = 0
+    while not stop.is_set():
+        t = k * dt
+        if duration is not None and t > duration + 1e-12:
+            break
+        if joint_source is not None:
+            for ts, q in joint_source.states_until(t):
+                monitor.push_joints(ts, q)
+        n = sum(_push_frames(monitor, s.frames_until(t)) for s in frame_sources)
+        if n:
+            monitor.flush()
+        next_status = emit(monitor.step(t), next_status)
+        if all_done():
+            break
+        k += 1
+    return stats, time.perf_counter() - wall0
+
+
+def _run_real_time(monitor, frame_sources, joint_source, duration, stop, emit, all_done, stats, wall0):
+    dt = monitor.config.dt
+    next_status = 0.0
     start = time.monotonic()
     clock = lambda: time.monotonic() - start          # noqa: E731 - the run's clock
 
     def pump(fn, push):
+        import numba
+
+        numba.set_num_threads(1)         # a source thread keeps to one core (OpenMP threads spin)
         while not stop.is_set():
             try:
                 items = fn(clock())

@@ -156,16 +156,19 @@ class SinkFanout:
 
     ``fanout(reaction)`` never blocks: when ``maxsize`` reactions are waiting,
     the oldest is dropped and ``dropped`` counts it (the log then has a gap at
-    that time; report ``dropped``). A sink that raises is disabled: its message
+    that time; report ``dropped``). With ``block=True`` (a replay as fast as
+    possible, where a complete log matters more than the caller's pace) it
+    waits for room instead. A sink that raises is disabled: its message
     goes to ``errors`` (``"<sink>: <message>"``) and to the log, the other sinks
     go on. :meth:`close` delivers what is queued, then closes every sink.
     """
 
-    def __init__(self, sinks: Sequence[Callable[[Reaction], None]], maxsize: int = 1024):
+    def __init__(self, sinks: Sequence[Callable[[Reaction], None]], maxsize: int = 1024, block: bool = False):
         if int(maxsize) < 1:
             raise SinkError(f"maxsize must be >= 1 (got {maxsize})")
         self.sinks = list(sinks)
         self.maxsize = int(maxsize)
+        self.block = bool(block)          # wait for room instead of dropping (replays as fast as possible)
         self.dropped = 0
         self.delivered = 0
         self.errors: list[str] = []
@@ -185,6 +188,8 @@ class SinkFanout:
         with self._cond:
             if self._closing:
                 raise SinkError("SinkFanout is closed")
+            while self.block and len(self._queue) >= self.maxsize and self._thread.is_alive():
+                self._cond.wait(0.1)
             if len(self._queue) >= self.maxsize:
                 self._queue.popleft()
                 self.dropped += 1
@@ -199,6 +204,7 @@ class SinkFanout:
                 if not self._queue:
                     return                          # closing and drained
                 reaction = self._queue.popleft()
+                self._cond.notify_all()              # room for a blocked producer
             for i, sink in enumerate(self.sinks):
                 if self._enabled[i]:
                     try:

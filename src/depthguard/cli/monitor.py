@@ -1,0 +1,159 @@
+"""``depthguard monitor``: run the runtime on a cell, from its sources, to its sinks (R29, R31).
+
+With no argument it runs the built-in ``flacco-cell`` with its people, in
+real time, until Ctrl-C, with a live status line.
+"""
+
+from __future__ import annotations
+
+import json
+import os
+import threading
+from pathlib import Path
+from typing import List, Optional
+
+import typer
+
+from depthguard.cli.app import app
+
+
+def load_rig_or_cell(rig: Optional[Path], cell: Optional[str]):
+    """``(rig, cell name or None)`` from ``--rig FILE`` or ``--cell NAME`` (default ``flacco-cell``)."""
+    if rig is not None and cell is not None:
+        raise typer.BadParameter("give --rig or --cell, not both", param_hint="--rig/--cell")
+    if rig is not None:
+        from depthguard.rig import Rig
+        return Rig.load(rig), None
+    from depthguard.sim import load_cell
+    name = cell or "flacco-cell"
+    return load_cell(name).rig, name
+
+
+def check_out_dir(out: Path, files=("log.jsonl", "summary.json")) -> None:
+    """Refuse, before any work, an output folder that cannot be written or already holds a run."""
+    if out.exists() and not out.is_dir():
+        raise ValueError(f"--out {out}: exists and is not a folder")
+    try:
+        out.mkdir(parents=True, exist_ok=True)
+    except OSError as exc:
+        raise ValueError(f"--out {out}: cannot create the folder ({exc.strerror or exc})") from None
+    if not os.access(out, os.W_OK):
+        raise ValueError(f"--out {out}: the folder is not writable")
+    for f in files:
+        if (out / f).exists():
+            raise ValueError(f"--out {out}: {f} exists already (a run never overwrites one); choose a new folder")
+
+
+def _status_line(r) -> str:
+    name, d = r.nearest()
+    near = "nothing within rho" if name is None else f"nearest {name} {d * 100:.1f} cm"
+    unobs = [n for n, o, w in zip(r.names, r.observed, r.is_watch) if not o and not w]
+    if unobs:
+        near += f", cannot judge {len(unobs)} point(s)"
+    cams = " ".join(f"{c}:{'-' if s.age_s == float('inf') else f'{s.age_s * 1e3:.0f}ms'}" + ("!" if s.state == "stale" else "")
+                    for c, s in r.cameras.items())
+    why = ("  STOP: " if r.override <= 0 else "  slowing: ") + "; ".join(r.reasons.values()) if r.reasons else ""
+    return f"t={r.t:7.2f}s override {r.override:4.2f}  {near}  cameras {cams}{why}"
+
+
+@app.command("monitor")
+def monitor(
+    rig: Optional[Path] = typer.Option(None, "--rig", help="Rig file (YAML) of your cell; its monitor: section sets the runtime."),
+    cell: Optional[str] = typer.Option(None, "--cell", help="A built-in cell (default flacco-cell when no --rig)."),
+    source: List[str] = typer.Option([], "--source", help="Frame source SCHEME:ARG, repeatable: sim[:CELL[:SITUATION][:alone][:dark][:noiseless]], images:DIR. Default: the simulator of the cell (or of the rig's own scene)."),
+    joints: Optional[str] = typer.Option(None, "--joints", help="Joint source: sim (the simulated robot, which obeys the reaction), csv:FILE, zenoh:KEY. Default: sim with a sim source."),
+    out: Optional[Path] = typer.Option(None, "--out", "-o", help="Folder for log.jsonl (one line per control cycle) and summary.json."),
+    duration: Optional[float] = typer.Option(None, "--duration", help="Seconds of run time (default: until Ctrl-C or the end of the sources)."),
+    fast: bool = typer.Option(False, "--fast", help="As fast as possible and deterministic (recordings, simulation), not in real time."),
+    zenoh: bool = typer.Option(False, "--zenoh", help="Publish reactions, distances and health under depthguard/<cell>/... (loopback unless --zenoh-listen)."),
+    zenoh_listen: str = typer.Option("tcp/127.0.0.1:0", "--zenoh-listen", help="Zenoh endpoint the monitor listens on."),
+    zenoh_connect: List[str] = typer.Option([], "--zenoh-connect", help="Zenoh endpoints to connect to (repeatable)."),
+    quiet: bool = typer.Option(False, "--quiet", "-q", help="No status line."),
+) -> None:
+    """Run the monitor: frames and joint states in, the robot's reaction out (R29).
+
+    Every source feeds one runtime: per camera the robot is removed with the
+    joints of the frame's capture (R30), the frames are fused in the depth grid
+    off the control path, and every control cycle (500 Hz by default) reports
+    the distances of the control and watch points, the speed override and its
+    reasons. Stale frames or joints and points no camera can judge stop the
+    robot (R26, R27).
+    """
+    from depthguard.progress import is_terminal, log
+    from depthguard.runtime.monitor import Monitor, warm_up
+    from depthguard.runtime.runner import run, summarise
+    from depthguard.runtime.sinks import JsonlLog, SinkFanout, ZenohPublisher
+    from depthguard.sources.base import open_joints, open_source
+
+    if duration is not None and not duration > 0:
+        raise typer.BadParameter("must be > 0 seconds", param_hint="--duration")
+    the_rig, cell_name = load_rig_or_cell(rig, cell)
+    if out is not None:
+        check_out_dir(out)
+    specs = list(source) or [f"sim:{cell_name}" if cell_name else "sim"]
+    context: dict = {"zenoh_listen": (zenoh_listen,), "zenoh_connect": tuple(zenoh_connect)}
+    sources = [open_source(s, the_rig, context) for s in specs]
+    joint_spec = joints or ("sim" if "sim_world" in context else None)
+    if joint_spec is None:
+        raise typer.BadParameter("a non-simulated source needs --joints (csv:FILE or zenoh:KEY)", param_hint="--joints")
+    joint_source = open_joints(joint_spec, the_rig, context)
+    cfg = the_rig.monitor
+    log(f"monitor: compiling kernels (once; cached on disk) ...")
+    seconds = warm_up(the_rig, cfg)
+    log(f"monitor: ready in {seconds:.1f} s; cameras {', '.join(c.id for c in the_rig.cameras)}; "
+        f"sources {', '.join(specs)}; joints {joint_spec}; {'as fast as possible' if fast else 'real time'}"
+        + ("" if duration else "; Ctrl-C stops"))
+    sinks = []
+    if out is not None:
+        sinks.append(JsonlLog(out / "log.jsonl"))
+    session = listener = None
+    cell_key = cfg.cell or the_rig.name
+    if zenoh:
+        import zenoh as zenoh_lib
+
+        from depthguard.distributed.settings import zenoh_config
+        session = zenoh_lib.open(zenoh_config([zenoh_listen], list(zenoh_connect)))
+        sinks.append(ZenohPublisher(cell_key, session=session))
+    fanout = SinkFanout(sinks, block=fast) if sinks else None
+    direct = [context["sim_world"].on_reaction] if "sim_world" in context else []
+    mon = Monitor(the_rig, cfg, sinks=direct + ([fanout] if fanout else []))
+    if session is not None:
+        from depthguard.runtime.remote import SettingsListener
+        listener = SettingsListener(mon, session, cell_key)
+        log(f"monitor: publishing under depthguard/{cell_key}/ (reaction, distances, health); "
+            f"settings on depthguard/{cell_key}/settings")
+    tty = is_terminal() and not quiet
+
+    def status(r):
+        line = _status_line(r)
+        if tty:
+            typer.echo("\r" + line[:200].ljust(200), nl=False, err=True)
+        elif not quiet:
+            log(line)
+
+    stop = threading.Event()
+    try:
+        stats, wall = run(mon, sources, joint_source, duration=duration, fast=fast, stop=stop,
+                          status=status, status_hz=4.0 if tty else 1.0)
+    finally:
+        if listener is not None:
+            listener.close()
+        mon.close()                     # closes the fan-out: the log is complete
+        if session is not None:
+            session.close()
+        for s in sources:
+            s.close()
+        joint_source.close()
+    if tty:
+        typer.echo("", err=True)
+    summary = summarise(mon, stats, wall, {"frames": specs, "joints": joint_spec},
+                        {"interrupted": stats.interrupted, "fast": fast,
+                         "sinks_dropped": 0 if fanout is None else fanout.dropped})
+    if out is not None:
+        (out / "summary.json").write_text(json.dumps(summary, indent=1, allow_nan=False) + "\n")
+    near = summary["nearest_distance_m"]
+    typer.echo(f"monitor: {summary['cycles']} cycles over {summary['run_time_s']:.2f} s "
+               f"({'interrupted' if stats.interrupted else 'done'}); override min {summary['override_min']:.2f}, "
+               f"stopped {summary['stopped_s']:.2f} s; nearest {'none within rho' if near is None else f'{near * 100:.1f} cm'}; "
+               f"step p99 {summary['step_ms']['p99']} ms; frame to reaction p99 {summary['frame_to_reaction_ms']['p99']} ms"
+               + (f"; wrote {out}/log.jsonl and summary.json" if out is not None else ""))
