@@ -18,6 +18,7 @@ import numpy as np
 
 from depthguard.camera import Camera, check_depth_image
 from depthguard.distance import kernels as K
+from depthguard.distance.silhouette import SilhouetteBuffers, check_silhouette_px
 
 __all__ = ["DistanceResult", "DistanceWorkspace", "depth_space_distance"]
 
@@ -123,6 +124,7 @@ class DistanceWorkspace:
         self._t = np.ascontiguousarray(cam.t, dtype=np.float64)
         self.d0 = np.full(cam.shape, np.inf)       # obstacle start depth per pixel
         self._no_robot = np.zeros((1, 1), dtype=np.float32)
+        self._silhouette: SilhouetteBuffers | None = None     # made on the first silhouette_px > 0
         self._alloc(max(int(max_points), 1))
         self.has_depth = False
         self.lock = threading.Lock()
@@ -139,8 +141,8 @@ class DistanceWorkspace:
 
     def set_depth(self, depth: np.ndarray, robot_depth: np.ndarray | None = None,
                   invalid: str = "unknown", robot_mode: str = "drop",
-                  robot_offset: float = 0.03) -> None:
-        """Load one frame: compute each pixel's obstacle start depth (R1, R9, R28).
+                  robot_offset: float = 0.03, silhouette_px: int = 0) -> None:
+        """Load one frame: compute each pixel's obstacle start depth (R1, R9, R28, R32).
 
         depth : (H, W) float metres; 0, NaN or outside ``[min_range, max_range]`` = invalid.
         robot_depth : (H, W) float, the robot rendered into this camera at its
@@ -161,6 +163,16 @@ class DistanceWorkspace:
             are not on the robot, but a control point on or inside a link
             that the camera sees lies in its own shadow and reads 0.
         robot_offset : metres, > 0 margin for noise between measurement and render.
+        silhouette_px : int >= 0 pixels (default 0: off, today's answers). With a
+            ``robot_depth`` and ``invalid="unknown"``, an *invalid* pixel within
+            ``silhouette_px`` pixels (the ``(2n+1)^2`` window) of the robot's rendered
+            silhouette takes the robot pixel's meaning per ``robot_mode`` with the
+            smallest robot depth of its window ``drd`` (``"drop"``: ignored;
+            ``"shadow"``: frustum from ``drd``): the sensors' dropout at the robot's
+            outline is not an obstacle next to the robot (R32). Invalid pixels
+            farther away stay unknown from ``min_range`` (R28); valid pixels are
+            unchanged. See :mod:`depthguard.distance.silhouette` for the price (an
+            all-invalid obstacle next to the robot looks ``silhouette_px`` pixels smaller).
         """
         cam = self.cam
         d = check_depth_image(cam, depth)
@@ -169,11 +181,17 @@ class DistanceWorkspace:
         off = float(robot_offset)
         if not (np.isfinite(off) and off >= 0):
             raise ValueError(f"robot_offset must be finite and >= 0 metres (got {robot_offset!r})")
+        n_sil = check_silhouette_px(silhouette_px)
         if robot_depth is None:
             rd, use = self._no_robot, False
         else:
             rd, use = check_depth_image(cam, robot_depth, name="robot_depth"), True
-        K.obstacle_start_depth(d, rd, use, cam.min_range, cam.max_range, pol, mode, off, self.d0)
+        sil = None
+        if use and n_sil > 0 and pol == K.INVALID_UNKNOWN:
+            if self._silhouette is None:
+                self._silhouette = SilhouetteBuffers(cam.shape)
+            sil = self._silhouette.dilate(rd, n_sil)
+        K.obstacle_start_depth(d, rd, use, cam.min_range, cam.max_range, pol, mode, off, self.d0, sil)
         self.has_depth = True
 
     def query(self, points: np.ndarray, rho: float = 0.4, method: str = "hybrid") -> DistanceResult:
@@ -218,7 +236,7 @@ def workspace_for(cam: Camera) -> DistanceWorkspace:
 def depth_space_distance(cam: Camera, depth: np.ndarray, points: np.ndarray, rho: float = 0.4,
                          method: str = "hybrid", robot_depth: np.ndarray | None = None,
                          invalid: str = "unknown", robot_mode: str = "drop",
-                         robot_offset: float = 0.03) -> DistanceResult:
+                         robot_offset: float = 0.03, silhouette_px: int = 0) -> DistanceResult:
     """Distance from control points to everything one depth camera sees (SPEC §2, R3–R9, R28).
 
     Each obstacle pixel stands for its whole frustum from the measured depth
@@ -242,7 +260,8 @@ def depth_space_distance(cam: Camera, depth: np.ndarray, points: np.ndarray, rho
     rho : radius of surveillance, metres (> 0).
     method : ``"min"``, ``"mean"`` or ``"hybrid"`` (default, for control).
     robot_depth : optional (H, W) robot rendered into ``cam`` (R9).
-    invalid, robot_mode, robot_offset : see :meth:`DistanceWorkspace.set_depth`.
+    invalid, robot_mode, robot_offset, silhouette_px : see :meth:`DistanceWorkspace.set_depth`
+        (``silhouette_px=0``, the default, is off; the product runs with 4, R32).
 
     Returns
     -------
@@ -252,5 +271,6 @@ def depth_space_distance(cam: Camera, depth: np.ndarray, points: np.ndarray, rho
         raise ValueError(f"cam must be a depthguard Camera (got {type(cam).__name__})")
     ws = workspace_for(cam)
     with ws.lock:
-        ws.set_depth(depth, robot_depth, invalid=invalid, robot_mode=robot_mode, robot_offset=robot_offset)
+        ws.set_depth(depth, robot_depth, invalid=invalid, robot_mode=robot_mode, robot_offset=robot_offset,
+                     silhouette_px=silhouette_px)
         return ws.query(points, rho=rho, method=method).copy()

@@ -58,7 +58,7 @@ PARALLEL_MIN_POINTS = 16
 
 @njit(cache=True)
 def obstacle_start_depth(depth, robot_depth, use_robot, min_range, max_range,
-                         invalid_policy, robot_mode, robot_offset, out):
+                         invalid_policy, robot_mode, robot_offset, out, silhouette=None):
     """Start depth of each pixel's obstacle frustum (R1, R9, R28).
 
     depth : (H, W) float32/float64 metres as measured; invalid = 0, NaN or
@@ -71,6 +71,12 @@ def obstacle_start_depth(depth, robot_depth, use_robot, min_range, max_range,
         for a robot pixel (valid and ``measured >= robot_depth - offset``)
         ``+inf`` under ``ROBOT_DROP`` and ``robot_depth`` under
         ``ROBOT_SHADOW`` (free up to the robot, unknown behind it).
+    silhouette : None (default: off) or (H, W) float, the robot depth dilated by
+        ``silhouette_px`` pixels (:func:`~depthguard.distance.silhouette.dilate_robot_depth`;
+        0 = no robot nearby). Under ``INVALID_UNKNOWN`` an
+        *invalid* pixel with ``drd = silhouette > 0`` takes the robot pixel's
+        meaning (R9, R32): ``+inf`` under ``ROBOT_DROP``, ``drd`` under
+        ``ROBOT_SHADOW``. Valid pixels never read it.
     """
     H, W = depth.shape
     inf = np.inf
@@ -80,6 +86,10 @@ def obstacle_start_depth(depth, robot_depth, use_robot, min_range, max_range,
             valid = (m == m) and m > 0.0 and m >= min_range and m <= max_range
             if not valid:
                 out[v, u] = min_range if invalid_policy == INVALID_UNKNOWN else inf
+                if silhouette is not None:
+                    drd = np.float64(silhouette[v, u])
+                    if drd > 0.0 and invalid_policy == INVALID_UNKNOWN:
+                        out[v, u] = inf if robot_mode == ROBOT_DROP else drd
                 continue
             if use_robot:
                 dr = np.float64(robot_depth[v, u])

@@ -18,8 +18,10 @@ __all__ = ["obstacle_start_depth_numpy", "surveillance_window_numpy", "pixel_vec
 
 
 def obstacle_start_depth_numpy(depth, robot_depth, min_range, max_range, invalid="unknown",
-                               robot_mode="drop", robot_offset=0.03) -> np.ndarray:
-    """(H, W) float64 start depth of each pixel's obstacle frustum; ``inf`` = no obstacle."""
+                               robot_mode="drop", robot_offset=0.03, silhouette_px=0) -> np.ndarray:
+    """(H, W) float64 start depth of each pixel's obstacle frustum; ``inf`` = no obstacle.
+    ``silhouette_px > 0`` (with ``invalid="unknown"``): an invalid pixel within that many
+    pixels of the robot's silhouette is a robot pixel at the smallest robot depth nearby (R32)."""
     m = np.asarray(depth, dtype=np.float64)
     with np.errstate(invalid="ignore"):
         valid = np.isfinite(m) & (m > 0) & (m >= min_range) & (m <= max_range)
@@ -28,6 +30,12 @@ def obstacle_start_depth_numpy(depth, robot_depth, min_range, max_range, invalid
         dr = np.asarray(robot_depth, dtype=np.float64)
         robot = valid & (dr > 0) & (m >= dr - robot_offset)
         d0 = np.where(robot, np.inf if robot_mode == "drop" else dr, d0)
+        if silhouette_px > 0 and invalid == "unknown":
+            from depthguard.distance.silhouette import dilate_robot_depth_numpy
+
+            drd = dilate_robot_depth_numpy(dr, silhouette_px)
+            halo = ~valid & (drd > 0)
+            d0 = np.where(halo, np.inf if robot_mode == "drop" else drd, d0)
     return d0
 
 

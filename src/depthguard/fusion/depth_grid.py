@@ -47,6 +47,7 @@ import numpy as np
 
 from depthguard.camera import Camera, check_depth_image
 from depthguard.distance.api import DistanceResult, check_points, check_rho
+from depthguard.distance.silhouette import SilhouetteBuffers, check_silhouette_px
 from depthguard.fusion import depth_grid_kernels as K
 from depthguard.fusion import depth_grid_lazy as L
 
@@ -193,7 +194,7 @@ class DepthGridMap:
         self._caps_world = np.zeros((0, 7))
         self._alloc_points(16)
         self.has_frames = False
-        self._loaded_options = None           # (robot_offset, invalid, robot_in_others) of the last frames
+        self._loaded_options = None           # (robot_offset, invalid, robot_in_others, silhouette_px) of the last frames
         self._loaded_with_frame: set = set()  # cameras that had a frame in the last set_frames
 
     # ------------------------------------------------------------ off-line map (R11)
@@ -317,6 +318,8 @@ class DepthGridMap:
         self._kpmin = np.zeros((max(nk, 1), size))
         self._kpmax = np.zeros((max(nk, 1), size))
         self._no_robot = np.zeros((1, 1), dtype=np.float32)
+        self._silhouette = SilhouetteBuffers((max(P.height, Hk), max(P.width, Wk)))
+        self._silhouette_px = 0
         self._cap_lo = np.zeros(P.shape + (K.MAX_CAPS_PER_PIXEL,))
         self._cap_hi = np.zeros(P.shape + (K.MAX_CAPS_PER_PIXEL,))
         self._cap_n = np.zeros(P.shape, dtype=np.int64)
@@ -348,8 +351,8 @@ class DepthGridMap:
     def set_frames(self, depths: dict, robot_depths: dict | None = None,
                    robot_offset: float = 0.03, robot_capsules=None, invalid: str = "unknown",
                    robot_in_others: str = "unknown", reach=None, lazy: bool = True,
-                   changed=None) -> None:
-        """Load one frame per camera (R9, R28); call once per camera frame.
+                   changed=None, silhouette_px: int = 0) -> None:
+        """Load one frame per camera (R9, R28, R32); call once per camera frame.
 
         depths : dict camera id -> (H, W) float metres (0 / NaN / out of range =
             invalid: the ray is unknown from ``min_range`` on). The principal's
@@ -392,9 +395,20 @@ class DepthGridMap:
             the previous call; the others keep the per-pixel states and pyramids computed
             then (cameras that are not synchronised deliver one at a time). ``None``
             (default): every camera is loaded again. A camera that was not loaded by the
-            previous call with the same ``robot_offset``, ``invalid`` and
-            ``robot_in_others`` is loaded regardless; the robot volume and the memo are
-            always renewed.
+            previous call with the same ``robot_offset``, ``invalid``,
+            ``robot_in_others`` and ``silhouette_px`` is loaded regardless; the robot
+            volume and the memo are always renewed.
+        silhouette_px : int >= 0 pixels (default 0: off, today's answers). With
+            ``invalid="unknown"``, an *invalid* pixel of a camera within
+            ``silhouette_px`` pixels of the robot's silhouette in that camera's
+            ``robot_depths`` image is a robot pixel free up to the smallest robot
+            depth of its ``(2n+1)^2`` window, unknown behind it (R9, R32): the
+            dropout at the robot's outline is no obstacle, the cells behind it must
+            be cleared by the other cameras as for any robot pixel (R12). In a
+            non-principal camera this holds with ``robot_in_others="free"`` too (the
+            pixel is only presumed to be the robot, so it clears only the space in
+            front of it). Invalid pixels farther away stay unknown from
+            ``min_range`` (R28); valid pixels are unchanged. The product runs with 4.
         """
         if not isinstance(depths, dict):
             raise ValueError("depths must be a dict camera id -> depth image")
@@ -414,10 +428,11 @@ class DepthGridMap:
         self._invalid_free = invalid == "free"
         if robot_in_others not in ("unknown", "free"):
             raise ValueError(f"robot_in_others must be 'unknown' or 'free' (got {robot_in_others!r})")
+        n_sil = check_silhouette_px(silhouette_px)
         P = self.principal
         if P.id not in depths:
             raise ValueError(f"depths has no frame of the principal camera {P.id!r}")
-        options = (off, invalid, robot_in_others)
+        options = (off, invalid, robot_in_others, n_sil)
         if changed is None or options != self._loaded_options:
             fresh = set(known)
         else:
@@ -430,6 +445,7 @@ class DepthGridMap:
         # a failure half-way leaves a mix of old and new states: no frames until the next call
         self.has_frames = False
         self._loaded_options = None
+        self._silhouette_px = n_sil
         self._load_frames(fresh, depths, robot_depths, off, robot_in_others, reach, lazy, robot_capsules)
         self._loaded_options = options
         self._loaded_with_frame = {cid for cid in known if cid in depths}
@@ -555,8 +571,11 @@ class DepthGridMap:
             rd, use = self._no_robot, False
         else:
             rd, use = check_depth_image(cam, robot_depth, name="robot_depth"), True
+        sil = None
+        if use and self._silhouette_px > 0 and not self._invalid_free:
+            sil = self._silhouette.dilate(rd, self._silhouette_px)
         K.frame_state(d, rd, use, cam.min_range, cam.max_range, off, self._invalid_free,
-                      robot_free, out_free, out_kind)
+                      robot_free, out_free, out_kind, sil)
 
     def query(self, points, rho: float = 0.4, method: str = "hybrid",
               threads: int | None = None) -> DistanceResult:
@@ -652,14 +671,16 @@ class DepthGridMap:
     def distance(self, depths: dict, points, rho: float = 0.4, method: str = "hybrid",
                  robot_depths: dict | None = None, *, robot_capsules=None,
                  robot_offset: float = 0.03, invalid: str = "unknown",
-                 robot_in_others: str = "unknown", reach=None, lazy: bool = True) -> DistanceResult:
+                 robot_in_others: str = "unknown", reach=None, lazy: bool = True,
+                 silhouette_px: int = 0) -> DistanceResult:
         """Distance from control points to what all cameras see together (SPEC §3, §9).
 
         depths, robot_depths : dict camera id -> (H, W) images (see :meth:`set_frames`).
         points : (N, 3) world metres. rho : radius of surveillance (m).
         method : ``"min"``, ``"mean"`` or ``"hybrid"`` (R7 over the principal's pixels,
             one distance per pixel: its nearest obstacle cell).
-        robot_capsules, robot_offset, invalid, robot_in_others, reach, lazy : see :meth:`set_frames`.
+        robot_capsules, robot_offset, invalid, robot_in_others, reach, lazy, silhouette_px :
+            see :meth:`set_frames` (``silhouette_px=0``, the default, is off; the product runs with 4, R32).
 
         Returns a :class:`~depthguard.distance.DistanceResult` with fresh arrays:
         ``distance`` (N,) m, ``inf`` = no obstacle within ``rho``; ``direction``
@@ -667,7 +688,8 @@ class DepthGridMap:
         the point lies in the principal's image and range.
         """
         self.set_frames(depths, robot_depths, robot_offset=robot_offset, robot_capsules=robot_capsules,
-                        invalid=invalid, robot_in_others=robot_in_others, reach=reach, lazy=lazy)
+                        invalid=invalid, robot_in_others=robot_in_others, reach=reach, lazy=lazy,
+                        silhouette_px=silhouette_px)
         return self.query(points, rho=rho, method=method).copy()
 
     def __repr__(self) -> str:
@@ -721,7 +743,7 @@ class MultiPrincipalDepthGrid:
     def distance(self, depths: dict, points, rho: float = 0.4, method: str = "hybrid",
                  robot_depths: dict | None = None, *, robot_capsules=None,
                  robot_offset: float = 0.03, invalid: str = "unknown",
-                 robot_in_others: str = "unknown") -> DistanceResult:
+                 robot_in_others: str = "unknown", silhouette_px: int = 0) -> DistanceResult:
         """As :meth:`DepthGridMap.distance`, each point through its own principal."""
         p = check_points(points)
         n = len(p)
@@ -736,6 +758,7 @@ class MultiPrincipalDepthGrid:
                 continue
             res = self.maps[cam.id].distance(depths, p[sel], rho, method, robot_depths,
                                              robot_capsules=robot_capsules, robot_offset=robot_offset,
-                                             invalid=invalid, robot_in_others=robot_in_others)
+                                             invalid=invalid, robot_in_others=robot_in_others,
+                                             silhouette_px=silhouette_px)
             dist[sel], direc[sel], obs[sel], count[sel] = res.distance, res.direction, res.observed, res.count
         return DistanceResult(dist, direc, obs, count)

@@ -68,7 +68,7 @@ D_ZERO = 1e-9
 
 @njit(cache=True, nogil=True)
 def frame_state(depth, robot_depth, use_robot, min_range, max_range, robot_offset,
-                invalid_free, robot_free, out_free, out_kind):
+                invalid_free, robot_free, out_free, out_kind, silhouette=None):
     """Per-pixel state of one depth frame (R1, R9, R28).
 
     depth : (H, W) float metres; invalid = 0, NaN or outside ``[min_range, max_range]``.
@@ -86,6 +86,14 @@ def frame_state(depth, robot_depth, use_robot, min_range, max_range, robot_offse
         ``+inf`` (invalid).
     out_kind : (>= H, >= W) int8 written: ``KIND_SURFACE`` (a measured surface,
         an obstacle without confirmation), ``KIND_ROBOT`` or ``KIND_UNKNOWN``.
+    silhouette : None (default: off) or (H, W) float, the robot depth dilated by
+        ``silhouette_px`` pixels (:func:`~depthguard.distance.silhouette.dilate_robot_depth`,
+        0 = no robot nearby). An *invalid* pixel with
+        ``drd = silhouette > 0`` (and ``invalid_free`` False) is ``KIND_ROBOT`` with
+        free depth ``drd``: free up to the nearest robot surface around, unknown
+        behind it (R9, R32). Also when ``robot_free``: such a pixel is only
+        presumed to be the robot (nothing was measured), so it clears only the
+        space in front of the robot. Valid pixels never read it.
     """
     H, W = depth.shape
     for v in range(H):
@@ -94,6 +102,11 @@ def frame_state(depth, robot_depth, use_robot, min_range, max_range, robot_offse
             if not ((m == m) and m > 0.0 and m >= min_range and m <= max_range):
                 out_free[v, u] = np.inf if invalid_free else min_range
                 out_kind[v, u] = KIND_UNKNOWN
+                if silhouette is not None:
+                    drd = np.float64(silhouette[v, u])
+                    if drd > 0.0 and not invalid_free:
+                        out_free[v, u] = drd
+                        out_kind[v, u] = KIND_ROBOT
                 continue
             if use_robot:
                 dr = np.float64(robot_depth[v, u])

@@ -25,10 +25,12 @@ __all__ = ["frame_state_numpy", "explicit_map_numpy", "cell_corners_world",
 
 
 def frame_state_numpy(cam: Camera, depth, robot_depth=None, robot_offset=0.03, invalid="unknown",
-                      robot_free=False):
+                      robot_free=False, silhouette_px=0):
     """(free (H, W) float64, kind (H, W) int8) of one frame: free depth = ``do``
     (surface), ``dr`` (robot: ``measured >= dr - offset``), ``min_range`` (invalid,
-    ``invalid="unknown"``) or ``inf`` (``invalid="free"``)."""
+    ``invalid="unknown"``) or ``inf`` (``invalid="free"``). ``silhouette_px > 0`` (with
+    ``invalid="unknown"``): an invalid pixel within that many pixels of the robot's
+    silhouette is a robot pixel free up to the smallest robot depth nearby (R32)."""
     d = np.asarray(depth, dtype=np.float64)
     valid = np.isfinite(d) & (d > 0) & (d >= cam.min_range) & (d <= cam.max_range)
     free = np.where(valid, d, cam.min_range if invalid == "unknown" else np.inf)
@@ -38,6 +40,13 @@ def frame_state_numpy(cam: Camera, depth, robot_depth=None, robot_offset=0.03, i
         robot = valid & (dr > 0) & (d >= dr - robot_offset)
         free = np.where(robot, np.inf if robot_free else dr, free)
         kind[robot] = KIND_ROBOT
+        if silhouette_px > 0 and invalid == "unknown":
+            from depthguard.distance.silhouette import dilate_robot_depth_numpy
+
+            drd = dilate_robot_depth_numpy(dr, silhouette_px)
+            halo = ~valid & (drd > 0)
+            free = np.where(halo, drd, free)
+            kind[halo] = KIND_ROBOT
     return free, kind
 
 
