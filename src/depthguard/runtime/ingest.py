@@ -152,9 +152,15 @@ class CameraWorker:
                     if not newer:
                         time.sleep(0.0005)
                         continue
-                key = {"future": "future", "too_old": "too_old", "empty": "no_joints"}[exc.kind]
+                key = {"future": "future", "too_old": "too_old", "empty": "no_joints", "gap": "joint_gap"}[exc.kind]
                 self._refuse(key, f"frame at {stamp:.6f} s refused: {exc} (R30)")
                 return
+        with self.lock:
+            newest = self.product.stamp if self.product is not None else -math.inf
+        if stamp <= newest:
+            self._refuse("out_of_order", f"frame at {stamp:.6f} s is not newer than the frame in use "
+                                         f"({newest:.6f} s)")
+            return
         rd = np.array(self.expected.robot(q), copy=True)
         d = np.array(depth, dtype=np.float32, copy=True)
         with self.lock:
@@ -285,7 +291,7 @@ class FusionWorker:
             back.loaded = False
             back.grid.set_frames(depths, rdepths, robot_offset=cfg.robot_offset, robot_capsules=caps,
                                  invalid=cfg.invalid, robot_in_others=cfg.robot_in_others,
-                                 changed=changed, **_silhouette_kw(back.grid, cfg))
+                                 changed=changed, silhouette_px=cfg.silhouette_px)
             if points is not None and len(points):
                 back.grid.query(points, rho=cfg.rho, method=cfg.method, threads=1)   # classify ahead
             for c in cams:
@@ -299,12 +305,3 @@ class FusionWorker:
         with self.swap_lock:
             self._back, self.front = self.front, back
         return True
-
-
-def _silhouette_kw(grid, cfg) -> dict:
-    """``silhouette_px`` for grids that take it (R32)."""
-    import inspect
-
-    if "silhouette_px" in inspect.signature(grid.set_frames).parameters:
-        return {"silhouette_px": cfg.silhouette_px}
-    return {}

@@ -23,7 +23,7 @@ __all__ = ["JointHistory", "OutsideHistory"]
 
 
 class OutsideHistory(LookupError):
-    """A stamp outside the joint history; ``kind`` is ``"too_old"``, ``"future"`` or ``"empty"``."""
+    """A stamp outside the joint history; ``kind`` is ``"too_old"``, ``"future"``, ``"gap"`` or ``"empty"``."""
 
     def __init__(self, kind: str, message: str):
         super().__init__(message)
@@ -34,18 +34,21 @@ class JointHistory:
     """Ring of ``(stamp, q)`` with stamps strictly increasing (R30).
 
     dof : joints per state. span_s : seconds kept behind the newest state.
+    max_gap_s : two states further apart than this are not interpolated between
+        (the joint stream was interrupted: where the robot was then is not known).
     capacity : states kept at most (default: enough for 2 kHz over ``span_s``).
     q_min, q_max : optional (dof,) limits; a state outside them is refused.
     """
 
     def __init__(self, dof: int, span_s: float = 1.0, capacity: int | None = None,
-                 q_min=None, q_max=None):
+                 q_min=None, q_max=None, max_gap_s: float = math.inf):
         if int(dof) < 1:
             raise ValueError(f"dof must be >= 1 (got {dof!r})")
         if not (math.isfinite(span_s) and span_s > 0):
             raise ValueError(f"span_s must be > 0 s (got {span_s!r})")
         self.dof = int(dof)
         self.span_s = float(span_s)
+        self.max_gap_s = float(max_gap_s)     # no interpolation across a longer gap between states
         cap = int(capacity) if capacity is not None else int(math.ceil(span_s * 2000)) + 16
         self._t = np.full(cap, -np.inf)
         self._q = np.zeros((cap, self.dof))
@@ -137,6 +140,9 @@ class JointHistory:
                     b = mid
             ia, ib = (base + a) % cap, (base + b) % cap
             ta, tb = self._t[ia], self._t[ib]
+            if ta < stamp < tb and tb - ta > self.max_gap_s:
+                raise OutsideHistory("gap", f"stamp {stamp:.6f} s falls in a gap of {tb - ta:.3f} s between joint "
+                                            f"states (more than {self.max_gap_s:.3f} s)")
             res = out if out is not None else np.empty(self.dof)
             if self._n == 1 or tb <= ta or stamp <= ta:
                 res[:] = self._q[ia]

@@ -76,7 +76,7 @@ class Monitor:
         self._settings_lock = threading.Lock()
         self._camera_ids = self._ordered(ids, cfg.principal)
         self.joints = JointHistory(self.robot.dof, cfg.joint_history_s, q_min=self.robot.q_min,
-                                   q_max=self.robot.q_max)
+                                   q_max=self.robot.q_max, max_gap_s=cfg.joints_stale_s)
         self._static = rig.static_meshes()
         self._workers: dict[str, CameraWorker] = {}
         self.fusion = FusionWorker(self._workers, self._make_grid, self._fusion_settings, self.robot)
@@ -257,11 +257,14 @@ class Monitor:
         limit = cfg.camera_stale_limit
         cams: dict[str, CameraStatus] = {}
         ages = np.empty(len(ids))
+        # an added camera is not awaited before its first frame only while some monitored camera
+        # has a frame in use: a grid made of removed cameras' frames alone must not run unsupervised
+        in_use = any(c in stamps for c in ids)
         for i, c in enumerate(ids):
             w = self._workers.get(c)
             st = stamps.get(c)
             age = math.inf if st is None else t - st
-            awaited = not (st is None and c in self._added_at)     # added, no frame yet: not awaited
+            awaited = not (st is None and c in self._added_at and in_use)   # added, no frame yet: not awaited
             ages[i] = age if awaited else 0.0
             state = "waiting" if st is None else ("stale" if age > limit + 1e-9 else "fresh")
             cams[c] = CameraStatus(age, state, w.frames if w else 0, w.refused if w else 0,
