@@ -282,12 +282,7 @@ class FusionWorker:
                 return False
             depths = {c: products[c].depth for c in cams}
             rdepths = {c: products[c].robot_depth for c in cams}
-            segs, rads = [], []
-            for qf in {id(p.q): p.q for p in products.values()}.values():
-                ab, r = self.robot.collision_segments(qf, cfg.robot_padding)
-                segs.append(ab)
-                rads.append(r)
-            caps = (np.concatenate(segs), np.concatenate(rads))
+            caps = robot_volume(self.robot, [p.q for p in products.values()], cfg.robot_padding)
             back.loaded = False
             back.grid.set_frames(depths, rdepths, robot_offset=cfg.robot_offset, robot_capsules=caps,
                                  invalid=cfg.invalid, robot_in_others=cfg.robot_in_others,
@@ -305,3 +300,28 @@ class FusionWorker:
         with self.swap_lock:
             self._back, self.front = self.front, back
         return True
+
+
+def robot_volume(robot, poses, padding: float) -> tuple[np.ndarray, np.ndarray]:
+    """The robot's own volume for frames captured at several joint poses (R9, R12): its padded
+    capsules at every pose, each grown by how far that capsule's end points move to the other
+    poses — ``(segments (C, 2, 3), radii (C,))`` metres, world.
+
+    The cameras are not synchronised: each frame shows the robot where it was at that frame's
+    capture, and a cell behind the robot in one camera is confirmed by another that saw the
+    robot a moment earlier or later. The robot swept the space between those poses in that
+    time, so that space is its own, not an obstacle (without the growth, at 1 m/s and 21 ms
+    between two captures the end effector read a phantom 0.10-0.15 m away). An excluded cell
+    lies within ``padding`` plus the robot's motion between the captures in use (R25).
+    """
+    uniq = list({id(q): q for q in poses}.values())
+    segs = [robot.collision_segments(q, padding) for q in uniq]
+    out_s, out_r = [], []
+    for i, (ab, r) in enumerate(segs):
+        grow = np.zeros(len(r))
+        for j, (ab2, _) in enumerate(segs):
+            if j != i:
+                grow = np.maximum(grow, np.linalg.norm(ab2 - ab, axis=2).max(axis=1))
+        out_s.append(ab)
+        out_r.append(r + grow)
+    return np.concatenate(out_s), np.concatenate(out_r)
