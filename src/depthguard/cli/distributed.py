@@ -19,14 +19,9 @@ _DEFAULT = "tcp/127.0.0.1:7447"
 
 
 def _load_rig(rig: Optional[Path], cell: Optional[str]):
-    if rig is not None:
-        from depthguard.rig import Rig
-        return Rig.load(rig), None
-    if cell is not None:
-        from depthguard.sim import load_cell
-        c = load_cell(cell)
-        return c.rig, c
-    raise typer.BadParameter("give --rig FILE or --cell NAME", param_hint="--rig")
+    """``(Rig, built-in Cell or None)``: :func:`depthguard.cli.common.load_rig_or_cell`, no default cell."""
+    from depthguard.cli.common import load_rig_or_cell
+    return load_rig_or_cell(rig, cell, default=None)
 
 
 def _stop_event() -> threading.Event:

@@ -41,30 +41,34 @@ def hamersma2011(
 
 @app.command("placement")
 def placement(
-    cell: str = typer.Option("c-arm-room", "--cell", help="Built-in cell whose rig is checked."),
+    rig: Optional[Path] = typer.Option(None, "--rig", help="Your rig file (YAML): its cameras are checked over its workspace."),
+    cell: Optional[str] = typer.Option(None, "--cell", help="Built-in cell whose rig is checked (default c-arm-room when no --rig)."),
     voxel: float = typer.Option(0.10, "--voxel", help="Voxel size of the space of interest, metres."),
-    clearance: float = typer.Option(0.8, "--clearance", help="Space of interest: the workspace shrunk by this much from the walls (metres; 0 = the whole box)."),
+    clearance: Optional[float] = typer.Option(None, "--clearance", help="Space of interest: the workspace shrunk by this much from the walls (metres; 0 = the whole box). Default 0.8 for a built-in cell, 0 for --rig (the rig's workspace is its box of interest)."),
     min_separation: float = typer.Option(100.0, "--min-separation", help="Pairwise horizontal angle in degrees."),
     improve: bool = typer.Option(True, "--improve/--no-improve", help="Also run the greedy improver over wall and ceiling positions."),
     spacing: float = typer.Option(0.5, "--spacing", help="Spacing of the improver's candidate positions, metres."),
 ) -> None:
     """R23: share of the (empty) space of interest seen by >= 3 cameras pairwise >= 100° apart in
     the horizontal plane, by number of cameras, and how many cameras a greedy placement on the
-    walls (two rings) and the ceiling needs."""
+    walls (two rings) and the ceiling needs. Works on a built-in cell or your rig file (R2); the
+    static objects outside the workspace (walls) hide what lies behind them."""
     import numpy as np
 
+    from depthguard.cli.common import load_rig_or_cell
     from depthguard.evaluation.placement import (azimuths, candidate_cameras, greedy_placement,
                                                  passes_criterion, share_vs_cameras, visibility)
     from depthguard.fusion.free_space import VoxelGrid
-    from depthguard.sim import load_cell
 
     if not (0.02 <= voxel <= 1.0):
         raise typer.BadParameter(f"voxel must lie in [0.02, 1.0] m, got {voxel}", param_hint="--voxel")
     if not (0 < min_separation <= 120):
         raise typer.BadParameter(f"must lie in (0, 120] degrees, got {min_separation}", param_hint="--min-separation")
-    c = load_cell(cell)
-    rig = c.rig
-    lo, hi = np.asarray(rig.workspace.lo, float), np.asarray(rig.workspace.hi, float)
+    the_rig, c = load_rig_or_cell(rig, cell, default="c-arm-room", simulate=True)
+    label = c.name if rig is None else f"{the_rig.name} ({rig})"
+    if clearance is None:
+        clearance = 0.0 if rig is not None else 0.8
+    lo, hi = np.asarray(the_rig.workspace.lo, float), np.asarray(the_rig.workspace.hi, float)
     if not (0 <= clearance < 0.5 * float(np.min(hi[:2] - lo[:2]))):
         raise typer.BadParameter(f"clearance {clearance} m leaves no space of interest", param_hint="--clearance")
     ilo, ihi = lo.copy(), hi.copy()
@@ -78,19 +82,20 @@ def placement(
 
     shell = [o.mesh() for o in c.scene.static if outside(o)]
     kw = dict(min_separation_deg=min_separation)
-    seen, az = visibility(rig.cameras, pts, shell), azimuths(rig.cameras, pts)
+    seen, az = visibility(the_rig.cameras, pts, shell), azimuths(the_rig.cameras, pts)
     ok = passes_criterion(seen, az, **kw)
-    typer.echo(f"{cell}: {len(rig.cameras)} cameras, {len(pts)} voxels of {voxel * 100:.0f} cm in "
+    typer.echo(f"{label}: {len(the_rig.cameras)} cameras, {len(pts)} voxels of {voxel * 100:.0f} cm in "
                f"{ilo.round(2).tolist()}..{ihi.round(2).tolist()}: {100 * ok.mean():.1f} % pass "
                f"(>= 3 views pairwise >= {min_separation:g} deg apart)")
-    g = greedy_placement(seen, az, rig.cameras, target_share=1.0, max_cameras=len(rig.cameras), prune=False, **kw)
+    g = greedy_placement(seen, az, the_rig.cameras, target_share=1.0, max_cameras=len(the_rig.cameras), prune=False,
+                         **kw)
     curve = share_vs_cameras(seen, az, g.chosen, **kw)
     typer.echo("share vs cameras (best first): " + ", ".join(f"{i + 1}:{100 * v:.1f}" for i, v in enumerate(curve)))
     if improve:
         mid = (lo + hi) / 2
         h = hi[2] - lo[2]
         rings = [(hi[2] - 0.15, (mid[0], mid[1], lo[2] + 0.24 * h)), (lo[2] + 0.6, (mid[0], mid[1], lo[2] + 0.72 * h))]
-        cands = candidate_cameras(lo, hi, target=(mid[0], mid[1], lo[2] + 0.36 * h), template=rig.cameras[0],
+        cands = candidate_cameras(lo, hi, target=(mid[0], mid[1], lo[2] + 0.36 * h), template=the_rig.cameras[0],
                                   spacing=spacing, rings=rings)
         furniture = [o for o in c.scene.static if not outside(o)]
         if furniture:  # no camera inside (or right against) the fixed furniture
@@ -100,8 +105,9 @@ def placement(
         sc, ac = visibility(cands, pts, shell), azimuths(cands, pts)
         reach = float(passes_criterion(sc, ac, **kw).mean())
         r = greedy_placement(sc, ac, cands, target_share=0.995 * reach, max_cameras=60, **kw)
+        paper = "; paper: 21 cameras" if rig is None and c.name == "c-arm-room" else ""
         typer.echo(f"greedy improver: {len(r.chosen)} cameras reach {100 * r.final_share:.1f} % "
-                   f"(all {len(cands)} candidates: {100 * reach:.1f} %; paper: 21 cameras)")
+                   f"(all {len(cands)} candidates: {100 * reach:.1f} %{paper})")
         for cam in r.cameras:
             p = cam.position
             typer.echo(f"  {cam.id} at ({p[0]:.2f}, {p[1]:.2f}, {p[2]:.2f})")

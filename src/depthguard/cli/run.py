@@ -1,4 +1,5 @@
-"""``depthguard run --scenario NAME --out DIR``: one closed-loop scenario (R13–R15, R27)."""
+"""``depthguard run --scenario NAME --out DIR``: one closed-loop scenario (R13–R15, R27) on
+``flacco-cell``, another built-in cell (``--cell``) or a user's rig file (``--rig``, R2)."""
 
 from __future__ import annotations
 
@@ -19,6 +20,10 @@ def _scenario_help() -> str:
 def run(
     scenario: str = typer.Option(..., "--scenario", "-s", help="Scenario name: reach, plate, elbow, shadow, camera_dropout, empty."),
     out: Path = typer.Option(..., "--out", "-o", help="Report folder: summary.json and plots."),
+    rig: Optional[Path] = typer.Option(None, "--rig", help="Your rig file (YAML): its robot, cameras and static objects (no people); the robot starts at its rig joints."),
+    cell: Optional[str] = typer.Option(None, "--cell", help="A built-in cell with a robot (default flacco-cell when no --rig)."),
+    hexagon_centre: Optional[str] = typer.Option(None, "--hexagon-centre", help="X,Y,Z (m) of the end effector's hexagon, in the plane x = X (default: flacco-cell the paper's (-0.6, 0, 0.6); otherwise the end effector at the rig's joints)."),
+    hexagon_radius: Optional[float] = typer.Option(None, "--hexagon-radius", help="Radius of the hexagon, m (default: flacco-cell 0.2; otherwise the largest of 0.2, 0.15, 0.1, 0.05 the robot reaches clear of the static objects)."),
     duration: Optional[float] = typer.Option(None, "--duration", help="Simulated seconds (default: the scenario's)."),
     seed: int = typer.Option(0, "--seed", help="Seed of the cameras' noise."),
     cameras: str = typer.Option("all", "--cameras", help="all: every camera of the rig fused by the depth grid map (R12, Flacco 2015); principal: the principal camera only (Flacco 2014), the one-camera comparison."),
@@ -27,7 +32,8 @@ def run(
     camera_latency: Optional[float] = typer.Option(None, "--camera-latency", help="Seconds from a frame's capture to its delivery (default: one camera period; 0: each frame is used in the cycle it is captured)."),
     quiet: bool = typer.Option(False, "--quiet", "-q", help="No progress output."),
 ) -> None:
-    """Run the LWR's hexagon task on flacco-cell with a scenario's obstacles, closing the loop.
+    """Run the robot's hexagon task with a scenario's obstacles, closing the loop: the LWR on
+    flacco-cell (Flacco 2014 §5.3), or the robot of a built-in cell or of your rig file (R2).
 
     Cameras at 30 Hz with their noise model (each frame delivered one camera
     period after its capture), distances and reactions at every
@@ -35,9 +41,17 @@ def run(
     for the other control points, SNS), safe stop on stale frames. Writes
     DIR/summary.json (min_true_distance_m, collision, ee_tracking_rms_m,
     avoidance_rate_hz, real_time_factor, safe_stops ...) and plots.
+
+    On a cell other than flacco-cell the scenarios are placed relative to the
+    hexagon, the robot's base and the principal (first) camera; the hexagon
+    lies in the vertical plane x = const through the end effector at the rig's
+    joints (--hexagon-centre, --hexagon-radius to choose another).
     """
+    import dataclasses
+
+    from depthguard.cli.common import load_rig_or_cell, parse_vector3
     from depthguard.control.loop import LoopConfig
-    from depthguard.control.scenarios import SCENARIOS, run_scenario
+    from depthguard.control.scenarios import SCENARIOS, rig_hexagon, run_scenario
     from depthguard.progress import track
 
     if scenario not in SCENARIOS:
@@ -52,12 +66,26 @@ def run(
         raise typer.BadParameter("must be > 0 Hz", param_hint="--distance-hz")
     if camera_latency is not None and not (0.0 <= camera_latency < 1.0):
         raise typer.BadParameter("must be >= 0 and below 1 second", param_hint="--camera-latency")
+    centre = None if hexagon_centre is None else parse_vector3(hexagon_centre, "--hexagon-centre")
+    if hexagon_radius is not None and not hexagon_radius > 0:
+        raise typer.BadParameter("must be > 0 m", param_hint="--hexagon-radius")
+    the_rig, the_cell = load_rig_or_cell(rig, cell, default="flacco-cell", simulate=True)
+    if the_rig.robot is None:
+        raise ValueError(f"{rig if rig is not None else the_cell.name}: the rig has no robot to drive "
+                         f"(add a robot: section)")
     cfg = LoopConfig(fusion=fusion, noise=not no_noise, distance_hz=distance_hz, camera_latency=camera_latency)
+    paper_task = rig is None and the_cell.name == "flacco-cell"
+    if not paper_task or centre is not None or hexagon_radius is not None:
+        if paper_task:   # the paper's hexagon, with the centre or radius the user set
+            centre = cfg.hexagon.center if centre is None else centre
+            hexagon_radius = cfg.hexagon.radius if hexagon_radius is None else hexagon_radius
+        cfg = dataclasses.replace(cfg, hexagon=rig_hexagon(the_cell, centre=centre, radius=hexagon_radius))
 
     def progress(it, total):
         return track(it, f"scenario {scenario}", total=total, quiet=quiet)
 
-    summary, _ = run_scenario(scenario, out=out, duration=duration, seed=seed, config=cfg, progress=progress)
+    summary, _ = run_scenario(scenario, out=out, duration=duration, seed=seed, config=cfg,
+                              cell=the_cell.name if rig is None else the_cell, progress=progress)
     typer.echo(_one_line(summary))
     typer.echo(f"wrote {out}/summary.json and plots")
 

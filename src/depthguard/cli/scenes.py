@@ -1,4 +1,5 @@
-"""``depthguard scenes``: list the built-in cells and render their cameras to depth PNGs."""
+"""``depthguard scenes``: list the built-in cells and render the cameras of a cell or of a user's
+rig file (``--rig``, R2) to depth PNGs."""
 
 from __future__ import annotations
 
@@ -9,7 +10,7 @@ import typer
 
 from depthguard.cli.app import app
 
-scenes_app = typer.Typer(help="The built-in simulated cells: list them, render their depth cameras.",
+scenes_app = typer.Typer(help="The simulated cells: list the built-in ones, render the depth cameras of one or of your rig file.",
                          no_args_is_help=True)
 app.add_typer(scenes_app, name="scenes")
 
@@ -64,17 +65,28 @@ def list_cmd() -> None:
 
 @scenes_app.command("render")
 def render_cmd(
-    name: str = typer.Argument(..., help="Built-in cell (see `depthguard scenes list`)."),
+    name: Optional[str] = typer.Argument(None, help="Built-in cell (see `depthguard scenes list`); or give --rig."),
     out: Path = typer.Option(..., "--out", help="Directory for <camera>.png and contact_sheet.png."),
+    rig: Optional[Path] = typer.Option(None, "--rig", help="Your rig file (YAML): its static objects and its robot at "
+                                       "its rig joints, seen by its cameras (instead of a built-in cell)."),
     time: Optional[float] = typer.Option(None, "--time", help="Scene time in seconds (default: 0, or the situation's)."),
     situation: Optional[str] = typer.Option(None, "--situation", help="A named situation of the cell (sets the time)."),
     noiseless: bool = typer.Option(False, "--noiseless", help="Exact rendered depth (only the valid range applies)."),
     seed: int = typer.Option(0, "--seed", help="Seed of the sensor noise."),
 ) -> None:
-    """Render every camera of a cell: 16-bit millimetre depth PNGs and a colour contact sheet."""
-    from depthguard.sim import load_cell
+    """Render every camera of a cell or rig file (R2): 16-bit millimetre depth PNGs and a colour contact sheet.
 
-    cell = load_cell(name)
+    A rig file's scene holds still: its static objects and the robot at its rig
+    joints, no people, no situations.
+    """
+    from depthguard.cli.common import load_rig_or_cell
+
+    if name is None and rig is None:
+        raise ValueError("give a built-in cell NAME (see `depthguard scenes list`) or --rig FILE")
+    if name is not None and rig is not None:
+        raise ValueError(f"give a built-in cell NAME or --rig FILE, not both (got {name} and --rig {rig})")
+    _, cell = load_rig_or_cell(rig, name, default=None, simulate=True)
+    label = cell.name if rig is None else f"{cell.name} ({rig})"
     if situation is not None:
         _, t_sit = cell.scene_for(situation)
         if time is not None and abs(time - t_sit) > 1e-9:
@@ -86,6 +98,6 @@ def render_cmd(
     if not (t == t) or t < 0:
         raise typer.BadParameter(f"time must be >= 0 (got {t})", param_hint="--time")
     res = render_cell(cell, t, out, noiseless=noiseless, seed=seed,
-                      title=f"{name}  t = {t:.2f} s" + (f"  [{situation}]" if situation else "")
+                      title=f"{label}  t = {t:.2f} s" + (f"  [{situation}]" if situation else "")
                       + ("  (noiseless)" if noiseless else ""))
     typer.echo(f"wrote {len(res['files'])} depth PNGs and {res['sheet']}")

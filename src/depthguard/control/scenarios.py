@@ -1,8 +1,13 @@
-"""Closed-loop scenarios on ``flacco-cell`` (Flacco 2014 figs. 14–16, 2015 fig. 8; R27).
+"""Closed-loop scenarios on ``flacco-cell`` (Flacco 2014 figs. 14–16, 2015 fig. 8; R27), and on
+any cell with a robot: a built-in one or a user's rig file (R2).
 
 Each scenario adds scripted obstacles (people from :mod:`depthguard.sim.people`,
 props from :mod:`depthguard.geometry.primitives`) to the cell's own scene, placed
-relative to the end-effector hexagon and the cameras, and may stop a camera:
+relative to the end-effector hexagon, the robot's base and the cameras, and may
+stop a camera. On ``flacco-cell`` the hexagon is the paper's
+(:class:`~depthguard.control.trajectory.Hexagon` defaults); on any other cell
+:func:`rig_hexagon` centres it at the end effector at the rig's joints, with a
+radius the robot reaches clear of the static objects.
 
 * ``reach``   — a person reaches for the end effector (2014 fig. 14);
 * ``plate``   — a plate moves into the end effector's path, behind the robot
@@ -28,7 +33,8 @@ import numpy as np
 
 from depthguard.control.trajectory import Hexagon
 
-__all__ = ["Scenario", "SCENARIOS", "build_scenario", "list_scenarios", "run_scenario"]
+__all__ = ["Scenario", "SCENARIOS", "build_scenario", "list_scenarios", "run_scenario", "rig_hexagon",
+           "HEXAGON_RADII"]
 
 
 @dataclass
@@ -111,12 +117,16 @@ def build_scenario(name: str, cell, hexagon: Hexagon, robot=None) -> Scenario:
                         expect="the EE tracks the hexagon")
 
     if name == "reach":
-        target = c + np.array([-0.10, 0.02, 0.6 * R])           # just in front of the upper corners
-        stand = (c[0] - 0.62, c[1] + 0.30)
-        p = Person("operator", [Key(0.0, stand, 0.0), Key(1.0, stand, 0.0),
-                                Key(2.5, stand, 0.0, right=tuple(target)),
-                                Key(5.0, stand, 0.0, right=tuple(target)),
-                                Key(6.5, stand, 0.0)], floor_z=fz)
+        # the person stands in front of the hexagon's plane (x = c[0]), on the side away from the
+        # robot's base (flacco-cell: -x), and reaches with the right hand for the upper corners
+        s = _front_side(cell, hexagon, robot)
+        target = c + np.array([s * 0.10, -s * 0.02, 0.6 * R])   # just in front of the upper corners
+        stand = (c[0] + s * 0.62, c[1] - s * 0.30)
+        heading = 0.0 if s < 0 else float(np.pi)               # facing the hexagon
+        p = Person("operator", [Key(0.0, stand, heading), Key(1.0, stand, heading),
+                                Key(2.5, stand, heading, right=tuple(target)),
+                                Key(5.0, stand, heading, right=tuple(target)),
+                                Key(6.5, stand, heading)], floor_z=fz)
         return Scenario(name, desc, 8.0, obstacles=p.primitives, snapshot_times=(0.0, 2.5, 4.0, 6.5),
                         expect="the EE evades the hand; no collision")
 
@@ -172,6 +182,14 @@ def build_scenario(name: str, cell, hexagon: Hexagon, robot=None) -> Scenario:
                     expect="the robot slows to a stop and reports the stale camera")
 
 
+def _front_side(cell, hexagon: Hexagon, robot=None) -> float:
+    """-1 or +1: the side of the hexagon's plane ``x = center[0]`` away from the robot's base
+    (-1 when the base lies on that plane, and on flacco-cell: base at x = 0, plane x = -0.6 m)."""
+    robot = robot or cell.rig.robot
+    base_x = float(np.asarray(getattr(robot, "base", np.eye(4)))[0, 3])
+    return 1.0 if float(hexagon.center[0]) > base_x + 1e-9 else -1.0
+
+
 def _elbow_top(cell, hexagon: Hexagon, robot=None) -> np.ndarray:
     """Highest position of the 'elbow' control point over one lap of kinematic tracking."""
     from depthguard.control.loop import solve_ik
@@ -181,7 +199,8 @@ def _elbow_top(cell, hexagon: Hexagon, robot=None) -> np.ndarray:
     robot = robot or cell.rig.robot
     names = [cp.name for cp in robot.control_points]
     j = names.index("elbow") if "elbow" in names else len(names) // 2
-    q = solve_ik(robot, hexagon.at(0.0)[0], robot.q_home)
+    q_rig = getattr(cell.rig, "robot_q0", None)              # the rig's joints (flacco-cell: q_home)
+    q = solve_ik(robot, hexagon.at(0.0)[0], robot.q_home if q_rig is None else q_rig)
     q0 = q.copy()
     data = robot.create_data()
     dt = 0.01
@@ -198,12 +217,78 @@ def _elbow_top(cell, hexagon: Hexagon, robot=None) -> np.ndarray:
     return best
 
 
-def run_scenario(name: str, out=None, duration: float | None = None, seed: int = 0, config=None,
-                 cell: str = "flacco-cell", progress=None, write: bool = True):
-    """Run scenario ``name`` on the built-in ``cell``; write ``out``/summary.json and the plots.
+HEXAGON_RADII = (0.20, 0.15, 0.10, 0.05)   # m, tried in turn by rig_hexagon (0.2: Flacco 2014 §5.3)
 
-    Returns ``(summary dict, LoopResult)``. ``duration`` defaults to the
-    scenario's; ``config`` is a :class:`~depthguard.control.loop.LoopConfig`.
+
+def rig_hexagon(cell, centre=None, radius: float | None = None, clearance: float = 0.03,
+                samples: int = 48) -> Hexagon:
+    """The end-effector task (R15) for any cell's robot: a hexagon in the vertical plane
+    ``x = centre[0]`` (:class:`~depthguard.control.trajectory.Hexagon`, speed 0.4 m/s).
+
+    ``centre`` (3,) m defaults to the end effector (control point 0) at the rig's joints
+    (``rig.robot_q0``); ``radius`` (m) defaults to the largest of :data:`HEXAGON_RADII` that
+    passes both checks, which a given radius must pass too:
+
+    - **reach**: inverse kinematics (:func:`~depthguard.control.loop.solve_ik`, position
+      only, so any robot with >= 3 joints) follows ``samples`` points of one lap from the
+      rig's joints, each seeded with the previous answer;
+    - **clearance**: every sampled point lies at least the EE control point's radius plus
+      ``clearance`` (m) from the cell's static objects.
+
+    ``ValueError`` (naming ``--hexagon-centre`` / ``--hexagon-radius``) when none fits.
+    """
+    from depthguard.control.loop import solve_ik
+
+    rig = cell.rig
+    robot = rig.robot
+    if robot is None:
+        raise ValueError(f"cell {cell.name!r} has no robot to drive (its rig has no robot: section)")
+    q0 = np.asarray(rig.robot_q0 if rig.robot_q0 is not None else robot.q_home, dtype=np.float64)
+    if centre is None:
+        data = robot.create_data()
+        robot.forward(q0, data)
+        centre = data.cp_positions[0].copy()
+    centre = tuple(float(v) for v in np.asarray(centre, dtype=np.float64).reshape(3))
+    if radius is not None and not (np.isfinite(radius) and radius > 0):
+        raise ValueError(f"--hexagon-radius must be > 0 m, got {radius!r}")
+    margin = float(getattr(robot.control_points[0], "radius", 0.0)) + clearance
+    radii = (float(radius),) if radius is not None else HEXAGON_RADII
+    where = "(" + ", ".join(f"{v:.3f}" for v in centre) + ")"
+    why = ""
+    for r in radii:
+        hexagon = Hexagon(center=centre, radius=r)
+        period = hexagon.period
+        pts = np.stack([hexagon.at(k * period / samples)[0] for k in range(samples)])
+        d = cell.scene.true_distance(pts, 0.0) if cell.scene.static else np.full(len(pts), np.inf)
+        if float(d.min()) < margin:
+            k = int(np.argmin(d))
+            why = (f"radius {r:g} m: the path passes {float(d[k]) * 100:.1f} cm from a static object at "
+                   f"{np.round(pts[k], 3).tolist()} (needs {margin * 100:.1f} cm)")
+            continue
+        q = q0
+        try:
+            for p in pts:
+                q = solve_ik(robot, p, q)
+        except ValueError as exc:
+            why = f"radius {r:g} m: {exc}".replace("; choose another hexagon centre/radius", "")
+            continue
+        return hexagon
+    tried = f"radius {radii[0]:g} m" if radius is not None else \
+        f"radii {', '.join(f'{r:g}' for r in radii)} m"
+    raise ValueError(f"no end-effector hexagon about {where} in the plane x = {centre[0]:.3f} m with {tried} "
+                     f"is reachable by {robot.name} from the rig's joints and clear of the static objects "
+                     f"({why}); set --hexagon-centre X,Y,Z and/or --hexagon-radius R (m)")
+
+
+def run_scenario(name: str, out=None, duration: float | None = None, seed: int = 0, config=None,
+                 cell="flacco-cell", progress=None, write: bool = True):
+    """Run scenario ``name`` on ``cell``; write ``out``/summary.json and the plots.
+
+    ``cell`` is a built-in cell's name or a :class:`~depthguard.sim.cells.Cell` (e.g.
+    :func:`~depthguard.sim.cells.cell_from_rig` of a user's rig file, R2). Returns
+    ``(summary dict, LoopResult)``. ``duration`` (s) defaults to the scenario's; ``config``
+    is a :class:`~depthguard.control.loop.LoopConfig` whose ``hexagon`` is the EE task
+    (see :func:`rig_hexagon` for a cell other than flacco-cell).
     """
     from depthguard.control.loop import ClosedLoop, LoopConfig
     from depthguard.control.report import summarize, write_report
@@ -212,7 +297,9 @@ def run_scenario(name: str, out=None, duration: float | None = None, seed: int =
     if name not in SCENARIOS:
         raise ValueError(f"unknown scenario {name!r}; choose one of {', '.join(SCENARIOS)}")
     cfg = config or LoopConfig()
-    c = load_cell(cell)
+    c = load_cell(cell) if isinstance(cell, str) else cell
+    if c.rig.robot is None:
+        raise ValueError(f"cell {c.name!r} has no robot to drive (its rig has no robot: section)")
     sc = build_scenario(name, c, cfg.hexagon, robot=c.rig.robot)
     dur = float(sc.duration if duration is None else duration)
     if not (np.isfinite(dur) and dur > 0):
@@ -223,9 +310,10 @@ def run_scenario(name: str, out=None, duration: float | None = None, seed: int =
         sc.dropout = {principal: min(sc.dropout.values())}
     loop = ClosedLoop(c, cfg, extra_obstacles=sc.obstacles, dropout=sc.dropout, seed=seed)
     res = loop.run(dur, progress=progress, snapshot_times=tuple(x for x in sc.snapshot_times if x < dur))
-    summary = summarize(res, name, sc.description, cfg, cfg.hexagon,
-                        extra={"expect": sc.expect, "cell": cell, "seed": seed,
-                               "dropout": sc.dropout})
+    extra = {"expect": sc.expect, "cell": c.name, "seed": seed, "dropout": sc.dropout}
+    if not isinstance(cell, str) and c.rig.path is not None:
+        extra["rig"] = str(c.rig.path)
+    summary = summarize(res, name, sc.description, cfg, cfg.hexagon, extra=extra)
     if write and out is not None:
         write_report(out, res, summary, cfg.hexagon, cfg.rho, snapshots=res.snapshots)
     return summary, res

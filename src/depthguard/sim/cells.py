@@ -5,6 +5,8 @@
 (static CAD from the rig, the robot on a scripted joint path, people and
 props) and named *situations*: times of the scene worth looking at
 (``cell.situations[name].time``; ``cell.scene_for(name) -> (scene, t)``).
+``cell_from_rig(rig) -> Cell`` makes one of any rig (a user's rig file): the
+rig's static objects and its robot at the rig's joints, nobody else.
 
 - ``flacco-walls`` (Flacco 2014 §4): table plane and a vertical wall, one Kinect.
 - ``flacco-cell`` (Flacco 2014 §5, 2015 §VIII): LWR IV, two Kinects; a person
@@ -34,7 +36,7 @@ from depthguard.sim.people import BodyShape, Carry, Key, Person
 from depthguard.sim.scene import JointPath, Prop, Scene
 from depthguard.transforms import pose
 
-__all__ = ["Cell", "Situation", "load_cell", "list_cells", "cell_rig_path", "CELL_NAMES"]
+__all__ = ["Cell", "Situation", "load_cell", "list_cells", "cell_from_rig", "cell_rig_path", "CELL_NAMES"]
 
 CELL_NAMES = ("flacco-walls", "flacco-cell", "ur3-cell", "c-arm-room")
 
@@ -119,6 +121,21 @@ def load_cell(name: str) -> Cell:
     scene, situations, description = _BUILDERS[name](rig)
     scene.name = name
     return Cell(name, rig, scene, description, {s.name: s for s in situations})
+
+
+def cell_from_rig(rig, name: str | None = None) -> Cell:
+    """A :class:`Cell` for any rig (a user's rig file, R2): its static scene is the rig's
+    objects, the robot (if any) stands still at the rig's joints (``rig.robot_q0``, rad), and
+    there are no people, props or situations. ``name`` defaults to the rig's name."""
+    from depthguard.rig import Rig
+
+    if not isinstance(rig, Rig):
+        raise TypeError(f"cell_from_rig needs a depthguard.rig.Rig, got {type(rig).__name__}")
+    label = name or rig.name
+    scene = Scene(rig.objects, robot=rig.robot, robot_q0=rig.robot_q0, duration=0.0, name=label)
+    where = f" ({rig.path})" if rig.path is not None else ""
+    description = rig.description or f"rig {rig.name}{where}: its static objects and robot at its rig joints"
+    return Cell(label, rig, scene, description, {})
 
 
 def _check_name(name: str) -> None:
