@@ -15,18 +15,7 @@ from typing import List, Optional
 import typer
 
 from depthguard.cli.app import app
-
-
-def load_rig_or_cell(rig: Optional[Path], cell: Optional[str]):
-    """``(rig, cell name or None)`` from ``--rig FILE`` or ``--cell NAME`` (default ``flacco-cell``)."""
-    if rig is not None and cell is not None:
-        raise typer.BadParameter("give --rig or --cell, not both", param_hint="--rig/--cell")
-    if rig is not None:
-        from depthguard.rig import Rig
-        return Rig.load(rig), None
-    from depthguard.sim import load_cell
-    name = cell or "flacco-cell"
-    return load_cell(name).rig, name
+from depthguard.cli.common import load_rig_or_cell
 
 
 def check_out_dir(out: Path, files=("log.jsonl", "summary.json")) -> None:
@@ -62,7 +51,7 @@ def monitor(
     cell: Optional[str] = typer.Option(None, "--cell", help="A built-in cell (default flacco-cell when no --rig)."),
     source: List[str] = typer.Option([], "--source", help="Frame source SCHEME:ARG, repeatable: sim[:CELL[:SITUATION][:alone][:dark][:noiseless]], images:DIR. Default: the simulator of the cell (or of the rig's own scene)."),
     joints: Optional[str] = typer.Option(None, "--joints", help="Joint source: sim (the simulated robot, which obeys the reaction), csv:FILE, zenoh:KEY. Default: sim with a sim source."),
-    out: Optional[Path] = typer.Option(None, "--out", "-o", help="Folder for log.jsonl (one line per control cycle) and summary.json."),
+    out: Optional[Path] = typer.Option(None, "--out", "-o", help="Folder for log.jsonl (one line per control cycle) and summary.json (default: out/monitor/<UTC time>)."),
     duration: Optional[float] = typer.Option(None, "--duration", help="Seconds of run time (default: until Ctrl-C or the end of the sources)."),
     fast: bool = typer.Option(False, "--fast", help="As fast as possible and deterministic (recordings, simulation), not in real time."),
     zenoh: bool = typer.Option(False, "--zenoh", help="Publish reactions, distances and health under depthguard/<cell>/... (loopback unless --zenoh-listen)."),
@@ -87,9 +76,13 @@ def monitor(
 
     if duration is not None and not duration > 0:
         raise typer.BadParameter("must be > 0 seconds", param_hint="--duration")
-    the_rig, cell_name = load_rig_or_cell(rig, cell)
-    if out is not None:
-        check_out_dir(out)
+    the_rig, the_cell = load_rig_or_cell(rig, cell)
+    cell_name = None if the_cell is None else the_cell.name
+    if out is None:
+        import datetime
+
+        out = Path("out") / "monitor" / datetime.datetime.now(datetime.timezone.utc).strftime("%Y%m%d-%H%M%S")
+    check_out_dir(out)
     specs = list(source) or [f"sim:{cell_name}" if cell_name else "sim"]
     context: dict = {"zenoh_listen": (zenoh_listen,), "zenoh_connect": tuple(zenoh_connect)}
     sources = [open_source(s, the_rig, context) for s in specs]
@@ -98,14 +91,13 @@ def monitor(
         raise typer.BadParameter("a non-simulated source needs --joints (csv:FILE or zenoh:KEY)", param_hint="--joints")
     joint_source = open_joints(joint_spec, the_rig, context)
     cfg = the_rig.monitor
-    log(f"monitor: compiling kernels (once; cached on disk) ...")
+    log("monitor: compiling kernels (once; cached on disk) ...")
     seconds = warm_up(the_rig, cfg)
     log(f"monitor: ready in {seconds:.1f} s; cameras {', '.join(c.id for c in the_rig.cameras)}; "
         f"sources {', '.join(specs)}; joints {joint_spec}; {'as fast as possible' if fast else 'real time'}"
         + ("" if duration else "; Ctrl-C stops"))
     sinks = []
-    if out is not None:
-        sinks.append(JsonlLog(out / "log.jsonl"))
+    sinks.append(JsonlLog(out / "log.jsonl"))
     session = listener = None
     cell_key = cfg.cell or the_rig.name
     if zenoh:
@@ -114,9 +106,9 @@ def monitor(
         from depthguard.distributed.settings import zenoh_config
         session = zenoh_lib.open(zenoh_config([zenoh_listen], list(zenoh_connect)))
         sinks.append(ZenohPublisher(cell_key, session=session))
-    fanout = SinkFanout(sinks, block=fast) if sinks else None
+    fanout = SinkFanout(sinks, block=fast)
     direct = [context["sim_world"].on_reaction] if "sim_world" in context else []
-    mon = Monitor(the_rig, cfg, sinks=direct + ([fanout] if fanout else []))
+    mon = Monitor(the_rig, cfg, sinks=direct + [fanout])
     if session is not None:
         from depthguard.runtime.remote import SettingsListener
         listener = SettingsListener(mon, session, cell_key)
@@ -148,12 +140,11 @@ def monitor(
         typer.echo("", err=True)
     summary = summarise(mon, stats, wall, {"frames": specs, "joints": joint_spec},
                         {"interrupted": stats.interrupted, "fast": fast,
-                         "sinks_dropped": 0 if fanout is None else fanout.dropped})
-    if out is not None:
-        (out / "summary.json").write_text(json.dumps(summary, indent=1, allow_nan=False) + "\n")
+                         "sinks_dropped": fanout.dropped, "sink_errors": fanout.errors})
+    (out / "summary.json").write_text(json.dumps(summary, indent=1, allow_nan=False) + "\n")
     near = summary["nearest_distance_m"]
     typer.echo(f"monitor: {summary['cycles']} cycles over {summary['run_time_s']:.2f} s "
                f"({'interrupted' if stats.interrupted else 'done'}); override min {summary['override_min']:.2f}, "
                f"stopped {summary['stopped_s']:.2f} s; nearest {'none within rho' if near is None else f'{near * 100:.1f} cm'}; "
                f"step p99 {summary['step_ms']['p99']} ms; frame to reaction p99 {summary['frame_to_reaction_ms']['p99']} ms"
-               + (f"; wrote {out}/log.jsonl and summary.json" if out is not None else ""))
+               + f"; wrote {out}/log.jsonl and summary.json")

@@ -50,11 +50,11 @@ import numpy as np
 
 from depthguard.control.camera_pipeline import CameraPipeline, threadsafe_numba
 from depthguard.control.loop_truth import LoopTruth
-from depthguard.control.reaction import reaction
 from depthguard.control.sns import SNSWorkspace, sns_velocity
 from depthguard.control.supervisor import SafetySupervisor, stop_reasons
 from depthguard.control.trajectory import Hexagon
 from depthguard.render.composite import nearest_depth
+from depthguard.sources.frame import Frame
 
 __all__ = ["LoopConfig", "LoopResult", "ClosedLoop", "SafetySupervisor", "solve_ik", "stop_reasons"]
 
@@ -213,7 +213,6 @@ class ClosedLoop:
         self.dyn_renderers = {c.id: Renderer(c, parallel=par) for c in cams}
         self.static_depth = {c.id: np.array(Renderer(c).render(self._static_meshes)[0], copy=True) for c in cams}
         self._ideal = {c.id: np.zeros(c.shape, dtype=np.float32) for c in cams}
-        self._setup_distance()
         self.data = self.robot.create_data()
         self.sns_ws = SNSWorkspace(3, self.robot.dof)
         self.hexagon = cfg.hexagon
@@ -224,43 +223,26 @@ class ClosedLoop:
         self.cp_names = [c.name for c in self.robot.control_points]
         self.truth = LoopTruth(self.robot, self.scene.static, self.q_start, cfg.gt_step)
         self.excluded_caps = self.truth.excluded
+        # the runtime (R29): the loop is the monitor fed by the simulator; the robot obeys its reaction
+        from depthguard.runtime.monitor import warm_up
+        warm_up(self.cell.rig, self.monitor_config())     # compile before any clock starts
 
     # ------------------------------------------------------------ set-up
-    def _setup_distance(self):
+    def monitor_config(self):
+        """The runtime's settings for this loop (:class:`~depthguard.config.MonitorConfig`): the
+        loop's rho, reaction and supervision parameters; ``invalid="far"`` is the runtime's
+        ``"free"`` (R28); the robot volume and self removal as in the product."""
+        from depthguard.config import MonitorConfig
+
         cfg = self.cfg
-        if len(self.cams) > 1:
-            from depthguard.fusion.depth_grid import DepthGridMap
-            principal = self.cams[0]
-            d_min, d_max = _depth_span(principal, self.cell.rig.workspace)
-            self.grid = DepthGridMap(self.cams, principal=principal.id, d_min=d_min, d_max=d_max,
-                                     delta_d=cfg.grid_delta_d)
-            self.single = None
-        else:
-            from depthguard.distance.api import DistanceWorkspace
-            self.grid = None
-            self.single = DistanceWorkspace(self.cams[0], max_points=16)
-
-    def _frames_volume(self, frame_q: dict) -> tuple[np.ndarray, np.ndarray]:
-        """The robot's padded capsules at each camera's latest capture joints, together (R12).
-
-        The cameras are not synchronised: a camera's frame shows the robot where it was at
-        that frame's capture, and the others confirm the cells it hid there. The robot
-        occupied those cells at that moment, so they are its own volume, not an obstacle;
-        excluding only the newest pose reports the robot's path as phantom obstacles
-        beside the end effector (seen with two Kinects: 0.058 m at the EE with nothing
-        within 0.5 m). Capture poses differ by at most one camera period of motion."""
-        segs, rads = [], []
-        for qf in {id(v): v for v in frame_q.values()}.values():
-            ab, r = self.robot.collision_segments(qf, self.cfg.robot_padding)
-            segs.append(ab)
-            rads.append(r)
-        return np.concatenate(segs), np.concatenate(rads)
-
-    def _grid_kw(self, caps) -> dict:
-        """Optional arguments of the grid's ``set_frames``: none. The grid classifies a
-        column's cells lazily, only where the control points' queries look (no ``reach``
-        box needed, and the answers do not depend on one)."""
-        return {}
+        return MonitorConfig(
+            rho=cfg.rho, method=cfg.method, delta_d=cfg.grid_delta_d, principal=self.principal,
+            cameras=tuple(c.id for c in self.cams), robot_offset=cfg.robot_offset,
+            robot_padding=cfg.robot_padding, invalid="free" if cfg.invalid == "far" else "unknown",
+            camera_hz=cfg.camera_hz, camera_stale_s=cfg.stale_periods / cfg.camera_hz,
+            joints_stale_s=max(10.0 * cfg.dt, 0.01), joint_history_s=max(1.0, 3.0 * cfg.latency + 0.5),
+            joint_wait_s=0.0, control_hz=cfg.control_hz, v_max=cfg.v_max, alpha=cfg.alpha,
+            stop_time=cfg.stop_time, resume_time=cfg.resume_time)
 
     # ------------------------------------------------------------ pieces
     def extra(self, t: float) -> list:
@@ -332,13 +314,17 @@ class ClosedLoop:
         numba.set_num_threads(self.threads if cfg.threads else max(1, n_all - 1) if threaded else n_all)
         cams_sim = CameraPipeline(self._simulate_frame, [c.id for c in self.cams], cfg.latency, timing,
                                   threaded=threaded)
+        from depthguard.runtime.monitor import Monitor
+
+        mon = Monitor(self.cell.rig, self.monitor_config())
         try:
-            return self._run(T, steps, snapshot_times, cams_sim, timing)
+            return self._run(T, steps, snapshot_times, cams_sim, timing, mon)
         finally:
+            mon.close()
             cams_sim.close()
             numba.set_num_threads(threads_before)
 
-    def _run(self, T: int, steps, snapshot_times, cams_sim: CameraPipeline, timing: dict) -> LoopResult:
+    def _run(self, T: int, steps, snapshot_times, cams_sim: CameraPipeline, timing: dict, mon) -> LoopResult:
         """The ``T`` control cycles (module docstring, steps 1-5)."""
         cfg, robot, dt = self.cfg, self.robot, self.cfg.dt
         n, m = robot.dof, len(self.cp_names)
@@ -349,10 +335,7 @@ class ClosedLoop:
         phase = np.array([i * 0.37 * period for i in range(nc)])   # camera i at phase_i + j * period
         stamps = np.full(nc, -np.inf)
         depths: dict[str, np.ndarray] = {}
-        rdepths: dict[str, np.ndarray] = {}
         n_frames = {c: 0 for c in cam_ids}
-        age_limit = cfg.stale_periods * period
-        sup = SafetySupervisor(dt, cfg.stop_time, cfg.resume_time)
         R = {k: np.zeros(s) for k, s in dict(q=(T, n), qd=(T, n), ee=(T, 3), ee_des=(T, 3), D=(T, m),
                                                rep=(T, 3), gt_cp=(T, m), frame_age=(T, nc)).items()}
         R["observed"] = np.zeros((T, m), dtype=bool)
@@ -361,18 +344,14 @@ class ClosedLoop:
         q = self.q_start.copy()
         tau = 0.0
         data = self.data
-        rho, alpha = cfg.rho, cfg.alpha
         wall0 = time.perf_counter()
         snaps_todo = sorted(float(x) for x in snapshot_times)
         snapshots = []
-        react_buf = (np.empty(3), np.empty(n), np.empty(n))
-        q_min, q_max, qd_max = (np.ascontiguousarray(a, dtype=np.float64)
-                                for a in (robot.q_min, robot.q_max, robot.qd_max))
         n_distance, next_distance = 0, 0.0
-        frames_dirty = False
-        new_frames: set[str] = set()            # cameras with a frame the grid has not loaded yet
-        frame_q: dict[str, np.ndarray] = {}     # joints at each camera's latest capture
+        new_frames: set[str] = set()            # cameras with a frame the monitor has not had yet
         cams_sim.start(q, [i for i, c in enumerate(cam_ids) if not (c in self.dropout and self.dropout[c] <= 0.0)])
+        for j in range(int(np.ceil((cfg.latency + period) / dt)), 0, -1):
+            mon.push_joints(-j * dt, q)                  # the robot stood still while the first frames were taken
         for k in steps:
             t = k * dt
             # 1. vision: capture the frames due now, deliver those whose latency has passed
@@ -383,59 +362,40 @@ class ClosedLoop:
                 if cid in self.dropout and t >= self.dropout[cid]:
                     continue
                 cams_sim.capture(i, t, q)
-            for i, cid, t_cap, q_cap, d, rd in cams_sim.deliver(t):
+            for i, cid, t_cap, _q_cap, d, _rd in cams_sim.deliver(t):
                 depths[cid] = d
-                rdepths[cid] = rd
                 stamps[i] = t_cap
-                frame_q[cid] = q_cap
                 n_frames[cid] += 1
-                frames_dirty = True
                 new_frames.add(cid)
                 if i == 0 and snaps_todo and t_cap >= snaps_todo[0] - 1e-9:
                     snaps_todo.pop(0)
                     snapshots.append((t_cap, cid, d.copy()))
-            # 2. distances at the current pose
+            # 2-4. the runtime: joints and the frames delivered now in, the reaction out (R29)
             t0 = time.perf_counter()
             robot.forward(q, data)
             P = data.cp_positions
             due = k == 0 or cfg.distance_hz is None or t + 1e-9 >= next_distance
-            if not due:
-                pass                                   # hold D, V, obs of the last distance cycle
-            elif self.grid is not None:
-                if frames_dirty:
-                    caps = self._frames_volume(frame_q)
-                    # the robot's padded volume at every frame's capture joints (R9, R12);
-                    # between frames the cells memoised for this frame stay valid
-                    self.grid.set_frames(depths, rdepths, robot_offset=cfg.robot_offset, robot_capsules=caps,
-                                         changed=new_frames, **self._grid_kw(caps))
-                    frames_dirty = False
+            if due:                                    # else: hold the last cycle's reaction
+                mon.push_joints(t, q)
+                for cid in new_frames:                 # the frames delivered in this cycle,
+                    mon.push_frame(Frame(cid, depths[cid], float(stamps[cam_ids.index(cid)])))
+                if new_frames:                         # fused before this cycle's distances
+                    mon.flush()
                     new_frames = set()
-                res = self.grid.query(P, rho=rho, method=cfg.method)
-            else:
-                if frames_dirty:
-                    cid = cam_ids[0]
-                    self.single.set_depth(depths[cid], robot_depth=rdepths[cid], robot_offset=cfg.robot_offset)
-                    frames_dirty = False
-                res = self.single.query(P, rho=rho, method=cfg.method)
-            if due:
-                D = np.array(res.distance, dtype=np.float64)
-                V = np.array(res.direction, dtype=np.float64)
-                obs = np.array(res.observed, dtype=bool)
+                react = mon.step(t, q)
+                D, obs = react.distance, react.observed
+                kov = react.override
+                rep, lo, hi = react.repulsion, react.qd_min, react.qd_max   # R13, R14, joint limits, times k
                 n_distance += 1
                 if cfg.distance_hz is not None:
                     next_distance = t + 1.0 / cfg.distance_hz
             t1 = time.perf_counter()
             timing["distance"] += t1 - t0
-            # 3. supervision
             ages = t - stamps
-            reasons = stop_reasons(ages, age_limit, cam_ids, obs, D, V, self.cp_names)
-            kov = sup.update(t, reasons)
-            # 4. reaction
+            # the robot obeys: EE task scaled by the override, plus the repulsion, within the limits
             x = P[0]
             p_d, v_d = self.hexagon.at(tau)
             xd = kov * v_d + cfg.k_p * (p_d - x)
-            rep, lo, hi = reaction(D, V, data.cp_jacobians, q, q_min, q_max, qd_max, dt, rho, cfg.v_max,
-                                   alpha, kov, out=react_buf)          # R13, R14, joint limits, times k
             xc = xd + rep
             r = sns_velocity(data.cp_jacobians[0], xc, lo, hi, qd0=cfg.k_posture * (self.q_start - q),
                              workspace=self.sns_ws)
@@ -465,7 +425,7 @@ class ClosedLoop:
                           observed=R["observed"], rep=R["rep"], scale=R["scale"], override=R["override"],
                           gt_cp=R["gt_cp"], gt_robot=R["gt_robot"], gt_robot_dyn=R["gt_robot_dyn"], frame_age=R["frame_age"],
                           control_point_names=list(self.cp_names), camera_ids=cam_ids,
-                          episodes=sup.episodes, timing=timing, n_frames=n_frames,
+                          episodes=mon.episodes, timing=timing, n_frames=n_frames,
                           excluded_capsules=list(self.excluded_caps), snapshots=snapshots)
 
 

@@ -121,6 +121,9 @@ class Monitor:
         from depthguard.fusion.depth_grid import DepthGridMap
 
         cameras = [self._cameras[c] for c in cams]
+        if len(cameras) == 1:
+            from depthguard.runtime.single import OneCameraMap
+            return OneCameraMap(cameras[0])
         d_min, d_max = self.rig.workspace.depth_span(cameras[0])
         return DepthGridMap(cameras, principal=cams[0], d_min=d_min, d_max=d_max, delta_d=self.config.delta_d)
 

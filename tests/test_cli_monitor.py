@@ -1,0 +1,92 @@
+"""``depthguard monitor`` from the command line (R29, R31): a run writes its log and summary,
+Ctrl-C stops it cleanly with the summary written, bad arguments give one line."""
+
+from __future__ import annotations
+
+import json
+import os
+import signal
+import subprocess
+import sys
+import time
+from pathlib import Path
+
+import pytest
+
+from depthguard.runtime.result import Reaction
+
+DG = [sys.executable, "-m", "depthguard.cli"]
+
+
+def _lines(path: Path) -> list[dict]:
+    return [json.loads(x) for x in path.read_text().splitlines()] if path.exists() else []
+
+
+@pytest.mark.slow
+def test_fast_run_writes_a_log_line_per_cycle_and_a_summary_that_agrees(tmp_path):
+    out = tmp_path / "run"
+    res = subprocess.run(DG + ["monitor", "--cell", "flacco-cell", "--source", "sim:flacco-cell:reach",
+                               "--duration", "0.4", "--fast", "--out", str(out), "--quiet"],
+                         capture_output=True, text=True, timeout=600)
+    assert res.returncode == 0, res.stderr
+    log = _lines(out / "log.jsonl")
+    summary = json.loads((out / "summary.json").read_text())
+    assert summary["cycles"] == len(log) == 201                    # 0 ... 0.4 s at 500 Hz
+    assert [r["t"] for r in log] == sorted(r["t"] for r in log)
+    assert summary["override_min"] == pytest.approx(min(r["override"] for r in log))
+    names = [p["name"] for p in log[-1]["points"]]
+    assert names[0] == "ee" and set(log[-1]["cameras"]) == {"cam0", "cam1"}
+    for r in log:                                                    # "none within rho" vs "cannot judge"
+        for p in r["points"]:
+            assert (p["distance"] is None) == (p["direction"] is None)
+    assert summary["sources"] == {"frames": ["sim:flacco-cell:reach"], "joints": "sim"}
+    assert summary["interrupted"] is False and summary["sinks_dropped"] == 0
+
+
+@pytest.mark.slow
+def test_monitor_alone_runs_in_real_time_and_stops_cleanly_on_ctrl_c(tmp_path):
+    out = tmp_path / "live"
+    proc = subprocess.Popen(DG + ["monitor", "--out", str(out)], stdout=subprocess.PIPE,
+                            stderr=subprocess.PIPE, text=True, cwd=tmp_path)
+    try:
+        end = time.monotonic() + 300
+        while time.monotonic() < end and proc.poll() is None:
+            log = out / "log.jsonl"
+            if log.exists() and log.stat().st_size > 200_000:       # a few hundred cycles
+                break
+            time.sleep(0.2)
+        assert proc.poll() is None, proc.communicate()
+        proc.send_signal(signal.SIGINT)
+        stdout, stderr = proc.communicate(timeout=60)
+    finally:
+        if proc.poll() is None:
+            proc.kill()
+    assert proc.returncode == 0, stderr
+    summary = json.loads((out / "summary.json").read_text())
+    log = _lines(out / "log.jsonl")
+    assert summary["interrupted"] is True and summary["cycles"] == len(log) > 50
+    assert summary["real_time_factor"] == pytest.approx(1.0, abs=0.2)     # real time, not as fast as possible
+    assert "interrupted" in stdout
+
+
+@pytest.mark.parametrize("args, words", [
+    (["--rig", "x.yaml", "--cell", "flacco-cell"], "not both"),
+    (["--source", "nope:x"], "scheme must be one of"),
+    (["--cell", "no-such-cell"], "unknown cell"),
+    (["--duration", "-1"], "must be > 0"),
+])
+def test_bad_arguments_give_one_clear_line(tmp_path, args, words):
+    res = subprocess.run(DG + ["monitor", "--out", str(tmp_path / "o")] + args, capture_output=True,
+                         text=True, timeout=120, cwd=tmp_path)
+    assert res.returncode == 2, (res.stdout, res.stderr)
+    assert words in res.stderr and "Traceback" not in res.stderr
+
+
+def test_an_output_folder_holding_a_run_is_refused_before_any_work(tmp_path):
+    out = tmp_path / "o"
+    out.mkdir()
+    (out / "log.jsonl").write_text("keep me\n")
+    res = subprocess.run(DG + ["monitor", "--out", str(out), "--duration", "1"], capture_output=True,
+                         text=True, timeout=120)
+    assert res.returncode == 2 and "log.jsonl exists already" in res.stderr
+    assert (out / "log.jsonl").read_text() == "keep me\n"
