@@ -207,6 +207,8 @@ class FusionWorker:
         self._busy = False
         self._stop = False
         self.builds = 0
+        self.fused: dict[str, int] = {}           # per camera: frames loaded into a grid
+        self._last_fused: dict[str, int] = {}
         self.build_seconds: list[float] = []
         self.errors = 0
         self.last_error: str | None = None
@@ -291,6 +293,9 @@ class FusionWorker:
                 back.grid.query(points, rho=cfg.rho, method=cfg.method, threads=1)   # classify ahead
             for c in cams:
                 p = products[c]
+                if self._last_fused.get(c) != p.version:
+                    self._last_fused[c] = p.version
+                    self.fused[c] = self.fused.get(c, 0) + 1
                 back.versions[c] = p.version
                 back.stamps[c] = p.stamp
                 back.pushed_at[c] = p.pushed_at

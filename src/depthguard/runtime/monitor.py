@@ -315,12 +315,15 @@ class Monitor:
             time.sleep(0.0002)
 
     def stats(self) -> dict:
-        """Counters: per camera frames used / dropped / refused by reason; joints refused; fusion
-        builds and errors; cycles."""
+        """Counters: per camera ``frames`` processed by its worker, ``fused`` (loaded into a grid:
+        a frame replaced by a newer one of its camera before a fusion build is never fused),
+        ``dropped`` (replaced before its worker took it), ``refused`` by reason; joints refused;
+        fusion builds and errors; cycles."""
         cams = {}
         for c, w in list(self._workers.items()):
             with w.lock:
-                cams[c] = {"frames": w.frames, "dropped": w.dropped, "refused": dict(w.refusals),
+                fused = self.fusion.fused.get(c, 0)
+                cams[c] = {"frames": w.frames, "fused": fused, "dropped": w.dropped, "refused": dict(w.refusals),
                            "last_refusal": w.last_refusal}
         return {"cameras": cams, "joints_refused": self.joints.refused,
                 "joints_last_refusal": self.joints.last_refusal, "fusion_builds": self.fusion.builds,

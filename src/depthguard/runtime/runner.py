@@ -160,7 +160,23 @@ def _run_fast(monitor, frame_sources, joint_source, duration, stop, emit, all_do
     return stats, time.perf_counter() - wall0
 
 
+#: the interpreter's thread switch interval during a real-time run (s): a worker thread in Python
+#: code holds the GIL at most this long before the control thread gets it (default 5 ms)
+REAL_TIME_SWITCH_INTERVAL_S = 0.0005
+
+
 def _run_real_time(monitor, frame_sources, joint_source, duration, stop, emit, all_done, stats, wall0):
+    import sys
+
+    old = sys.getswitchinterval()
+    sys.setswitchinterval(REAL_TIME_SWITCH_INTERVAL_S)
+    try:
+        return _run_paced(monitor, frame_sources, joint_source, duration, stop, emit, all_done, stats, wall0)
+    finally:
+        sys.setswitchinterval(old)
+
+
+def _run_paced(monitor, frame_sources, joint_source, duration, stop, emit, all_done, stats, wall0):
     dt = monitor.config.dt
     next_status = 0.0
     start = time.monotonic()

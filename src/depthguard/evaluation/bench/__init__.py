@@ -28,6 +28,7 @@ _MODULES = [
     "depthguard.evaluation.bench.robot",
     "depthguard.evaluation.bench.voxels",
     "depthguard.evaluation.bench.sim",
+    "depthguard.evaluation.bench.monitor",
 ]
 
 

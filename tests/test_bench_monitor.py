@@ -1,0 +1,25 @@
+"""The ``monitor`` bench group runs in quick mode and reports its rows (speed is not asserted)."""
+
+import math
+
+import depthguard.evaluation.bench.monitor  # noqa: F401  (registers the group)
+from depthguard.evaluation.bench import GROUPS, BenchContext, load_groups
+
+
+def test_monitor_group_is_listed():
+    assert "monitor" in load_groups()
+
+
+def test_monitor_bench_quick_rows():
+    rows = GROUPS["monitor"](BenchContext(quick=True))
+    by = {r.name: r for r in rows}
+    assert list(by) == ["monitor.step_p99_ms", "monitor.frame_to_reaction_p99_ms",
+                        "monitor.fusion_build_p50_ms", "monitor.cameras_at_30hz"]
+    for name in ("monitor.step_p99_ms", "monitor.frame_to_reaction_p99_ms", "monitor.fusion_build_p50_ms"):
+        r = by[name]
+        assert r.unit == "ms" and math.isfinite(r.value) and r.value > 0, r
+        assert r.peer and math.isfinite(r.peer_value) and r.peer_value > 0, r
+    assert by["monitor.step_p99_ms"].paper == 3.3
+    cams = by["monitor.cameras_at_30hz"]
+    assert cams.unit == "cameras" and cams.value in (0.0, 2.0, 4.0) and cams.peer_value in (0.0, 2.0, 4.0)
+    assert "2:" in cams.note and "4:" in cams.note
