@@ -90,3 +90,50 @@ def test_an_output_folder_holding_a_run_is_refused_before_any_work(tmp_path):
                          text=True, timeout=120)
     assert res.returncode == 2 and "log.jsonl exists already" in res.stderr
     assert (out / "log.jsonl").read_text() == "keep me\n"
+
+
+@pytest.mark.slow
+def test_a_recording_replays_from_its_first_stamp_with_the_robot_removed_at_capture_time(tmp_path):
+    """A recorded cell (depth images + joint CSV, as a real cell's recorder would write them,
+    stamps on a wall clock far from 0) replayed with --fast: the log's clock starts at the first
+    stamp, every frame is used, and the robot moving through the images is not an obstacle."""
+    import numpy as np
+
+    from depthguard.sim.cells import cell_rig_path
+    from depthguard.sources.frame import Frame
+    from depthguard.sources.images import write_image_dir
+    from depthguard.sources.sim_source import SimFrames, SimWorld
+
+    world = SimWorld("flacco-cell", alone=True, noiseless=True)
+    sim = SimFrames(world)
+    T0, dur = 1.7e9, 0.5                                       # seconds of a wall clock
+    world.advance(dur + 0.05)
+    frames = []
+    for k in range(int(dur * 30) + 1):
+        for i, cid in enumerate(sim.camera_ids):
+            tc = k / 30 + i * 0.011
+            frames.append(Frame(cid, sim.render(cid, tc, world.history.at(tc)), T0 + tc))
+    frames.sort(key=lambda f: f.stamp)
+    write_image_dir(tmp_path / "rec", frames)
+    rows = ["stamp," + ",".join(f"q{j + 1}" for j in range(world.robot.dof))]
+    for k in range(int((dur + 0.05) * 500)):
+        q = world.history.at(k / 500)
+        rows.append(f"{T0 + k / 500!r}," + ",".join(repr(float(x)) for x in q))
+    (tmp_path / "joints.csv").write_text("\n".join(rows) + "\n")
+    out = tmp_path / "out"
+    res = subprocess.run(DG + ["monitor", "--rig", str(cell_rig_path("flacco-cell")), "--source",
+                               f"images:{tmp_path / 'rec'}", "--joints", f"csv:{tmp_path / 'joints.csv'}",
+                               "--fast", "--out", str(out), "--quiet"], capture_output=True, text=True, timeout=600)
+    assert res.returncode == 0, res.stderr
+    log = _lines(out / "log.jsonl")
+    summary = json.loads((out / "summary.json").read_text())
+    assert log[0]["t"] == pytest.approx(T0, abs=1e-3)
+    used = {c: s["fused"] for c, s in summary["stats"]["cameras"].items()}
+    assert sum(summary["stats"]["cameras"][c]["frames"] for c in used) == len(frames)
+    assert all(not s["refused"] for s in summary["stats"]["cameras"].values())
+    late = [r for r in log if r["t"] > T0 + 0.1]
+    assert late and all(r["override"] > 0 for r in late)
+    # the robot alone, noiseless, removed at capture time: nothing near its end effector
+    ee = [r["points"][0] for r in late]
+    assert all(p["observed"] for p in ee)
+    assert min((p["distance"] for p in ee if p["distance"] is not None), default=np.inf) > 0.05

@@ -45,6 +45,7 @@ class RunStats:
         self._t_prev = None
         self.last = None
         self.interrupted = False          # stopped by Ctrl-C (the summary is still written)
+        self.source_errors: list[str] = []  # sources that failed during a real-time run
 
     def __call__(self, r) -> None:
         if self.cycles == 0:
@@ -83,6 +84,7 @@ def summarise(monitor, stats: RunStats, wall_s: float, sources: dict, extra: dic
         "nearest_point": None if stats.nearest_at is None else stats.nearest_at[0],
         "nearest_t": None if stats.nearest_at is None else round(stats.nearest_at[1], 4),
         "unobserved_cycles": stats.unobserved_cycles,
+        "source_errors": list(stats.source_errors),
         "episodes": monitor.episodes,
         "step_ms": {"p50": pct(monitor.step_s, 50), "p99": pct(monitor.step_s, 99), "max": pct(monitor.step_s, 100)},
         "frame_to_reaction_ms": {"p50": pct(monitor.frame_to_reaction_s, 50),
@@ -128,24 +130,27 @@ def run(monitor, frame_sources: list, joint_source, *, duration: float | None = 
             return r.t + 1.0 / status_hz
         return next_status
 
+    firsts = [getattr(src, "first_stamp", None) for src in [*frame_sources, joint_source] if src is not None]
+    firsts = [float(f) for f in firsts if f is not None and math.isfinite(f)]
+    t0 = min(firsts) if firsts else 0.0           # a recording's clock starts at its first stamp
     try:
         if fast:
-            return _run_fast(monitor, frame_sources, joint_source, duration, stop, emit, all_done, stats, wall0)
-        return _run_real_time(monitor, frame_sources, joint_source, duration, stop, emit, all_done, stats, wall0)
+            return _run_fast(monitor, frame_sources, joint_source, duration, stop, emit, all_done, stats, wall0, t0)
+        return _run_real_time(monitor, frame_sources, joint_source, duration, stop, emit, all_done, stats, wall0, t0)
     except KeyboardInterrupt:
         stats.interrupted = True
         stop.set()
         return stats, time.perf_counter() - wall0
 
 
-def _run_fast(monitor, frame_sources, joint_source, duration, stop, emit, all_done, stats, wall0):
+def _run_fast(monitor, frame_sources, joint_source, duration, stop, emit, all_done, stats, wall0, t0=0.0):
     """Fast mode (module docstring): joints, then frames due by ``t``, processed to the end, then a step."""
     dt = monitor.config.dt
     next_status = 0.0
     k = 0
     while not stop.is_set():
-        t = k * dt
-        if duration is not None and t > duration + 1e-12:
+        t = t0 + k * dt
+        if duration is not None and t - t0 > duration + 1e-12:
             break
         if joint_source is not None:
             for ts, q in joint_source.states_until(t):
@@ -165,22 +170,22 @@ def _run_fast(monitor, frame_sources, joint_source, duration, stop, emit, all_do
 REAL_TIME_SWITCH_INTERVAL_S = 0.0005
 
 
-def _run_real_time(monitor, frame_sources, joint_source, duration, stop, emit, all_done, stats, wall0):
+def _run_real_time(monitor, frame_sources, joint_source, duration, stop, emit, all_done, stats, wall0, t0=0.0):
     import sys
 
     old = sys.getswitchinterval()
     sys.setswitchinterval(REAL_TIME_SWITCH_INTERVAL_S)
     try:
-        return _run_paced(monitor, frame_sources, joint_source, duration, stop, emit, all_done, stats, wall0)
+        return _run_paced(monitor, frame_sources, joint_source, duration, stop, emit, all_done, stats, wall0, t0)
     finally:
         sys.setswitchinterval(old)
 
 
-def _run_paced(monitor, frame_sources, joint_source, duration, stop, emit, all_done, stats, wall0):
+def _run_paced(monitor, frame_sources, joint_source, duration, stop, emit, all_done, stats, wall0, t0=0.0):
     dt = monitor.config.dt
     next_status = 0.0
-    start = time.monotonic()
-    clock = lambda: time.monotonic() - start          # noqa: E731 - the run's clock
+    start = time.monotonic() - t0
+    clock = lambda: time.monotonic() - start          # noqa: E731 - the run's clock, from t0
 
     def pump(fn, push):
         import numba
@@ -189,14 +194,15 @@ def _run_paced(monitor, frame_sources, joint_source, duration, stop, emit, all_d
         while not stop.is_set():
             try:
                 items = fn(clock())
-            except Exception as exc:                   # a failing source: counted, the monitor goes stale
-                pump.errors.append(f"{type(exc).__name__}: {exc}")
+            except Exception as exc:                   # a failing source: reported, the monitor goes stale
+                stats.source_errors.append(f"{type(exc).__name__}: {exc}")
+                from depthguard.progress import log
+                log(f"source failed, its cameras go stale (R27): {type(exc).__name__}: {exc}")
                 return
             for it in items:
                 push(it)
             if not items:
                 time.sleep(0.0005)
-    pump.errors = []
     threads = [threading.Thread(target=pump, args=(s.frames_until, monitor.push_frame), daemon=True,
                                 name=f"depthguard-source-{i}") for i, s in enumerate(frame_sources)]
     if joint_source is not None:
@@ -208,17 +214,17 @@ def _run_paced(monitor, frame_sources, joint_source, duration, stop, emit, all_d
     try:
         k = 0
         while not stop.is_set():
-            t_next = k * dt
+            t_next = t0 + k * dt
             now = clock()
             if now < t_next:
                 time.sleep(t_next - now)
             t = clock()
-            if duration is not None and t > duration + 1e-12:
+            if duration is not None and t - t0 > duration + 1e-12:
                 break
             next_status = emit(monitor.step(t), next_status)
             if all_done():
                 break
-            k = max(k + 1, int(t / dt) + 1)              # a late cycle is skipped, never queued
+            k = max(k + 1, int((t - t0) / dt) + 1)       # a late cycle is skipped, never queued
     finally:
         stop.set()
         for th in threads:
