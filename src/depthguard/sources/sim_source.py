@@ -69,19 +69,11 @@ class SimWorld:
     def __init__(self, cell_name: str, rig=None, situation: str | None = None, alone: bool = False,
                  dark: bool = False, noiseless: bool = False, seed: int = 0, joint_hz: float = 500.0,
                  camera_hz: float = 30.0):
-        from depthguard.sim import load_cell
-        from depthguard.sim.scene import Scene
+        from depthguard.sim.cells import cell_from_rig, load_cell
 
-        if rig is None or cell_name:
-            cell = load_cell(cell_name)
-            self.rig, self.scene = (rig or cell.rig), cell.scene
-            self.start = cell.time_of(situation) if situation else 0.0
-        else:
-            if situation:
-                raise ValueError("sim source: a rig file's scene has no situations")
-            self.rig = rig
-            self.scene = Scene(rig.objects, robot=rig.robot, robot_q0=rig.robot_q0, duration=0.0)
-            self.start = 0.0
+        cell = load_cell(cell_name) if (rig is None or cell_name) else cell_from_rig(rig)
+        self.rig, self.scene = (rig or cell.rig), cell.scene
+        self.start = cell.time_of(situation) if situation else 0.0
         if self.rig.robot is None:
             raise ValueError(f"sim source: rig {self.rig.name!r} has no robot")
         self.robot = self.rig.robot
