@@ -522,3 +522,43 @@ def test_dark_person_slows_the_robot_like_a_visible_one(rig):
     span_v = np.array([np.sum(r.qd_max - r.qd_min) for r in vis[late]])
     span_d = np.array([np.sum(r.qd_max - r.qd_min) for r in dark[late]])
     assert np.all(span_d <= span_v + 1e-6)
+
+
+# --------------------------------------------------------------------------- 8. an obstacle that leaves
+def test_an_obstacle_is_gone_from_the_first_cycle_after_the_frames_without_it(rig, still, q0):
+    """Nothing is remembered across frames: a ball next to the end effector, then frames
+    without it — the distance is the ball's (within the grid's discretisation) exactly while
+    its frames are in use, and 'nothing within rho' from the first cycle that uses frames
+    without it (MoveIt users' obstacles that stay after the person left)."""
+    from depthguard.geometry.primitives import Sphere
+    from depthguard.render import render_depth
+    from depthguard.render.composite import nearest_depth
+
+    cfg = free_cfg(rig)
+    ee = rig.robot.control_point_positions(q0)[0]
+    centre = ee + np.array([0.0, 0.0, 0.2])
+    T = np.eye(4)
+    T[:3, 3] = centre
+    ball = Sphere(radius=0.05, world_from_local=T)
+    with_ball = {}
+    for c in rig.cameras:
+        img = np.array(still[c.id], copy=True)
+        nearest_depth(img, render_depth(c, [ball.mesh()]))
+        with_ball[c.id] = img
+    truth = float(np.linalg.norm(centre - ee) - 0.05)
+    with Monitor(rig, cfg) as mon:
+        t = 0.0
+        for k in range(200):
+            t = k * cfg.dt
+            mon.push_joints(t, q0)
+            if k % 15 == 0:
+                imgs = with_ball if k < 100 else still
+                for c in rig.cameras:
+                    mon.push_frame(Frame(c.id, imgs[c.id], t))
+                mon.flush()
+            r = mon.step(t)
+            d = r.distance[0]
+            if k < 100:
+                assert r.observed[0] and truth - 0.03 <= d <= truth + 0.005, (k, d, truth)
+            elif k >= 105:
+                assert r.observed[0] and (math.isinf(d) or d > truth + 0.1), (k, d)
