@@ -204,9 +204,10 @@ def test_point_outside_image_still_sees_edge_frusta():
     assert res.distance[0] == pytest.approx(2.5 * 1.2 / 50.0, abs=1e-12)
 
 
-@pytest.mark.parametrize("bad", [0.0, np.nan, 9.0, 0.2])
+@pytest.mark.parametrize("bad", [0.0, np.nan, np.inf, 0.2])
 def test_invalid_pixel_policies_hand_checked(bad):
-    """R28: an invalid pixel (0, NaN, beyond max_range, nearer than min_range)."""
+    """R28: an invalid pixel (0, NaN, inf, nearer than min_range). (A finite return beyond
+    max_range is free up to max_range: tests/test_gaps_beyond_range.py.)"""
     depth = np.full(AXIS.shape, 3.0, np.float32)
     depth[20, 10] = bad
     P_behind = at_pixel(10.0, 20.0, 1.0)          # on that pixel's ray, 1 m away

@@ -90,22 +90,59 @@ def test_deterministic_under_seed(name):
 
 @pytest.mark.parametrize("name", ["kinect_v1", "realsense_d435", "tof"])
 def test_noiseless_is_rendered_depth_within_range(name):
+    """Noiseless: the ideal depth within [min_range, return_range] (beyond the rated
+    max_range too: a real sensor still returns there), 0 outside."""
     m = sensor_model(name)
-    ideal = np.linspace(0.0, m.max_range + 1.0, H * W).reshape(H, W).astype(np.float32)
+    hr = m.returns_to()
+    assert hr > m.max_range
+    ideal = np.linspace(0.0, hr + 1.0, H * W).reshape(H, W).astype(np.float32)
     ideal[0, :5] = np.nan
     out = measured(m, ideal, noiseless=True)
-    inside = (ideal >= m.min_range) & (ideal <= m.max_range)
+    inside = (ideal >= m.min_range) & (ideal <= hr)
     np.testing.assert_array_equal(out[inside], ideal[inside])
     assert (out[~inside] == 0).all()
+    assert (out > m.max_range).any()
     assert out.dtype == np.float32
+
+
+def test_return_ranges_of_the_presets():
+    assert sensor_model("kinect_v1").returns_to() == 8.0
+    assert sensor_model("realsense_d435").returns_to() == 10.0
+    assert sensor_model("tof").returns_to() == 12.0
+    ideal = sensor_model("ideal")
+    assert ideal.returns_to() == ideal.max_range and ideal.returns_to(3.0) == 3.0
+    assert sensor_model("kinect_v1").returns_to(9.0) == 9.0      # a camera rated farther
+    with pytest.raises(ValueError, match="return_range"):
+        dataclasses.replace(sensor_model("kinect_v1"), return_range=3.0)
 
 
 @pytest.mark.parametrize("name", ["kinect_v1", "realsense_d435", "tof"])
 def test_out_of_range_and_nothing_is_zero(name):
     m = sensor_model(name)
-    assert (measured(m, flat(m.max_range + 0.5)) == 0).all()
+    assert (measured(m, flat(1.25 * m.returns_to())) == 0).all()   # the measured depth is cut
     assert (measured(m, flat(m.min_range * 0.5)) == 0).all()
     assert (measured(m, flat(0.0)) == 0).all()
+    # the ideal model returns nothing beyond its (the camera's) max_range
+    ideal = sensor_model("ideal")
+    assert (measured(ideal, flat(ideal.max_range + 0.5)) == 0).all()
+    assert (measured(ideal, flat(3.5), max_range=3.0) == 0).all()
+
+
+@pytest.mark.parametrize("name,z", [("kinect_v1", 6.0), ("realsense_d435", 8.0), ("tof", 10.0)])
+def test_beyond_rated_range_returns_with_the_same_noise_law(name, z):
+    """A surface between max_range and return_range is measured (not 0), with the noise of
+    the model's law at that depth; the rated range stays the camera's max_range."""
+    m = dataclasses.replace(sensor_model(name), edge_dropout=0.0)
+    assert m.max_range < z < m.returns_to()
+    out = measured(m, flat(z)).astype(np.float64)
+    ok = out > 0
+    assert ok.mean() > 0.99
+    assert abs(out[ok].mean() - z) < 0.02 * z
+    if m.kind != "structured_light":
+        assert out[ok].std() == pytest.approx(noise.depth_sigma(m, z), rel=0.05)
+    # a camera whose rated range is cut shorter still returns up to the model's return range
+    short = measured(m, flat(z), max_range=m.max_range - 1.0)
+    assert (short > 0).mean() > 0.99
 
 
 def step_image(near=1.0, far=2.0):
@@ -222,7 +259,7 @@ PARALLEL_MODELS = {
 def test_parallel_kernels_bit_identical_to_numpy_twins_on_1_and_2_threads(rng, name):
     m = PARALLEL_MODELS[name]
     params = noise._params(m, FX)
-    lo, hi = m.min_range, m.max_range
+    lo, hi = m.min_range, m.returns_to()
     thread_counts = sorted({1, min(2, numba.config.NUMBA_NUM_THREADS)})
     ws = NoiseWorkspace((97, 131))   # reused across images: no state may leak from call to call
     prev = numba.get_num_threads()

@@ -18,6 +18,7 @@ import numpy as np
 
 from depthguard.camera import Camera, check_depth_image
 from depthguard.distance import kernels as K
+from depthguard.distance.gaps import GapBuffers, check_gap_px
 from depthguard.distance.silhouette import SilhouetteBuffers, check_silhouette_px
 
 __all__ = ["DistanceResult", "DistanceWorkspace", "depth_space_distance"]
@@ -125,6 +126,7 @@ class DistanceWorkspace:
         self.d0 = np.full(cam.shape, np.inf)       # obstacle start depth per pixel
         self._no_robot = np.zeros((1, 1), dtype=np.float32)
         self._silhouette: SilhouetteBuffers | None = None     # made on the first silhouette_px > 0
+        self._gaps: GapBuffers | None = None                  # made on the first gap_px > 0
         self._alloc(max(int(max_points), 1))
         self.has_depth = False
         self.lock = threading.Lock()
@@ -141,16 +143,20 @@ class DistanceWorkspace:
 
     def set_depth(self, depth: np.ndarray, robot_depth: np.ndarray | None = None,
                   invalid: str = "unknown", robot_mode: str = "drop",
-                  robot_offset: float = 0.03, silhouette_px: int = 0) -> None:
+                  robot_offset: float = 0.03, silhouette_px: int = 0, gap_px: int = 0) -> None:
         """Load one frame: compute each pixel's obstacle start depth (R1, R9, R28, R32).
 
-        depth : (H, W) float metres; 0, NaN or outside ``[min_range, max_range]`` = invalid.
+        depth : (H, W) float metres; valid in ``[min_range, max_range]``; a finite value
+            beyond ``max_range`` is a return beyond the rated range; 0, NaN, inf or below
+            ``min_range`` = invalid (no return).
         robot_depth : (H, W) float, the robot rendered into this camera at its
             current joints (0 = no robot; see :func:`~depthguard.distance.self_removal.robot_depth`).
             A pixel is the robot's where ``measured >= robot_depth - robot_offset`` (R9).
         invalid : ``"unknown"`` (default, safe, R28): an invalid pixel's whole
             ray is unknown from ``min_range`` on, i.e. an obstacle frustum
-            starting at ``min_range``; ``"free"``: the pixel is ignored.
+            starting at ``min_range``; a return beyond the rated range (``m >
+            max_range``) is free up to ``max_range``, its frustum starts there.
+            ``"free"``: both are ignored (nothing on the ray).
         robot_mode : what a robot pixel becomes (R9: free up to the robot's
             depth ``dr``, unknown behind it).
             ``"drop"`` (default): the pixel is ignored altogether, as the
@@ -173,6 +179,13 @@ class DistanceWorkspace:
             farther away stay unknown from ``min_range`` (R28); valid pixels are
             unchanged. See :mod:`depthguard.distance.silhouette` for the price (an
             all-invalid obstacle next to the robot looks ``silhouette_px`` pixels smaller).
+        gap_px : int >= 0 pixels (default 0: off, today's answers). With
+            ``invalid="unknown"``, an invalid pixel (outside the silhouette rule) in a run of
+            at most ``gap_px`` invalid pixels along its row or column, bounded by returns on
+            both sides, starts at the nearer end's depth (``min(m, max_range)``) instead of
+            ``min_range``: the edge dropout of the fixed scene. The price: an all-invalid
+            object at most ``gap_px`` pixels wide in front of both neighbours can be missed
+            (:mod:`depthguard.distance.gaps`).
         """
         cam = self.cam
         d = check_depth_image(cam, depth)
@@ -182,6 +195,7 @@ class DistanceWorkspace:
         if not (np.isfinite(off) and off >= 0):
             raise ValueError(f"robot_offset must be finite and >= 0 metres (got {robot_offset!r})")
         n_sil = check_silhouette_px(silhouette_px)
+        n_gap = check_gap_px(gap_px)
         if robot_depth is None:
             rd, use = self._no_robot, False
         else:
@@ -191,7 +205,12 @@ class DistanceWorkspace:
             if self._silhouette is None:
                 self._silhouette = SilhouetteBuffers(cam.shape)
             sil = self._silhouette.dilate(rd, n_sil)
-        K.obstacle_start_depth(d, rd, use, cam.min_range, cam.max_range, pol, mode, off, self.d0, sil)
+        gaps = None
+        if n_gap > 0 and pol == K.INVALID_UNKNOWN:
+            if self._gaps is None:
+                self._gaps = GapBuffers(cam.shape)
+            gaps = self._gaps.gaps(d, cam.min_range, cam.max_range, n_gap)
+        K.obstacle_start_depth(d, rd, use, cam.min_range, cam.max_range, pol, mode, off, self.d0, sil, gaps)
         self.has_depth = True
 
     def query(self, points: np.ndarray, rho: float = 0.4, method: str = "hybrid") -> DistanceResult:
@@ -236,7 +255,8 @@ def workspace_for(cam: Camera) -> DistanceWorkspace:
 def depth_space_distance(cam: Camera, depth: np.ndarray, points: np.ndarray, rho: float = 0.4,
                          method: str = "hybrid", robot_depth: np.ndarray | None = None,
                          invalid: str = "unknown", robot_mode: str = "drop",
-                         robot_offset: float = 0.03, silhouette_px: int = 0) -> DistanceResult:
+                         robot_offset: float = 0.03, silhouette_px: int = 0,
+                         gap_px: int = 0) -> DistanceResult:
     """Distance from control points to everything one depth camera sees (SPEC §2, R3–R9, R28).
 
     Each obstacle pixel stands for its whole frustum from the measured depth
@@ -255,13 +275,15 @@ def depth_space_distance(cam: Camera, depth: np.ndarray, points: np.ndarray, rho
     Parameters
     ----------
     cam : Camera
-    depth : (H, W) float metres, 0/NaN/out of range = invalid.
+    depth : (H, W) float metres, 0/NaN/below min_range = invalid; beyond max_range = a return
+        beyond the rated range (see :meth:`DistanceWorkspace.set_depth`).
     points : (N, 3) world metres.
     rho : radius of surveillance, metres (> 0).
     method : ``"min"``, ``"mean"`` or ``"hybrid"`` (default, for control).
     robot_depth : optional (H, W) robot rendered into ``cam`` (R9).
-    invalid, robot_mode, robot_offset, silhouette_px : see :meth:`DistanceWorkspace.set_depth`
-        (``silhouette_px=0``, the default, is off; the product runs with 4, R32).
+    invalid, robot_mode, robot_offset, silhouette_px, gap_px : see :meth:`DistanceWorkspace.set_depth`
+        (``silhouette_px=0`` and ``gap_px=0``, the defaults, are off; the product runs with
+        silhouette_px=4, R32).
 
     Returns
     -------
@@ -272,5 +294,5 @@ def depth_space_distance(cam: Camera, depth: np.ndarray, points: np.ndarray, rho
     ws = workspace_for(cam)
     with ws.lock:
         ws.set_depth(depth, robot_depth, invalid=invalid, robot_mode=robot_mode, robot_offset=robot_offset,
-                     silhouette_px=silhouette_px)
+                     silhouette_px=silhouette_px, gap_px=gap_px)
         return ws.query(points, rho=rho, method=method).copy()

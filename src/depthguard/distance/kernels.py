@@ -58,25 +58,32 @@ PARALLEL_MIN_POINTS = 16
 
 @njit(cache=True)
 def obstacle_start_depth(depth, robot_depth, use_robot, min_range, max_range,
-                         invalid_policy, robot_mode, robot_offset, out, silhouette=None):
-    """Start depth of each pixel's obstacle frustum (R1, R9, R28).
+                         invalid_policy, robot_mode, robot_offset, out, silhouette=None, gap=None):
+    """Start depth of each pixel's obstacle frustum (R1, R9, R28, R32).
 
-    depth : (H, W) float32/float64 metres as measured; invalid = 0, NaN or
-        outside ``[min_range, max_range]``.
+    depth : (H, W) float32/float64 metres as measured; valid in ``[min_range, max_range]``;
+        a finite ``m > max_range`` is a return beyond the rated range; 0, NaN, inf or
+        ``< min_range`` is invalid (no return).
     robot_depth : (H, W) float robot rendered into this camera (0 = no robot);
         read only when ``use_robot``.
-    out : (H, W) float64, written: ``do`` for a valid pixel; ``min_range``
-        for an invalid pixel under ``INVALID_UNKNOWN`` (its whole ray is
-        unknown from the near range on), ``+inf`` under ``INVALID_FREE``;
-        for a robot pixel (valid and ``measured >= robot_depth - offset``)
-        ``+inf`` under ``ROBOT_DROP`` and ``robot_depth`` under
-        ``ROBOT_SHADOW`` (free up to the robot, unknown behind it).
+    out : (H, W) float64, written: ``do`` for a valid pixel; for a robot pixel (valid and
+        ``measured >= robot_depth - offset``) ``+inf`` under ``ROBOT_DROP`` and
+        ``robot_depth`` under ``ROBOT_SHADOW`` (free up to the robot, unknown behind it).
+        Under ``INVALID_FREE`` every pixel that is not valid is ``+inf`` (beyond-range ones
+        too, as before). Under ``INVALID_UNKNOWN``: a return beyond the rated range is
+        ``max_range`` (free up to ``max_range``, unknown behind it); an invalid pixel is
+        ``min_range`` (its whole ray is unknown from the near range on), unless one of the
+        two rules below applies (the silhouette first).
     silhouette : None (default: off) or (H, W) float, the robot depth dilated by
         ``silhouette_px`` pixels (:func:`~depthguard.distance.silhouette.dilate_robot_depth`;
         0 = no robot nearby). Under ``INVALID_UNKNOWN`` an
         *invalid* pixel with ``drd = silhouette > 0`` takes the robot pixel's
         meaning (R9, R32): ``+inf`` under ``ROBOT_DROP``, ``drd`` under
-        ``ROBOT_SHADOW``. Valid pixels never read it.
+        ``ROBOT_SHADOW``. Valid and beyond-range pixels never read it.
+    gap : None (default: off) or (H, W) float64, the small-gap depths
+        (:func:`~depthguard.distance.gaps.gap_depth`, 0 = no gap). Under
+        ``INVALID_UNKNOWN`` an invalid pixel outside the silhouette with ``g = gap > 0``
+        starts at ``g`` (free up to the nearer end of its gap, unknown behind it).
     """
     H, W = depth.shape
     inf = np.inf
@@ -85,11 +92,22 @@ def obstacle_start_depth(depth, robot_depth, use_robot, min_range, max_range,
             m = np.float64(depth[v, u])
             valid = (m == m) and m > 0.0 and m >= min_range and m <= max_range
             if not valid:
-                out[v, u] = min_range if invalid_policy == INVALID_UNKNOWN else inf
+                if invalid_policy != INVALID_UNKNOWN:
+                    out[v, u] = inf
+                    continue
+                if m > max_range and m < inf:        # a return beyond the rated range
+                    out[v, u] = max_range
+                    continue
+                out[v, u] = min_range
                 if silhouette is not None:
                     drd = np.float64(silhouette[v, u])
-                    if drd > 0.0 and invalid_policy == INVALID_UNKNOWN:
+                    if drd > 0.0:
                         out[v, u] = inf if robot_mode == ROBOT_DROP else drd
+                        continue
+                if gap is not None:
+                    g = np.float64(gap[v, u])
+                    if g > 0.0:
+                        out[v, u] = g
                 continue
             if use_robot:
                 dr = np.float64(robot_depth[v, u])

@@ -18,24 +18,38 @@ __all__ = ["obstacle_start_depth_numpy", "surveillance_window_numpy", "pixel_vec
 
 
 def obstacle_start_depth_numpy(depth, robot_depth, min_range, max_range, invalid="unknown",
-                               robot_mode="drop", robot_offset=0.03, silhouette_px=0) -> np.ndarray:
+                               robot_mode="drop", robot_offset=0.03, silhouette_px=0,
+                               gap_px=0) -> np.ndarray:
     """(H, W) float64 start depth of each pixel's obstacle frustum; ``inf`` = no obstacle.
-    ``silhouette_px > 0`` (with ``invalid="unknown"``): an invalid pixel within that many
-    pixels of the robot's silhouette is a robot pixel at the smallest robot depth nearby (R32)."""
+    ``invalid="unknown"``: a finite return beyond ``max_range`` starts at ``max_range``, an
+    invalid pixel at ``min_range``, except: within ``silhouette_px`` pixels of the robot's
+    silhouette it is a robot pixel at the smallest robot depth nearby (R32), else in a gap of
+    at most ``gap_px`` invalid pixels it starts at the gap's nearer end."""
     m = np.asarray(depth, dtype=np.float64)
     with np.errstate(invalid="ignore"):
         valid = np.isfinite(m) & (m > 0) & (m >= min_range) & (m <= max_range)
-    d0 = np.where(valid, m, min_range if invalid == "unknown" else np.inf)
+        beyond = np.isfinite(m) & (m > max_range)
+    unknown = invalid == "unknown"
+    d0 = np.where(valid, m, min_range if unknown else np.inf)
+    if unknown:
+        d0 = np.where(beyond, max_range, d0)
+    none = ~valid & ~beyond                          # no return at all
+    halo = np.zeros(m.shape, bool)
     if robot_depth is not None:
         dr = np.asarray(robot_depth, dtype=np.float64)
         robot = valid & (dr > 0) & (m >= dr - robot_offset)
         d0 = np.where(robot, np.inf if robot_mode == "drop" else dr, d0)
-        if silhouette_px > 0 and invalid == "unknown":
+        if silhouette_px > 0 and unknown:
             from depthguard.distance.silhouette import dilate_robot_depth_numpy
 
             drd = dilate_robot_depth_numpy(dr, silhouette_px)
-            halo = ~valid & (drd > 0)
+            halo = none & (drd > 0)
             d0 = np.where(halo, np.inf if robot_mode == "drop" else drd, d0)
+    if gap_px > 0 and unknown:
+        from depthguard.distance.gaps import gap_depth_numpy
+
+        g = gap_depth_numpy(m, min_range, max_range, gap_px)
+        d0 = np.where(none & ~halo & (g > 0), g, d0)
     return d0
 
 

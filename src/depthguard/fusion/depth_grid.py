@@ -47,6 +47,7 @@ import numpy as np
 
 from depthguard.camera import Camera, check_depth_image
 from depthguard.distance.api import DistanceResult, check_points, check_rho
+from depthguard.distance.gaps import GapBuffers, check_gap_px
 from depthguard.distance.silhouette import SilhouetteBuffers, check_silhouette_px
 from depthguard.fusion import depth_grid_kernels as K
 from depthguard.fusion import depth_grid_lazy as L
@@ -194,7 +195,7 @@ class DepthGridMap:
         self._caps_world = np.zeros((0, 7))
         self._alloc_points(16)
         self.has_frames = False
-        self._loaded_options = None           # (robot_offset, invalid, robot_in_others, silhouette_px) of the last frames
+        self._loaded_options = None           # (robot_offset, invalid, robot_in_others, silhouette_px, gap_px) of the last frames
         self._loaded_with_frame: set = set()  # cameras that had a frame in the last set_frames
 
     # ------------------------------------------------------------ off-line map (R11)
@@ -320,6 +321,8 @@ class DepthGridMap:
         self._no_robot = np.zeros((1, 1), dtype=np.float32)
         self._silhouette = SilhouetteBuffers((max(P.height, Hk), max(P.width, Wk)))
         self._silhouette_px = 0
+        self._gaps = GapBuffers((max(P.height, Hk), max(P.width, Wk)))
+        self._gap_px = 0
         self._cap_lo = np.zeros(P.shape + (K.MAX_CAPS_PER_PIXEL,))
         self._cap_hi = np.zeros(P.shape + (K.MAX_CAPS_PER_PIXEL,))
         self._cap_n = np.zeros(P.shape, dtype=np.int64)
@@ -351,12 +354,14 @@ class DepthGridMap:
     def set_frames(self, depths: dict, robot_depths: dict | None = None,
                    robot_offset: float = 0.03, robot_capsules=None, invalid: str = "unknown",
                    robot_in_others: str = "unknown", reach=None, lazy: bool = True,
-                   changed=None, silhouette_px: int = 0) -> None:
+                   changed=None, silhouette_px: int = 0, gap_px: int = 0) -> None:
         """Load one frame per camera (R9, R28, R32); call once per camera frame.
 
-        depths : dict camera id -> (H, W) float metres (0 / NaN / out of range =
-            invalid: the ray is unknown from ``min_range`` on). The principal's
-            frame is required; a missing other camera clears nothing (safe).
+        depths : dict camera id -> (H, W) float metres (0 / NaN / inf / below
+            ``min_range`` = invalid: the ray is unknown from ``min_range`` on; a finite
+            value beyond ``max_range`` is a return beyond the rated range: free up to
+            ``max_range``, unknown behind it). The principal's frame is required; a
+            missing other camera clears nothing (safe).
         robot_depths : optional dict camera id -> (H, W) the robot rendered into
             that camera at its current joints (0 = no robot). A pixel is the
             robot's where ``measured >= robot_depth - robot_offset``: free up
@@ -364,12 +369,13 @@ class DepthGridMap:
         robot_capsules : the robot's padded volume (list of ``Capsule`` or
             ``(segments (C, 2, 3), radii (C,))``, world); cells inside are never
             obstacles. Usually ``robot.collision_capsules(q, padding)``.
-        invalid : R28 policy for invalid pixels (0, NaN, out of range):
+        invalid : R28 policy for invalid pixels (0, NaN, below ``min_range``):
             ``"unknown"`` (default, safe): the ray is unknown from ``min_range``
             on — an obstacle for the principal unless another camera clears
-            it, and it clears nothing in another camera; ``"free"``: nothing
-            on the ray (for simulated cells without walls, where 0 means the
-            ray left the scene).
+            it, and it clears nothing in another camera (a return beyond
+            ``max_range``: free up to ``max_range``, unknown behind); ``"free"``:
+            nothing on the ray, beyond-range returns included (for simulated
+            cells without walls, where 0 means the ray left the scene).
         robot_in_others : what a robot pixel of a *non-principal* camera says.
             ``"unknown"`` (default, R9): free up to the robot, unknown behind
             it, so space hidden by the robot from that camera stays obstacle
@@ -396,7 +402,7 @@ class DepthGridMap:
             then (cameras that are not synchronised deliver one at a time). ``None``
             (default): every camera is loaded again. A camera that was not loaded by the
             previous call with the same ``robot_offset``, ``invalid``,
-            ``robot_in_others`` and ``silhouette_px`` is loaded regardless; the robot
+            ``robot_in_others``, ``silhouette_px`` and ``gap_px`` is loaded regardless; the robot
             volume and the memo are always renewed.
         silhouette_px : int >= 0 pixels (default 0: off, today's answers). With
             ``invalid="unknown"``, an *invalid* pixel of a camera within
@@ -409,6 +415,13 @@ class DepthGridMap:
             pixel is only presumed to be the robot, so it clears only the space in
             front of it). Invalid pixels farther away stay unknown from
             ``min_range`` (R28); valid pixels are unchanged. The product runs with 4.
+        gap_px : int >= 0 pixels (default 0: off, today's answers). With
+            ``invalid="unknown"``, an invalid pixel (outside the silhouette rule) in a
+            run of at most ``gap_px`` invalid pixels along its row or column, bounded
+            by returns on both sides, is free up to the nearer end's depth and unknown
+            behind it (not from ``min_range``): the fixed scene's edge dropout. The
+            price: an all-invalid object at most ``gap_px`` pixels wide in front of
+            both neighbours can be missed (:mod:`depthguard.distance.gaps`).
         """
         if not isinstance(depths, dict):
             raise ValueError("depths must be a dict camera id -> depth image")
@@ -429,10 +442,11 @@ class DepthGridMap:
         if robot_in_others not in ("unknown", "free"):
             raise ValueError(f"robot_in_others must be 'unknown' or 'free' (got {robot_in_others!r})")
         n_sil = check_silhouette_px(silhouette_px)
+        n_gap = check_gap_px(gap_px)
         P = self.principal
         if P.id not in depths:
             raise ValueError(f"depths has no frame of the principal camera {P.id!r}")
-        options = (off, invalid, robot_in_others, n_sil)
+        options = (off, invalid, robot_in_others, n_sil, n_gap)
         if changed is None or options != self._loaded_options:
             fresh = set(known)
         else:
@@ -446,6 +460,7 @@ class DepthGridMap:
         self.has_frames = False
         self._loaded_options = None
         self._silhouette_px = n_sil
+        self._gap_px = n_gap
         self._load_frames(fresh, depths, robot_depths, off, robot_in_others, reach, lazy, robot_capsules)
         self._loaded_options = options
         self._loaded_with_frame = {cid for cid in known if cid in depths}
@@ -574,8 +589,11 @@ class DepthGridMap:
         sil = None
         if use and self._silhouette_px > 0 and not self._invalid_free:
             sil = self._silhouette.dilate(rd, self._silhouette_px)
+        gaps = None
+        if self._gap_px > 0 and not self._invalid_free:
+            gaps = self._gaps.gaps(d, cam.min_range, cam.max_range, self._gap_px)
         K.frame_state(d, rd, use, cam.min_range, cam.max_range, off, self._invalid_free,
-                      robot_free, out_free, out_kind, sil)
+                      robot_free, out_free, out_kind, sil, gaps)
 
     def query(self, points, rho: float = 0.4, method: str = "hybrid",
               threads: int | None = None) -> DistanceResult:
@@ -672,15 +690,16 @@ class DepthGridMap:
                  robot_depths: dict | None = None, *, robot_capsules=None,
                  robot_offset: float = 0.03, invalid: str = "unknown",
                  robot_in_others: str = "unknown", reach=None, lazy: bool = True,
-                 silhouette_px: int = 0) -> DistanceResult:
+                 silhouette_px: int = 0, gap_px: int = 0) -> DistanceResult:
         """Distance from control points to what all cameras see together (SPEC §3, §9).
 
         depths, robot_depths : dict camera id -> (H, W) images (see :meth:`set_frames`).
         points : (N, 3) world metres. rho : radius of surveillance (m).
         method : ``"min"``, ``"mean"`` or ``"hybrid"`` (R7 over the principal's pixels,
             one distance per pixel: its nearest obstacle cell).
-        robot_capsules, robot_offset, invalid, robot_in_others, reach, lazy, silhouette_px :
-            see :meth:`set_frames` (``silhouette_px=0``, the default, is off; the product runs with 4, R32).
+        robot_capsules, robot_offset, invalid, robot_in_others, reach, lazy, silhouette_px, gap_px :
+            see :meth:`set_frames` (``silhouette_px=0`` and ``gap_px=0``, the defaults, are off;
+            the product runs with silhouette_px=4, R32).
 
         Returns a :class:`~depthguard.distance.DistanceResult` with fresh arrays:
         ``distance`` (N,) m, ``inf`` = no obstacle within ``rho``; ``direction``
@@ -689,7 +708,7 @@ class DepthGridMap:
         """
         self.set_frames(depths, robot_depths, robot_offset=robot_offset, robot_capsules=robot_capsules,
                         invalid=invalid, robot_in_others=robot_in_others, reach=reach, lazy=lazy,
-                        silhouette_px=silhouette_px)
+                        silhouette_px=silhouette_px, gap_px=gap_px)
         return self.query(points, rho=rho, method=method).copy()
 
     def __repr__(self) -> str:
@@ -743,7 +762,8 @@ class MultiPrincipalDepthGrid:
     def distance(self, depths: dict, points, rho: float = 0.4, method: str = "hybrid",
                  robot_depths: dict | None = None, *, robot_capsules=None,
                  robot_offset: float = 0.03, invalid: str = "unknown",
-                 robot_in_others: str = "unknown", silhouette_px: int = 0) -> DistanceResult:
+                 robot_in_others: str = "unknown", silhouette_px: int = 0,
+                 gap_px: int = 0) -> DistanceResult:
         """As :meth:`DepthGridMap.distance`, each point through its own principal."""
         p = check_points(points)
         n = len(p)
@@ -759,6 +779,6 @@ class MultiPrincipalDepthGrid:
             res = self.maps[cam.id].distance(depths, p[sel], rho, method, robot_depths,
                                              robot_capsules=robot_capsules, robot_offset=robot_offset,
                                              invalid=invalid, robot_in_others=robot_in_others,
-                                             silhouette_px=silhouette_px)
+                                             silhouette_px=silhouette_px, gap_px=gap_px)
             dist[sel], direc[sel], obs[sel], count[sel] = res.distance, res.direction, res.observed, res.count
         return DistanceResult(dist, direc, obs, count)

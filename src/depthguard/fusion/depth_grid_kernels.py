@@ -24,8 +24,10 @@ pixel of the cell's footprint has a free depth ``> dend_k``: then the whole
 cell lies in space ``k`` has seen free. Otherwise ``k`` *confirms* the cell
 (for ``k`` it is occupied, hidden, or partly out of view). A pixel's free
 depth is its measured depth, the robot's rendered depth for a robot pixel
-(R9: free up to the robot, unknown behind) and ``min_range`` for an invalid
-pixel (R28: unknown from the near range on, so it never clears). A gray
+(R9: free up to the robot, unknown behind), ``max_range`` for a return beyond
+the rated range and ``min_range`` for an invalid pixel (R28: unknown from the
+near range on, so it never clears; :func:`frame_state` has the silhouette and
+small-gap rules). A gray
 cell of the principal is an obstacle unless some camera clears it, which is
 the SPEC's "obstacle only if every camera that sees it confirms it"; a cell
 that no other camera sees whole stays an obstacle.
@@ -68,22 +70,26 @@ D_ZERO = 1e-9
 
 @njit(cache=True, nogil=True)
 def frame_state(depth, robot_depth, use_robot, min_range, max_range, robot_offset,
-                invalid_free, robot_free, out_free, out_kind, silhouette=None):
-    """Per-pixel state of one depth frame (R1, R9, R28).
+                invalid_free, robot_free, out_free, out_kind, silhouette=None, gap=None):
+    """Per-pixel state of one depth frame (R1, R9, R28, R32).
 
-    depth : (H, W) float metres; invalid = 0, NaN or outside ``[min_range, max_range]``.
+    depth : (H, W) float metres; valid in ``[min_range, max_range]``; a finite
+        ``m > max_range`` is a return beyond the rated range; 0, NaN, inf or
+        ``< min_range`` is invalid (no return).
     robot_depth : (H, W) float, the robot rendered into this camera (0 = none);
         read only when ``use_robot``. A valid pixel is the robot's where
         ``measured >= robot_depth - robot_offset`` (R9).
     invalid_free : the R28 policy. False (safe default): an invalid pixel's
-        ray is unknown from ``min_range`` on; True: it is free (nothing within
-        the sensor's range, e.g. a simulated cell without walls).
+        ray is unknown from ``min_range`` on, a return beyond the rated range is
+        free up to ``max_range`` and unknown behind (``KIND_UNKNOWN`` both);
+        True: both are free (nothing within the sensor's range, e.g. a simulated
+        cell without walls).
     robot_free : False (R9): a robot pixel is free up to ``dr``, unknown behind;
         True (the paper's removal, for the non-principal cameras only): the
         pixel is no evidence of anything, its whole ray counts as free.
     out_free : (>= H, >= W) float64 written: the depth up to which the ray is
-        free — ``do`` (surface), ``dr`` or ``+inf`` (robot), ``min_range`` or
-        ``+inf`` (invalid).
+        free — ``do`` (surface), ``dr`` or ``+inf`` (robot), ``max_range`` (beyond
+        the rated range), ``min_range`` (invalid), ``+inf`` (either, ``invalid_free``).
     out_kind : (>= H, >= W) int8 written: ``KIND_SURFACE`` (a measured surface,
         an obstacle without confirmation), ``KIND_ROBOT`` or ``KIND_UNKNOWN``.
     silhouette : None (default: off) or (H, W) float, the robot depth dilated by
@@ -93,20 +99,36 @@ def frame_state(depth, robot_depth, use_robot, min_range, max_range, robot_offse
         free depth ``drd``: free up to the nearest robot surface around, unknown
         behind it (R9, R32). Also when ``robot_free``: such a pixel is only
         presumed to be the robot (nothing was measured), so it clears only the
-        space in front of the robot. Valid pixels never read it.
+        space in front of the robot. Valid and beyond-range pixels never read it.
+    gap : None (default: off) or (H, W) float64, the small-gap depths
+        (:func:`~depthguard.distance.gaps.gap_depth`, 0 = no gap). An invalid pixel
+        outside the silhouette rule with ``g = gap > 0`` (and ``invalid_free`` False)
+        is ``KIND_UNKNOWN`` with free depth ``g``: free up to the nearer end of its
+        gap, unknown behind it.
     """
     H, W = depth.shape
     for v in range(H):
         for u in range(W):
             m = np.float64(depth[v, u])
             if not ((m == m) and m > 0.0 and m >= min_range and m <= max_range):
-                out_free[v, u] = np.inf if invalid_free else min_range
                 out_kind[v, u] = KIND_UNKNOWN
+                if invalid_free:
+                    out_free[v, u] = np.inf
+                    continue
+                if m > max_range and m < np.inf:     # a return beyond the rated range
+                    out_free[v, u] = max_range
+                    continue
+                out_free[v, u] = min_range
                 if silhouette is not None:
                     drd = np.float64(silhouette[v, u])
-                    if drd > 0.0 and not invalid_free:
+                    if drd > 0.0:
                         out_free[v, u] = drd
                         out_kind[v, u] = KIND_ROBOT
+                        continue
+                if gap is not None:
+                    g = np.float64(gap[v, u])
+                    if g > 0.0:
+                        out_free[v, u] = g
                 continue
             if use_robot:
                 dr = np.float64(robot_depth[v, u])

@@ -25,28 +25,42 @@ __all__ = ["frame_state_numpy", "explicit_map_numpy", "cell_corners_world",
 
 
 def frame_state_numpy(cam: Camera, depth, robot_depth=None, robot_offset=0.03, invalid="unknown",
-                      robot_free=False, silhouette_px=0):
+                      robot_free=False, silhouette_px=0, gap_px=0):
     """(free (H, W) float64, kind (H, W) int8) of one frame: free depth = ``do``
-    (surface), ``dr`` (robot: ``measured >= dr - offset``), ``min_range`` (invalid,
-    ``invalid="unknown"``) or ``inf`` (``invalid="free"``). ``silhouette_px > 0`` (with
-    ``invalid="unknown"``): an invalid pixel within that many pixels of the robot's
-    silhouette is a robot pixel free up to the smallest robot depth nearby (R32)."""
+    (surface), ``dr`` (robot: ``measured >= dr - offset``), ``max_range`` (a finite return
+    beyond it), ``min_range`` (invalid) — the last two ``inf`` with ``invalid="free"``.
+    With ``invalid="unknown"``: ``silhouette_px > 0``: an invalid pixel within that many
+    pixels of the robot's silhouette is a robot pixel free up to the smallest robot depth
+    nearby (R32); else ``gap_px > 0``: an invalid pixel in a gap of at most ``gap_px`` is
+    free up to the gap's nearer end."""
     d = np.asarray(depth, dtype=np.float64)
-    valid = np.isfinite(d) & (d > 0) & (d >= cam.min_range) & (d <= cam.max_range)
-    free = np.where(valid, d, cam.min_range if invalid == "unknown" else np.inf)
+    with np.errstate(invalid="ignore"):
+        valid = np.isfinite(d) & (d > 0) & (d >= cam.min_range) & (d <= cam.max_range)
+        beyond = np.isfinite(d) & (d > cam.max_range)
+    unknown = invalid == "unknown"
+    free = np.where(valid, d, cam.min_range if unknown else np.inf)
+    if unknown:
+        free = np.where(beyond, cam.max_range, free)
+    none = ~valid & ~beyond
     kind = np.where(valid, KIND_SURFACE, KIND_UNKNOWN).astype(np.int8)
+    halo = np.zeros(d.shape, bool)
     if robot_depth is not None:
         dr = np.asarray(robot_depth, dtype=np.float64)
         robot = valid & (dr > 0) & (d >= dr - robot_offset)
         free = np.where(robot, np.inf if robot_free else dr, free)
         kind[robot] = KIND_ROBOT
-        if silhouette_px > 0 and invalid == "unknown":
+        if silhouette_px > 0 and unknown:
             from depthguard.distance.silhouette import dilate_robot_depth_numpy
 
             drd = dilate_robot_depth_numpy(dr, silhouette_px)
-            halo = ~valid & (drd > 0)
+            halo = none & (drd > 0)
             free = np.where(halo, drd, free)
             kind[halo] = KIND_ROBOT
+    if gap_px > 0 and unknown:
+        from depthguard.distance.gaps import gap_depth_numpy
+
+        g = gap_depth_numpy(d, cam.min_range, cam.max_range, gap_px)
+        free = np.where(none & ~halo & (g > 0), g, free)
     return free, kind
 
 

@@ -9,15 +9,21 @@ props) and named *situations*: times of the scene worth looking at
 rig's static objects and its robot at the rig's joints, nobody else.
 
 - ``flacco-walls`` (Flacco 2014 §4): table plane and a vertical wall, one Kinect.
-- ``flacco-cell`` (Flacco 2014 §5, 2015 §VIII): LWR IV, two Kinects; a person
-  walks in, reaches for the end effector, carries a box; situations
+- ``flacco-cell`` (Flacco 2014 §5, 2015 §VIII): LWR IV, two Kinects in a 7 x 7 m
+  lab room (floor, 3 m walls); a person walks in, reaches for the end effector,
+  carries a box; situations
   ``robot_alone``, ``reach``, ``carry``, ``shadow`` (2015 fig. 8) and
   ``hidden_hand`` (2015 fig. 9).
-- ``ur3-cell`` (Oščádal 2022): UR3 workstation, four RealSense D435; an arm
-  reaches in and a box is put down.
+- ``ur3-cell`` (Oščádal 2022): UR3 workstation, four RealSense D435, in a 7 x 7 m
+  room (floor at z = 0, 3 m walls); an arm reaches in and a box is put down.
 - ``c-arm-room`` (Hamersma 2011): intervention room, ceiling C-arm
   (:mod:`depthguard.sim.carm`) as the machine, patient, doctor, two nurses,
   21 ToF cameras; situations ``setup1`` … ``setup6``.
+
+The two robot cells have a floor and walls, as real cells do: every camera ray
+returns (the far walls may lie beyond a sensor's rated range, within the range
+it returns, :mod:`depthguard.sources.sensors`), so "no return" means something
+dark or a dropout, never "the ray left the scene" (R28, R32).
 """
 
 from __future__ import annotations
@@ -206,8 +212,8 @@ def _flacco_cell(rig):
         Situation("hidden_hand", 31.0, "Flacco 2015 fig. 9: a hand right behind the robot as seen from "
                                        "cam0, visible to cam1"),
     ]
-    return scene, sits, ("Flacco 2014 §5 / 2015 §VIII: LWR IV, two Kinect v1 4 m apart; a person walks in, "
-                         "reaches for the end effector, carries a box")
+    return scene, sits, ("Flacco 2014 §5 / 2015 §VIII: LWR IV, two Kinect v1 4 m apart in a 7 x 7 m lab room; "
+                         "a person walks in, reaches for the end effector, carries a box")
 
 
 def _ur3_cell(rig):
@@ -237,7 +243,8 @@ def _ur3_cell(rig):
         Situation("arm_reaching", 6.5, "a person's arm reaches into the robot's workspace"),
         Situation("box_placed", 10.5, "a box put down on the table"),
     ]
-    return scene, sits, "Oščádal 2022: UR3 workstation with fixtures, four RealSense D435; an arm and a box enter"
+    return scene, sits, ("Oščádal 2022: UR3 workstation with fixtures, four RealSense D435, in a 7 x 7 m room; "
+                         "an arm and a box enter")
 
 
 # --------------------------------------------------------------- c-arm room

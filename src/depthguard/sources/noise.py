@@ -19,8 +19,13 @@ nothing was hit) into a *measured* one, the way the sensor would:
 
 For all models: pixels on a depth edge miss their return with probability
 ``edge_dropout`` (→ 0), and measured depths outside ``[min_range,
-max_range]`` are invalid (→ 0). In noiseless mode only the range rule is
-applied, to the ideal depth.
+return_range]`` are invalid (→ 0). ``return_range`` (``SensorModel.returns_to``:
+the model's ``return_range``, at least the camera's ``max_range``; for ``ideal``
+the ``max_range``) is the farthest depth that returns at all: a surface beyond
+the rated ``max_range`` but within it is measured with the same noise law, as a
+real sensor does (the product reads ``m > max_range`` as "free up to
+``max_range``, unknown behind"; other consumers as invalid). In noiseless mode
+only the range rule is applied, to the ideal depth.
 
 A depth *edge* pixel is a valid pixel with a 4-neighbour that is either
 invalid (a silhouette against nothing) or differs in depth by more than
@@ -220,7 +225,8 @@ def measure_kernel(z, edge, other, valid_start, edge_start, gauss, gauss2, u_fly
     u_fly, u_drop : (n_edges,) float64 U[0, 1) per edge pixel in raster order (length 0 when unused);
     kind : 0 ideal, 1 structured light, 2 stereo, 3 tof; fb : fx·baseline (pixel·m);
     steps : disparity steps per pixel (2**bits); sigma_a (m), sigma_z2 (1/m) : noise terms;
-    flying_fraction, edge_dropout : probabilities per edge pixel; lo, hi : valid range, metres.
+    flying_fraction, edge_dropout : probabilities per edge pixel; lo, hi : the depths that return
+    (``min_range``, ``return_range``), metres: a measurement outside ``[lo, hi]`` becomes 0.
     """
     H, W = z.shape
     if valid_start.shape[0] != H + 1 or edge_start.shape[0] != H + 1:
@@ -334,7 +340,8 @@ def _params(model: SensorModel, fx: float) -> tuple:
 def apply_noise(ideal: np.ndarray, model: SensorModel, fx: float, rng: np.random.Generator,
                 min_range: float | None = None, max_range: float | None = None,
                 noiseless: bool = False, ws: NoiseWorkspace | None = None,
-                out: np.ndarray | None = None, use_numpy: bool = False) -> np.ndarray:
+                out: np.ndarray | None = None, use_numpy: bool = False,
+                return_range: float | None = None) -> np.ndarray:
     """Measured depth from ideal depth with ``model``'s noise (module docstring).
 
     Parameters
@@ -343,7 +350,11 @@ def apply_noise(ideal: np.ndarray, model: SensorModel, fx: float, rng: np.random
     model : the sensor model (``sources/sensors.py``).
     fx : focal length in pixels (the Kinect disparity depends on it).
     rng : the generator all random draws come from.
-    min_range, max_range : valid range in metres (default: the model's).
+    min_range, max_range : rated range in metres (default: the model's).
+    return_range : the farthest depth that returns, metres (default
+        ``model.returns_to(max_range)``: the model's return range, at least ``max_range``;
+        ``max_range`` for ``ideal``). Measurements outside ``[min_range, return_range]``
+        are 0; those in ``(max_range, return_range]`` are kept (beyond the rated range).
     noiseless : only the range rule, no noise, no dropout.
     ws, out : optional preallocated workspace and (H, W) float32 output.
     use_numpy : run the numpy twins instead of the kernels (tests).
@@ -359,7 +370,9 @@ def apply_noise(ideal: np.ndarray, model: SensorModel, fx: float, rng: np.random
     if d.ndim != 2:
         raise ValueError(f"ideal depth must be a 2-D image, got shape {d.shape}")
     lo = model.min_range if min_range is None else float(min_range)
-    hi = model.max_range if max_range is None else float(max_range)
+    hi = model.returns_to(max_range) if return_range is None else float(return_range)
+    if max_range is not None and not (hi >= float(max_range)):
+        raise ValueError(f"return_range ({hi}) must be >= max_range ({max_range})")
     if ws is None or ws.shape != d.shape:
         ws = NoiseWorkspace(d.shape)
     if out is None:

@@ -4,6 +4,19 @@ A :class:`SensorModel` says what a simulated camera of that kind produces:
 image size and field of view (so a rig may name the sensor instead of
 writing intrinsics), the valid range, and its noise. The noise itself is
 applied by :mod:`depthguard.sources.noise`.
+
+Rated range and return range: ``[min_range, max_range]`` is the *rated*
+range, where the sensor's measurements are trusted as surfaces (a camera's
+``max_range`` comes from here unless the rig overrides it). Real sensors
+still return depth beyond it, less accurately: ``return_range`` is the
+farthest depth that returns at all (Kinect v1 about 8 m, D435 10 m, the
+generic ToF 12 m; ``None`` = the camera's ``max_range``, as for ``ideal``).
+A simulated surface between ``max_range`` and ``return_range`` is measured
+with the same noise law; beyond ``return_range`` the pixel is 0. The
+product reads such a measurement ``m > max_range`` as "free up to
+``max_range``, unknown behind" (R28; :mod:`depthguard.distance.kernels`,
+:mod:`depthguard.fusion.depth_grid_kernels`); every other consumer treats
+it as invalid, as before.
 """
 
 from __future__ import annotations
@@ -21,7 +34,7 @@ class SensorModel:
     hfov_deg: float           # nominal field of view (data sheet), degrees
     vfov_deg: float
     min_range: float
-    max_range: float
+    max_range: float          # rated range (trusted as a surface)
     kind: str                 # "structured_light", "stereo", "tof", "ideal"
     # Noise (applied by depthguard.sources.noise):
     sigma_a: float = 0.0      # constant noise term, metres
@@ -33,6 +46,7 @@ class SensorModel:
     flying_fraction: float = 0.0  # share of the edge pixels between two surfaces that fly (ToF)
     focal_px: tuple[float, ...] = ()   # focal length (pixels, fx = fy) per resolution; () = from hfov
     description: str = ""
+    return_range: float | None = None  # farthest depth that returns at all (m); None = max_range
 
     def __post_init__(self):
         if self.focal_px and len(self.focal_px) != len(self.resolutions):
@@ -40,6 +54,16 @@ class SensorModel:
                              f"({len(self.resolutions)}), got {len(self.focal_px)}")
         if any(not (f > 0) for f in self.focal_px):
             raise ValueError(f"sensor {self.name!r}: focal_px must be > 0 (got {self.focal_px})")
+        if self.return_range is not None and not (self.return_range >= self.max_range):
+            raise ValueError(f"sensor {self.name!r}: return_range must be >= max_range "
+                             f"({self.max_range}), got {self.return_range}")
+
+    def returns_to(self, max_range: float | None = None) -> float:
+        """The farthest depth (m) that gives a measurement, for a camera whose rated range ends at
+        ``max_range`` (default the model's): ``max(return_range, max_range)``, or ``max_range``
+        when the model has no return range (``ideal``)."""
+        hi = self.max_range if max_range is None else float(max_range)
+        return hi if self.return_range is None else max(float(self.return_range), hi)
 
 
 SENSOR_MODELS: dict[str, SensorModel] = {
@@ -49,19 +73,20 @@ SENSOR_MODELS: dict[str, SensorModel] = {
                     description="noiseless pinhole: exact rendered depth within range"),
         SensorModel("kinect_v1", ((640, 480),), 57.0, 43.0, 0.4, 4.0, "structured_light",
                     sigma_a=0.0, sigma_z2=0.0012, disparity_bits=3, baseline=0.075, edge_dropout=0.3,
-                    focal_px=(585.0,),
+                    focal_px=(585.0,), return_range=8.0,
                     description="Microsoft Kinect v1: 640x480, f = 585 px (57.4x44.6 deg; data sheet 57x43), "
-                                "0.4-4 m, disparity quantised to 1/8 px, noise growing with z^2"),
+                                "0.4-4 m rated (returns to about 8 m), disparity quantised to 1/8 px, "
+                                "noise growing with z^2"),
         SensorModel("realsense_d435", ((640, 480), (424, 240), (1280, 720)), 87.0, 58.0, 0.2, 6.0, "stereo",
                     sigma_a=0.0005, sigma_z2=0.002, baseline=0.05, edge_dropout=0.2,
-                    focal_px=(385.0, 212.0, 640.0),
+                    focal_px=(385.0, 212.0, 640.0), return_range=10.0,
                     description="Intel RealSense D435 depth: f = 640 px at 1280x720 (90x59 deg; data sheet "
                                 "87x58), 212 px at 424x240, 385 px at 640x480 (a 4:3 crop, 80x64 deg); "
-                                "0.2-6 m, noise proportional to z^2"),
+                                "0.2-6 m rated (returns to 10 m), noise proportional to z^2"),
         SensorModel("tof", ((320, 240), (640, 480)), 70.0, 55.0, 0.3, 8.0, "tof",
-                    sigma_a=0.01, flying_pixels=True, flying_fraction=0.5, edge_dropout=0.05,
+                    sigma_a=0.01, flying_pixels=True, flying_fraction=0.5, edge_dropout=0.05, return_range=12.0,
                     description="generic time-of-flight: 70 deg horizontal (square pixels, 55 deg vertical), "
-                                "sigma about 1 cm, flying pixels at depth edges"),
+                                "0.3-8 m rated (returns to 12 m), sigma about 1 cm, flying pixels at depth edges"),
     )
 }
 
