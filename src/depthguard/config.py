@@ -53,7 +53,11 @@ class MonitorConfig(BaseModel):
     Self removal (R9, R30): ``robot_offset`` a pixel is the robot's where
     ``measured >= robot_depth - robot_offset`` (covers the sensor's noise and
     the robot's motion during the exposure); ``robot_padding`` grid cells
-    whose centre lies within this of the robot's capsules are its own;
+    whose centre lies within this of the robot's capsules are its own (7 cm:
+    two cameras see a link of radius r, with the dropout band of
+    ``silhouette_px`` around its outline of width w, as a prism whose edges
+    lie up to sqrt(2) (r + w) - r beyond its surface — 5.7 cm for the LWR's
+    7 cm links and w = 2 cm; with 5 cm the robot alone saw its own shadow);
     ``robot_in_others`` what a robot pixel of a non-principal camera says
     (``"unknown"``: free up to the robot, unknown behind it).
 
@@ -63,7 +67,12 @@ class MonitorConfig(BaseModel):
     pixels of the robot's rendered silhouette take the robot's meaning
     (free up to the robot, unknown behind it) instead of "unknown from the
     near range" — the dropout at the robot's own depth edges is not an
-    obstacle in front of the robot (0 turns the rule off).
+    obstacle in front of the robot (0 turns the rule off). ``gap_px``: an
+    invalid run of at most this many pixels along a row or column, between
+    returns, is unknown from the nearer return's depth (the fixed scene's
+    edge dropout; a dark object narrower than this can be missed: 3 px is
+    2.1 cm at 4 m for a Kinect v1). A finite measurement beyond the camera's
+    rated range is free up to that range and unknown behind (R28).
 
     Supervision (R26, R27): ``camera_stale_s`` a camera whose newest frame
     is older than this is stale (default: 3 periods of ``camera_hz``);
@@ -92,10 +101,11 @@ class MonitorConfig(BaseModel):
     principal: Optional[str] = None
     cameras: Optional[tuple[str, ...]] = None
     robot_offset: float = Field(0.08, ge=0.0, le=1.0)
-    robot_padding: float = Field(0.05, ge=0.0, le=0.5)
+    robot_padding: float = Field(0.07, ge=0.0, le=0.5)
     robot_in_others: Literal["unknown", "free"] = "unknown"
     invalid: Literal["unknown", "free"] = "unknown"
     silhouette_px: int = Field(4, ge=0, le=64)
+    gap_px: int = Field(3, ge=0, le=16)
     camera_hz: float = Field(30.0, gt=0.0, le=1000.0)
     camera_stale_s: Optional[float] = Field(None, gt=0.0, le=10.0)
     joints_stale_s: float = Field(0.05, gt=0.0, le=10.0)

@@ -148,3 +148,44 @@ def monitor(
                f"stopped {summary['stopped_s']:.2f} s; nearest {'none within rho' if near is None else f'{near * 100:.1f} cm'}; "
                f"step p99 {summary['step_ms']['p99']} ms; frame to reaction p99 {summary['frame_to_reaction_ms']['p99']} ms"
                + f"; wrote {out}/log.jsonl and summary.json")
+
+
+@app.command("safe-defaults")
+def safe_defaults(
+    cell: List[str] = typer.Option(["flacco-cell", "ur3-cell"], "--cell", help="Built-in cells with a robot (repeatable)."),
+    duration: float = typer.Option(60.0, "--duration", help="Seconds of the robot alone per cell (run as fast as possible)."),
+    dark_duration: float = typer.Option(12.0, "--dark-duration", help="Seconds of flacco-cell's script for the dark-person run (0: skip)."),
+    json_out: Optional[Path] = typer.Option(None, "--json", help="Also write the results to this JSON file."),
+) -> None:
+    """Check the product's safe defaults on the built-in cells (R32): the robot alone must not see
+    itself, and a person whose pixels are all invalid must slow and stop the robot like a visible one.
+
+    Runs the monitor with each rig's own monitor: settings and its cameras' noise models, as fast
+    as possible, and compares with the simulator's exact geometry.
+    """
+    from depthguard.evaluation.safe_defaults import dark_person, robot_alone
+    from depthguard.progress import log
+
+    if not duration > 0:
+        raise typer.BadParameter("must be > 0 seconds", param_hint="--duration")
+    results = {"robot_alone": [], "dark_person": None}
+    for name in cell:
+        log(f"safe-defaults: {name}, the robot alone for {duration:g} s ...")
+        r = robot_alone(name, duration=duration)
+        results["robot_alone"].append(r)
+        typer.echo(f"{name}: robot alone {duration:g} s: override min {r['override_min']:.3f}, speed along "
+                   f"its path min {r['robot_speed_min']:.2f} (slowed {r['robot_slowed_s']:.2f} s); {r['false_near']} of {r['readings']} readings more than "
+                   f"{r['tolerance_m'] * 100:.0f} cm nearer than the truth (worst {r['worst_m']} m at {r['worst_at']}); "
+                   f"{r['missed_within_rho']} fixed objects within rho not reported")
+    if dark_duration > 0:
+        log(f"safe-defaults: flacco-cell's person, visible and dark, {dark_duration:g} s each ...")
+        d = dark_person("flacco-cell", duration=dark_duration)
+        results["dark_person"] = d
+        for label in ("visible", "dark"):
+            x = d[label]
+            typer.echo(f"flacco-cell, {label} person (closest {x['person_to_ee_min_m']} m to the end effector): "
+                       f"override min {x['override_min']:.3f}, speed min {x['robot_speed_min']:.2f}, slowed "
+                       f"{x['robot_slowed_s']:.2f} s, stopped {x['robot_stopped_s']:.2f} s, end effector reported at {x['ee_reported_min_m']} m, "
+                       f"repulsion up to {x['repulsion_max_m_s']} m/s")
+    if json_out is not None:
+        json_out.write_text(json.dumps(results, indent=1) + "\n")

@@ -288,7 +288,8 @@ class FusionWorker:
             back.loaded = False
             back.grid.set_frames(depths, rdepths, robot_offset=cfg.robot_offset, robot_capsules=caps,
                                  invalid=cfg.invalid, robot_in_others=cfg.robot_in_others,
-                                 changed=changed, silhouette_px=cfg.silhouette_px)
+                                 changed=changed, silhouette_px=cfg.silhouette_px,
+                                 gap_px=cfg.gap_px)
             if points is not None and len(points):
                 back.grid.query(points, rho=cfg.rho, method=cfg.method, threads=1)   # classify ahead
             for c in cams:

@@ -3,8 +3,10 @@
 A built-in cell (``depthguard.sim.load_cell``) or a user's rig (then the scene
 is the rig's static objects and the robot at rest) seen by the rig's cameras
 with their noise models. The robot **obeys the monitor**: it follows the
-cell's scripted joint path, but its path time advances at the speed override
-of the latest reaction (``SimWorld.on_reaction``, a sink), so a stop stops it.
+cell's scripted joint path, but its path time advances at the largest speed
+that the latest reaction allows (``SimWorld.on_reaction``, a sink): the speed
+override, and the joint-velocity limits of R14 (an obstacle near a control
+point slows the joints that move towards it). A stop stops it.
 
 Options after the cell name, separated by ``:``:
 
@@ -82,14 +84,38 @@ class SimWorld:
         self.history = JointHistory(self.robot.dof, span_s=5.0)
         self._lock = threading.Lock()
         self.override = 1.0
+        self._qd_lo = self._qd_hi = None
+        self.scale = 1.0                # the speed scale of the last tick (0 = standing)
+        self.scale_min = 1.0            # the lowest scale so far
+        self.slowed_s = 0.0             # seconds below 0.95 of the path's speed
+        self.stopped_s = 0.0            # seconds below 1 % of it
         self._tau = self.start          # path time of the robot
         self._tick = 0                  # next joint tick index (time = tick / joint_hz)
         self._path_end = float(getattr(getattr(self.scene, "robot_path", None), "_t", [0.0])[-1]) \
             if self.scene.robot_path is not None else 0.0
 
     def on_reaction(self, reaction) -> None:
-        """A sink: the robot takes the override of each reaction (speed scaling of its path)."""
-        self.override = float(reaction.override)
+        """A sink: the robot takes each reaction — the override and the joint-velocity limits
+        (R14) scale the speed along its path (a joint path cannot follow the end effector's
+        repulsion, which this robot ignores)."""
+        with self._lock:
+            self.override = float(reaction.override)
+            self._qd_lo = np.asarray(reaction.qd_min, dtype=np.float64)
+            self._qd_hi = np.asarray(reaction.qd_max, dtype=np.float64)
+
+    def _speed_scale(self, tau: float, dt: float) -> float:
+        """The largest scale in [0, override] of the path's speed at ``tau`` that keeps every joint
+        within the reaction's velocity limits (R14)."""
+        s = self.override
+        if self._qd_lo is None or s <= 0.0:
+            return max(s, 0.0)
+        qd = (self._path_q(tau + dt) - self._path_q(tau)) / dt          # joint speed at scale 1
+        for v, lo, hi in zip(qd, self._qd_lo, self._qd_hi):
+            if v > 1e-12:
+                s = min(s, max(hi, 0.0) / v)
+            elif v < -1e-12:
+                s = min(s, max(-lo, 0.0) / -v)
+        return max(s, 0.0)
 
     def scene_time(self, t: float) -> float:
         """The scene's time at run time ``t`` (it loops over its scripted duration)."""
@@ -110,7 +136,11 @@ class SimWorld:
             while self._tick * dt <= t + 1e-12:
                 ts = self._tick * dt
                 if self._tick > 0:
-                    self._tau += self.override * dt
+                    self.scale = self._speed_scale(self._tau, dt)
+                    self._tau += self.scale * dt
+                    self.scale_min = min(self.scale_min, self.scale)
+                    self.slowed_s += dt if self.scale < 0.95 else 0.0
+                    self.stopped_s += dt if self.scale < 0.01 else 0.0
                 q = self._path_q(self._tau)
                 self.history.push(ts, q)
                 new.append((ts, q))
@@ -153,7 +183,10 @@ class SimFrames:
         self._sims = {c.id: SimulatedCamera(c, seed=world.seed, noiseless=world.noiseless) for c in cams}
         period = 1.0 / world.camera_hz
         self._period = period
-        self._next = {c.id: i * 0.37 * period for i, c in enumerate(cams)}   # unsynchronised phases
+        # every camera's first frame at 0 (the cameras run before the robot moves), then each on
+        # its own phase: not synchronised
+        self._phase = {c.id: i * 0.37 * period for i, c in enumerate(cams)}
+        self._next = {c.id: 0.0 for c in cams}
         self._stopped: dict[str, float] = {}
         self.done = False
         self.lost = None
@@ -185,7 +218,8 @@ class SimFrames:
         for cid in self.camera_ids:
             while self._next[cid] <= t + 1e-12:
                 tc = self._next[cid]
-                self._next[cid] = tc + self._period
+                ph = self._phase[cid]
+                self._next[cid] = ph + (math.floor((tc - ph) / self._period + 1e-9) + 1) * self._period
                 if cid in self._stopped and tc >= self._stopped[cid]:
                     continue
                 newest = self.world.history.newest_stamp
