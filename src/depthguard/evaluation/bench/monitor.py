@@ -38,13 +38,8 @@ Rows:
   ``cam1``'s frames. Quick: 2 and 4 cameras; full: 2 to 6. Peer: the same
   count for today's code (0 = not even 2 cameras).
 
-The grid options are the rig's ``monitor:`` section. Today that default
-(``invalid="unknown"``) makes the wall-less flacco-cell pathological (invalid
-pixels around the robot and off the scene are obstacles; the fusion build
-is slow), so the rows are measured with ``invalid="free"`` while
-``FORCE_INVALID_FREE`` holds, the row notes say so, and the default's
-figures are in the note of ``monitor.step_p99_ms`` (full mode) for
-comparison.
+The grid options are the rig's ``monitor:`` section: the product's defaults
+(invalid pixels unknown, R28, with the silhouette and small-gap rules, R32).
 """
 
 from __future__ import annotations
@@ -67,8 +62,8 @@ PATH_END = 9.5                   # scene time of the path's end (situation "reac
 SKIP_S = 0.25                    # the first cycles (no frame yet) are not counted in the step figures
 STEP_GOAL_MS = 1.0
 LAG_LIMIT_MS = 100.0
-#: measure with invalid="free" (the product default "unknown" is being fixed, see the module text)
-FORCE_INVALID_FREE = True
+#: measure with invalid="free" instead of the rig's default (kept for comparisons; the default is usable now)
+FORCE_INVALID_FREE = False
 
 
 # ---------------------------------------------------------------- the scripted input
