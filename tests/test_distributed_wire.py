@@ -115,3 +115,31 @@ def test_fuzz_single_byte_corruption(pos, val):
     bad = good[:i] + bytes([val]) + good[i + 1:]
     with pytest.raises(W.WireError):
         W.decode(bad)
+
+
+def test_units_messages_roundtrip_and_limits(rng):
+    keys = rng.integers(-2000, 2000, (300, 3))
+    raw = W.units_reply("cam2", 3, 17, 99, 1234.5, 0.02, keys, invalid_frac=0.5)
+    m = W.decode(raw, expect=W.MsgType.UNITS_REP)
+    assert (m.camera, m.unit_id, m.version, m.seq, m.stamp, m.voxel_size, m.invalid_frac, m.flags) == \
+        ("cam2", 3, 17, 99, 1234.5, 0.02, 0.5, 0)
+    np.testing.assert_array_equal(m.keys, keys)
+    assert W.encode(m) == raw
+    assert len(raw) == len(W.units_reply("cam2", 3, 17, 99, 1234.5, 0.02, keys[:0])) + 6 * 300
+    same = W.decode(W.units_reply("cam2", 3, 17, 99, 1234.5, 0.02, keys, unchanged=True))
+    assert same.flags & 1 and len(same.keys) == 0
+    req = W.decode(W.units_request({"cam0": (4, 1.5), "cam1": (9, -2.0)}), expect=W.MsgType.UNITS_REQ)
+    assert req.known == {"cam0": (4, 1.5), "cam1": (9, -2.0)}
+    assert W.decode(W.units_request()).known == {}
+    with pytest.raises(W.WireError, match="exceed the limit"):
+        W.units_reply("c", 1, 1, 1, 0.0, 0.02, np.zeros((W.MAX_UNIT_VOXELS + 1, 3), int))
+    assert len(W.units_reply("c", 1, 1, 1, 0.0, 0.02, np.zeros((W.MAX_UNIT_VOXELS, 3), int))) <= W.MAX_MESSAGE_BYTES
+    with pytest.raises(W.WireError, match="int16"):
+        W.units_reply("c", 1, 1, 1, 0.0, 0.02, np.array([[0, 0, 40000]]))
+    # "unchanged" with voxels is malformed
+    body = bytearray(W.units_reply("c", 1, 1, 1, 0.0, 0.02, keys[:2]))
+    body[5] = 1
+    import zlib
+    body[-4:] = zlib.crc32(bytes(body[:-4])).to_bytes(4, "little")
+    with pytest.raises(W.WireError, match="unchanged"):
+        W.decode(bytes(body))

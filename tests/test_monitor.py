@@ -533,7 +533,7 @@ def test_an_obstacle_is_gone_from_the_first_cycle_after_the_frames_without_it(ri
 
     cfg = free_cfg(rig)
     ee = rig.robot.control_point_positions(q0)[0]
-    centre = ee + np.array([0.0, 0.0, 0.2])
+    centre = ee + np.array([0.0, 0.0, 0.3])     # beyond the robot padding (7 cm) around the end effector
     T = np.eye(4)
     T[:3, 3] = centre
     ball = Sphere(radius=0.05, world_from_local=T)
@@ -559,3 +559,33 @@ def test_an_obstacle_is_gone_from_the_first_cycle_after_the_frames_without_it(ri
                 assert r.observed[0] and truth - 0.03 <= d <= truth + 0.005, (k, d, truth)
             elif k >= 105:
                 assert r.observed[0] and (math.isinf(d) or d > truth + 0.1), (k, d)
+
+
+# --------------------------------------------------------------------------- 9. remote camera units
+def test_a_remote_units_voxels_count_as_boxes_and_its_staleness_is_its_cameras(rig, still, q0):
+    """cam1 served by a camera unit (voxels, R20), cam0 by frames: a voxel above the end
+    effector is at the distance of its box (R25), a voxel inside the robot's padded volume does
+    not count, and a unit that stops sending stops the robot like a camera (R27)."""
+    cfg = free_cfg(rig, cameras=("cam0",), remote_cameras=("cam1",))
+    limit = cfg.camera_stale_limit
+    ee = rig.robot.control_point_positions(q0)[0]
+    s = 0.05
+    voxel = ee + np.array([0.0, 0.0, 0.25])
+    with Monitor(rig, cfg) as mon:
+        with pytest.raises(ValueError, match="not among the remote cameras"):
+            mon.push_voxels("cam0", [voxel], s, 0.0)
+        r = None
+        for k in range(150):
+            t = k * cfg.dt
+            mon.push_joints(t, q0)
+            if k % 15 == 0:
+                mon.push_frame(Frame("cam0", still["cam0"], t))
+                mon.flush()
+            if k <= 60 and k % 15 == 0:          # the unit sends until 0.12 s, then stops
+                mon.push_voxels("cam1", [voxel, ee], s, t)
+            r = mon.step(t)
+            if k == 50:
+                assert r.distance[0] == pytest.approx(0.25 - s / 2, abs=1e-9)   # the box, not the centre
+                assert np.allclose(r.direction[0], [0, 0, 1])
+                assert r.cameras["cam1"].state == "fresh" and not r.reasons
+        assert "stale:cam1" in r.reasons and r.t > 0.12 + limit

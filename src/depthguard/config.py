@@ -86,6 +86,12 @@ class MonitorConfig(BaseModel):
     limits; ``stop_time`` / ``resume_time`` the override's ramps from 1 to 0
     and back; ``control_hz`` the rate ``step`` is called at (its ``dt``).
 
+    ``remote_cameras``: rig cameras served by distributed camera units (R20):
+    their voxels, not their frames, reach the monitor (``push_voxels``); the
+    distance to a voxel's box counts (R25) and a unit's staleness is its
+    camera's (R27). A unit drops invalid pixels (R17), so its camera clears
+    nothing and judges nothing: only cameras with frames make a point observed.
+
     ``watch_points``: fixed points reported like control points (distance,
     direction, observed); they do not change the reaction. ``cell``: the
     name under ``depthguard/<cell>/...`` of the Zenoh publications;
@@ -116,6 +122,7 @@ class MonitorConfig(BaseModel):
     alpha: float = Field(5.0, gt=0.0, le=100.0)
     stop_time: float = Field(0.5, gt=0.0, le=10.0)
     resume_time: float = Field(1.0, gt=0.0, le=60.0)
+    remote_cameras: tuple[str, ...] = ()
     watch_points: tuple[WatchPoint, ...] = ()
     cell: Optional[str] = None
     zenoh_listen: str = "tcp/127.0.0.1:0"
@@ -132,6 +139,15 @@ class MonitorConfig(BaseModel):
                 raise ValueError(f"cameras repeats an id: {list(v)}")
         return v
 
+    @field_validator("remote_cameras")
+    @classmethod
+    def _remote(cls, v):
+        for c in v:
+            check_camera_id(c)
+        if len(set(v)) != len(v):
+            raise ValueError(f"remote_cameras repeats an id: {list(v)}")
+        return v
+
     @field_validator("cell")
     @classmethod
     def _cell(cls, v):
@@ -144,6 +160,9 @@ class MonitorConfig(BaseModel):
         for name, value in self:
             if isinstance(value, float) and not math.isfinite(value):
                 raise ValueError(f"{name} must be finite (got {value})")
+        if self.cameras is not None and set(self.cameras) & set(self.remote_cameras):
+            raise ValueError(f"cameras and remote_cameras share {sorted(set(self.cameras) & set(self.remote_cameras))}: "
+                             f"a camera sends frames or voxels, not both")
         names = [w.name for w in self.watch_points]
         if len(set(names)) != len(names):
             raise ValueError(f"watch point names must be unique (got {names})")

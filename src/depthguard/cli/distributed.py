@@ -41,7 +41,9 @@ def server_cmd(
     voxel_size: float = typer.Option(0.02, "--voxel-size", help="Voxel size in metres (0.01-0.1)."),
     threshold: float = typer.Option(0.55, "--threshold", help="Voxel density threshold (R19)."),
     stale: float = typer.Option(0.5, "--stale", help="A unit whose last update is older than this (s) is stale."),
-    sim_time: Optional[float] = typer.Option(None, "--sim-time", help="With --cell: robot joints from the scene at this time."),
+    sim_time: Optional[float] = typer.Option(None, "--sim-time", help="With --cell: robot joints from the scene at "
+                                             "this time (the fixed pose at which nodes without --joints remove "
+                                             "the robot)."),
     multicast: bool = typer.Option(False, "--multicast", help="Enable zenoh multicast scouting."),
     every: float = typer.Option(5.0, "--every", help="Log the status every this many seconds (0 = never)."),
     duration: float = typer.Option(0.0, "--duration", help="Stop after this many seconds (0 = run until Ctrl-C)."),
@@ -130,8 +132,17 @@ def node_cmd(
     fps: float = typer.Option(15.0, "--fps", help="Frames per second (0 = as fast as possible)."),
     trigger: bool = typer.Option(False, "--trigger", help="Process a frame per message on <prefix>/trigger."),
     multicast: bool = typer.Option(False, "--multicast", help="Enable zenoh multicast scouting."),
+    joints: Optional[str] = typer.Option(None, "--joints", help="Joint stream, e.g. zenoh:KEY (payload as in "
+                                         "docs/MONITOR.md): the robot is removed at each frame's capture joints; "
+                                         "a frame outside the joint history is skipped. Without it: the fixed "
+                                         "joints of the server's settings."),
+    joints_connect: list[str] = typer.Option([], "--joints-connect", help="Zenoh endpoint(s) of the joint "
+                                             "publisher (default: the node's own session)."),
 ) -> None:
-    """Run one camera node: filter locally (R16-R19), send voxels to the server (R20)."""
+    """Run one camera node: filter locally (R16-R19), send voxels to the server (R20).
+
+    With --joints the robot is removed at the joints of each frame's capture (R30); without it, at the fixed pose
+    of the server's settings (a moving robot then leaves voxels)."""
     from depthguard.distributed.client import ServerRefused
     from depthguard.distributed.node import _resolution, build_node
     from depthguard.progress import log
@@ -140,7 +151,8 @@ def node_cmd(
         raise typer.BadParameter(f"unknown source {source!r}; use 'sim' or 'pattern'", param_hint="--source")
     node = build_node(None if rig is None else str(rig), camera, source, cell, sim_time,
                       resolution=_resolution(resolution), connect=connect,
-                      listen=listen, prefix=prefix, fps=fps, trigger=trigger, multicast=multicast, log=log)
+                      listen=listen, prefix=prefix, fps=fps, trigger=trigger, multicast=multicast, log=log,
+                      joints=joints, joints_connect=joints_connect)
     stop = _stop_event()
     try:
         node.run(stop)

@@ -6,6 +6,23 @@ every frame filters locally (:class:`depthguard.fusion.voxels.VoxelFilter`,
 R16–R19) and sends only its voxels (UPDATE_REQ); every reply carries the current
 settings (voxel size, threshold, robot joints), applied from the next frame on.
 
+Robot joints (R30). With a joint stream (``joint_source``, e.g. ``zenoh:KEY`` — the
+payload of ``docs/MONITOR.md`` "Joint states over Zenoh", the same stream the monitor
+reads) every frame is filtered with the robot at the joints interpolated at the
+frame's **capture stamp** (:class:`depthguard.runtime.joints.JointHistory`, never
+extrapolated). A frame whose stamp lies outside the joint history (before the
+oldest state kept, in a gap of the stream, or after the newest state once
+``joint_wait_s`` has passed) is **skipped**: nothing is sent for it (the unit goes
+stale at the server and at the monitor if that lasts, R27), it is counted in
+``skipped`` by reason and the first skip of each reason is logged. The frame stamps
+and the joint stamps must then be on one clock (the monitor's). The joints in the
+server's settings are ignored in that case.
+
+Without a joint stream the robot is removed at the joints of the server's settings
+(``depthguard server --sim-time`` / ``joints`` setting, else the rig's starting
+joints): a **fixed pose** — a robot that moves away from it leaves voxels of
+itself in the node's output, and the space it moved into is not filtered.
+
 Sources (``frame_source``): any callable returning ``(depth (H, W) float32 m, stamp s)``;
 :func:`pattern_source` (a synthetic patch, for tests) and :func:`sim_source`
 (the simulated camera of a built-in cell) are provided.
@@ -107,13 +124,21 @@ class CameraNode:
     static_meshes, robot, robot_q0 : the known scene for the expected depth (R16).
     connect : server endpoint(s). fps : frame rate limit (0 = as fast as possible).
     trigger : wait for a message on ``<prefix>/trigger`` before each frame (benchmarks).
+    joint_source : a joint source (``states_until(t) -> [(stamp, q)]``, e.g.
+        :class:`depthguard.sources.joints.ZenohJointSource`) or None. Given: the robot is
+        removed at the joints interpolated at each frame's capture stamp; the server's
+        settings joints are ignored (module docstring). ``joint_span_s`` seconds of states
+        are kept; two states further apart than ``joint_gap_s`` are not interpolated
+        between; a frame stamped after the newest state waits up to ``joint_wait_s``.
     """
 
     def __init__(self, cam: Camera, workspace, source: FrameSource, *, static_meshes: Sequence = (),
                  robot=None, robot_q0=None, connect: Sequence[str] = (DEFAULT_ENDPOINT,),
                  listen: Sequence[str] = ("tcp/127.0.0.1:0",), prefix: str = "depthguard",
                  fps: float = 15.0, trigger: bool = False, multicast: bool = False,
-                 lease_ms: int = DEFAULT_LEASE_MS, log: Callable[[str], None] | None = None):
+                 lease_ms: int = DEFAULT_LEASE_MS, log: Callable[[str], None] | None = None,
+                 joint_source=None, joint_span_s: float = 1.0, joint_gap_s: float = math.inf,
+                 joint_wait_s: float = 0.05):
         self.cam = cam
         self.source = source
         self.filter = VoxelFilter(cam, workspace, static_meshes=static_meshes, robot=robot)
@@ -133,6 +158,52 @@ class CameraNode:
         self._trigger_seq = 0
         self._sub = None
         self.sent_bytes = 0
+        self.joint_source = None
+        self.history = None                    # JointHistory of the joint stream (attach_joints)
+        self.joint_wait_s = float(joint_wait_s)
+        self.skipped: dict[str, int] = {}      # frames not sent: stamp outside the joint history, by reason
+        self.last_skip: str | None = None
+        self.q_used: np.ndarray | None = None  # the joints the last frame was filtered with
+        if joint_source is not None:
+            self.attach_joints(joint_source, span_s=joint_span_s, max_gap_s=joint_gap_s)
+
+    # -------------------------------------------------------------- joints
+    def attach_joints(self, source, span_s: float = 1.0, max_gap_s: float = math.inf) -> None:
+        """Use the joint stream ``source`` from now on (module docstring; R30)."""
+        from depthguard.runtime.joints import JointHistory
+
+        if self.robot is None:
+            raise ValueError(f"camera {self.cam.id}: a joint stream needs the rig's robot (the rig has none)")
+        self.joint_source = source
+        self.history = JointHistory(self.robot.dof, span_s, q_min=self.robot.q_min, q_max=self.robot.q_max,
+                                    max_gap_s=max_gap_s)
+
+    def _drain_joints(self) -> None:
+        for stamp, q in self.joint_source.states_until(math.inf):
+            if not self.history.push(stamp, q):
+                self._log(f"camera {self.cam.id}: joint state refused: {self.history.last_refusal}")
+
+    def joints_at(self, stamp: float) -> np.ndarray | None:
+        """The joints at capture ``stamp`` from the joint stream (waiting up to ``joint_wait_s``
+        for states that lag the frame), or None — the frame is then skipped and counted."""
+        from depthguard.runtime.joints import OutsideHistory
+
+        deadline = time.monotonic() + self.joint_wait_s
+        while True:
+            self._drain_joints()
+            try:
+                return self.history.at(stamp)
+            except OutsideHistory as exc:
+                if exc.kind in ("future", "empty") and time.monotonic() < deadline:
+                    time.sleep(0.001)
+                    continue
+                first = exc.kind not in self.skipped
+                self.skipped[exc.kind] = self.skipped.get(exc.kind, 0) + 1
+                self.last_skip = f"frame at {stamp:.6f} s skipped: {exc} (R30)"
+                if first:
+                    self._log(f"camera {self.cam.id}: {self.last_skip}; nothing is sent for such frames "
+                              f"(counted in skipped, logged once)")
+                return None
 
     @property
     def address(self) -> str:
@@ -148,7 +219,7 @@ class CameraNode:
             self.filter.offset = self._default_offset
         else:
             self.filter.offset = FilterOffset(s.offset_const, s.offset_k)
-        if s.joints and self.robot is not None:
+        if s.joints and self.robot is not None and self.joint_source is None:   # fixed pose: fallback only
             if len(s.joints) != self.robot.dof:
                 self._log(f"ignoring {len(s.joints)} joints from the server (robot has {self.robot.dof})")
             else:
@@ -180,10 +251,18 @@ class CameraNode:
         self._log(f"camera {self.cam.id}: unit id {self.unit_id}, voxel size {m.settings.voxel_size} m")
         return self.unit_id
 
-    def step(self) -> int:
-        """Capture, filter, send one update; the number of voxels sent."""
+    def step(self) -> int | None:
+        """Capture, filter, send one update; the number of voxels sent, or None when the frame
+        was skipped (joint stream given and its stamp outside the joint history)."""
         depth, stamp = self.source()
-        vs = self.filter.filter(depth, q=self.q)
+        if self.joint_source is not None:
+            q = self.joints_at(float(stamp))
+            if q is None:
+                return None
+        else:
+            q = self.q
+        vs = self.filter.filter(depth, q=q)
+        self.q_used = None if q is None else np.array(q, dtype=float)
         keys, counts, s = fit_to_wire(vs.keys, vs.counts, vs.voxel_size)
         self.seq = self._trigger_seq if self.trigger else self.seq + 1
         invalid = vs.n_invalid / (self.cam.width * self.cam.height)
@@ -218,8 +297,8 @@ class CameraNode:
                     continue
                 self._trigger_ev.clear()
             try:
-                self.step()
-                n += 1
+                if self.step() is not None:
+                    n += 1
             except ServerUnavailable as exc:
                 self._log(f"camera {self.cam.id}: {exc}")
             if period and not self.trigger:
@@ -243,13 +322,26 @@ class CameraNode:
                 self._token.undeclare()
         except Exception:  # noqa: BLE001
             pass
+        if self.joint_source is not None:
+            try:
+                self.joint_source.close()
+            except Exception:  # noqa: BLE001 - closing anyway
+                pass
         self.client.close()
 
 
 def build_node(rig_path: str | None, camera: str, source: str = "pattern", cell: str | None = None,
                sim_time: float = 0.0, seed: int = 0, resolution: tuple[int, int] | None = None,
-               **kw) -> CameraNode:
-    """A node from a rig file, or from a built-in cell with ``source='sim'``."""
+               joints: str | None = None, joints_connect: Sequence[str] = (), **kw) -> CameraNode:
+    """A node from a rig file, or from a built-in cell with ``source='sim'``.
+
+    ``joints``: a joint source spec (``zenoh:KEY``, or ``csv:FILE`` for a recording) — the
+    robot is then removed at each frame's capture joints (R30; history span, gap and wait
+    from the rig's ``monitor:`` section: ``joint_history_s``, ``joints_stale_s``,
+    ``joint_wait_s``). Its zenoh session is the node's own (connected to the server, listening
+    on ``listen``) unless ``joints_connect`` names the publisher's endpoint(s). The built-in
+    frame sources stamp frames with ``time.time()``: the joint stamps must be on that clock.
+    """
     from depthguard.rig import Rig
 
     c = None
@@ -272,7 +364,22 @@ def build_node(rig_path: str | None, camera: str, source: str = "pattern", cell:
         cam = with_resolution(cam, *resolution)
     ws = (rig.workspace.lo, rig.workspace.hi)
     src = sim_source(c, cam, sim_time, seed) if c is not None else pattern_source(cam, ws)
-    return CameraNode(cam, ws, src, static_meshes=rig.static_meshes(), robot=rig.robot, robot_q0=q0, **kw)
+    if joints is not None and rig.robot is None:
+        raise ValueError(f"--joints {joints}: the rig {rig.name!r} has no robot to remove")
+    node = CameraNode(cam, ws, src, static_meshes=rig.static_meshes(), robot=rig.robot, robot_q0=q0, **kw)
+    if joints is not None:
+        from depthguard.sources.base import open_joints
+
+        ctx = ({"zenoh_connect": list(joints_connect)} if joints_connect
+               else {"zenoh_session": node.client.session})
+        try:
+            js = open_joints(joints, rig, ctx)
+            node.joint_wait_s = rig.monitor.joint_wait_s
+            node.attach_joints(js, span_s=rig.monitor.joint_history_s, max_gap_s=rig.monitor.joints_stale_s)
+        except BaseException:
+            node.close()
+            raise
+    return node
 
 
 def _resolution(text: str | None) -> tuple[int, int] | None:
@@ -299,6 +406,8 @@ def main(argv: list[str] | None = None) -> int:
     ap.add_argument("--fps", type=float, default=15.0)
     ap.add_argument("--trigger", action="store_true")
     ap.add_argument("--resolution")
+    ap.add_argument("--joints", help="joint stream, e.g. zenoh:KEY: remove the robot at each frame's capture joints")
+    ap.add_argument("--joints-connect", action="append", default=None)
     ap.add_argument("--quiet", action="store_true")
     a = ap.parse_args(argv)
     from depthguard.progress import log
@@ -306,7 +415,8 @@ def main(argv: list[str] | None = None) -> int:
     try:
         node = build_node(a.rig, a.camera, a.source, a.cell, a.sim_time, resolution=_resolution(a.resolution),
                           connect=a.connect or [DEFAULT_ENDPOINT], listen=a.listen or ["tcp/127.0.0.1:0"],
-                          prefix=a.prefix, fps=a.fps, trigger=a.trigger, log=None if a.quiet else log)
+                          prefix=a.prefix, fps=a.fps, trigger=a.trigger, log=None if a.quiet else log,
+                          joints=a.joints, joints_connect=a.joints_connect or ())
     except ValueError as exc:
         print(f"depthguard node: error: {exc}", file=sys.stderr)
         return 2

@@ -10,6 +10,13 @@ Zenoh queryables under ``<prefix>/``:
 * ``status``  STATUS_REQ → STATUS_REP (JSON, see :meth:`FusionServer.status`).
 * ``settings`` SETTINGS_REQ(JSON changes) → STATUS_REP; the new settings reach every
   node in its next reply.
+* ``units/*`` UNITS_REQ(sets held: camera → version, stamp) → one UNITS_REP per
+  **fresh** unit, on ``<prefix>/units/<camera>`` (query ``units/*`` for all, or
+  ``units/<camera>`` for one): its camera id, voxel keys and size, capture stamp and
+  version (the unit's update count); a set the asker already holds is answered
+  "unchanged", without keys. Stale and departed units are not answered. This is how
+  the monitor reads the units (:mod:`depthguard.sources.units`). A set larger than one
+  reply holds is coarsened conservatively (:func:`~depthguard.fusion.voxels.regrid`).
 
 Join and leave: each node holds the liveliness token ``<prefix>/alive/<camera>``;
 its disappearance (a killed process at once, a frozen one after the 1 s lease) marks
@@ -34,7 +41,7 @@ import numpy as np
 
 from depthguard.distributed import wire as W
 from depthguard.distributed.settings import DEFAULT_ENDPOINT, DEFAULT_LEASE_MS, Keys, zenoh_config
-from depthguard.fusion.voxels import VoxelSet, union
+from depthguard.fusion.voxels import VoxelSet, regrid, union
 
 __all__ = ["FusionServer", "Unit", "ERR_REFUSED", "ERR_MALFORMED", "ERR_UNKNOWN_UNIT", "ERR_BAD_SETTINGS"]
 
@@ -109,6 +116,7 @@ class FusionServer:
             s.declare_queryable(k.update, self._guard(self._on_update)),
             s.declare_queryable(k.status, self._guard(self._on_status)),
             s.declare_queryable(k.settings, self._guard(self._on_settings)),
+            s.declare_queryable(k.units("*"), self._on_units),
         ]
         return self
 
@@ -268,6 +276,60 @@ class FusionServer:
             return W.error_reply(ERR_BAD_SETTINGS, str(exc))
         return W.status_reply(self.status())
 
+    def units_replies(self, known=None, cameras=None) -> list[tuple[str, bytes]]:
+        """``[(camera, UNITS_REP bytes)]`` for every fresh unit (of ``cameras``, default all):
+        "unchanged" for a set whose (version, stamp) is in ``known``."""
+        known = known or {}
+        now = time.monotonic()
+        with self._lock:
+            units = [(u.camera, u.id, u.updates, u.seq, u.stamp, u.voxel_size, u.keys, u.invalid_frac)
+                     for u in self.units.values()
+                     if self.unit_state(u, now) == "fresh" and (cameras is None or u.camera in cameras)]
+        out = []
+        for cam, uid, version, seq, stamp, vs, keys, inv in units:
+            same = known.get(cam) == (version & 0xFFFFFFFF, stamp)
+            if not same and len(keys) > W.MAX_UNIT_VOXELS:
+                while len(keys) > W.MAX_UNIT_VOXELS:          # conservative: every old voxel covered
+                    keys = regrid(keys, vs, 2 * vs)
+                    vs *= 2
+            try:
+                out.append((cam, W.units_reply(cam, uid, version, seq, stamp, vs, keys,
+                                               inv if inv == inv else 0.0, unchanged=same)))
+            except W.WireError as exc:
+                self._log(f"units: cannot send camera {cam}'s voxels: {exc}")
+        return out
+
+    def _on_units(self, query) -> None:
+        """Queryable ``<prefix>/units/*`` (module docstring); errors go back as ``reply_err``."""
+        import zenoh
+
+        try:
+            payload = query.payload
+            m = W.decode(payload.to_bytes() if payload is not None else b"", expect=W.MsgType.UNITS_REQ)
+            asked = zenoh.KeyExpr(str(query.key_expr))
+            tail = str(query.key_expr)[len(f"{self.keys.prefix}/units/"):]
+            one = None if any(ch in tail for ch in "*$") else {tail}     # one camera asked: encode only it
+            for cam, msg in self.units_replies(m.known, one):
+                try:
+                    key = self.keys.units(cam)
+                except ValueError as exc:           # a rig camera id that cannot name a key
+                    self._log(f"units: {exc}")
+                    continue
+                if asked.intersects(zenoh.KeyExpr(key)):
+                    query.reply(key, msg)
+        except W.WireError as exc:
+            with self._lock:
+                self.rejected += 1
+            self._log(f"rejected message on {query.key_expr}: {exc}")
+            try:
+                query.reply_err(W.error_reply(ERR_MALFORMED, str(exc)))
+            except Exception as exc2:  # noqa: BLE001
+                self._log(f"reply failed on {query.key_expr}: {exc2}")
+        except Exception as exc:  # noqa: BLE001 - the server must keep running
+            with self._lock:
+                self.rejected += 1
+            self._log(f"error handling {query.key_expr}: {type(exc).__name__}: {exc}")
+
     def _on_liveliness(self, sample) -> None:
         import zenoh
 
@@ -319,8 +381,8 @@ class FusionServer:
             return sum(b for _, b in self._bytes) / _RATE_WINDOW_S
 
     def status(self) -> dict:
-        """The server's view: ``{"nodes": [{"camera", "id", "state", "age_s", "voxels",
-        "invalid_frac", ...}],
+        """The server's view: ``{"cameras": [rig camera ids], "nodes": [{"camera", "id", "state",
+        "age_s", "voxels", "invalid_frac", ...}],
         "voxels_total", "bytes_per_s", "rejected", "refused", "settings"}``."""
         now = time.monotonic()
         keys, s = self.global_map()
@@ -338,6 +400,7 @@ class FusionServer:
                 })
             st = self.settings
             return {
+                "cameras": list(self.cameras),
                 "nodes": nodes, "voxels_total": int(len(keys)), "voxel_size": s,
                 "bytes_per_s": round(self.bytes_per_s(now), 1),
                 "rejected": self.rejected, "refused": self.refused,

@@ -60,6 +60,13 @@ class Keys:
     def trigger(self) -> str:
         return f"{self.prefix}/trigger"
 
+    def units(self, camera: str = "*") -> str:
+        """``<prefix>/units/<camera>``: each fresh unit's voxels (the server's queryable on
+        ``<prefix>/units/*``; ask ``*`` for all, a camera id for one)."""
+        if camera != "*" and not _CHUNK.match(camera):
+            raise ValueError(f"camera id {camera!r} cannot name a zenoh key: use letters, digits, '_', '-', '.'")
+        return f"{self.prefix}/units/{camera}"
+
     def alive(self, camera: str = "*") -> str:
         if camera != "*" and not _CHUNK.match(camera):
             raise ValueError(f"camera id {camera!r} cannot name a zenoh key: use letters, digits, '_', '-', '.'")

@@ -18,6 +18,12 @@ ERROR_REP    (5)       code u16, msg_len u16, message (utf-8)
 STATUS_REQ   (6)       empty
 STATUS_REP   (7)       utf-8 JSON object
 SETTINGS_REQ (8)       utf-8 JSON object of settings to change (voxel_size, threshold, ...)
+UNITS_REQ    (9)       n u8, n × (cam_len u8, camera id, version u32, stamp f64): the sets the
+                       asker already holds (empty: none)
+UNITS_REP    (10)      cam_len u8, camera id, unit_id u32, version u32 (the server's update count
+                       of that unit), seq u32, stamp f64 (s, capture time), voxel_size f32 (m),
+                       invalid_frac f32, n u32, keys n×3 int16 (6 bytes per voxel); flag bit 0 =
+                       unchanged since the version and stamp the request named (then n = 0)
 =====================  ==========================================================
 
 settings = epoch u32, voxel_size f32, threshold f32, stale_s f32, offset_const f32,
@@ -41,8 +47,8 @@ import numpy as np
 
 __all__ = ["WireError", "MsgType", "Settings", "Message", "encode", "decode",
            "init_request", "init_reply", "update_request", "update_reply", "error_reply",
-           "status_request", "status_reply", "settings_request",
-           "MAX_MESSAGE_BYTES", "MAX_VOXELS", "VERSION", "BYTES_PER_VOXEL"]
+           "status_request", "status_reply", "settings_request", "units_request", "units_reply",
+           "MAX_MESSAGE_BYTES", "MAX_VOXELS", "MAX_UNIT_VOXELS", "VERSION", "BYTES_PER_VOXEL"]
 
 MAGIC = b"DGW"
 VERSION = 1
@@ -54,6 +60,9 @@ _UPD = struct.Struct("<IIdfIf")
 BYTES_PER_VOXEL = 8
 MAX_VOXELS = (MAX_MESSAGE_BYTES - _OVERHEAD - _UPD.size) // BYTES_PER_VOXEL
 _SET = struct.Struct("<IfffffB")
+_UNIT = struct.Struct("<IIIdffI")
+_KNOWN = struct.Struct("<Id")
+MAX_UNIT_VOXELS = (MAX_MESSAGE_BYTES - _OVERHEAD - _UNIT.size - 1 - 64) // 6
 MAX_JOINTS = 32
 MAX_ID_BYTES = 64
 MAX_ADDR_BYTES = 200
@@ -72,6 +81,8 @@ class MsgType(IntEnum):
     STATUS_REQ = 6
     STATUS_REP = 7
     SETTINGS_REQ = 8
+    UNITS_REQ = 9
+    UNITS_REP = 10
 
 
 @dataclass(frozen=True)
@@ -119,6 +130,8 @@ class Message:
     settings: Settings | None = None
     code: int = 0
     text: str = ""          # error message, or JSON for STATUS_REP / SETTINGS_REQ
+    version: int = 0        # UNITS_REP: the server's update count of the unit
+    known: dict = field(default_factory=dict)   # UNITS_REQ: camera -> (version, stamp) held by the asker
 
 
 # ------------------------------------------------------------------ encode
@@ -198,6 +211,43 @@ def settings_request(**changes) -> bytes:
     return _frame(MsgType.SETTINGS_REQ, json.dumps(changes).encode("utf-8"))
 
 
+def units_request(known=None) -> bytes:
+    """UNITS_REQ: ``known`` maps camera id -> (version, stamp) of the sets the asker holds; the
+    server answers those still current with an empty "unchanged" UNITS_REP."""
+    known = dict(known or {})
+    if len(known) > 255:
+        raise WireError(f"{len(known)} known units exceed the limit of 255")
+    body = struct.pack("<B", len(known))
+    for cam, (version, stamp) in known.items():
+        if not math.isfinite(stamp):
+            raise WireError("known stamp must be finite")
+        body += _short_str("camera id", cam, MAX_ID_BYTES) + _KNOWN.pack(int(version) & 0xFFFFFFFF, float(stamp))
+    return _frame(MsgType.UNITS_REQ, body)
+
+
+def units_reply(camera: str, unit_id: int, version: int, seq: int, stamp: float, voxel_size: float,
+                keys: np.ndarray, invalid_frac: float = 0.0, unchanged: bool = False) -> bytes:
+    """UNITS_REP: one unit's voxel keys (N, 3) within int16 at ``voxel_size`` m, captured at
+    ``stamp`` s; ``unchanged`` sends no keys (the asker holds this version already)."""
+    k = np.zeros((0, 3), np.int64) if unchanged else np.asarray(keys)
+    if k.ndim != 2 or k.shape[1] != 3:
+        raise WireError(f"keys must be (N, 3), got {k.shape}")
+    if len(k) > MAX_UNIT_VOXELS:
+        raise WireError(f"{len(k)} voxels exceed the limit of {MAX_UNIT_VOXELS} per unit reply")
+    if len(k) and (k.min() < -32768 or k.max() > 32767):
+        raise WireError("voxel keys outside the int16 range of the wire format")
+    if not math.isfinite(stamp):
+        raise WireError("stamp must be finite")
+    if not (0.01 - 1e-6 <= voxel_size <= 0.8):
+        raise WireError(f"voxel size {voxel_size} m outside the wire range 0.01-0.8 m")
+    if not (0.0 <= invalid_frac <= 1.0):
+        invalid_frac = 0.0 if not math.isfinite(invalid_frac) else min(max(invalid_frac, 0.0), 1.0)
+    body = (_short_str("camera id", camera, MAX_ID_BYTES)
+            + _UNIT.pack(unit_id, version & 0xFFFFFFFF, seq & 0xFFFFFFFF, stamp, voxel_size, invalid_frac, len(k))
+            + k.astype("<i2").tobytes())
+    return _frame(MsgType.UNITS_REP, body, flags=1 if unchanged else 0)
+
+
 def encode(msg: Message) -> bytes:
     """Encode a :class:`Message` (the inverse of :func:`decode`)."""
     t = msg.type
@@ -218,6 +268,11 @@ def encode(msg: Message) -> bytes:
         return _frame(t, msg.text.encode("utf-8"))
     if t == MsgType.SETTINGS_REQ:
         return _frame(t, msg.text.encode("utf-8"))
+    if t == MsgType.UNITS_REQ:
+        return units_request(msg.known)
+    if t == MsgType.UNITS_REP:
+        return units_reply(msg.camera, msg.unit_id, msg.version, msg.seq, msg.stamp, msg.voxel_size, msg.keys,
+                           msg.invalid_frac, bool(msg.flags & 1))
     raise WireError(f"unknown message type {t!r}")
 
 
@@ -339,5 +394,29 @@ def decode(buf: bytes | bytearray | memoryview, expect: MsgType | tuple[MsgType,
         pass
     elif t in (MsgType.STATUS_REP, MsgType.SETTINGS_REQ):
         m.text = _json_obj(r.take(len(r.b), "json"), t.name)
+    elif t == MsgType.UNITS_REQ:
+        (n,) = r.unpack(struct.Struct("<B"), "known count")
+        for _ in range(n):
+            cam = r.text("camera id")
+            version, stamp = r.unpack(_KNOWN, "known unit")
+            if not cam or not math.isfinite(stamp):
+                raise WireError("UNITS_REQ: empty camera id or non-finite stamp")
+            m.known[cam] = (version, stamp)
+    elif t == MsgType.UNITS_REP:
+        m.camera = r.text("camera id")
+        if not m.camera:
+            raise WireError("UNITS_REP: empty camera id")
+        m.unit_id, m.version, m.seq, m.stamp, vs, inv, n = r.unpack(_UNIT, "unit header")
+        m.voxel_size = _r6(vs)
+        m.invalid_frac = _r6(inv)
+        if not math.isfinite(m.stamp):
+            raise WireError("UNITS_REP: stamp is not finite")
+        if not (0.01 - 1e-6 <= m.voxel_size <= 0.8):
+            raise WireError(f"UNITS_REP: voxel size {m.voxel_size} m outside 0.01-0.8 m")
+        if not (0.0 <= m.invalid_frac <= 1.0):
+            raise WireError(f"UNITS_REP: invalid_frac {m.invalid_frac} outside [0, 1]")
+        if n > MAX_UNIT_VOXELS or (flags & 1 and n):
+            raise WireError(f"UNITS_REP: {n} voxels (limit {MAX_UNIT_VOXELS}; none when unchanged)")
+        m.keys = np.frombuffer(r.take(6 * n, "keys"), dtype="<i2").reshape(n, 3).astype(np.int32)
     r.end()
     return m

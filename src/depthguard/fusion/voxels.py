@@ -1,8 +1,9 @@
 """Per-camera filter to voxels of unknown objects (Oščádal 2022; R16–R19).
 
-One :class:`VoxelFilter` per camera (model and workspace apart): it renders the
+One :class:`VoxelFilter` per camera (model and workspace apart): it takes the
 expected depth of the known scene (static CAD + the robot at its current
-joints, R16) with the shared :class:`depthguard.render.Renderer`, keeps the
+joints, R16) from :class:`depthguard.filtering.expected.ExpectedDepth` — the one
+expected depth of the package, the same the monitor's camera workers use —, keeps the
 measured pixels that lie in front of it by more than an offset (R17), turns
 them into world voxels ``floor(p / s)`` with point counts, cropped to the
 workspace (R18), and drops voxels that hold fewer points than
@@ -27,6 +28,7 @@ from typing import Mapping, NamedTuple, Sequence
 import numpy as np
 
 from depthguard.camera import Camera, check_depth_image
+from depthguard.filtering.expected import ExpectedDepth
 from depthguard.fusion import voxel_kernels as K
 
 __all__ = ["VoxelSet", "VoxelFilter", "FilterOffset", "offset_for_camera", "vote",
@@ -129,11 +131,10 @@ class VoxelFilter:
         self.offset = offset if offset is not None else offset_for_camera(cam)
         self.static_meshes = list(static_meshes)
         self.robot = robot
-        self._renderer = None
-        self._static_expected: np.ndarray | None = None
+        self._expected = None             # ExpectedDepth, made on first use (the expected= path never renders)
         self._empty_expected = np.zeros(cam.shape, dtype=np.float32)
-        self._robot_buf = np.zeros(cam.shape, dtype=np.float32)
         self._robot_q: np.ndarray | None = None
+        self._robot_img = self._empty_expected
         n = cam.width * cam.height
         self._touched = np.empty(n, dtype=np.int64)
         self._out_keys = np.empty((n, 3), dtype=np.int32)
@@ -168,32 +169,32 @@ class VoxelFilter:
         self.voxel_size = s
 
     # ---------------------------------------------------- expected depth R16
-    def _static_depth(self) -> np.ndarray:
-        if self._static_expected is None:
-            if self.static_meshes:
-                d, _ = self._get_renderer().render(self.static_meshes)
-                self._static_expected = np.array(d, dtype=np.float32)
-            else:
-                self._static_expected = self._empty_expected
-        return self._static_expected
+    def _expected_depth(self):
+        """The camera's :class:`~depthguard.filtering.expected.ExpectedDepth` (static scene
+        rendered once, here; the robot per joints), made on first use."""
+        if self._expected is None:
+            self._expected = ExpectedDepth(self.cam, self.robot, self.static_meshes)
+        return self._expected
 
-    def _get_renderer(self):
-        if self._renderer is None:
-            from depthguard.render import Renderer
-            self._renderer = Renderer(self.cam)
-        return self._renderer
+    def _static_depth(self) -> np.ndarray:
+        """(H, W) float32 static CAD (0 = nothing): :attr:`ExpectedDepth.static`, rendered once."""
+        if not self.static_meshes:
+            return self._empty_expected
+        return self._expected_depth().static
 
     def _robot_depth(self, q) -> np.ndarray:
-        """(H, W) float32 robot rendered at ``q`` (0 = nothing); re-rendered only when ``q`` changes."""
+        """(H, W) float32 robot at ``q`` (0 = nothing), :meth:`ExpectedDepth.robot`; rendered again
+        only when ``q`` changes (the image is the ExpectedDepth's reused buffer)."""
         if self.robot is None or q is None:
             return self._empty_expected
         q = np.asarray(q, dtype=np.float64)
+        ed = self._expected_depth()
         if self._robot_q is not None and np.array_equal(q, self._robot_q):
-            return self._robot_buf
-        d, _ = self._get_renderer().render(self.robot.link_meshes(q))
-        np.copyto(self._robot_buf, d)
+            return self._robot_img
+        self._robot_q = None               # a failed render leaves no stale cache behind
+        self._robot_img = ed.robot(q)      # the ExpectedDepth's buffer, overwritten by its next render
         self._robot_q = q.copy()
-        return self._robot_buf
+        return self._robot_img
 
     def expected_depth(self, q=None) -> np.ndarray:
         """(H, W) float32 expected depth (m, 0 = nothing known): static CAD + robot at ``q`` (R16).

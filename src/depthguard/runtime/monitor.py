@@ -67,7 +67,14 @@ class Monitor:
         if not isinstance(cfg, MonitorConfig):
             raise ValueError(f"config must be a MonitorConfig (got {type(cfg).__name__})")
         self._cameras = {c.id: c for c in rig.cameras}
-        ids = list(cfg.cameras) if cfg.cameras is not None else [c.id for c in rig.cameras]
+        for c in cfg.remote_cameras:
+            if c not in self._cameras:
+                raise ValueError(f"monitor.remote_cameras names {c!r}, which the rig {rig.name!r} does not have; "
+                                 f"cameras: {', '.join(self._cameras)}")
+        ids = list(cfg.cameras) if cfg.cameras is not None else \
+            [c.id for c in rig.cameras if c.id not in cfg.remote_cameras]
+        if not ids:
+            raise ValueError("the monitor needs at least one camera with frames (remote units judge nothing, R26)")
         for c in ids:
             if c not in self._cameras:
                 raise ValueError(f"monitor.cameras names {c!r}, which the rig {rig.name!r} does not have; "
@@ -83,6 +90,8 @@ class Monitor:
         for cid in self._camera_ids:
             self._start_worker(cid)
         self._added_at: dict[str, float] = {}
+        from depthguard.runtime.voxel_input import VoxelObstacles
+        self.voxels = VoxelObstacles()            # the remote units' voxels (R20)
         self.sinks = list(sinks)
         # control-thread state (preallocated)
         self._data = self.robot.create_data()
@@ -163,6 +172,14 @@ class Monitor:
             self._unmonitored = getattr(self, "_unmonitored", 0) + 1
             return
         w.offer(frame, time.perf_counter())
+
+    def push_voxels(self, camera_id: str, centres, voxel_size: float, stamp: float) -> None:
+        """The voxels (N, 3) world m, cubes of side ``voxel_size`` m, of a remote camera unit's frame
+        captured at ``stamp`` s (R20); ``camera_id`` must be one of ``remote_cameras``."""
+        if camera_id not in self.config.remote_cameras:
+            raise ValueError(f"voxels of camera {camera_id!r}, which is not among the remote cameras "
+                             f"{list(self.config.remote_cameras)} (monitor.remote_cameras)")
+        self.voxels.push(camera_id, centres, voxel_size, stamp)
 
     # ------------------------------------------------------------ changes while running
     def set_rho(self, rho: float) -> None:
@@ -254,9 +271,13 @@ class Monitor:
                             self.frame_to_reaction_s.append(now - buf.pushed_at[c])
             finally:
                 buf.lock.release()
+        remote = cfg.remote_cameras
+        if remote:                                     # the units' voxel boxes (R20, R25)
+            caps = robot.collision_segments(q, cfg.robot_padding)
+            stamps.update(self.voxels.nearest(self._P, cfg.rho, D, V, robot_capsules=caps))
         # supervision (R26, R27)
         with self._settings_lock:
-            ids = self._camera_ids
+            ids = self._camera_ids + tuple(remote)
         limit = cfg.camera_stale_limit
         cams: dict[str, CameraStatus] = {}
         ages = np.empty(len(ids))
@@ -367,4 +388,9 @@ def warm_up(rig, config: MonitorConfig | None = None) -> float:
                                  0.0005))
         mon.flush(timeout=600.0)
         mon.step(0.001)
+    from depthguard.runtime.voxel_input import VoxelObstacles
+    units = VoxelObstacles()                      # the remote units' kernel
+    units.push("warm-up", np.zeros((1, 3)), 0.05, 0.0)
+    units.nearest(np.ones((2, 3)), 0.4, np.full(2, np.inf), np.zeros((2, 3)),
+                  robot_capsules=rig.robot.collision_segments(q0, 0.05))
     return time.perf_counter() - t0

@@ -4,8 +4,9 @@
 ``monitor.step`` at the control rate until the duration is over, every
 source is done, or the caller stops it (Ctrl-C, ``stop`` event).
 
-- **Real time** (default): one thread per source polls it on the clock
-  ``time.monotonic() - start`` and pushes what it returns; the calling
+- **Real time** (default): one thread per source polls it on the run's clock
+  (from 0, from a recording's first stamp, or the wall clock ``time.time()``
+  when a source is live) and pushes what it returns; the calling
   thread steps the monitor every ``1 / control_hz`` s. The control thread
   never waits for a frame.
 - **Fast** (``fast=True``): one thread; at each control cycle ``t = k dt``
@@ -99,6 +100,10 @@ def summarise(monitor, stats: RunStats, wall_s: float, sources: dict, extra: dic
     return out
 
 
+def _none(_t):
+    return ()
+
+
 def _push_frames(monitor, frames) -> int:
     for f in frames:
         monitor.push_frame(f)
@@ -133,6 +138,8 @@ def run(monitor, frame_sources: list, joint_source, *, duration: float | None = 
     firsts = [getattr(src, "first_stamp", None) for src in [*frame_sources, joint_source] if src is not None]
     firsts = [float(f) for f in firsts if f is not None and math.isfinite(f)]
     t0 = min(firsts) if firsts else 0.0           # a recording's clock starts at its first stamp
+    if not fast and any(getattr(src, "live", False) for src in [*frame_sources, joint_source] if src is not None):
+        t0 = time.time()                          # live sources stamp with the wall clock: so does the run
     try:
         if fast:
             return _run_fast(monitor, frame_sources, joint_source, duration, stop, emit, all_done, stats, wall0, t0)
@@ -156,6 +163,9 @@ def _run_fast(monitor, frame_sources, joint_source, duration, stop, emit, all_do
             for ts, q in joint_source.states_until(t):
                 monitor.push_joints(ts, q)
         n = sum(_push_frames(monitor, s.frames_until(t)) for s in frame_sources)
+        for src in frame_sources:
+            for cid, centres, size, stamp in getattr(src, "voxels_until", _none)(t):
+                monitor.push_voxels(cid, centres, size, stamp)
         if n:
             monitor.flush()
         next_status = emit(monitor.step(t), next_status)
@@ -205,6 +215,9 @@ def _run_paced(monitor, frame_sources, joint_source, duration, stop, emit, all_d
                 time.sleep(0.0005)
     threads = [threading.Thread(target=pump, args=(s.frames_until, monitor.push_frame), daemon=True,
                                 name=f"depthguard-source-{i}") for i, s in enumerate(frame_sources)]
+    threads += [threading.Thread(target=pump, args=(s.voxels_until, lambda v: monitor.push_voxels(*v)),
+                                 daemon=True, name=f"depthguard-units-{i}")
+                for i, s in enumerate(frame_sources) if hasattr(s, "voxels_until")]
     if joint_source is not None:
         threads.append(threading.Thread(target=pump, args=(joint_source.states_until,
                                                            lambda s: monitor.push_joints(*s)),

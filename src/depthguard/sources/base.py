@@ -9,6 +9,12 @@ recording or a simulator returns what is due. ``done`` is True once no
 frame will ever come again (the end of a recording); ``lost`` holds a
 sentence when the source failed (a camera unplugged) and ``None`` otherwise.
 
+A **live** source (``live = True``: Zenoh joint states, camera units, real
+cameras) stamps with the wall clock, ``time.time()`` in seconds — synchronise
+the machines of a cell (NTP, PTP) — and a real-time run that has one runs on
+that clock too; recordings keep their own stamps (``first_stamp``) and the
+simulator its run time from 0.
+
 A **joint source** does the same for joint states: ``states_until(t)``
 returns ``[(stamp, q (dof,)), ...]`` in stamp order.
 
@@ -68,7 +74,8 @@ class JointSource(Protocol):
 _SOURCES: dict[str, Callable] = {}
 _JOINTS: dict[str, Callable] = {}
 # modules that register schemes; imported on first use (optional extras stay unimported until asked for)
-_SOURCE_MODULES = ["depthguard.sources.sim_source", "depthguard.sources.images", "depthguard.sources.joints"]
+_SOURCE_MODULES = ["depthguard.sources.sim_source", "depthguard.sources.images", "depthguard.sources.joints",
+                   "depthguard.sources.units"]
 _loaded = False
 
 

@@ -159,6 +159,8 @@ class ZenohJointSource:
     turns True only when closed.
     """
 
+    live = True     # stamps on the wall clock (time.time()): the runner's clock is then too
+
     first_stamp = None
 
     def __init__(self, key: str, rig, session=None, listen: Sequence[str] = ("tcp/127.0.0.1:0",),
