@@ -1,4 +1,4 @@
-"""Camera frames from capture to delivery (control/camera_pipeline.py, R15, R27)."""
+"""Camera frames from capture to delivery (evaluation/closed_loop/camera_pipeline.py, R15, R27)."""
 
 from __future__ import annotations
 
@@ -7,7 +7,7 @@ import threading
 import numpy as np
 import pytest
 
-from depthguard.control.camera_pipeline import CameraPipeline
+from depthguard.evaluation.closed_loop.camera_pipeline import CameraPipeline
 
 
 def _fake(log):
@@ -65,7 +65,7 @@ def test_bad_latency_is_refused():
 def test_not_threaded_frames_still_arrive_after_the_latency_from_the_callers_thread():
     """Without a thread-safe numba threading layer the loop simulates each frame at capture in
     its own thread; the latency still applies."""
-    from depthguard.control.camera_pipeline import threadsafe_numba
+    from depthguard.evaluation.closed_loop.camera_pipeline import threadsafe_numba
     assert isinstance(threadsafe_numba(), bool)
     log = []
     p = CameraPipeline(_fake(log), ["a"], 0.05, {"self_removal": 0.0, "camera_sim": 0.0}, threaded=False)

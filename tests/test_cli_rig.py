@@ -174,7 +174,7 @@ def _ee_at(rig, q):
 def test_run_rig_drives_a_six_joint_ur3_around_a_hexagon_at_its_end_effector(tmp_path):
     """The closed loop on a user's rig: a UR3 (6 joints, SNS on a 3-D task) tracks a hexagon
     centred at its end effector at the rig joints, reachable and clear of the table."""
-    from depthguard.control.scenarios import HEXAGON_RADII
+    from depthguard.evaluation.closed_loop.scenarios import HEXAGON_RADII
 
     f = write_ur3_rig(tmp_path / "rig.yaml")
     out = tmp_path / "run"
@@ -219,8 +219,8 @@ def test_reach_scenario_on_a_rig_puts_the_person_in_front_of_the_hexagon_away_fr
     """``reach`` is placed relative to the hexagon and the robot's base: on flacco-cell (base at
     x = 0, hexagon plane x = -0.6) the person stands at -x; on the UR3 rig (hexagon plane
     x > 0) at +x, outside the table, with the hand near the upper corners."""
-    from depthguard.control.loop import LoopConfig
-    from depthguard.control.scenarios import build_scenario, rig_hexagon
+    from depthguard.evaluation.closed_loop.loop import LoopConfig
+    from depthguard.evaluation.closed_loop.scenarios import build_scenario, rig_hexagon
     from depthguard.sim import load_cell
 
     flacco = load_cell("flacco-cell")

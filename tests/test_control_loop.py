@@ -12,8 +12,8 @@ from __future__ import annotations
 import numpy as np
 import pytest
 
-from depthguard.control.loop import LoopConfig, SafetySupervisor, stop_reasons
-from depthguard.control.trajectory import Hexagon
+from depthguard.evaluation.closed_loop.loop import LoopConfig, SafetySupervisor, stop_reasons
+from depthguard.evaluation.closed_loop.trajectory import Hexagon
 
 
 # ------------------------------------------------------------------ fast
@@ -77,7 +77,7 @@ def test_loop_config_rejects_bad_values():
 
 # ------------------------------------------------------------------ closed loop (slow)
 def _run(name, duration, fusion="grid", **cfg):
-    from depthguard.control.scenarios import run_scenario
+    from depthguard.evaluation.closed_loop.scenarios import run_scenario
     return run_scenario(name, duration=duration, config=LoopConfig(fusion=fusion, **cfg), write=False)
 
 
@@ -130,7 +130,7 @@ def test_shadow_principal_camera_alone_sees_a_phantom():
 
 @pytest.mark.slow
 def test_camera_dropout_stops_and_says_why():
-    from depthguard.control.scenarios import run_scenario
+    from depthguard.evaluation.closed_loop.scenarios import run_scenario
     s, res = run_scenario("camera_dropout", duration=3.0, config=LoopConfig(fusion="grid"), write=False)
     assert s["stopped_at_end"]
     stops = s["safe_stops"]

@@ -262,7 +262,7 @@ def test_dark_person_next_to_robot_is_an_obstacle_in_the_grid(gap_px):
     the bound allows the grid's discretisation plus the silhouette_px ring's footprint."""
     from depthguard.sim import load_cell
     from depthguard.sim import ground_truth as gt
-    from depthguard.control.loop import _depth_span
+    from depthguard.evaluation.closed_loop.loop import _depth_span
     from depthguard.sources import SimulatedCamera
 
     cell = load_cell("flacco-cell")
@@ -322,7 +322,7 @@ def test_dark_person_in_front_of_the_wall_is_an_obstacle():
     rules on (silhouette_px = 4, gap_px, beyond-range returns) (R25, R28)."""
     from depthguard.sim import load_cell
     from depthguard.sim import ground_truth as gt
-    from depthguard.control.loop import _depth_span
+    from depthguard.evaluation.closed_loop.loop import _depth_span
     from depthguard.sources import SimulatedCamera
 
     cell = load_cell("flacco-cell")
@@ -381,7 +381,7 @@ def _robot_alone_errors(name: str, n_poses: int, silhouette_px: int, gap_px: int
     within rho)."""
     from depthguard.sim import load_cell
     from depthguard.sim import ground_truth as gt
-    from depthguard.control.loop import _depth_span
+    from depthguard.evaluation.closed_loop.loop import _depth_span
     from depthguard.sources import SimulatedCamera
 
     cell = load_cell(name)

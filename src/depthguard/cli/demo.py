@@ -92,8 +92,8 @@ def demo(
     from rich.console import Console
     from rich.table import Table
 
-    from depthguard.control.loop import LoopConfig
-    from depthguard.control.scenarios import run_scenario
+    from depthguard.evaluation.closed_loop.loop import LoopConfig
+    from depthguard.evaluation.closed_loop.scenarios import run_scenario
     from depthguard.progress import track
 
     if cameras not in ("all", "principal"):

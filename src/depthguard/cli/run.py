@@ -12,7 +12,7 @@ from depthguard.cli.app import app
 
 
 def _scenario_help() -> str:
-    from depthguard.control.scenarios import SCENARIOS
+    from depthguard.evaluation.closed_loop.scenarios import SCENARIOS
     return "; ".join(f"{k}: {v}" for k, v in SCENARIOS.items())
 
 
@@ -50,8 +50,8 @@ def run(
     import dataclasses
 
     from depthguard.cli.common import load_rig_or_cell, parse_vector3
-    from depthguard.control.loop import LoopConfig
-    from depthguard.control.scenarios import SCENARIOS, rig_hexagon, run_scenario
+    from depthguard.evaluation.closed_loop.loop import LoopConfig
+    from depthguard.evaluation.closed_loop.scenarios import SCENARIOS, rig_hexagon, run_scenario
     from depthguard.progress import track
 
     if scenario not in SCENARIOS:

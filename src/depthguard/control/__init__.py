@@ -1,1 +1,1 @@
-"""Control: repulsion, joint-velocity limits, SNS, closed loop, motion verdicts (R13-R15, R22, R27)."""
+"""Reactions to distances: repulsion (R13), joint-velocity limits (R14), SNS, the supervisor (R26, R27), motion verdicts (R22)."""

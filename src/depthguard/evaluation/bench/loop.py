@@ -25,8 +25,8 @@ from depthguard.evaluation.bench import BenchContext, BenchRow, group
 
 @group("loop")
 def bench_loop(ctx: BenchContext) -> list[BenchRow]:
-    from depthguard.control.loop import LoopConfig
-    from depthguard.control.scenarios import run_scenario
+    from depthguard.evaluation.closed_loop.loop import LoopConfig
+    from depthguard.evaluation.closed_loop.scenarios import run_scenario
 
     dur2 = 0.5 if ctx.quick else 4.0
     dur1 = dur2

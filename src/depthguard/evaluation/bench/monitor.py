@@ -19,7 +19,7 @@ Rows:
 * ``monitor.step_p99_ms`` — 99th percentile of ``step`` (after the first
   0.25 s); paper: Flacco 2015's whole cycle, 3.3 ms (two cameras, 9 points,
   Core i7-2600). Peer: **today's code** — the depth grid on the control path
-  as the closed loop (:mod:`depthguard.control.loop`) runs it: a cycle with a
+  as the closed loop (:mod:`depthguard.evaluation.closed_loop.loop`) runs it: a cycle with a
   new frame loads it (``set_frames`` with the changed cameras) and makes the
   first query (which classifies the cells, R10–R12), the other cycles query
   the frame loaded; same frames, same arrival times, same 500 Hz pacing, same

@@ -9,7 +9,7 @@ One control cycle (500 Hz, ``dt = 2 ms``) at time ``t``:
    the same joints for self removal (R9). The frame's stamp is its capture
    time ``t``; it is **delivered** ``camera_latency`` later (default one
    camera period, as a Kinect's frame; 0 = at once) and simulated meanwhile
-   on a second thread (:mod:`depthguard.control.camera_pipeline`). The
+   on a second thread (:mod:`depthguard.evaluation.closed_loop.camera_pipeline`). The
    static scene is rendered once per camera at set-up and each frame renders
    only the robot and the moving obstacles, combined per pixel with it (the
    same image, :mod:`depthguard.render.composite`).
@@ -33,7 +33,7 @@ One control cycle (500 Hz, ``dt = 2 ms``) at time ``t``:
    against the true obstacles (``scene.true_distance`` + the scenario's
    scripted primitives), sampled along each capsule axis every
    ``gt_step`` m (overestimates by at most ``gt_step/2``):
-   :mod:`depthguard.control.loop_truth`.
+   :mod:`depthguard.evaluation.closed_loop.loop_truth`.
 
 Numba runs on ``LoopConfig.threads`` threads while the loop runs (default:
 all but the one the camera thread takes); the results do not depend on the
@@ -48,11 +48,11 @@ from typing import Callable
 
 import numpy as np
 
-from depthguard.control.camera_pipeline import CameraPipeline, threadsafe_numba
-from depthguard.control.loop_truth import LoopTruth
+from depthguard.evaluation.closed_loop.camera_pipeline import CameraPipeline, threadsafe_numba
+from depthguard.evaluation.closed_loop.loop_truth import LoopTruth
 from depthguard.control.sns import SNSWorkspace, sns_velocity
 from depthguard.control.supervisor import SafetySupervisor, stop_reasons
-from depthguard.control.trajectory import Hexagon
+from depthguard.evaluation.closed_loop.trajectory import Hexagon
 from depthguard.render.composite import nearest_depth
 from depthguard.sources.frame import Frame
 
@@ -262,7 +262,7 @@ class ClosedLoop:
         return out + list(self.extra(t))
 
     def ground_truth(self, P: np.ndarray, q: np.ndarray, t: float) -> tuple[np.ndarray, float, float]:
-        """True distances at ``t`` (:class:`~depthguard.control.loop_truth.LoopTruth`): the control
+        """True distances at ``t`` (:class:`~depthguard.evaluation.closed_loop.loop_truth.LoopTruth`): the control
         points ``P`` to the obstacles (0 inside), the robot's capsules (all but ``excluded_caps``)
         to every obstacle and to the moving ones alone (``<= 0`` = collision)."""
         dyn = ([] if not self.cell_dynamic else list(self.scene.dynamic_at(t))) + list(self.extra(t))

@@ -5,7 +5,7 @@ Each scenario adds scripted obstacles (people from :mod:`depthguard.sim.people`,
 props from :mod:`depthguard.geometry.primitives`) to the cell's own scene, placed
 relative to the end-effector hexagon, the robot's base and the cameras, and may
 stop a camera. On ``flacco-cell`` the hexagon is the paper's
-(:class:`~depthguard.control.trajectory.Hexagon` defaults); on any other cell
+(:class:`~depthguard.evaluation.closed_loop.trajectory.Hexagon` defaults); on any other cell
 :func:`rig_hexagon` centres it at the end effector at the rig's joints, with a
 radius the robot reaches clear of the static objects.
 
@@ -31,7 +31,7 @@ from typing import Callable
 
 import numpy as np
 
-from depthguard.control.trajectory import Hexagon
+from depthguard.evaluation.closed_loop.trajectory import Hexagon
 
 __all__ = ["Scenario", "SCENARIOS", "build_scenario", "list_scenarios", "run_scenario", "rig_hexagon",
            "HEXAGON_RADII"]
@@ -192,7 +192,7 @@ def _front_side(cell, hexagon: Hexagon, robot=None) -> float:
 
 def _elbow_top(cell, hexagon: Hexagon, robot=None) -> np.ndarray:
     """Highest position of the 'elbow' control point over one lap of kinematic tracking."""
-    from depthguard.control.loop import solve_ik
+    from depthguard.evaluation.closed_loop.loop import solve_ik
     from depthguard.control.joint_limits import position_limits
     from depthguard.control.sns import sns_velocity
 
@@ -223,13 +223,13 @@ HEXAGON_RADII = (0.20, 0.15, 0.10, 0.05)   # m, tried in turn by rig_hexagon (0.
 def rig_hexagon(cell, centre=None, radius: float | None = None, clearance: float = 0.03,
                 samples: int = 48) -> Hexagon:
     """The end-effector task (R15) for any cell's robot: a hexagon in the vertical plane
-    ``x = centre[0]`` (:class:`~depthguard.control.trajectory.Hexagon`, speed 0.4 m/s).
+    ``x = centre[0]`` (:class:`~depthguard.evaluation.closed_loop.trajectory.Hexagon`, speed 0.4 m/s).
 
     ``centre`` (3,) m defaults to the end effector (control point 0) at the rig's joints
     (``rig.robot_q0``); ``radius`` (m) defaults to the largest of :data:`HEXAGON_RADII` that
     passes both checks, which a given radius must pass too:
 
-    - **reach**: inverse kinematics (:func:`~depthguard.control.loop.solve_ik`, position
+    - **reach**: inverse kinematics (:func:`~depthguard.evaluation.closed_loop.loop.solve_ik`, position
       only, so any robot with >= 3 joints) follows ``samples`` points of one lap from the
       rig's joints, each seeded with the previous answer;
     - **clearance**: every sampled point lies at least the EE control point's radius plus
@@ -237,7 +237,7 @@ def rig_hexagon(cell, centre=None, radius: float | None = None, clearance: float
 
     ``ValueError`` (naming ``--hexagon-centre`` / ``--hexagon-radius``) when none fits.
     """
-    from depthguard.control.loop import solve_ik
+    from depthguard.evaluation.closed_loop.loop import solve_ik
 
     rig = cell.rig
     robot = rig.robot
@@ -287,11 +287,11 @@ def run_scenario(name: str, out=None, duration: float | None = None, seed: int =
     ``cell`` is a built-in cell's name or a :class:`~depthguard.sim.cells.Cell` (e.g.
     :func:`~depthguard.sim.cells.cell_from_rig` of a user's rig file, R2). Returns
     ``(summary dict, LoopResult)``. ``duration`` (s) defaults to the scenario's; ``config``
-    is a :class:`~depthguard.control.loop.LoopConfig` whose ``hexagon`` is the EE task
+    is a :class:`~depthguard.evaluation.closed_loop.loop.LoopConfig` whose ``hexagon`` is the EE task
     (see :func:`rig_hexagon` for a cell other than flacco-cell).
     """
-    from depthguard.control.loop import ClosedLoop, LoopConfig
-    from depthguard.control.report import summarize, write_report
+    from depthguard.evaluation.closed_loop.loop import ClosedLoop, LoopConfig
+    from depthguard.evaluation.closed_loop.report import summarize, write_report
     from depthguard.sim import load_cell
 
     if name not in SCENARIOS:
