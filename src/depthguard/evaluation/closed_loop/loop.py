@@ -13,23 +13,18 @@ One control cycle (500 Hz, ``dt = 2 ms``) at time ``t``:
    static scene is rendered once per camera at set-up and each frame renders
    only the robot and the moving obstacles, combined per pixel with it (the
    same image, :mod:`depthguard.render.composite`).
-2. **Distances** of the 9 control points at the *current* joints from the
-   latest delivered frames (the robot has moved since their capture): the depth grid map over
-   all cameras (R12), or one camera's depth-space distance (R3–R9).
-3. **Supervision** (R26, R27), the speed override ``k ∈ [0, 1]`` ramps to 0
-   in ``stop_time`` while any of these holds, and back to 1 in
-   ``resume_time`` once none does; each episode is logged with its reason:
-   * a camera's frame age exceeds ``stale_periods`` frame periods (R27);
-   * a control point is unobserved (``observed = False``, R26: "cannot
-     judge" is treated as the worst case);
-   * a control point lies inside an obstacle frustum (``D = 0`` — no
-     direction to flee, and R14 gives no limit without one).
-4. **Reaction**: EE task ``ẋ_d = k·ṗ_d(τ) + K_p (p_d(τ) − x)``, repulsion
-   ``ẋ_rep = −v(D_ee)·V_ee`` (R13), ``ẋ_c = ẋ_d + ẋ_rep``; joint box =
-   R14 limits of the other control points ∩ joint position/speed limits,
-   times ``k``; SNS gives ``q̇`` with task scale ``s`` and a low-priority
-   posture term; ``τ += s·k·dt``; ``q += q̇·dt``.
-5. **Ground truth** (not part of the system): the robot's collision capsules
+2. **The runtime** (R29): the loop is :class:`depthguard.runtime.Monitor` fed by the
+   simulator. Each cycle pushes the joints at ``t``; the frames delivered now are pushed
+   with their capture stamps (the monitor removes the robot at the joints of the capture,
+   R30) and fused before the cycle's distances (``flush``, so that a run does not depend
+   on thread timing); ``step(t, q)`` returns the distances of the 9 control points, the
+   speed override ``k`` with its stop reasons (stale frames R27, unobserved points R26,
+   a point inside an obstacle frustum), the repulsion at the end effector (R13) and the
+   joint-velocity limits of the other control points (R14), times ``k``.
+3. **The robot obeys**: EE task ``ẋ_d = k·ṗ_d(τ) + K_p (p_d(τ) − x)``, ``ẋ_c = ẋ_d + ẋ_rep``;
+   joint box = the reaction's limits; SNS gives ``q̇`` with task scale ``s`` and a
+   low-priority posture term; ``τ += s·k·dt``; ``q += q̇·dt``.
+4. **Ground truth** (not part of the system): the robot's collision capsules
    against the true obstacles (``scene.true_distance`` + the scenario's
    scripted primitives), sampled along each capsule axis every
    ``gt_step`` m (overestimates by at most ``gt_step/2``):
