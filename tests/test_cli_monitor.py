@@ -57,7 +57,7 @@ def test_monitor_alone_runs_in_real_time_and_stops_cleanly_on_ctrl_c(tmp_path):
             time.sleep(0.2)
         assert proc.poll() is None, proc.communicate()
         proc.send_signal(signal.SIGINT)
-        stdout, stderr = proc.communicate(timeout=60)
+        stdout, stderr = proc.communicate(timeout=120)
     finally:
         if proc.poll() is None:
             proc.kill()

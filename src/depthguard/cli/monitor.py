@@ -8,6 +8,7 @@ from __future__ import annotations
 
 import json
 import os
+import signal
 import threading
 from pathlib import Path
 from typing import List, Optional
@@ -124,10 +125,23 @@ def monitor(
             log(line)
 
     stop = threading.Event()
+    interrupted = []
+
+    def on_signal(signum, _frame):
+        # Ctrl-C or SIGTERM ends the run at the next cycle boundary (the summary is written);
+        # a second one interrupts at once
+        interrupted.append(signum)
+        stop.set()
+        signal.signal(signum, signal.default_int_handler if signum == signal.SIGINT else signal.SIG_DFL)
+
+    previous = {sig: signal.signal(sig, on_signal) for sig in (signal.SIGINT, signal.SIGTERM)}
     try:
         stats, wall = run(mon, sources, joint_source, duration=duration, fast=fast, stop=stop,
                           status=status, status_hz=4.0 if tty else 1.0)
+        stats.interrupted = stats.interrupted or bool(interrupted)
     finally:
+        for sig, handler in previous.items():
+            signal.signal(sig, handler)
         if listener is not None:
             listener.close()
         mon.close()                     # closes the fan-out: the log is complete

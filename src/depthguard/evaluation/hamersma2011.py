@@ -15,13 +15,14 @@ Choices (the paper does not give them):
 - the machine's own volume: voxels the C-arm touches, padded by
   ``self_padding`` (half a voxel), are freed (R21) and left out of the accuracy
   counts (they are free in both by construction);
-- reconstructions per setup: ``shell`` — **the product's**: ``STILL_FRAMES``
-  (3) consecutive ToF frames per camera of the still scene fused per pixel
-  (:class:`~depthguard.fusion.temporal.StillFusion`: the median where they
-  agree, else the nearest), centre pixel, margin 2 sigma of the fused depth
-  (1.34 cm), and the known room shell — floor, walls, ceiling — as each
-  camera's background (:meth:`FreeSpaceMap.set_background`, tolerance margin
-  + 3 sigma); ``single`` (the same from one frame: margin 2 cm = 2 sigma,
+- reconstructions per setup: ``shell`` — **the product's**
+  (:class:`~depthguard.fusion.free_space_product.FreeSpaceProduct`, assembled
+  there): ``STILL_FRAMES`` (3) consecutive ToF frames per camera of the still
+  scene fused per pixel (:class:`~depthguard.fusion.temporal.StillFusion`: the
+  median where they agree, else the nearest), centre pixel, margin 2 sigma of
+  the fused depth (1.34 cm), and the known room shell — floor, walls, ceiling
+  — as each camera's background (:meth:`FreeSpaceMap.set_background`,
+  tolerance margin + 3 sigma); ``single`` (the same from one frame: margin 2 cm = 2 sigma,
   tolerance ``SHELL_TOLERANCE`` = 5 cm); ``noiseless`` (the product's map on
   noiseless images: what its rule and margin allow); ``paper``
   (the paper's own method: one frame, margin 2 cm, no background); ``full``
@@ -56,6 +57,9 @@ from depthguard.control.motion_check import (LEVELS, Motion, braking_distance, c
                                              compare_verdicts)
 from depthguard.evaluation.accuracy import Confusion, cases, confusion, plot_case_slices
 from depthguard.fusion.free_space import FreeSpaceMap
+from depthguard.fusion.free_space_product import STILL_FRAMES, FreeSpaceProduct, fuse_still
+from depthguard.fusion.free_space_product import product_margins as _fused_margins
+from depthguard.fusion.free_space_product import shell_backgrounds as _shell_depths
 from depthguard.transforms import pose, rot_x, rot_y, rot_z
 
 __all__ = ["Room", "load_room", "setup_frames", "braking_distances", "run", "PAPER",
@@ -71,7 +75,6 @@ MARGIN_SWEEP = (0.005, 0.01, 0.015, 0.02)   # the product's margin trade-off, re
 TOF_SIGMA = 0.01                       # the cell's ToF sensor model: sigma about 1 cm
 SHELL_TOLERANCE = MARGIN + 3 * TOF_SIGMA   # a measurement this close to the known shell is the shell
 PRODUCT = "shell"                      # the reconstruction reported as the product's
-STILL_FRAMES = 3                       # frames per camera fused for the product's check (fusion/temporal.py)
 FRAME_PERIOD = 1.0 / 30.0              # s between a camera's consecutive frames (30 Hz ToF)
 AXES = ("larm", "propeller", "carc", "longitudinal")
 AXIS_LABEL = {"larm": "Larm", "propeller": "Prop", "carc": "Carc", "longitudinal": "Long"}
@@ -174,14 +177,22 @@ def still_fusion(room: Room, cameras=None):
     return StillFusion.for_sensor(models.pop(), STILL_FRAMES)
 
 
+def still_frame_list(room: Room, setup: str, ideal: dict, seed: int = 0, cameras=None,
+                     first: dict | None = None) -> list[dict[str, np.ndarray]]:
+    """``STILL_FRAMES`` consecutive measured frames (dicts id -> (H, W) float32) of the still
+    setup, frame 0 first, as :meth:`FreeSpaceProduct.update` takes them; ``first``: frame 0 if
+    already measured."""
+    frames = [first if first is not None else measured_frames(room, setup, ideal, seed, cameras=cameras)]
+    frames += [measured_frames(room, setup, ideal, seed, cameras=cameras, frame=k) for k in range(1, STILL_FRAMES)]
+    return frames
+
+
 def still_frames(room: Room, setup: str, ideal: dict, seed: int = 0, cameras=None,
                  first: dict | None = None) -> dict[str, np.ndarray]:
     """``STILL_FRAMES`` consecutive measured frames per camera of the still setup, fused
     (:class:`~depthguard.fusion.temporal.StillFusion`); ``first``: frame 0 if already measured."""
-    fusion = still_fusion(room, cameras)
-    frames = [first if first is not None else measured_frames(room, setup, ideal, seed, cameras=cameras)]
-    frames += [measured_frames(room, setup, ideal, seed, cameras=cameras, frame=k) for k in range(1, STILL_FRAMES)]
-    return {cid: fusion.fuse([f[cid] for f in frames]) for cid in ideal}
+    return fuse_still(still_fusion(room, cameras), still_frame_list(room, setup, ideal, seed, cameras, first),
+                      ids=list(ideal))
 
 
 def setup_frames(room: Room, setup: str, seed: int = 0, carm_q=None, noiseless: bool = False, cameras=None):
@@ -208,38 +219,41 @@ def shell_primitives(room: Room) -> list:
     return [p for p in room.scene.static if _outside_box(p, room.lo, room.hi)]
 
 
+def shell_meshes(room: Room) -> list:
+    """World meshes of the room's fixed shell (:func:`shell_primitives`)."""
+    return [p.mesh() for p in shell_primitives(room)]
+
+
 def shell_backgrounds(room: Room, cameras) -> dict[str, np.ndarray]:
     """Expected depth (float32, 0 = nothing) of the room's shell per camera, as the map's
-    cameras believe they are placed (:func:`depthguard.render.render_depth`)."""
-    from depthguard.render import render_depth
-    meshes = [p.mesh() for p in shell_primitives(room)]
-    return {c.id: np.array(render_depth(c, meshes), copy=True) for c in cameras}
+    cameras believe they are placed (:func:`depthguard.fusion.free_space_product.shell_backgrounds`)."""
+    return _shell_depths(cameras, shell_meshes(room))
 
 
-def _shell_map(room: Room, cams, vs, margin: float | None = None, tolerance: float = SHELL_TOLERANCE) -> FreeSpaceMap:
-    fs = FreeSpaceMap(cams, (room.lo, room.hi), vs, margin=room.margin if margin is None else margin)
-    fs.set_background(shell_backgrounds(room, cams), tolerance=tolerance)
+def _shell_map(room: Room, cams, vs) -> FreeSpaceMap:
+    """The ``single`` variant: the product's rule on one frame (margin ``room.margin`` = 2 sigma
+    of one frame, the shell as background with tolerance ``SHELL_TOLERANCE``)."""
+    fs = FreeSpaceMap(cams, (room.lo, room.hi), vs, margin=room.margin)
+    fs.set_background(shell_backgrounds(room, cams), tolerance=SHELL_TOLERANCE)
     return fs
 
 
 def product_margins(room: Room, cams=None) -> tuple[float, float]:
-    """``(margin, shell tolerance)`` of the product: 2 and 2 + 3 sigma of the fused depth."""
-    fusion = still_fusion(room, cams)
-    if fusion.sigma_z2 != 0.0:        # one margin for the whole room needs depth-independent noise
-        raise ValueError("the product's margin assumes depth-independent sensor noise (sigma_z2 = 0)")
-    sig = fusion.sigma(0.0)
-    return 2.0 * sig, 5.0 * sig
+    """``(margin, shell tolerance)`` of the product: 2 and 2 + 3 sigma of the fused depth
+    (:func:`depthguard.fusion.free_space_product.product_margins`)."""
+    return _fused_margins(still_fusion(room, cams))
 
 
-def _product_map(room: Room, cams, vs) -> FreeSpaceMap:
-    """The product: the room shell as background, margin 2 sigma of the fused depth of
-    ``STILL_FRAMES`` frames, shell tolerance margin + 3 sigma."""
-    margin, tol = product_margins(room, cams)
-    return _shell_map(room, cams, vs, margin, tol)
+def _product(room: Room, cams, vs) -> FreeSpaceProduct:
+    """The product's map (:class:`~depthguard.fusion.free_space_product.FreeSpaceProduct`) of
+    the room with cameras ``cams`` at voxel size ``vs``."""
+    return FreeSpaceProduct(cams, (room.lo, room.hi), vs, still_fusion(room, cams), shell_meshes(room))
 
 
 # ------------------------------------------------------------------- pieces
-def _reconstruct(fs: FreeSpaceMap, depths, machine, self_padding):
+def _reconstruct(fs, depths, machine, self_padding):
+    """``fs``: a FreeSpaceMap (``depths`` one dict id -> image) or a FreeSpaceProduct
+    (``depths`` its list of still frames)."""
     occ = fs.update(depths).copy()
     fs.add_free_volume(machine, padding=self_padding)
     return fs.occupied.copy(), fs.machine.copy()
@@ -338,16 +352,16 @@ def _evaluate(room: Room, cams, label, voxels, setups, seed, quick, out, log, ca
     r: dict = {"cameras": len(cams), "accuracy": {}, "objects": {}, "verdicts": {}, "calibration": {}}
     ideal = {s: ideal_frames(room, s, cameras=cams) for s in track(setups, f"render setups ({label} rig)")}
     noisy = {s: measured_frames(room, s, ideal[s], seed, cameras=cams) for s in setups}
-    still = {s: still_frames(room, s, ideal[s], seed, cameras=cams, first=noisy[s]) for s in setups}
+    still = {s: still_frame_list(room, s, ideal[s], seed, cameras=cams, first=noisy[s]) for s in setups}
     p_margin, _ = product_margins(room, cams)
     for vs in voxels:
         self_pad = 0.5 * vs
-        make = {PRODUCT: lambda: _product_map(room, cams, vs),
+        make = {PRODUCT: lambda: _product(room, cams, vs),
                 "single": lambda: _shell_map(room, cams, vs),
                 "paper": lambda: FreeSpaceMap(cams, (room.lo, room.hi), vs, margin=room.margin),
                 "full": lambda: FreeSpaceMap(cams, (room.lo, room.hi), vs, margin=room.margin, footprint="full"),
                 "bound": lambda: FreeSpaceMap(cams, (room.lo, room.hi), vs, margin=0.0, footprint="full"),
-                "noiseless": lambda: _product_map(room, cams, vs)}
+                "noiseless": lambda: _product(room, cams, vs).map}
         maps = {k: make[k]() for k in variants}
         # the margin trade-off of the product (same frames, same background), cell rig only
         sweep = {}
@@ -360,7 +374,7 @@ def _evaluate(room: Room, cams, label, voxels, setups, seed, quick, out, log, ca
         sweep_occ: dict = {mg: {} for mg in sweep}
         sweep_verdicts: dict = {mg: {} for mg in sweep}
         seer = FreeSpaceMap(cams, (room.lo, room.hi), vs, margin=0.0)   # noiseless, centre, no margin
-        grid = maps[PRODUCT].grid
+        grid = maps[PRODUCT].map.grid
         acc = {k: {} for k in maps}
         objs = {}
         recon = {}
@@ -381,7 +395,7 @@ def _evaluate(room: Room, cams, label, voxels, setups, seed, quick, out, log, ca
                 elif k == "paper":
                     recon_paper[setup] = occ
             occ, truth_, mach = recon[setup]
-            views = maps[PRODUCT].view_counts()
+            views = maps[PRODUCT].map.view_counts()
             unseen = views == 0
             acc.setdefault("unseen_free", {})[setup] = int((unseen & ~truth_ & ~mach).sum())
             # truly free voxels no camera sees free even in noiseless images (out of view or
@@ -460,7 +474,7 @@ def _evaluate(room: Room, cams, label, voxels, setups, seed, quick, out, log, ca
                         qk = q_at(0.0)
                         ideal_k = ideal_frames(room, setup, carm_q=qk, cameras=cams)
                         one_k = measured_frames(room, setup, ideal_k, seed, cameras=cams)
-                        still_k = still_frames(room, setup, ideal_k, seed, cameras=cams, first=one_k)
+                        still_k = still_frame_list(room, setup, ideal_k, seed, cameras=cams, first=one_k)
                         occ_k, mach_k = _reconstruct(fs, still_k, room.carm.primitives(qk), self_pad)
                         occ_kp, _ = _reconstruct(fs_paper, one_k, room.carm.primitives(qk), self_pad)
                         row = _verdict_row(setup, m, occ_k, truth, grid, mach_k, occ_kp)
@@ -478,7 +492,7 @@ def _evaluate(room: Room, cams, label, voxels, setups, seed, quick, out, log, ca
             for lab, rot, tr in (("rotation ±1°", 1.0, 0.0), ("translation ±1 cm", 0.0, 0.01), ("both", 1.0, 0.01)):
                 pcams = perturbed_cameras(cams, rng, rot, tr)
                 # the product renders its background with the cameras it believes in (disturbed)
-                fss = {PRODUCT: _product_map(room, pcams, vs),
+                fss = {PRODUCT: _product(room, pcams, vs),
                        "paper": FreeSpaceMap(pcams, (room.lo, room.hi), vs, margin=room.margin)}
                 cal[lab] = {}
                 for k, fsp in fss.items():
