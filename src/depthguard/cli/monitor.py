@@ -50,7 +50,7 @@ def _status_line(r) -> str:
 def monitor(
     rig: Optional[Path] = typer.Option(None, "--rig", help="Rig file (YAML) of your cell; its monitor: section sets the runtime."),
     cell: Optional[str] = typer.Option(None, "--cell", help="A built-in cell (default flacco-cell when no --rig)."),
-    source: List[str] = typer.Option([], "--source", help="Frame source SCHEME:ARG, repeatable: sim[:CELL[:SITUATION][:alone][:dark][:noiseless]], images:DIR. Default: the simulator of the cell (or of the rig's own scene)."),
+    source: List[str] = typer.Option([], "--source", help="Frame source SCHEME:ARG, repeatable: sim[:CELL[:SITUATION][:alone][:dark][:noiseless]], images:DIR, units:ENDPOINT (the camera units of a fusion server; list their cameras in the rig's monitor: remote_cameras). Default: the simulator of the cell (or of the rig's own scene)."),
     joints: Optional[str] = typer.Option(None, "--joints", help="Joint source: sim (the simulated robot, which obeys the reaction), csv:FILE, zenoh:KEY. Default: sim with a sim source."),
     out: Optional[Path] = typer.Option(None, "--out", "-o", help="Folder for log.jsonl (one line per control cycle) and summary.json (default: out/monitor/<UTC time>)."),
     duration: Optional[float] = typer.Option(None, "--duration", help="Seconds of run time (default: until Ctrl-C or the end of the sources)."),
