@@ -190,7 +190,8 @@ def safe_defaults(
         typer.echo(f"{name}: robot alone {duration:g} s: override min {r['override_min']:.3f}, speed along "
                    f"its path min {r['robot_speed_min']:.2f} (slowed {r['robot_slowed_s']:.2f} s); {r['false_near']} of {r['readings']} readings more than "
                    f"{r['tolerance_m'] * 100:.0f} cm nearer than the truth (worst {r['worst_m']} m at {r['worst_at']}); "
-                   f"{r['missed_within_rho']} fixed objects within rho not reported")
+                   f"{r['missed_within_rho']} fixed objects within rho not reported; repulsion up to "
+                   f"{r['repulsion_max_m_s']} m/s")
     if dark_duration > 0:
         log(f"safe-defaults: flacco-cell's person, visible and dark, {dark_duration:g} s each ...")
         d = dark_person("flacco-cell", duration=dark_duration)

@@ -59,6 +59,7 @@ def robot_alone(cell_name: str, duration: float = 60.0, tolerance: float = 0.05,
     kept, world, summary = _run(rig, f"sim:{cell_name}:alone", duration, cfg, every)
     static = list(cell.scene.static)
     worst, false_n, miss_n, n = math.inf, 0, 0, 0
+    rep_max = max((float(np.linalg.norm(r.repulsion)) for r in kept), default=0.0)
     worst_at = None
     for r in kept:
         m = int(np.sum(~r.is_watch))
@@ -84,6 +85,7 @@ def robot_alone(cell_name: str, duration: float = 60.0, tolerance: float = 0.05,
             "unobserved_cycles": summary["unobserved_cycles"],
             "worst_m": None if worst_at is None else round(worst, 4), "worst_at": worst_at,
             "false_near": false_n, "missed_within_rho": miss_n, "tolerance_m": tolerance,
+            "repulsion_max_m_s": round(rep_max, 4),
             "real_time_factor": summary["real_time_factor"]}
 
 
