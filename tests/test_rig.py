@@ -147,3 +147,24 @@ def test_robot_loads_with_base(tmp_path):
     assert rig.robot.dof == 7
     poses = rig.robot.link_poses(rig.robot_q0)
     assert poses[0][2, 3] == pytest.approx(0.5)
+
+
+def test_a_camera_id_that_cannot_name_a_zenoh_key_is_refused_when_the_rig_loads(tmp_path):
+    import yaml
+
+    from depthguard.rig import Rig, RigError
+    from depthguard.sim.cells import cell_rig_path
+
+    data = yaml.safe_load(cell_rig_path("flacco-cell").read_text())
+    data["cameras"][1]["id"] = "side/left"
+    with pytest.raises(RigError, match=r"cameras\[1\]\.id: .*cannot name a Zenoh key"):
+        Rig.from_dict(data, source=tmp_path / "cell.yaml")
+    data["monitor"] = {"rho": 0.3, "watch_points": [{"name": "door", "position": [1, 0, 1]}, {"name": "door", "position": [0, 0, 1]}]}
+    data["cameras"][1]["id"] = "cam1"
+    with pytest.raises(RigError, match=r"monitor: watch point names must be unique"):
+        Rig.from_dict(data, source=tmp_path / "cell.yaml")
+    data["monitor"] = {"rho": 0.3, "stale": 1}
+    with pytest.raises(RigError, match=r"monitor\.stale: unknown field"):
+        Rig.from_dict(data, source=tmp_path / "cell.yaml")
+    data["monitor"] = {"rho": 0.3}
+    assert Rig.from_dict(data, source=tmp_path / "cell.yaml").monitor.rho == 0.3

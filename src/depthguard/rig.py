@@ -90,6 +90,12 @@ class CameraSpec(_Strict):
     range: Optional[tuple[float, float]] = None
     pose: PoseSpec
 
+    @field_validator("id")
+    @classmethod
+    def _key_safe_id(cls, v: str) -> str:
+        from depthguard.config import check_camera_id
+        return check_camera_id(v)        # it names Zenoh keys and files (R31)
+
     @field_validator("sensor")
     @classmethod
     def _known_sensor(cls, v: Optional[str]) -> Optional[str]:
