@@ -9,7 +9,6 @@ whose), wall-clock deadlines, and the protocol's stated rules.
 
 import os
 import signal
-import socket
 import subprocess
 import sys
 import time
@@ -22,12 +21,9 @@ from hypothesis import strategies as st
 from depthguard.distributed import wire as W
 from depthguard.distributed.client import ServerClient, ServerRefused
 from depthguard.distributed.server import ERR_REFUSED, FusionServer
+from loopback import free_port
 
 
-def free_port() -> int:
-    with socket.socket() as s:
-        s.bind(("127.0.0.1", 0))
-        return s.getsockname()[1]
 
 
 def wait_until(pred, timeout, step=0.02):

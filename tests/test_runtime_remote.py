@@ -4,19 +4,15 @@ stale limit and the monitored cameras of a running monitor; a bad message change
 from __future__ import annotations
 
 import json
-import socket
 import threading
 import time
 
 import pytest
 
 from depthguard.distributed.settings import zenoh_config
+from loopback import free_port
 
 
-def _free_port() -> int:
-    with socket.socket() as s:
-        s.bind(("127.0.0.1", 0))
-        return s.getsockname()[1]
 
 
 def _wait(pred, timeout):
@@ -37,7 +33,7 @@ def test_settings_key_changes_a_running_monitor_and_refuses_bad_messages():
     from depthguard.sim import load_cell
 
     rig = load_cell("flacco-cell").rig
-    endpoint = f"tcp/127.0.0.1:{_free_port()}"
+    endpoint = f"tcp/127.0.0.1:{free_port()}"
     mon_session = zenoh.open(zenoh_config(listen=[endpoint]))
     admin = zenoh.open(zenoh_config(listen=["tcp/127.0.0.1:0"], connect=[endpoint]))
     results, lock = [], threading.Lock()

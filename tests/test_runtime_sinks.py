@@ -7,7 +7,6 @@ bounds for "never blocks".
 
 import json
 import math
-import socket
 import threading
 import time
 
@@ -17,6 +16,7 @@ import pytest
 from depthguard.distributed.settings import zenoh_config
 from depthguard.runtime.result import CameraStatus, Reaction
 from depthguard.runtime.sinks import CallbackSink, JsonlLog, SinkError, SinkFanout, ZenohPublisher
+from loopback import free_port
 
 
 def reaction(t=1.0, override=1.0, reasons=None, distance=(0.42, math.inf, 0.9), observed=(True, True, False)):
@@ -125,10 +125,6 @@ def test_a_failing_sink_is_disabled_and_counted_the_others_go_on():
 
 
 # --------------------------------------------------------------------------- ZenohPublisher
-def free_port() -> int:
-    with socket.socket() as s:
-        s.bind(("127.0.0.1", 0))
-        return s.getsockname()[1]
 
 
 def wait_until(pred, timeout, step=0.01):

@@ -6,7 +6,6 @@ The zenoh source is fed by a real publisher session on 127.0.0.1.
 """
 
 import json
-import socket
 import time
 from pathlib import Path
 
@@ -19,6 +18,7 @@ from depthguard.rig import Rig
 from depthguard.sources.base import JointSource
 from depthguard.sources.joints import (CsvJointSource, JointSourceError, ZenohJointSource, open_csv_joints,
                                        open_zenoh_joints)
+from loopback import free_port
 
 CELL = Path(depthguard.__file__).parent / "data" / "cells" / "flacco-cell.yaml"
 
@@ -93,10 +93,6 @@ def test_csv_missing_file_and_rig_without_robot(tmp_path, rig):
 
 
 # --------------------------------------------------------------------------- zenoh
-def free_port() -> int:
-    with socket.socket() as s:
-        s.bind(("127.0.0.1", 0))
-        return s.getsockname()[1]
 
 
 def wait_until(pred, timeout, step=0.01):

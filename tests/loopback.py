@@ -1,0 +1,10 @@
+"""Helpers of the tests that open Zenoh sessions: loopback only."""
+
+import socket
+
+
+def free_port() -> int:
+    """A TCP port on 127.0.0.1 that is free now."""
+    with socket.socket() as s:
+        s.bind(("127.0.0.1", 0))
+        return s.getsockname()[1]
