@@ -193,6 +193,9 @@ def _run_real_time(monitor, frame_sources, joint_source, duration, stop, emit, a
 
 def _run_paced(monitor, frame_sources, joint_source, duration, stop, emit, all_done, stats, wall0, t0=0.0):
     dt = monitor.config.dt
+    for src in frame_sources:
+        if hasattr(src, "skip_behind"):
+            src.skip_behind = True          # a simulated camera drops what it cannot render in time
     next_status = 0.0
     start = time.monotonic() - t0
     clock = lambda: time.monotonic() - start          # noqa: E731 - the run's clock, from t0

@@ -26,6 +26,7 @@ from __future__ import annotations
 
 import math
 import threading
+from collections import deque
 
 import numpy as np
 
@@ -82,6 +83,7 @@ class SimWorld:
         self.alone, self.dark, self.noiseless, self.seed = alone, dark, noiseless, seed
         self.joint_hz, self.camera_hz = float(joint_hz), float(camera_hz)
         self.history = JointHistory(self.robot.dof, span_s=5.0)
+        self.states: deque = deque(maxlen=int(5.0 * joint_hz))   # (stamp, q) of every tick, newest last
         self._lock = threading.Lock()
         self.override = 1.0
         self._qd_lo = self._qd_hi = None
@@ -143,6 +145,7 @@ class SimWorld:
                     self.stopped_s += dt if self.scale < 0.01 else 0.0
                 q = self._path_q(self._tau)
                 self.history.push(ts, q)
+                self.states.append((ts, q))
                 new.append((ts, q))
                 self._tick += 1
         return new
@@ -158,9 +161,17 @@ class SimJoints:
         self.world = world
         self.done = False
         self.lost = None
+        self._last = -math.inf          # stamp of the newest state returned
 
     def states_until(self, t: float) -> list[tuple[float, np.ndarray]]:
-        return self.world.advance(t)
+        """The robot's states up to ``t`` not returned yet (the frame source may have moved the
+        robot first: the states are the world's, whoever advanced it)."""
+        self.world.advance(t)
+        with self.world._lock:
+            out = [(ts, q) for ts, q in self.world.states if self._last < ts <= t + 1e-12]
+        if out:
+            self._last = out[-1][0]
+        return out
 
     def close(self) -> None:
         pass
@@ -188,6 +199,8 @@ class SimFrames:
         self._phase = {c.id: i * 0.37 * period for i, c in enumerate(cams)}
         self._next = {c.id: 0.0 for c in cams}
         self._stopped: dict[str, float] = {}
+        self.skip_behind = False        # set by a real-time run: frames a slow machine cannot render are dropped
+        self.skipped = 0
         self.done = False
         self.lost = None
 
@@ -214,16 +227,22 @@ class SimFrames:
 
     def frames_until(self, t: float) -> list[Frame]:
         self.world.advance(t)
+        t = min(t, self.world.history.newest_stamp)   # a frame needs the robot's pose at its capture
         out = []
         for cid in self.camera_ids:
+            if self.skip_behind and self._next[cid] + self._period <= t + 1e-12:
+                # behind by more than a period (real time, a slow machine): a camera drops the
+                # frames it could not deliver rather than queue them; the latest due is captured
+                ph = self._phase[cid]
+                self._next[cid] = ph + math.floor((t - ph) / self._period + 1e-9) * self._period
+                self.skipped += 1
             while self._next[cid] <= t + 1e-12:
                 tc = self._next[cid]
                 ph = self._phase[cid]
                 self._next[cid] = ph + (math.floor((tc - ph) / self._period + 1e-9) + 1) * self._period
                 if cid in self._stopped and tc >= self._stopped[cid]:
                     continue
-                newest = self.world.history.newest_stamp
-                q = self.world.history.at(min(tc, newest) if tc - newest < 1e-6 else tc)
+                q = self.world.history.at(tc)
                 out.append(Frame(cid, self.render(cid, tc, q), tc))
         out.sort(key=lambda f: f.stamp)
         return out
