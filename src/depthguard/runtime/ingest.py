@@ -19,8 +19,9 @@ A frame goes through two threads before a control cycle can use it:
    lock, which the fusion worker takes only after a swap: a control cycle
    never waits for a frame and never sees half of one.
 
-Numba runs on one thread in each worker, so that the control thread keeps a
-core (the kernels release the GIL).
+Numba runs on one thread in each worker, and the workers run at a lower
+scheduling priority (Linux, :func:`background_thread`), so that the control
+thread keeps a core (the kernels release the GIL).
 """
 
 from __future__ import annotations
@@ -36,7 +37,25 @@ from depthguard.camera import check_depth_image
 from depthguard.filtering.expected import ExpectedDepth
 from depthguard.runtime.joints import JointHistory, OutsideHistory
 
-__all__ = ["CameraProduct", "CameraWorker", "GridBuffer", "FusionWorker"]
+__all__ = ["CameraProduct", "CameraWorker", "GridBuffer", "FusionWorker", "background_thread"]
+
+#: niceness of the monitor's worker threads (Linux): when the cores are short, the control
+#: thread that calls ``step`` runs first; a frame then waits, a control cycle does not
+WORKER_NICENESS = 10
+
+
+def background_thread() -> None:
+    """Make the calling thread a background one: one numba thread, and a lower scheduling
+    priority where the system allows it per thread (Linux); silently nothing elsewhere."""
+    import os
+
+    import numba
+
+    numba.set_num_threads(1)
+    try:
+        os.setpriority(os.PRIO_PROCESS, threading.get_native_id(), WORKER_NICENESS)
+    except (AttributeError, OSError):
+        pass
 
 
 @dataclass
@@ -109,9 +128,7 @@ class CameraWorker:
             self.last_refusal = f"camera {self.id}: {message}"
 
     def _run(self) -> None:
-        import numba
-
-        numba.set_num_threads(1)
+        background_thread()
         while True:
             with self._wake:
                 while self._inbox is None and not self._stop:
@@ -231,9 +248,7 @@ class FusionWorker:
         self._thread.join(timeout)
 
     def _run(self) -> None:
-        import numba
-
-        numba.set_num_threads(1)
+        background_thread()
         while True:
             with self._wake:
                 while not self._pending and not self._stop:

@@ -201,9 +201,9 @@ def _run_paced(monitor, frame_sources, joint_source, duration, stop, emit, all_d
     clock = lambda: time.monotonic() - start          # noqa: E731 - the run's clock, from t0
 
     def pump(fn, push):
-        import numba
+        from depthguard.runtime.ingest import background_thread
 
-        numba.set_num_threads(1)         # a source thread keeps to one core (OpenMP threads spin)
+        background_thread()              # one core, lower priority than the control thread
         while not stop.is_set():
             try:
                 items = fn(clock())
