@@ -21,19 +21,11 @@ from hypothesis import strategies as st
 from depthguard.distributed import wire as W
 from depthguard.distributed.client import ServerClient, ServerRefused
 from depthguard.distributed.server import ERR_REFUSED, FusionServer
-from loopback import free_port
+from loopback import free_port, wait_until
 
 
 
 
-def wait_until(pred, timeout, step=0.02):
-    t_end = time.monotonic() + timeout
-    while time.monotonic() < t_end:
-        v = pred()
-        if v:
-            return v
-        time.sleep(step)
-    return pred()
 
 
 @pytest.fixture

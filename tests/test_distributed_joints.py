@@ -17,7 +17,7 @@ import pytest
 from depthguard.distributed import wire as W
 from depthguard.distributed.server import FusionServer
 
-from test_distributed import free_port, wait_until
+from loopback import free_port, wait_until
 
 KEY = "test/robot/joints"
 

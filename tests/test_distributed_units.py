@@ -14,7 +14,8 @@ from depthguard.distributed import wire as W
 from depthguard.distributed.client import ServerClient
 from depthguard.distributed.server import FusionServer
 
-from test_distributed import _rig, free_port, wait_until
+from loopback import free_port, wait_until
+from test_distributed import _rig
 
 
 @pytest.fixture

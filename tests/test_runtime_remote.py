@@ -5,23 +5,15 @@ from __future__ import annotations
 
 import json
 import threading
-import time
 
 import pytest
 
 from depthguard.distributed.settings import zenoh_config
-from loopback import free_port
+from loopback import free_port, wait_until
 
 
 
 
-def _wait(pred, timeout):
-    end = time.monotonic() + timeout
-    while time.monotonic() < end:
-        if pred():
-            return True
-        time.sleep(0.01)
-    return pred()
 
 
 @pytest.mark.multiprocess
@@ -48,10 +40,10 @@ def test_settings_key_changes_a_running_monitor_and_refuses_bad_messages():
     with Monitor(rig) as mon:
         listener = SettingsListener(mon, mon_session, "cellA")
         try:
-            assert _wait(lambda: pub.matching_status.matching, 10.0)
+            assert wait_until(lambda: pub.matching_status.matching, 10.0)
             before = mon.config
             pub.put(json.dumps({"rho": 0.3, "camera_stale_s": 0.2, "cameras": ["cam0"]}).encode())
-            assert _wait(lambda: len(results) >= 1, 5.0)
+            assert wait_until(lambda: len(results) >= 1, 5.0)
             assert results[0]["ok"], results[0]
             assert mon.config.rho == 0.3 and mon.config.camera_stale_limit == 0.2
             assert mon.camera_ids == ("cam0",) and results[0]["cameras"] == ["cam0"]
@@ -61,11 +53,11 @@ def test_settings_key_changes_a_running_monitor_and_refuses_bad_messages():
                                (json.dumps({"principal": "cam1"}).encode(), "cannot change principal")):
                 n = len(results)
                 pub.put(bad)
-                assert _wait(lambda: len(results) > n, 5.0)
+                assert wait_until(lambda: len(results) > n, 5.0)
                 assert results[-1]["ok"] is False and words in results[-1]["error"], results[-1]
                 assert mon.config.rho == 0.3 and mon.camera_ids == ("cam0",)
             pub.put(json.dumps({"cameras": ["cam0", "cam1"]}).encode())
-            assert _wait(lambda: results[-1].get("cameras") == ["cam0", "cam1"], 5.0)
+            assert wait_until(lambda: results[-1].get("cameras") == ["cam0", "cam1"], 5.0)
             assert mon.camera_ids == ("cam0", "cam1") and before.rho == 0.4
             assert listener.applied == 2 and listener.rejected == 4
         finally:

@@ -16,7 +16,7 @@ import pytest
 from depthguard.distributed.settings import zenoh_config
 from depthguard.runtime.result import CameraStatus, Reaction
 from depthguard.runtime.sinks import CallbackSink, JsonlLog, SinkError, SinkFanout, ZenohPublisher
-from loopback import free_port
+from loopback import free_port, wait_until
 
 
 def reaction(t=1.0, override=1.0, reasons=None, distance=(0.42, math.inf, 0.9), observed=(True, True, False)):
@@ -127,13 +127,6 @@ def test_a_failing_sink_is_disabled_and_counted_the_others_go_on():
 # --------------------------------------------------------------------------- ZenohPublisher
 
 
-def wait_until(pred, timeout, step=0.01):
-    t_end = time.monotonic() + timeout
-    while time.monotonic() < t_end:
-        if pred():
-            return True
-        time.sleep(step)
-    return pred()
 
 
 class FakeClock:

@@ -6,7 +6,6 @@ The zenoh source is fed by a real publisher session on 127.0.0.1.
 """
 
 import json
-import time
 from pathlib import Path
 
 import numpy as np
@@ -18,7 +17,7 @@ from depthguard.rig import Rig
 from depthguard.sources.base import JointSource
 from depthguard.sources.joints import (CsvJointSource, JointSourceError, ZenohJointSource, open_csv_joints,
                                        open_zenoh_joints)
-from loopback import free_port
+from loopback import free_port, wait_until
 
 CELL = Path(depthguard.__file__).parent / "data" / "cells" / "flacco-cell.yaml"
 
@@ -95,13 +94,6 @@ def test_csv_missing_file_and_rig_without_robot(tmp_path, rig):
 # --------------------------------------------------------------------------- zenoh
 
 
-def wait_until(pred, timeout, step=0.01):
-    t_end = time.monotonic() + timeout
-    while time.monotonic() < t_end:
-        if pred():
-            return True
-        time.sleep(step)
-    return pred()
 
 
 @pytest.fixture
