@@ -148,6 +148,13 @@ class MonitorConfig(BaseModel):
             raise ValueError(f"remote_cameras repeats an id: {list(v)}")
         return v
 
+    @field_validator("zenoh_listen")
+    @classmethod
+    def _endpoint(cls, v):
+        if not re.match(r"^(tcp|udp|quic|tls|unixsock-stream)/\S+$", v):
+            raise ValueError(f"zenoh_listen {v!r} is not a Zenoh endpoint like 'tcp/127.0.0.1:7447'")
+        return v
+
     @field_validator("cell")
     @classmethod
     def _cell(cls, v):

@@ -56,7 +56,7 @@ def monitor(
     duration: Optional[float] = typer.Option(None, "--duration", help="Seconds of run time (default: until Ctrl-C or the end of the sources)."),
     fast: bool = typer.Option(False, "--fast", help="As fast as possible and deterministic (recordings, simulation), not in real time."),
     zenoh: bool = typer.Option(False, "--zenoh", help="Publish reactions, distances and health under depthguard/<cell>/... (loopback unless --zenoh-listen)."),
-    zenoh_listen: str = typer.Option("tcp/127.0.0.1:0", "--zenoh-listen", help="Zenoh endpoint the monitor listens on."),
+    zenoh_listen: Optional[str] = typer.Option(None, "--zenoh-listen", help="Zenoh endpoint the monitor listens on (default: the rig's monitor: zenoh_listen, loopback)."),
     zenoh_connect: List[str] = typer.Option([], "--zenoh-connect", help="Zenoh endpoints to connect to (repeatable)."),
     quiet: bool = typer.Option(False, "--quiet", "-q", help="No status line."),
 ) -> None:
@@ -85,6 +85,7 @@ def monitor(
         out = Path("out") / "monitor" / datetime.datetime.now(datetime.timezone.utc).strftime("%Y%m%d-%H%M%S")
     check_out_dir(out)
     specs = list(source) or [f"sim:{cell_name}" if cell_name else "sim"]
+    zenoh_listen = zenoh_listen or the_rig.monitor.zenoh_listen
     context: dict = {"zenoh_listen": (zenoh_listen,), "zenoh_connect": tuple(zenoh_connect)}
     sources = [open_source(s, the_rig, context) for s in specs]
     joint_spec = joints or ("sim" if "sim_world" in context else None)

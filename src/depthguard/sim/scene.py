@@ -58,6 +58,11 @@ class JointPath:
         self._t = np.array([t for t, _ in ks])
         self._q = np.stack([q for _, q in ks])
 
+    @property
+    def end(self) -> float:
+        """Time of the last key (s): the path holds from there on."""
+        return float(self._t[-1])
+
     def __call__(self, t: float) -> np.ndarray:
         ts, qs = self._t, self._q
         if t <= ts[0] or len(ts) == 1:

@@ -93,8 +93,7 @@ class SimWorld:
         self.stopped_s = 0.0            # seconds below 1 % of it
         self._tau = self.start          # path time of the robot
         self._tick = 0                  # next joint tick index (time = tick / joint_hz)
-        self._path_end = float(getattr(getattr(self.scene, "robot_path", None), "_t", [0.0])[-1]) \
-            if self.scene.robot_path is not None else 0.0
+        self._path_end = float(getattr(self.scene.robot_path, "end", 0.0))   # a JointPath loops; a callable does not
 
     def on_reaction(self, reaction) -> None:
         """A sink: the robot takes each reaction — the override and the joint-velocity limits

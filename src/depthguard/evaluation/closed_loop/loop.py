@@ -48,6 +48,7 @@ from depthguard.evaluation.closed_loop.loop_truth import LoopTruth
 from depthguard.control.sns import SNSWorkspace, sns_velocity
 from depthguard.control.supervisor import SafetySupervisor, stop_reasons
 from depthguard.evaluation.closed_loop.trajectory import Hexagon
+from depthguard.filtering.expected import ExpectedDepth
 from depthguard.render.composite import nearest_depth
 from depthguard.sources.frame import Frame
 
@@ -204,9 +205,9 @@ class ClosedLoop:
         # camera simulation: the static scene is rendered once per camera; per frame only the
         # robot (also the self-removal image, R9) and the moving obstacles are rendered and
         # combined with it per pixel (the same image as rendering everything, render/composite.py)
-        self.robot_renderers = {c.id: Renderer(c, parallel=par) for c in cams}
+        # the one expected depth of the known scene (static once, robot per frame) makes the images
+        self.expected = {c.id: ExpectedDepth(c, self.robot, self._static_meshes, parallel=par) for c in cams}
         self.dyn_renderers = {c.id: Renderer(c, parallel=par) for c in cams}
-        self.static_depth = {c.id: np.array(Renderer(c).render(self._static_meshes)[0], copy=True) for c in cams}
         self._ideal = {c.id: np.zeros(c.shape, dtype=np.float32) for c in cams}
         self.data = self.robot.create_data()
         self.sns_ws = SNSWorkspace(3, self.robot.dof)
@@ -272,10 +273,10 @@ class ClosedLoop:
         cam = self.cams[i]
         cid = cam.id
         t0 = time.perf_counter()
-        rd = np.array(self.robot_renderers[cid].render(self.robot.link_meshes(q))[0], copy=True)
+        rd = np.array(self.expected[cid].robot(q), copy=True)
         t1 = time.perf_counter()
         ideal = self._ideal[cid]
-        np.copyto(ideal, self.static_depth[cid])
+        np.copyto(ideal, self.expected[cid].static)
         dyn = self._dynamic_meshes(t)
         if dyn:
             nearest_depth(ideal, self.dyn_renderers[cid].render(dyn)[0])
