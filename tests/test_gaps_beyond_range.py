@@ -57,6 +57,7 @@ def _random_depth(rng, H, W, rmin=0.4, rmax=4.0):
     d[rng.random((H, W)) < 0.03] = np.nan
     d[rng.random((H, W)) < 0.02] = np.inf
     d[rng.random((H, W)) < 0.02] = rmin * 0.5
+    d[rng.random((H, W)) < 0.02] = rmax * 4.0                # beyond what any sensor returns
     if H > 6 and W > 6:
         d[rng.integers(0, H), :] = 0.0                       # a whole invalid row
         d[:, rng.integers(0, W)] = 0.0
@@ -80,7 +81,7 @@ def test_gap_kernel_equals_numpy_twin(rng, dtype):
             assert not want.any()
         # only invalid pixels get a gap depth, never beyond max_range nor below min_range
         with np.errstate(invalid="ignore"):
-            end = np.isfinite(d) & (d > 0) & (d >= 0.4)
+            end = np.isfinite(d) & (d > 0) & (d >= 0.4) & (d <= 3.0 * 4.0)   # a return (RETURN_LIMIT_FACTOR)
         assert not want[end].any()
         g = want[want > 0]
         assert np.all((g >= 0.4) & (g <= 4.0))
@@ -245,6 +246,29 @@ def test_wall_at_5m_seen_by_a_kinect_single_camera():
     none = np.zeros_like(ideal)
     r = depth_space_distance(cam, none, _on_ray(cam, u, v, 2.0), rho=0.4, method="min", invalid="unknown")
     assert np.all(r.distance == 0)
+
+
+def test_an_image_in_millimetres_is_no_return_not_free_space():
+    """A wall 2 m away written in millimetres (2000.0 read as metres): far beyond any sensor's
+    returns (RETURN_LIMIT_FACTOR x max_range), so no return — unknown from the near range —
+    never "free up to max_range". A point 1 m in front of the camera is in unknown space,
+    with one camera and in the depth grid."""
+    from depthguard.camera import RETURN_LIMIT_FACTOR
+
+    cam = _kinect()
+    wall = Box(size=(40, 40, 0.1), world_from_local=np.array([[1, 0, 0, 0], [0, 1, 0, 0], [0, 0, 1, 2.05],
+                                                               [0, 0, 0, 1]], float))
+    metres = render_depth(cam, [wall.mesh()])
+    millimetres = (metres * 1000.0).astype(np.float32)
+    assert millimetres.min() > RETURN_LIMIT_FACTOR * cam.max_range
+    pts = _on_ray(cam, np.array([319.5]), np.array([239.5]), 1.0)
+    ok = depth_space_distance(cam, metres, pts, rho=0.4, method="min", invalid="unknown")
+    assert np.isinf(ok.distance[0]) and ok.observed[0]                       # control: metres are free
+    bad = depth_space_distance(cam, millimetres, pts, rho=0.4, method="min", invalid="unknown")
+    assert bad.distance[0] == 0.0                                             # unknown, an obstacle
+    g = DepthGridMap([cam], principal=cam.id, d_min=0.5, d_max=3.5, delta_d=0.01, cache=False)
+    assert np.isinf(g.distance({cam.id: metres}, pts, rho=0.4, method="min").distance[0])
+    assert g.distance({cam.id: millimetres}, pts, rho=0.4, method="min").distance[0] < 0.02
 
 
 def test_wall_at_5m_in_the_depth_grid():

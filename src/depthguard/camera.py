@@ -19,7 +19,14 @@ import numpy as np
 
 from depthguard.transforms import as_rigid, invert_rigid
 
-__all__ = ["Camera", "CameraError"]
+__all__ = ["Camera", "CameraError", "RETURN_LIMIT_FACTOR"]
+
+#: A measured depth in (max_range, RETURN_LIMIT_FACTOR * max_range] is a return beyond the
+#: rated range (free up to ``max_range``, unknown behind: R28). Above that no depth sensor
+#: returns (a Kinect v1 to ~8 m of its rated 4, a D435 to ~10 of 6): the value is invalid —
+#: most likely an image in the wrong units (millimetres read as metres) — and counts as no
+#: return, unknown from the near range, never as free space.
+RETURN_LIMIT_FACTOR = 3.0
 
 
 class CameraError(ValueError):

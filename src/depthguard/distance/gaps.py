@@ -48,6 +48,7 @@ from __future__ import annotations
 import numpy as np
 from numba import njit
 
+from depthguard.camera import RETURN_LIMIT_FACTOR
 __all__ = ["gap_depth", "gap_depth_numpy", "GapBuffers", "check_gap_px"]
 
 
@@ -64,7 +65,7 @@ def check_gap_px(gap_px) -> int:
 @njit(cache=True, nogil=True, inline="always")
 def _end_depth(m, min_range, max_range):
     """Depth of an end pixel (``min(m, max_range)``), or 0 when ``m`` is no return."""
-    if m == m and m > 0.0 and m >= min_range and m < np.inf:
+    if m == m and m > 0.0 and m >= min_range and m <= RETURN_LIMIT_FACTOR * max_range:
         return m if m <= max_range else max_range
     return 0.0
 
@@ -148,7 +149,7 @@ def gap_depth_numpy(depth, min_range: float, max_range: float, n: int) -> np.nda
     d = np.asarray(depth, dtype=np.float64)
     H, W = d.shape
     with np.errstate(invalid="ignore"):
-        end = np.isfinite(d) & (d > 0) & (d >= min_range)
+        end = np.isfinite(d) & (d > 0) & (d >= min_range) & (d <= RETURN_LIMIT_FACTOR * max_range)
     e = np.where(end, np.minimum(d, max_range), 0.0)
     best = np.full((H, W), np.inf)
     if n > 0:

@@ -27,6 +27,7 @@ import math
 import numpy as np
 from numba import njit, prange
 
+from depthguard.camera import RETURN_LIMIT_FACTOR
 from depthguard.distance.window import ball_row_span, start_point, surveillance_window
 
 __all__ = [
@@ -95,7 +96,7 @@ def obstacle_start_depth(depth, robot_depth, use_robot, min_range, max_range,
                 if invalid_policy != INVALID_UNKNOWN:
                     out[v, u] = inf
                     continue
-                if m > max_range and m < inf:        # a return beyond the rated range
+                if m > max_range and m <= RETURN_LIMIT_FACTOR * max_range:   # a return beyond the rated range
                     out[v, u] = max_range
                     continue
                 out[v, u] = min_range

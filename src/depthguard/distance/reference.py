@@ -11,7 +11,7 @@ from __future__ import annotations
 
 import numpy as np
 
-from depthguard.camera import Camera
+from depthguard.camera import Camera, RETURN_LIMIT_FACTOR
 
 __all__ = ["obstacle_start_depth_numpy", "surveillance_window_numpy", "pixel_vector_numpy",
            "depth_space_distance_numpy"]
@@ -28,7 +28,7 @@ def obstacle_start_depth_numpy(depth, robot_depth, min_range, max_range, invalid
     m = np.asarray(depth, dtype=np.float64)
     with np.errstate(invalid="ignore"):
         valid = np.isfinite(m) & (m > 0) & (m >= min_range) & (m <= max_range)
-        beyond = np.isfinite(m) & (m > max_range)
+        beyond = np.isfinite(m) & (m > max_range) & (m <= RETURN_LIMIT_FACTOR * max_range)
     unknown = invalid == "unknown"
     d0 = np.where(valid, m, min_range if unknown else np.inf)
     if unknown:

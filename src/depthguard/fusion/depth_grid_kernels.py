@@ -49,6 +49,7 @@ import math
 import numpy as np
 from numba import njit, prange
 
+from depthguard.camera import RETURN_LIMIT_FACTOR
 from depthguard.distance.window import grow_pixel_box, start_point, surveillance_window
 
 __all__ = [
@@ -115,7 +116,7 @@ def frame_state(depth, robot_depth, use_robot, min_range, max_range, robot_offse
                 if invalid_free:
                     out_free[v, u] = np.inf
                     continue
-                if m > max_range and m < np.inf:     # a return beyond the rated range
+                if m > max_range and m <= RETURN_LIMIT_FACTOR * max_range:   # a return beyond the rated range
                     out_free[v, u] = max_range
                     continue
                 out_free[v, u] = min_range

@@ -16,7 +16,7 @@ from __future__ import annotations
 
 import numpy as np
 
-from depthguard.camera import Camera
+from depthguard.camera import Camera, RETURN_LIMIT_FACTOR
 from depthguard.distance.window import surveillance_window
 from depthguard.fusion.depth_grid_kernels import D_ZERO, KIND_ROBOT, KIND_SURFACE, KIND_UNKNOWN
 
@@ -36,7 +36,7 @@ def frame_state_numpy(cam: Camera, depth, robot_depth=None, robot_offset=0.03, i
     d = np.asarray(depth, dtype=np.float64)
     with np.errstate(invalid="ignore"):
         valid = np.isfinite(d) & (d > 0) & (d >= cam.min_range) & (d <= cam.max_range)
-        beyond = np.isfinite(d) & (d > cam.max_range)
+        beyond = np.isfinite(d) & (d > cam.max_range) & (d <= RETURN_LIMIT_FACTOR * cam.max_range)
     unknown = invalid == "unknown"
     free = np.where(valid, d, cam.min_range if unknown else np.inf)
     if unknown:
