@@ -589,3 +589,16 @@ def test_a_remote_units_voxels_count_as_boxes_and_its_staleness_is_its_cameras(r
                 assert np.allclose(r.direction[0], [0, 0, 1])
                 assert r.cameras["cam1"].state == "fresh" and not r.reasons
         assert "stale:cam1" in r.reasons and r.t > 0.12 + limit
+
+
+def test_a_frame_in_millimetres_is_refused_with_a_sentence(rig, still, q0):
+    """Depth in the wrong units is not used, and the refusal says why (bad_units)."""
+    cfg = free_cfg(rig)
+    with Monitor(rig, cfg) as mon:
+        mon.push_joints(0.0, q0)
+        mon.push_joints(0.002, q0)
+        mon.push_frame(Frame("cam0", still["cam0"] * 1000.0, 0.001))
+        mon.flush()
+        st = mon.stats()["cameras"]["cam0"]
+        assert st["refused"] == {"bad_units": 1} and "millimetres" in st["last_refusal"]
+        assert "cam0" not in mon.step(0.002).frame_stamps

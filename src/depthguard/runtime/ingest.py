@@ -152,6 +152,10 @@ class CameraWorker:
         except ValueError as exc:
             self._refuse("bad_image", str(exc))
             return
+        units = _wrong_units(depth, self.camera)
+        if units:
+            self._refuse("bad_units", units)
+            return
         stamp = float(frame.stamp)
         if not math.isfinite(stamp):
             self._refuse("bad_stamp", f"frame stamp {stamp!r} is not finite")
@@ -346,3 +350,20 @@ def robot_volume(robot, poses, padding: float) -> tuple[np.ndarray, np.ndarray]:
         out_s.append(ab)
         out_r.append(r + grow)
     return np.concatenate(out_s), np.concatenate(out_r)
+
+
+def _wrong_units(depth: np.ndarray, cam) -> str | None:
+    """A sentence when most measured pixels of ``depth`` lie beyond what any sensor returns
+    (``RETURN_LIMIT_FACTOR x max_range``): an image in millimetres read as metres. None otherwise."""
+    from depthguard.camera import RETURN_LIMIT_FACTOR
+
+    d = depth[::4, ::4]                                   # a sample is enough to tell
+    with np.errstate(invalid="ignore"):
+        measured = np.isfinite(d) & (d > 0)
+        n = int(measured.sum())
+        far = int((measured & (d > RETURN_LIMIT_FACTOR * cam.max_range)).sum())
+    if n and far > 0.5 * n:
+        return (f"camera {cam.id}: {100 * far / n:.0f} % of the measured pixels lie beyond "
+                f"{RETURN_LIMIT_FACTOR * cam.max_range:g} m (median {float(np.median(d[measured])):g}): "
+                f"depth must be metres - is this image in millimetres?")
+    return None
