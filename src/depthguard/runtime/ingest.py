@@ -41,7 +41,7 @@ __all__ = ["CameraProduct", "CameraWorker", "GridBuffer", "FusionWorker", "backg
 
 #: niceness of the monitor's worker threads (Linux): when the cores are short, the control
 #: thread that calls ``step`` runs first; a frame then waits, a control cycle does not
-WORKER_NICENESS = 10
+WORKER_NICENESS = 3      # weight 526 against 1024: another busy process does not starve the frames
 
 
 def background_thread() -> None:

@@ -241,7 +241,7 @@ class SimFrames:
                 self._next[cid] = ph + (math.floor((tc - ph) / self._period + 1e-9) + 1) * self._period
                 if cid in self._stopped and tc >= self._stopped[cid]:
                     continue
-                q = self.world.history.at(tc)
+                q = self.world.history.at(min(tc, t))         # tc <= t up to rounding
                 out.append(Frame(cid, self.render(cid, tc, q), tc))
         out.sort(key=lambda f: f.stamp)
         return out

@@ -139,8 +139,9 @@ def _sleep_until(t_wall: float, stop: threading.Event | None = None) -> None:
         time.sleep(dt)
 
 
-def _pct(xs, q) -> float:
-    return float(np.percentile(np.asarray(xs, dtype=np.float64) * 1e3, q)) if len(xs) else math.nan
+def _pct(xs, q, empty: float = math.nan) -> float:
+    """The ``q``-th percentile of ``xs`` (s) in ms; ``empty`` when there is none."""
+    return float(np.percentile(np.asarray(xs, dtype=np.float64) * 1e3, q)) if len(xs) else empty
 
 
 # ---------------------------------------------------------------- the monitor in real time
@@ -349,8 +350,8 @@ def _bench_monitor(ctx: BenchContext) -> list[BenchRow]:
                  note=(f"{common}; p50 {_pct(mon['step_s'], 50):.3g} ms (today {_pct(peer['step_s'], 50):.3g}), "
                        f"{len(mon['step_s'])} cycles, {mon['late']} started > 1 cycle late, switch interval "
                        f"{swi * 1e3:g} ms; goal <= 1 ms{extra}")),
-        BenchRow("monitor.frame_to_reaction_p99_ms", _pct(mon["f2r_s"], 99), "ms",
-                 peer="today: delivery -> end of the cycle that loads it", peer_value=_pct(peer["f2r_s"], 99),
+        BenchRow("monitor.frame_to_reaction_p99_ms", _pct(mon["f2r_s"], 99, math.inf), "ms",   # inf: no frame used
+                 peer="today: delivery -> end of the cycle that loads it", peer_value=_pct(peer["f2r_s"], 99, math.inf),
                  note=(f"push_frame -> first reaction using it; p50 {_pct(mon['f2r_s'], 50):.3g} ms, "
                        f"{len(mon['f2r_s'])} frames used of {mon['frames']} processed (the others replaced by a newer "
                        f"frame before a fusion build), dropped {mon['dropped']}, refused {mon['refused']}; "
