@@ -67,6 +67,8 @@ def test_monitor_alone_runs_in_real_time_and_stops_cleanly_on_ctrl_c(tmp_path):
     assert summary["interrupted"] is True and summary["cycles"] == len(log) > 50
     assert summary["real_time_factor"] == pytest.approx(1.0, abs=0.2)     # real time, not as fast as possible
     assert summary["source_errors"] == []                                   # the simulator kept delivering
+    # the control thread ran under SCHED_FIFO 50 (the default), or the summary says why not
+    assert summary["control_scheduling"] == "SCHED_FIFO 50" or "not permitted" in summary["control_scheduling"]
     assert all(c["fused"] > 0 for c in summary["stats"]["cameras"].values()), summary["stats"]
     assert "interrupted" in stdout
 

@@ -84,7 +84,11 @@ class MonitorConfig(BaseModel):
 
     Reaction (R13, R14): ``v_max``, ``alpha`` of the repulsion and the
     limits; ``stop_time`` / ``resume_time`` the override's ramps from 1 to 0
-    and back; ``control_hz`` the rate ``step`` is called at (its ``dt``).
+    and back; ``control_hz`` the rate ``step`` is called at (its ``dt``);
+    ``control_priority`` the SCHED_FIFO priority of the control thread in a
+    real-time run (1–99, as ros2_control's ``thread_priority``; 0 = normal
+    scheduling; where the system does not permit it the run goes on with
+    normal scheduling and its summary says so, :mod:`depthguard.runtime.realtime`).
 
     ``remote_cameras``: rig cameras served by distributed camera units (R20):
     their voxels, not their frames, reach the monitor (``push_voxels``); the
@@ -118,6 +122,7 @@ class MonitorConfig(BaseModel):
     joint_history_s: float = Field(1.0, gt=0.0, le=60.0)
     joint_wait_s: float = Field(0.05, ge=0.0, le=1.0)
     control_hz: float = Field(500.0, gt=0.0, le=10000.0)
+    control_priority: int = Field(50, ge=0, le=99)
     v_max: float = Field(1.5, gt=0.0, le=10.0)
     alpha: float = Field(5.0, gt=0.0, le=100.0)
     stop_time: float = Field(0.5, gt=0.0, le=10.0)

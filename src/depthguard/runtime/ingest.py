@@ -51,6 +51,9 @@ def background_thread() -> None:
 
     import numba
 
+    from depthguard.runtime.realtime import normal_scheduling
+
+    normal_scheduling()                  # started by a real-time control thread: not one itself
     numba.set_num_threads(1)
     try:
         os.setpriority(os.PRIO_PROCESS, threading.get_native_id(), WORKER_NICENESS)
@@ -353,17 +356,9 @@ def robot_volume(robot, poses, padding: float) -> tuple[np.ndarray, np.ndarray]:
 
 
 def _wrong_units(depth: np.ndarray, cam) -> str | None:
-    """A sentence when most measured pixels of ``depth`` lie beyond what any sensor returns
-    (``RETURN_LIMIT_FACTOR x max_range``): an image in millimetres read as metres. None otherwise."""
-    from depthguard.camera import RETURN_LIMIT_FACTOR
+    """A sentence when most measured pixels of ``depth`` lie outside what any sensor returns
+    (millimetres read as metres, or metres in a millimetre PNG); the one check of
+    :func:`depthguard.depth_io.depth_units_problem`. None otherwise."""
+    from depthguard.depth_io import depth_units_problem
 
-    d = depth[::4, ::4]                                   # a sample is enough to tell
-    with np.errstate(invalid="ignore"):
-        measured = np.isfinite(d) & (d > 0)
-        n = int(measured.sum())
-        far = int((measured & (d > RETURN_LIMIT_FACTOR * cam.max_range)).sum())
-    if n and far > 0.5 * n:
-        return (f"camera {cam.id}: {100 * far / n:.0f} % of the measured pixels lie beyond "
-                f"{RETURN_LIMIT_FACTOR * cam.max_range:g} m (median {float(np.median(d[measured])):g}): "
-                f"depth must be metres - is this image in millimetres?")
-    return None
+    return depth_units_problem(depth, cam)

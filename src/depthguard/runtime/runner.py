@@ -47,6 +47,7 @@ class RunStats:
         self.last = None
         self.interrupted = False          # stopped by Ctrl-C (the summary is still written)
         self.source_errors: list[str] = []  # sources that failed during a real-time run
+        self.control_scheduling = "not paced (fast run)"   # real time: runtime.realtime's status
 
     def __call__(self, r) -> None:
         if self.cycles == 0:
@@ -86,6 +87,7 @@ def summarise(monitor, stats: RunStats, wall_s: float, sources: dict, extra: dic
         "nearest_t": None if stats.nearest_at is None else round(stats.nearest_at[1], 4),
         "unobserved_cycles": stats.unobserved_cycles,
         "source_errors": list(stats.source_errors),
+        "control_scheduling": stats.control_scheduling,
         "episodes": monitor.episodes,
         "step_ms": {"p50": pct(monitor.step_s, 50), "p99": pct(monitor.step_s, 99), "max": pct(monitor.step_s, 100)},
         "frame_to_reaction_ms": {"p50": pct(monitor.frame_to_reaction_s, 50),
@@ -227,22 +229,31 @@ def _run_paced(monitor, frame_sources, joint_source, duration, stop, emit, all_d
                                         daemon=True, name="depthguard-joints"))
     for th in threads:
         th.start()
+    from depthguard.runtime.realtime import realtime_control
+
     try:
-        k = 0
-        while not stop.is_set():
-            t_next = t0 + k * dt
-            now = clock()
-            if now < t_next:
-                time.sleep(t_next - now)
-            t = clock()
-            if duration is not None and t - t0 > duration + 1e-12:
-                break
-            next_status = emit(monitor.step(t), next_status)
-            if all_done():
-                break
-            k = max(k + 1, int((t - t0) / dt) + 1)       # a late cycle is skipped, never queued
+        with realtime_control(monitor.config.control_priority) as rt:
+            stats.control_scheduling = rt.status
+            _paced_loop(monitor, stop, emit, all_done, clock, dt, t0, duration, next_status)
     finally:
         stop.set()
         for th in threads:
             th.join(2.0)
     return stats, time.perf_counter() - wall0
+
+
+def _paced_loop(monitor, stop, emit, all_done, clock, dt, t0, duration, next_status) -> None:
+    """The control thread: ``step`` every ``dt`` of the run's clock; a late cycle is skipped, never queued."""
+    k = 0
+    while not stop.is_set():
+        t_next = t0 + k * dt
+        now = clock()
+        if now < t_next:
+            time.sleep(t_next - now)
+        t = clock()
+        if duration is not None and t - t0 > duration + 1e-12:
+            break
+        next_status = emit(monitor.step(t), next_status)
+        if all_done():
+            break
+        k = max(k + 1, int((t - t0) / dt) + 1)

@@ -13,6 +13,9 @@ seconds (quick 1 s, full 10 s):
 * a joint thread pushes the joint state (the path at its stamp) every 1/500 s;
 * the control thread, paced by ``time.sleep`` at 500 Hz, calls ``step(t)``
   (``t`` the cycle's scheduled time; the joints are the newest received).
+  It runs under the rig's ``monitor: control_priority`` (SCHED_FIFO 50 where
+  the system permits it, as ros2_control runs its loop; the row's note says
+  which), and so does today's code in the same run.
 
 Rows:
 
@@ -53,6 +56,7 @@ import time
 import numpy as np
 
 from depthguard.evaluation.bench import BenchContext, BenchRow, group
+from depthguard.runtime.realtime import realtime_control
 
 CAMERA_HZ = 30.0
 CONTROL_HZ = 500.0
@@ -182,12 +186,13 @@ def _run_monitor(script: _Script, rig, feeds, cfg, duration: float) -> dict:
             th.start()
         late, n_cycles = 0, int(duration * CONTROL_HZ)
         try:
-            for i in range(n_cycles):
-                t = i * dt
-                _sleep_until(t0 + t)
-                if time.perf_counter() - (t0 + t) > dt:
-                    late += 1
-                mon.step(t)
+            with realtime_control(cfg.control_priority) as rt:
+                for i in range(n_cycles):
+                    t = i * dt
+                    _sleep_until(t0 + t)
+                    if time.perf_counter() - (t0 + t) > dt:
+                        late += 1
+                    mon.step(t)
         finally:
             stop.set()
             for th in threads:
@@ -196,7 +201,7 @@ def _run_monitor(script: _Script, rig, feeds, cfg, duration: float) -> dict:
         st = mon.stats()
         return {"step_s": list(mon.step_s[skip:]), "f2r_s": list(mon.frame_to_reaction_s),
                 "build_s": list(mon.fusion.build_seconds), "late": late, "cycles": n_cycles,
-                "dropped": sum(c["dropped"] for c in st["cameras"].values()),
+                "scheduling": rt.status, "dropped": sum(c["dropped"] for c in st["cameras"].values()),
                 "refused": sum(sum(c["refused"].values()) for c in st["cameras"].values()),
                 "frames": sum(c["frames"] for c in st["cameras"].values()),
                 "refusals": {k: v for c in st["cameras"].values() for k, v in c["refused"].items()},
@@ -241,47 +246,49 @@ def _run_today(script: _Script, rig, feeds, cfg, duration: float) -> dict:
     cycle_s, f2r_s, load_s = [], [], []
     j = 0
     t0 = time.perf_counter() + 0.05
-    for i in range(n_cycles):
-        t = i * dt
-        _sleep_until(t0 + t)
-        # frames due by the cycle's scheduled time: a loop that falls behind still loads every
-        # frame at its cycle (and its frame-to-reaction grows with the lag)
-        while j < len(deliveries) and deliveries[j][0] <= t:
-            _, cid, d, rd, qc = deliveries[j]
-            depths[cid], rdepths[cid], q_caps[cid] = d, rd, qc
-            pending.add(cid)
-            pushed[cid] = t0 + deliveries[j][0]
-            j += 1
-        c0 = time.perf_counter()
-        q = script.q_cycle(i)
-        robot.forward(q, data)
-        loaded = False
-        if pending and cams[0].id in depths:
-            segs, rads = [], []
-            for qf in q_caps.values():
-                ab, r = robot.collision_segments(qf, cfg.robot_padding)
-                segs.append(ab)
-                rads.append(r)
-            grid.set_frames(depths, rdepths, robot_offset=cfg.robot_offset,
-                            robot_capsules=(np.concatenate(segs), np.concatenate(rads)), invalid=cfg.invalid,
-                            robot_in_others=cfg.robot_in_others, changed=set(pending),
-                            silhouette_px=cfg.silhouette_px)
-            loaded = True
-        if grid.has_frames:
-            res = grid.query(data.cp_positions, rho=cfg.rho, method=cfg.method, threads=1)
-            D, V = np.asarray(res.distance, dtype=np.float64), np.asarray(res.direction, dtype=np.float64)
-        else:
-            D, V = np.full(len(data.cp_positions), np.inf), np.zeros((len(data.cp_positions), 3))
-        reaction_of(D, V, data.cp_jacobians, q, q_min, q_max, qd_max, cfg.dt, cfg.rho, cfg.v_max, cfg.alpha,
-                    1.0, out=buf)
-        c1 = time.perf_counter()
-        if t >= SKIP_S:
-            cycle_s.append(c1 - c0)
-        if loaded:
-            load_s.append(c1 - c0)
-            for cid in pending:
-                f2r_s.append(c1 - pushed[cid])
-            pending = set()
+    rt = realtime_control(cfg.control_priority)
+    with rt:
+        for i in range(n_cycles):
+            t = i * dt
+            _sleep_until(t0 + t)
+            # frames due by the cycle's scheduled time: a loop that falls behind still loads every
+            # frame at its cycle (and its frame-to-reaction grows with the lag)
+            while j < len(deliveries) and deliveries[j][0] <= t:
+                _, cid, d, rd, qc = deliveries[j]
+                depths[cid], rdepths[cid], q_caps[cid] = d, rd, qc
+                pending.add(cid)
+                pushed[cid] = t0 + deliveries[j][0]
+                j += 1
+            c0 = time.perf_counter()
+            q = script.q_cycle(i)
+            robot.forward(q, data)
+            loaded = False
+            if pending and cams[0].id in depths:
+                segs, rads = [], []
+                for qf in q_caps.values():
+                    ab, r = robot.collision_segments(qf, cfg.robot_padding)
+                    segs.append(ab)
+                    rads.append(r)
+                grid.set_frames(depths, rdepths, robot_offset=cfg.robot_offset,
+                                robot_capsules=(np.concatenate(segs), np.concatenate(rads)), invalid=cfg.invalid,
+                                robot_in_others=cfg.robot_in_others, changed=set(pending),
+                                silhouette_px=cfg.silhouette_px)
+                loaded = True
+            if grid.has_frames:
+                res = grid.query(data.cp_positions, rho=cfg.rho, method=cfg.method, threads=1)
+                D, V = np.asarray(res.distance, dtype=np.float64), np.asarray(res.direction, dtype=np.float64)
+            else:
+                D, V = np.full(len(data.cp_positions), np.inf), np.zeros((len(data.cp_positions), 3))
+            reaction_of(D, V, data.cp_jacobians, q, q_min, q_max, qd_max, cfg.dt, cfg.rho, cfg.v_max, cfg.alpha,
+                        1.0, out=buf)
+            c1 = time.perf_counter()
+            if t >= SKIP_S:
+                cycle_s.append(c1 - c0)
+            if loaded:
+                load_s.append(c1 - c0)
+                for cid in pending:
+                    f2r_s.append(c1 - pushed[cid])
+                pending = set()
     return {"step_s": cycle_s, "f2r_s": f2r_s, "build_s": load_s, "dropped": 0, "refused": 0,
             "late_s": time.perf_counter() - (t0 + n_cycles * dt)}
 
@@ -348,7 +355,8 @@ def _bench_monitor(ctx: BenchContext) -> list[BenchRow]:
                  peer="today: depth grid on the control path (set_frames + first query)",
                  peer_value=_pct(peer["step_s"], 99),
                  note=(f"{common}; p50 {_pct(mon['step_s'], 50):.3g} ms (today {_pct(peer['step_s'], 50):.3g}), "
-                       f"{len(mon['step_s'])} cycles, {mon['late']} started > 1 cycle late, switch interval "
+                       f"{len(mon['step_s'])} cycles, {mon['late']} started > 1 cycle late, control thread "
+                       f"{mon['scheduling']}, switch interval "
                        f"{swi * 1e3:g} ms; goal <= 1 ms{extra}")),
         BenchRow("monitor.frame_to_reaction_p99_ms", _pct(mon["f2r_s"], 99, math.inf), "ms",   # inf: no frame used
                  peer="today: delivery -> end of the cycle that loads it", peer_value=_pct(peer["f2r_s"], 99, math.inf),

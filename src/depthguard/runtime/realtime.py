@@ -1,0 +1,86 @@
+"""Real-time scheduling of the control thread (R29: the control path never waits).
+
+A robot controller runs its control loop under a real-time policy (ros2_control's
+``thread_priority``, 50 by default, SCHED_FIFO): the loop then preempts the
+camera and fusion workers as soon as its sleep ends, instead of waiting for
+the kernel's fair scheduler to give it a turn (2–10 ms late on a loaded
+2-core machine). :func:`realtime_control` puts the *calling thread* (only that
+thread: threads it starts afterwards get normal scheduling back) under
+``SCHED_FIFO`` at ``priority`` for the length of a ``with`` block, and
+restores the previous policy after it. Where the process may not (no root, no
+``CAP_SYS_NICE`` / ``rtprio`` limit, not Linux) it runs on normally and says why
+in :attr:`RealtimeControl.status` — the reaction is the same, only its timing
+is less regular; the run's summary records which.
+
+Linux keeps 5 % of each second for normal threads (``sched_rt_runtime_us``),
+so a control thread that never sleeps cannot lock the machine up.
+"""
+
+from __future__ import annotations
+
+import os
+import threading
+
+__all__ = ["RealtimeControl", "realtime_control", "normal_scheduling"]
+
+
+class RealtimeControl:
+    """Context manager: the calling thread under SCHED_FIFO ``priority`` (1–99); 0 = leave it.
+
+    ``status``: a sentence saying what was set, or why not (after ``__enter__``).
+    ``active``: True while the real-time policy is in force.
+    """
+
+    def __init__(self, priority: int):
+        p = int(priority)
+        if not 0 <= p <= 99:
+            raise ValueError(f"control_priority must be 0 (normal scheduling) to 99 (got {priority!r})")
+        self.priority = p
+        self.active = False
+        self.status = "normal scheduling (control_priority 0)"
+        self._tid: int | None = None
+        self._old: tuple[int, int] | None = None
+
+    def __enter__(self) -> "RealtimeControl":
+        if self.priority == 0:
+            return self
+        if not hasattr(os, "sched_setscheduler"):
+            self.status = "normal scheduling: this system has no SCHED_FIFO"
+            return self
+        tid = threading.get_native_id()
+        try:
+            old = (os.sched_getscheduler(tid), os.sched_getparam(tid).sched_priority)
+            os.sched_setscheduler(tid, os.SCHED_FIFO, os.sched_param(self.priority))
+        except OSError as exc:
+            self.status = (f"normal scheduling: SCHED_FIFO {self.priority} not permitted ({exc.strerror}); "
+                           f"run as root or give the user an rtprio limit (/etc/security/limits.conf)")
+            return self
+        self._tid, self._old, self.active = tid, old, True
+        self.status = f"SCHED_FIFO {self.priority}"
+        return self
+
+    def __exit__(self, *exc) -> None:
+        if self.active and self._tid is not None and self._old is not None:
+            try:
+                os.sched_setscheduler(self._tid, self._old[0], os.sched_param(self._old[1]))
+            except OSError:
+                pass
+            self.active = False
+
+
+def realtime_control(priority: int) -> RealtimeControl:
+    """``with realtime_control(50) as rt: ...`` (see :class:`RealtimeControl`)."""
+    return RealtimeControl(priority)
+
+
+def normal_scheduling() -> None:
+    """Put the calling thread back under normal scheduling (a thread started by a
+    real-time thread inherits its policy; workers call this first)."""
+    if not hasattr(os, "sched_setscheduler"):
+        return
+    tid = threading.get_native_id()
+    try:
+        if os.sched_getscheduler(tid) != os.SCHED_OTHER:
+            os.sched_setscheduler(tid, os.SCHED_OTHER, os.sched_param(0))
+    except OSError:
+        pass
