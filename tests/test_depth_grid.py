@@ -443,16 +443,20 @@ def test_lazy_columns_equal_eager_runs(seed, n_cams):
 
 def test_frames_of_changed_cameras_only_give_the_same_answers():
     """``set_frames(..., changed=[id])`` (the other cameras keep their loaded states) answers
-    exactly like loading every camera, through new frames of another camera and of the
-    principal, a camera that stops delivering and comes back; a camera left out of
-    ``changed`` really keeps its old frame (the skip is not a no-op)."""
+    exactly like loading every camera and like the eager runs, through new frames of another
+    camera and of the principal, a camera that stops delivering and comes back, with the
+    robot's volume moving at every load (the other cameras' memoised clearings outlive it,
+    ``depth_grid_memo``); a camera left out of ``changed`` really keeps its old frame (the
+    skip is not a no-op)."""
     rng = np.random.default_rng(5)
     prims, cams, depths = _scene(rng, 3)
     a, b, c, depths, rdepths, caps = _with_robot(prims, cams)
     full = DepthGridMap(cams, "c0", 1.0, 4.6, 0.03, cache=False)
     part = DepthGridMap(cams, "c0", 1.0, 4.6, 0.03, cache=False)
     stale = DepthGridMap(cams, "c0", 1.0, 4.6, 0.03, cache=False)
+    eager = DepthGridMap(cams, "c0", 1.0, 4.6, 0.03, cache=False)
     P = np.vstack([rng.uniform(-0.6, 0.6, (12, 3)), a + (b - a) * 0.5, c])
+    joints = (a, b, c)
     frames = dict(depths)
     differs = False
     for step, cid in enumerate([None, "c1", "c0", "c2", "drop c2", "back c2"]):
@@ -468,13 +472,19 @@ def test_frames_of_changed_cameras_only_give_the_same_answers():
         elif cid == "back c2":
             frames["c2"] = depths["c2"]
             changed = []                          # a camera that had no frame is loaded regardless
+        shift = 0.015 * step                      # the robot moved between two loads
+        caps = [Capsule.between(joints[0] + shift, joints[1] + shift, 0.12),
+                Capsule.between(joints[1] + shift, joints[2] + shift, 0.1)]
         full.set_frames(frames, rdepths, robot_capsules=caps)
         part.set_frames(frames, rdepths, robot_capsules=caps, changed=changed)
         stale.set_frames(frames, rdepths, robot_capsules=caps, changed=None if step == 0 else [])
-        r1, r2, r3 = (g.query(P, 0.4, "hybrid").copy() for g in (full, part, stale))
-        np.testing.assert_array_equal(r1.distance, r2.distance)
-        np.testing.assert_array_equal(r1.direction, r2.direction)
-        np.testing.assert_array_equal(r1.observed, r2.observed)
+        eager.set_frames(frames, rdepths, robot_capsules=caps, lazy=False)
+        assert np.all(eager._nruns < 8)           # no run merging in the eager form: exact comparison
+        r1, r2, r3, r4 = (g.query(P, 0.4, "hybrid").copy() for g in (full, part, stale, eager))
+        for r in (r2, r4):
+            np.testing.assert_array_equal(r1.distance, r.distance)
+            np.testing.assert_array_equal(r1.direction, r.direction)
+            np.testing.assert_array_equal(r1.observed, r.observed)
         differs |= not np.array_equal(r1.distance, r3.distance)
     assert differs
     with pytest.raises(ValueError, match="changed names unknown"):

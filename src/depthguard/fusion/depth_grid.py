@@ -51,6 +51,7 @@ from depthguard.distance.gaps import GapBuffers, check_gap_px
 from depthguard.distance.silhouette import SilhouetteBuffers, check_silhouette_px
 from depthguard.fusion import depth_grid_kernels as K
 from depthguard.fusion import depth_grid_lazy as L
+from depthguard.fusion.depth_grid_memo import new_memo
 
 __all__ = ["DepthGridMap", "MultiPrincipalDepthGrid", "default_cache_dir"]
 
@@ -331,6 +332,8 @@ class DepthGridMap:
         self._obits = np.zeros(P.shape + (nw,), dtype=np.uint64)
         self._cbits = np.zeros(P.shape + (nw,), dtype=np.uint64)
         self._stamp = np.zeros(P.shape, dtype=np.int64)
+        # what each other camera clears, kept while that camera's frame is (depth_grid_memo)
+        self._kmemo = new_memo(nk, P.height, P.width, nw)
         self._clear = np.zeros(P.shape, dtype=np.int32)
         self._free_to = np.zeros(P.shape)
         self._span = np.zeros((2,) + P.shape, dtype=np.int32)   # merged slice range per pixel
@@ -473,6 +476,7 @@ class DepthGridMap:
         for k, cam in enumerate(self.others):
             if cam.id not in fresh:
                 continue
+            self._kmemo[0][k] += 1                # its memoised clearings belong to the old frame
             if cam.id in depths:
                 self._state(cam, depths[cam.id], robot_depths.get(cam.id), off,
                             self._kfree[k], self._kkind, robot_in_others == "free")
@@ -661,7 +665,7 @@ class DepthGridMap:
     def _ensure_rows(self, p, n, r) -> None:
         L.ensure_cells(self._pfree, self._pkind, self._tmin, self._pint, self.d_min, self.delta_d, self.n_d,
                        self._kfree, self._kpmin, self._kpmax, self._koff, self._kdims, self._rays_arg,
-                       self._orig_arg, self._kint_arg, len(self.others), self._caps, self._ncaps,
+                       self._orig_arg, self._kint_arg, len(self.others), self._kmemo, self._caps, self._ncaps,
                        self._cap_lo, self._cap_hi, self._cap_n, self._band, self._Rp, self._tp, p, n, r,
                        self._frame, self._stamp, self._obits, self._cbits, self._clear, self._free_to,
                        self._ws, self._span)
@@ -679,7 +683,7 @@ class DepthGridMap:
                                   self._dist, self._dir, self._count, self._obs,
                                   fill, self._pkind, self._kfree, self._kpmin, self._kpmax, self._koff,
                                   self._kdims, self._rays_arg, self._orig_arg, self._kint_arg,
-                                  len(self.others), self._band, self._frame, self._stamp, self._cbits,
+                                  len(self.others), self._kmemo, self._band, self._frame, self._stamp, self._cbits,
                                   self._clear, self._free_to, self._axbuf)
             return
         K.grid_distances(self._pfree, self._runs, self._nruns, self._tile_first, self._Rp, self._tp, self._pint,

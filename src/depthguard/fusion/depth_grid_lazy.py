@@ -29,9 +29,9 @@ import numpy as np
 from numba import njit, prange
 
 from depthguard.distance.window import start_point, surveillance_window
-from depthguard.fusion.depth_grid_kernels import (KIND_SURFACE, MAX_CAPS_PER_PIXEL, METHOD_MIN, TILE,
-                                                  _confirmed_cell, _f2, _finish_point, _fold_pixel,
-                                                  _in_caps, _range_settled)
+from depthguard.fusion.depth_grid_kernels import (KIND_SURFACE, MAX_CAPS_PER_PIXEL, METHOD_MIN, TILE, _f2,
+                                                  _finish_point, _fold_pixel, _in_caps)
+from depthguard.fusion.depth_grid_memo import gray_stretch
 
 __all__ = ["tile_min_free", "ensure_cells", "grid_distances_lazy"]
 
@@ -83,7 +83,7 @@ def _word_range(bits, v, u, w, lo, hi):
     return x
 
 
-@njit(cache=True, nogil=True)
+@njit(cache=True, inline="always")
 def _highest_bit(bits, v, u, lo, hi):
     """Largest slice in ``lo..hi`` (inside ``0..n_d-1``) whose bit is set, -1 if none."""
     if lo > hi:
@@ -97,7 +97,7 @@ def _highest_bit(bits, v, u, lo, hi):
     return -1
 
 
-@njit(cache=True, nogil=True)
+@njit(cache=True, inline="always")
 def _lowest_bit(bits, v, u, lo, hi):
     """Smallest slice in ``lo..hi`` (inside ``0..n_d-1``) whose bit is set, -1 if none."""
     if lo > hi:
@@ -140,15 +140,12 @@ def _col_setup(u, v, pfree, dmin, dd, nd, cap_n, ncaps):
     return gs, ncp
 
 
-@njit(cache=True, nogil=True)
+@njit(cache=True, inline="always")
 def _fill_stretch(u, v, g0, g1, gs, direct, ncp, fx, fy, cx, cy, dmin, dd, kfree, kpmin, kpmax, koff,
-                  kdims, rays, origins, kint, nk, caps, ncaps, cap_lo, cap_hi, band, obits, cbits):
+                  kdims, rays, origins, kint, nk, kmemo, caps, ncaps, cap_lo, cap_hi, band, obits, cbits):
     """Classify slices ``g0..g1`` (inside ``0..n_d-1``, all ``>= gs``) of column ``(u, v)``
-    by the rule of :func:`column_runs` and set their bits."""
-    known_obst = False
-    span_next = 64
-    sec_g = g0 - 1
-    sec = (False, 0.0, 0.0, 0.0, 0.0, 0.0, 0.0)
+    by the rule of :func:`column_runs` and set their bits; the gray cells through the
+    other cameras' memo (:func:`~depthguard.fusion.depth_grid_memo.gray_stretch`)."""
     g = g0
     while g <= g1:
         d1 = dmin + g * dd
@@ -182,36 +179,18 @@ def _fill_stretch(u, v, g0, g1, gs, direct, ncp, fx, fy, cx, cy, dmin, dd, kfree
         elif nk == 0 or g < band[v, u, 0] or g > band[v, u, 1]:
             obst = True
         else:
+            # gray cells up to the band's end or the next capsule interval (a capsule interval
+            # started at or before g ends before d2, so before every later slice; R12)
             e = min(g1, band[v, u, 1])
             for j in range(min(ncp, MAX_CAPS_PER_PIXEL)):
                 if cap_lo[v, u, j] > d1:
                     e = min(e, int(math.ceil((cap_lo[v, u, j] - dmin) / dd)) - 2)
-            if ncp > MAX_CAPS_PER_PIXEL:
+            if ncp > MAX_CAPS_PER_PIXEL or e < g:
                 e = g
-            span = min(span_next, e - g + 1)
-            settled = False
-            if span > 1:
-                r = _range_settled(kpmin, kpmax, koff, kdims, rays, origins, kint, nk, u, v, d1,
-                                   dmin + (g + span) * dd)
-                if r != 0:
-                    known_obst = r == 2
-                    settled = True
-            if settled:
-                # every slice of the settled stretch g..g+span-1 gets known_obst: none of
-                # them is inside a capsule (a capsule starting after g ends the stretch
-                # before it; one started at or before g ends before d2, so before every
-                # later slice), none is r(df) (< g) and all are inside the band
-                known_until = g + span - 1
-                span_next = min(2 * span, 256)
-                for w in range(g >> 6, (known_until >> 6) + 1):
-                    m = _mask_range(w, g, known_until)
-                    cbits[v, u, w] = cbits[v, u, w] | m
-                    if known_obst:
-                        obits[v, u, w] = obits[v, u, w] | m
-                g = known_until + 1
-                continue
-            span_next = max(span // 4, 1) if span > 1 else min(span_next * 2, 8)
-            obst, sec, sec_g = _confirmed_cell(kfree, rays, origins, kint, nk, u, v, g, d1, d2, sec, sec_g)
+            gray_stretch(u, v, g, e, kfree, kpmin, kpmax, koff, kdims, rays, origins, kint, nk, dmin, dd, kmemo,
+                         obits, cbits)
+            g = e + 1
+            continue
         w = g >> 6
         b = _ONE << np.uint64(g & 63)
         cbits[v, u, w] = cbits[v, u, w] | b
@@ -258,7 +237,7 @@ def _point_terms(px, py, dp, fx, fy, cx, cy):
 
 @njit(cache=True, nogil=True)
 def _ensure_pixel(u, v, ga, gb, gs, direct, ncp, fx, fy, cx, cy, dmin, dd, kfree, kpmin, kpmax, koff, kdims,
-                  rays, origins, kint, nk, caps, ncaps, cap_lo, cap_hi, band, frame, stamp, obits, cbits, clear,
+                  rays, origins, kint, nk, kmemo, caps, ncaps, cap_lo, cap_hi, band, frame, stamp, obits, cbits, clear,
                   free_to):
     """Classify the not yet classified slices of ``ga..gb`` (inside the grid, ``>= gs``) of
     column ``(u, v)`` in this ``frame`` (resetting the pixel's bits on its first touch).
@@ -283,7 +262,7 @@ def _ensure_pixel(u, v, ga, gb, gs, direct, ncp, fx, fy, cx, cy, dmin, dd, kfree
         e = _lowest_bit(cbits, v, u, g, gb)                    # next classified one after it
         e = gb if e < 0 else e - 1
         _fill_stretch(u, v, g, e, gs, direct, ncp, fx, fy, cx, cy, dmin, dd, kfree, kpmin, kpmax, koff,
-                      kdims, rays, origins, kint, nk, caps, ncaps, cap_lo, cap_hi, band, obits, cbits)
+                      kdims, rays, origins, kint, nk, kmemo, caps, ncaps, cap_lo, cap_hi, band, obits, cbits)
         g = e + 1
     hmax = obits.shape[2] * 64          # slices past n_d are never classified
     h = clear[v, u] + 1
@@ -297,7 +276,7 @@ def _ensure_pixel(u, v, ga, gb, gs, direct, ncp, fx, fy, cx, cy, dmin, dd, kfree
         free_to[v, u] = max(free_to[v, u], dmin + h * dd)
 
 
-@njit(cache=True, nogil=True)
+@njit(cache=True, inline="always")
 def _lowest_stop(cbits, obits, v, u, lo, hi, with_obst):
     """Smallest slice in ``lo..hi`` (inside the bit words) whose ``cbits`` bit is clear or,
     with ``with_obst``, whose ``obits`` bit is set; -1 if none."""
@@ -317,7 +296,7 @@ def _lowest_stop(cbits, obits, v, u, lo, hi, with_obst):
 
 @njit(cache=True, parallel=True, nogil=True)
 def ensure_cells(pfree, pkind, tmin, pint, dmin, dd, nd, kfree, kpmin, kpmax, koff, kdims, rays, origins,
-                 kint, nk, caps, ncaps, cap_lo, cap_hi, cap_n, band, Rp, tp, points, n_points, rho,
+                 kint, nk, kmemo, caps, ncaps, cap_lo, cap_hi, cap_n, band, Rp, tp, points, n_points, rho,
                  frame, stamp, obits, cbits, clear, free_to, ws, span):
     """Lazy per-frame work (R12): classify every cell that a query of these points can
     look at — per pixel of each point's region of surveillance outside case 1, the
@@ -402,15 +381,31 @@ def ensure_cells(pfree, pkind, tmin, pint, dmin, dd, nd, kfree, kpmin, kpmax, ko
                     if ga <= gb:
                         span[0, v, u] = min(span[0, v, u], ga)
                         span[1, v, u] = max(span[1, v, u], gb)
-        for u in range(ulo, uhi + 1):
-            ga = span[0, v, u]
-            gb = span[1, v, u]
-            if ga > gb or (stamp[v, u] == frame and _all_set(cbits, v, u, ga, gb)):
-                continue
-            gs, ncp = _col_setup(u, v, pfree, dmin, dd, nd, cap_n, ncaps)
-            _ensure_pixel(u, v, ga, gb, gs, pkind[v, u] == KIND_SURFACE, ncp, fx, fy, cx, cy, dmin, dd,
-                          kfree, kpmin, kpmax, koff, kdims, rays, origins, kint, nk, caps, ncaps,
-                          cap_lo, cap_hi, band, frame, stamp, obits, cbits, clear, free_to)
+        _ensure_row_cells(v, ulo, uhi, span, pfree, pkind, pint, dmin, dd, nd, kfree, kpmin, kpmax, koff, kdims,
+                          rays, origins, kint, nk, kmemo, caps, ncaps, cap_lo, cap_hi, cap_n, band, frame, stamp,
+                          obits, cbits, clear, free_to)
+
+
+@njit(cache=True, nogil=True)
+def _ensure_row_cells(v, ulo, uhi, span, pfree, pkind, pint, dmin, dd, nd, kfree, kpmin, kpmax, koff, kdims,
+                      rays, origins, kint, nk, kmemo, caps, ncaps, cap_lo, cap_hi, cap_n, band, frame, stamp,
+                      obits, cbits, clear, free_to):
+    """Classify row ``v``'s merged slice ranges ``span[:, v, ulo..uhi]`` (:func:`ensure_cells`).
+    A function of its own so that the parallel region stays small (numba compiles a
+    prange body apart)."""
+    fx = pint[0]
+    fy = pint[1]
+    cx = pint[2]
+    cy = pint[3]
+    for u in range(ulo, uhi + 1):
+        ga = span[0, v, u]
+        gb = span[1, v, u]
+        if ga > gb or (stamp[v, u] == frame and _all_set(cbits, v, u, ga, gb)):
+            continue
+        gs, ncp = _col_setup(u, v, pfree, dmin, dd, nd, cap_n, ncaps)
+        _ensure_pixel(u, v, ga, gb, gs, pkind[v, u] == KIND_SURFACE, ncp, fx, fy, cx, cy, dmin, dd,
+                      kfree, kpmin, kpmax, koff, kdims, rays, origins, kint, nk, kmemo, caps, ncaps,
+                      cap_lo, cap_hi, band, frame, stamp, obits, cbits, clear, free_to)
 
 
 @njit(cache=True, inline="always")
@@ -526,7 +521,7 @@ def _column_bits(u, v, gs, ncp, nd, obits, caps, ncaps, cap_lo, cap_hi, ax, ay, 
 def grid_distances_lazy(pfree, tmin, obits, cap_n, caps, ncaps, cap_lo, cap_hi, nd, Rp, tp, pint, dmin, dd,
                         points, n_points, rho, method,
                         out_distance, out_direction, out_count, out_observed,
-                        fill, pkind, kfree, kpmin, kpmax, koff, kdims, rays, origins, kint, nk, band,
+                        fill, pkind, kfree, kpmin, kpmax, koff, kdims, rays, origins, kint, nk, kmemo, band,
                         frame, stamp, cbits, clear, free_to, axbuf):
     """:func:`~depthguard.fusion.depth_grid_kernels.grid_distances` over the memoised cells: same cases, same R10 distance, same
     R7 reduction. ``fill`` False: :func:`ensure_cells` was called first with the same
@@ -582,7 +577,7 @@ def grid_distances_lazy(pfree, tmin, obits, cap_n, caps, ncaps, cap_lo, cap_hi, 
                             and (stamp[v, u] != frame or not _all_set(cbits, v, u, max(ga, gs, 0), min(gb, nd - 1)))):
                         _ensure_pixel(u, v, max(ga, gs, 0), min(gb, nd - 1), gs, pkind[v, u] == KIND_SURFACE,
                                       ncp, fx, fy, cx, cy, dmin, dd, kfree, kpmin, kpmax, koff, kdims, rays,
-                                      origins, kint, nk, caps, ncaps, cap_lo, cap_hi, band, frame, stamp,
+                                      origins, kint, nk, kmemo, caps, ncaps, cap_lo, cap_hi, band, frame, stamp,
                                       obits, cbits, clear, free_to)
                     a = max(ga, gs)
                     if a > gb:

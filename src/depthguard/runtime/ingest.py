@@ -332,27 +332,28 @@ class FusionWorker:
 
 def robot_volume(robot, poses, padding: float) -> tuple[np.ndarray, np.ndarray]:
     """The robot's own volume for frames captured at several joint poses (R9, R12): its padded
-    capsules at every pose, each grown by how far that capsule's end points move to the other
-    poses — ``(segments (C, 2, 3), radii (C,))`` metres, world.
+    capsules at the first pose, each grown by how far that capsule's end points move to any
+    other pose — ``(segments (C, 2, 3), radii (C,))`` metres, world.
 
     The cameras are not synchronised: each frame shows the robot where it was at that frame's
     capture, and a cell behind the robot in one camera is confirmed by another that saw the
     robot a moment earlier or later. The robot swept the space between those poses in that
     time, so that space is its own, not an obstacle (without the growth, at 1 m/s and 21 ms
-    between two captures the end effector read a phantom 0.10-0.15 m away). An excluded cell
-    lies within ``padding`` plus the robot's motion between the captures in use (R25).
+    between two captures the end effector read a phantom 0.10-0.15 m away). One pose's grown
+    capsules hold every pose's padded capsules and every sweep between two poses: a point
+    between ``p_j(t)`` and ``p_k(t)`` on the segments of poses ``j`` and ``k`` lies within
+    ``max(|p_j(t) - p_i(t)|, |p_k(t) - p_i(t)|)`` of pose ``i``'s segment (the distance is
+    convex), at most the growth. So the other poses' grown capsules add nothing the robot
+    occupied, only more exclusion (and twice the capsules per build). An excluded cell lies
+    within ``padding`` plus the robot's motion between the captures in use (R25).
     """
     uniq = list({id(q): q for q in poses}.values())
     segs = [robot.collision_segments(q, padding) for q in uniq]
-    out_s, out_r = [], []
-    for i, (ab, r) in enumerate(segs):
-        grow = np.zeros(len(r))
-        for j, (ab2, _) in enumerate(segs):
-            if j != i:
-                grow = np.maximum(grow, np.linalg.norm(ab2 - ab, axis=2).max(axis=1))
-        out_s.append(ab)
-        out_r.append(r + grow)
-    return np.concatenate(out_s), np.concatenate(out_r)
+    ab, r = segs[0]
+    grow = np.zeros(len(r))
+    for ab2, _ in segs[1:]:
+        grow = np.maximum(grow, np.linalg.norm(ab2 - ab, axis=2).max(axis=1))
+    return ab, r + grow
 
 
 def _wrong_units(depth: np.ndarray, cam) -> str | None:

@@ -1,0 +1,193 @@
+"""What each other camera clears, remembered for as long as that camera's frame (R12).
+
+A gray cell of the principal grid (behind the measured surface, behind the
+robot, or on an invalid ray) is an obstacle unless *some* other camera sees it
+whole and free (R11, R12): ``obstacle = not (cleared_1 or cleared_2 or ...)``.
+``cleared_k`` depends on camera ``k``'s frame and on the cameras' poses only —
+not on the principal's frame, the robot's volume or the other cameras — so it
+is kept per camera, per principal pixel, as bits, and stays valid until camera
+``k`` loads a new frame. With cameras that are not synchronised, a build after a
+principal frame reuses every other camera's bits, and a build after camera
+``k``'s frame evaluates ``k`` only, and only for the cells no other camera
+clears already (:func:`gray_stretch`).
+
+The memo is the tuple ``kmemo = (kver, kstamp, kdone, kclr)``:
+
+* ``kver`` (nk,) int64 — camera ``k``'s frame version (raised when it loads);
+* ``kstamp`` (nk, H, W) int64 — the version a principal pixel's bits belong to
+  (older bits are dropped on first touch, so a new frame costs no work here);
+* ``kdone`` / ``kclr`` (nk, H, W, n_w) uint64 — bit ``g & 63`` of word
+  ``g >> 6``: slice ``g`` of that column evaluated for camera ``k`` / cleared by it.
+
+Each bit is exactly :func:`~depthguard.fusion.depth_grid_kernels.cell_cleared`
+for that one camera (cell by cell, or a whole stretch at once where the
+camera's min / max pyramids prove it cleared / confirmed, an exact shortcut),
+so a cell's class equals the eager runs'
+(:func:`~depthguard.fusion.depth_grid_kernels.column_runs`).
+"""
+
+from __future__ import annotations
+
+import numpy as np
+from numba import njit
+
+from depthguard.fusion.depth_grid_kernels import (_box_max, _box_min, _cleared_by_sections, _section,
+                                                  cell_footprint)
+
+__all__ = ["new_memo", "gray_stretch"]
+
+_ONE = np.uint64(1)
+_ALL = np.uint64(0xFFFFFFFFFFFFFFFF)
+_ZERO = np.uint64(0)
+
+
+def new_memo(nk: int, height: int, width: int, n_words: int) -> tuple:
+    """An empty memo for ``nk`` other cameras over an (H, W) principal with ``n_words``
+    bit words per column (module docstring)."""
+    n = max(int(nk), 1)
+    return (np.zeros(n, dtype=np.int64), np.full((n, height, width), -1, dtype=np.int64),
+            np.zeros((n, height, width, n_words), dtype=np.uint64),
+            np.zeros((n, height, width, n_words), dtype=np.uint64))
+
+
+@njit(cache=True, inline="always")
+def _mask(w, lo, hi):
+    """Word ``w``'s bits of slices ``lo..hi``."""
+    m = _ALL
+    if (hi >> 6) == w and (hi & 63) < 63:
+        m = m & ((_ONE << np.uint64((hi & 63) + 1)) - _ONE)
+    if (lo >> 6) == w:
+        m = m & (_ALL << np.uint64(lo & 63))
+    return m
+
+
+@njit(cache=True, inline="always")
+def _lowest(x):
+    """Index of the lowest set bit of a non-zero uint64."""
+    n = 0
+    x = x & (~x + _ONE)
+    for s in (32, 16, 8, 4, 2, 1):
+        y = x >> np.uint64(s)
+        if y != _ZERO:
+            x = y
+            n += s
+    return n
+
+
+@njit(cache=True, inline="always")
+def _todo_word(obits, kdone, k, v, u, w, lo, hi):
+    """Slices of word ``w`` in ``lo..hi`` still obstacle candidates and not evaluated for ``k``."""
+    return obits[v, u, w] & ~kdone[k, v, u, w] & _mask(w, lo, hi)
+
+
+@njit(cache=True, nogil=True)
+def _next_todo(obits, kdone, k, v, u, lo, hi):
+    """First slice in ``lo..hi`` to evaluate for camera ``k`` and the last one of its run; (-1, -1): none."""
+    w = lo >> 6
+    while w <= (hi >> 6):
+        x = _todo_word(obits, kdone, k, v, u, w, lo, hi)
+        if x != _ZERO:
+            a = w * 64 + _lowest(x)
+            # the run ends before the first slice from a on that is not to do
+            w2 = a >> 6
+            while w2 <= (hi >> 6):
+                y = ~_todo_word(obits, kdone, k, v, u, w2, lo, hi) & _mask(w2, a, hi)
+                if y != _ZERO:
+                    return a, w2 * 64 + _lowest(y) - 1
+                w2 += 1
+            return a, hi
+        w += 1
+    return -1, -1
+
+
+@njit(cache=True, inline="always")
+def _range_one(kpmin, kpmax, koff, kdims, rays, origins, kint, k, gx, gy, d1, d2):
+    """Camera ``k`` alone on the piece ``[d1, d2]`` of column ``(gx, gy)``: 1 = clears every
+    cell in it, 2 = clears none (sees it whole, everything behind its free depth), 0 = unknown."""
+    seen, u0, u1, v0, v1, zmin, zmax = cell_footprint(rays, origins, kint, k, gx, gy, d1, d2)
+    if not seen:
+        return 0
+    if _box_min(kpmin[k], koff[k], kdims[k], u0, u1, v0, v1) > zmax:
+        return 1
+    if _box_max(kpmax[k], koff[k], kdims[k], u0, u1, v0, v1) < zmin:
+        return 2
+    return 0
+
+
+@njit(cache=True, nogil=True)
+def _camera_stretch(kfree, kpmin, kpmax, koff, kdims, rays, origins, kint, nk, k, u, v, g0, g1, dmin, dd,
+                    kdone, kclr):
+    """Evaluate ``cleared_k`` for slices ``g0..g1`` of column ``(u, v)`` and set their bits:
+    stretches settled from camera ``k``'s pyramids where they can be (growing after a
+    success, shrinking after a failure), the rest cell by cell (with one other camera,
+    consecutive cells share a cross-section: 4 corners per cell, not 8)."""
+    span_next = 64
+    sec_g = g0 - 1
+    sec = (False, 0.0, 0.0, 0.0, 0.0, 0.0, 0.0)
+    g = g0
+    while g <= g1:
+        d1 = dmin + g * dd
+        span = min(span_next, g1 - g + 1)
+        if span > 1:
+            r = _range_one(kpmin, kpmax, koff, kdims, rays, origins, kint, k, u, v, d1, dmin + (g + span) * dd)
+            if r != 0:
+                h = g + span - 1
+                for w in range(g >> 6, (h >> 6) + 1):
+                    m = _mask(w, g, h)
+                    kdone[k, v, u, w] = kdone[k, v, u, w] | m
+                    if r == 1:
+                        kclr[k, v, u, w] = kclr[k, v, u, w] | m
+                span_next = min(2 * span, 256)
+                g = h + 1
+                continue
+            span_next = max(span // 4, 1)
+        else:
+            span_next = min(span_next * 2, 8)
+        d2 = d1 + dd
+        s1 = sec if (nk == 1 and sec_g == g) else _section(rays, origins, kint, k, u, v, d1)
+        s2 = _section(rays, origins, kint, k, u, v, d2)
+        sec = s2
+        sec_g = g + 1
+        w = g >> 6
+        b = _ONE << np.uint64(g & 63)
+        kdone[k, v, u, w] = kdone[k, v, u, w] | b
+        if _cleared_by_sections(kfree, kint, k, s1, s2):
+            kclr[k, v, u, w] = kclr[k, v, u, w] | b
+        g += 1
+
+
+@njit(cache=True, inline="always")
+def gray_stretch(u, v, g, e, kfree, kpmin, kpmax, koff, kdims, rays, origins, kint, nk, dmin, dd, kmemo,
+                 obits, cbits):
+    """Classify slices ``g..e`` of column ``(u, v)``, all gray cells (none in a robot capsule,
+    none the measured surface, all inside the band and the grid, ``nk >= 1``): an obstacle
+    unless another camera clears it (R12). Sets their ``cbits`` and, for the obstacles,
+    ``obits``. Camera by camera, only the cells that no camera before it cleared are
+    looked at, from the memo where camera ``k`` already evaluated them for its frame."""
+    kver, kstamp, kdone, kclr = kmemo
+    for w in range(g >> 6, (e >> 6) + 1):
+        m = _mask(w, g, e)
+        cbits[v, u, w] = cbits[v, u, w] | m
+        obits[v, u, w] = obits[v, u, w] | m          # candidates; cleared ones are dropped below
+    for k in range(nk):
+        if kstamp[k, v, u] != kver[k]:
+            for w in range(kdone.shape[3]):
+                kdone[k, v, u, w] = _ZERO
+                kclr[k, v, u, w] = _ZERO
+            kstamp[k, v, u] = kver[k]
+        lo = g
+        while lo <= e:
+            a, b = _next_todo(obits, kdone, k, v, u, lo, e)
+            if a < 0:
+                break
+            _camera_stretch(kfree, kpmin, kpmax, koff, kdims, rays, origins, kint, nk, k, u, v, a, b, dmin, dd,
+                            kdone, kclr)
+            lo = b + 1
+        any_left = False
+        for w in range(g >> 6, (e >> 6) + 1):
+            x = obits[v, u, w] & ~(kclr[k, v, u, w] & _mask(w, g, e))
+            obits[v, u, w] = x
+            if (x & _mask(w, g, e)) != _ZERO:
+                any_left = True
+        if not any_left:
+            return

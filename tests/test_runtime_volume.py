@@ -1,0 +1,66 @@
+"""The robot's own volume over several capture poses (runtime.ingest.robot_volume, R9, R12):
+every pose's padded capsules and every sweep between two poses lie inside it — checked by
+sampling points, against the capsule distance computed here from scratch."""
+
+from __future__ import annotations
+
+import numpy as np
+import pytest
+
+from depthguard.runtime.ingest import robot_volume
+from depthguard.sim import load_cell
+
+
+def _segment_distance(p, a, b):
+    """(N,) distance of points p (N, 3) to segment a-b (3,)."""
+    ab = b - a
+    t = np.clip(((p - a) @ ab) / max(float(ab @ ab), 1e-300), 0.0, 1.0)
+    return np.linalg.norm(p - (a + t[:, None] * ab), axis=1)
+
+
+def _inside(points, segs, radii):
+    d = np.stack([_segment_distance(points, s[0], s[1]) - r for s, r in zip(segs, radii)])
+    return d.min(axis=0) <= 1e-9
+
+
+def _capsule_samples(rng, ab, r, n):
+    """n points per capsule, on and inside its surface."""
+    out = []
+    for (a, b), rad in zip(ab, r):
+        t = rng.random(n)[:, None]
+        dirs = rng.normal(size=(n, 3))
+        dirs /= np.linalg.norm(dirs, axis=1, keepdims=True)
+        out.append(a + t * (b - a) + dirs * rad * rng.random(n)[:, None] ** (1 / 3))
+    return np.concatenate(out)
+
+
+@pytest.mark.parametrize("n_poses", [1, 2, 3])
+def test_volume_holds_every_pose_and_every_sweep(n_poses):
+    robot = load_cell("flacco-cell").rig.robot
+    rng = np.random.default_rng(n_poses)
+    q0 = np.asarray(load_cell("flacco-cell").rig.robot_q0, dtype=np.float64)
+    padding = 0.07
+    for _ in range(5):
+        poses = [q0 + rng.normal(0.0, 0.05, q0.shape) for _ in range(n_poses)]   # ~1 m/s over 30 ms
+        segs, radii = robot_volume(robot, poses, padding)
+        assert len(segs) == len(robot.collision_segments(q0)[1])                 # one pose's capsules
+        for i, qi in enumerate(poses):
+            ab, r = robot.collision_segments(qi, padding)
+            assert _inside(_capsule_samples(rng, ab, r, 200), segs, radii).all(), f"pose {i} not held"
+            for qj in poses[i + 1:]:
+                # the sweep: the robot's links moved linearly in joint space between the poses
+                for s in np.linspace(0.0, 1.0, 7):
+                    ab_s, r_s = robot.collision_segments((1 - s) * qi + s * qj, padding)
+                    pts = _capsule_samples(rng, ab_s, r_s, 50)
+                    # joint-space interpolation bends the links' paths: allow the bend, measured
+                    ends = np.stack([(1 - s) * robot.collision_segments(qi, padding)[0]
+                                     + s * robot.collision_segments(qj, padding)[0]])
+                    bend = float(np.linalg.norm(ab_s - ends[0], axis=2).max())
+                    assert _inside(pts, segs, radii + bend).all()
+        # and not much more: the growth is the largest end point displacement, no larger
+        if n_poses > 1:
+            ab0, r0 = robot.collision_segments(poses[0], padding)
+            grow = radii - r0
+            disp = np.max([np.linalg.norm(robot.collision_segments(q, padding)[0] - ab0, axis=2).max(axis=1)
+                           for q in poses[1:]], axis=0)
+            np.testing.assert_allclose(grow, disp, rtol=1e-12, atol=1e-12)
