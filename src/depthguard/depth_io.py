@@ -4,6 +4,11 @@
 - ``.npy``: float32 metres, 0 or NaN = no measurement.
 
 In memory a depth image is ``(H, W) float32`` metres with 0 = no measurement.
+
+:func:`depth_units_problem` is the one check that a depth image is in metres at all
+(used by ``depthguard distance`` and by the monitor, which refuses such a frame as
+``bad_units``): no sensor returns nearer than its ``min_range`` or much beyond its
+``max_range``, so an image whose measured pixels mostly lie there is in the wrong units.
 """
 
 from __future__ import annotations
@@ -12,9 +17,18 @@ from pathlib import Path
 
 import numpy as np
 
-__all__ = ["read_depth", "write_depth", "DepthFileError"]
+__all__ = ["read_depth", "write_depth", "DepthFileError", "depth_units_problem", "UNITS_SHARE", "NEAR_LIMIT_M"]
 
 _MAX_MM = 65535
+
+#: share of the measured pixels outside the returns a sensor can give above which an image
+#: is taken to be in the wrong units
+UNITS_SHARE = 0.5
+
+#: no depth camera measures nearer than this (m); metres written into a millimetre PNG
+#: read back as at most 0.0655 m. A hand right in front of a lens that returns a little
+#: nearer than its rated ``min_range`` stays above it.
+NEAR_LIMIT_M = 0.1
 
 
 class DepthFileError(ValueError):
@@ -44,6 +58,8 @@ def read_depth(path: str | Path) -> np.ndarray:
             raise DepthFileError(f"{p}: 8-bit PNG is not a depth image; expected 16-bit millimetres")
         if arr.dtype == np.int32 and (arr.min() < 0 or arr.max() > _MAX_MM):
             raise DepthFileError(f"{p}: values outside the 16-bit range")
+        if arr.size == 0:
+            raise DepthFileError(f"{p}: an empty image (shape {arr.shape})")
         return (arr.astype(np.float32) / np.float32(1000.0)).astype(np.float32)
     if suffix == ".npy":
         try:
@@ -52,14 +68,53 @@ def read_depth(path: str | Path) -> np.ndarray:
             raise DepthFileError(f"{p}: not a readable .npy array ({exc})") from None
         if arr.ndim != 2:
             raise DepthFileError(f"{p}: a depth image must be 2-D (got shape {arr.shape})")
+        if arr.size == 0:
+            raise DepthFileError(f"{p}: an empty image (shape {arr.shape})")
         if not np.issubdtype(arr.dtype, np.floating):
             raise DepthFileError(f"{p}: a .npy depth image must be float metres (got dtype {arr.dtype})")
-        out = arr.astype(np.float32)
-        out[~np.isfinite(out)] = 0.0
-        if (out < 0).any():
-            raise DepthFileError(f"{p}: negative depths ({int((out < 0).sum())} pixels)")
+        with np.errstate(invalid="ignore", over="ignore"):
+            negative = int((arr < 0).sum())            # before float32 rounds -1e39 to -inf
+            if negative:
+                raise DepthFileError(f"{p}: negative depths ({negative} pixels)")
+            out = arr.astype(np.float32)
+        out[~np.isfinite(out)] = 0.0                   # NaN, inf and beyond float32: no measurement
         return out
     raise DepthFileError(f"{p}: unknown depth file type {suffix!r} (use .png or .npy)")
+
+
+def depth_units_problem(depth: np.ndarray, cam) -> str | None:
+    """A sentence when most measured pixels of ``depth`` lie outside what ``cam`` can return, else None.
+
+    depth : (H, W) float metres, 0 or NaN = no measurement; cam : a
+    :class:`~depthguard.camera.Camera` (``id``, ``min_range``, ``max_range``).
+
+    More than :data:`UNITS_SHARE` of the measured pixels (every 4th pixel in each
+    direction is enough to tell) beyond ``RETURN_LIMIT_FACTOR x max_range``: an image in
+    millimetres read as metres. More than that share nearer than ``min_range`` and than
+    :data:`NEAR_LIMIT_M`: metres written into a millimetre PNG. A real sensor gives 0, not
+    a value, where it has no return, so neither happens with depth in the right units (R28).
+    """
+    from depthguard.camera import RETURN_LIMIT_FACTOR
+
+    d = np.asarray(depth)[::4, ::4]
+    with np.errstate(invalid="ignore"):
+        measured = np.isfinite(d) & (d > 0)
+        n = int(measured.sum())
+        if n == 0:
+            return None
+        far_limit = RETURN_LIMIT_FACTOR * float(cam.max_range)
+        far = int((measured & (d > far_limit)).sum())
+        near_limit = min(float(cam.min_range), NEAR_LIMIT_M)
+        near = int((measured & (d < near_limit)).sum())
+    median = float(np.median(d[measured]))
+    if far > UNITS_SHARE * n:
+        return (f"camera {cam.id}: {100 * far / n:.0f} % of the measured pixels lie beyond {far_limit:g} m "
+                f"(median {median:g}): depth must be metres - is this image in millimetres?")
+    if near > UNITS_SHARE * n:
+        return (f"camera {cam.id}: {100 * near / n:.0f} % of the measured pixels lie nearer than "
+                f"{near_limit:g} m (median {median:g} m): a depth PNG holds millimetres - does this image "
+                f"hold metres?")
+    return None
 
 
 def write_depth(path: str | Path, depth: np.ndarray) -> Path:

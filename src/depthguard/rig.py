@@ -14,7 +14,7 @@ from typing import Any, Literal, Optional, Union
 
 import numpy as np
 import yaml
-from pydantic import BaseModel, ConfigDict, Field, ValidationError, field_validator, model_validator
+from pydantic import BaseModel, ConfigDict, Field, ValidationError, ValidationInfo, field_validator, model_validator
 
 from depthguard.camera import Camera, CameraError
 from depthguard.config import MonitorConfig
@@ -22,7 +22,7 @@ from depthguard.geometry.mesh import Mesh, load_mesh
 from depthguard.geometry.primitives import Box, Capsule, Cylinder, Primitive, Sphere
 from depthguard.transforms import as_rigid, look_at, pose, quat_to_matrix
 
-__all__ = ["Rig", "RigError", "Workspace", "StaticObject", "RIG_SCHEMA_VERSION"]
+__all__ = ["Rig", "RigError", "Workspace", "StaticObject", "RIG_SCHEMA_VERSION", "joint_limits_problem"]
 
 RIG_SCHEMA_VERSION = 1
 
@@ -40,9 +40,28 @@ class _Strict(BaseModel):
 
 
 class LookAtSpec(_Strict):
+    """A camera at ``eye`` looking at ``target`` (m, world); ``up`` sets the roll: the image's
+    y axis points against it, so it must not lie along the view direction."""
     eye: _Vec3
     target: _Vec3
     up: _Vec3 = (0.0, 0.0, 1.0)
+
+    @field_validator("up")
+    @classmethod
+    def _roll_defined(cls, up: _Vec3, info: ValidationInfo) -> _Vec3:
+        if "eye" not in info.data or "target" not in info.data:
+            return up                     # eye or target is wrong: that error is reported
+        view = np.subtract(info.data["target"], info.data["eye"])
+        u = np.asarray(up, dtype=float)
+        n_view, n_up = float(np.linalg.norm(view)), float(np.linalg.norm(u))
+        if n_up == 0 or not np.isfinite(n_up):
+            raise ValueError(f"up must be a finite non-zero vector (got {list(up)})")
+        if n_view > 0 and np.linalg.norm(np.cross(view / n_view, u / n_up)) < 1e-3:
+            # within 0.06 deg: the roll would be a fallback's guess, not the user's choice
+            raise ValueError(f"up {list(up)} lies along the view direction eye -> target "
+                             f"{[round(float(a), 6) for a in view]}: the camera's roll is undefined; give an up "
+                             f"across the view (e.g. [0, 1, 0] for a camera looking straight down)")
+        return up
 
 
 class PoseSpec(_Strict):
@@ -88,6 +107,7 @@ class CameraSpec(_Strict):
     cx: Optional[float] = None
     cy: Optional[float] = None
     range: Optional[tuple[float, float]] = None
+    topic: Optional[str] = None          # its depth Image topic in a ROS 2 bag (R31, docs/BAGS.md)
     pose: PoseSpec
 
     @field_validator("id")
@@ -234,6 +254,15 @@ class ObjectSpec(_Strict):
     cylinder: Optional[CylinderShape] = None
     capsule: Optional[CylinderShape] = None
 
+    @field_validator("scale")
+    @classmethod
+    def _positive_scale(cls, v):
+        values = [v] if isinstance(v, (int, float)) else list(v)
+        if not all(np.isfinite(a) and a > 0 for a in values):
+            raise ValueError(f"scale must be > 0 on every axis (got {v}): a negative scale mirrors the mesh, "
+                             f"0 flattens it")
+        return v
+
     @model_validator(mode="after")
     def _one_shape(self) -> "ObjectSpec":
         shapes = [k for k in ("mesh", "box", "sphere", "cylinder", "capsule") if getattr(self, k) is not None]
@@ -270,11 +299,18 @@ class RigSpec(_Strict):
 
 
 # ------------------------------------------------------------------ the rig
+def _vec(v) -> str:
+    return "(" + ", ".join(f"{float(a):.3g}" for a in np.asarray(v).ravel()) + ")"
+
+
 @dataclass(frozen=True)
 class Workspace:
     """Axis-aligned box of interest, world frame, metres."""
     lo: np.ndarray
     hi: np.ndarray
+
+    def __repr__(self) -> str:
+        return f"Workspace({_vec(self.lo)}..{_vec(self.hi)} m)"
 
     def contains(self, points: np.ndarray) -> np.ndarray:
         p = np.asarray(points, dtype=float).reshape(-1, 3)
@@ -300,6 +336,12 @@ class StaticObject:
     mesh: Mesh
     primitive: Optional[Primitive] = None
 
+    def __repr__(self) -> str:
+        kind = type(self.primitive).__name__.lower() if self.primitive is not None else "mesh"
+        lo, hi = self.mesh.bounds
+        return (f"StaticObject({self.name!r}, {kind}, {len(self.mesh.vertices)} vertices, "
+                f"{len(self.mesh.faces)} faces, bounds {_vec(lo)}..{_vec(hi)} m)")
+
 
 @dataclass(frozen=True, eq=False)
 class Rig:
@@ -314,6 +356,17 @@ class Rig:
     path: Optional[Path] = None
     description: str = ""
     monitor: MonitorConfig = field(default_factory=MonitorConfig)   # the rig's ``monitor:`` section
+    topics: dict = field(default_factory=dict)   # camera id -> depth Image topic (``topic:``, R31)
+
+    def __repr__(self) -> str:
+        """One line: the name, file, camera ids, workspace, robot and object names (no mesh arrays)."""
+        robot = "none" if self.robot is None else getattr(self.robot, "name", type(self.robot).__name__)
+        names = [o.name for o in self.objects]
+        shown = ", ".join(names[:8]) + (f", ... ({len(names)} in all)" if len(names) > 8 else "")
+        where = f", path={str(self.path)!r}" if self.path is not None else ""
+        return (f"Rig({self.name!r}{where}, cameras=[{', '.join(self.camera_ids)}], "
+                f"workspace={_vec(self.workspace.lo)}..{_vec(self.workspace.hi)} m, robot={robot}, "
+                f"objects=[{shown}])")
 
     def camera(self, camera_id: str) -> Camera:
         for c in self.cameras:
@@ -381,7 +434,8 @@ class Rig:
             robot, q0 = _make_robot(spec.robot, base_dir, src)
         return cls(name=spec.name, cameras=cameras, workspace=ws, robot=robot, robot_q0=q0,
                    objects=objects, path=Path(source) if isinstance(source, Path) else None,
-                   description=spec.description, monitor=spec.monitor or MonitorConfig())
+                   description=spec.description, monitor=spec.monitor or MonitorConfig(),
+                   topics={c.id: c.topic for c in spec.cameras if c.topic})
 
 
 def _make_object(o: ObjectSpec, base_dir: Path) -> StaticObject:
@@ -438,13 +492,23 @@ def _make_robot(rs: RobotSpec, base_dir: Path, src: str):
         q = np.asarray(rs.joints, dtype=float)
         if q.shape != (robot.dof,):
             raise RigError(f"{src}: robot.joints: expected {robot.dof} joint values for {robot.name}, got {q.size}")
-        bad = np.nonzero((q < robot.q_min - 1e-9) | (q > robot.q_max + 1e-9))[0]
-        if bad.size:
-            j = int(bad[0])
-            raise RigError(f"{src}: robot.joints[{j}]: {q[j]:.4f} rad is outside the joint limits "
-                           f"[{robot.q_min[j]:.4f}, {robot.q_max[j]:.4f}]")
+        problem = joint_limits_problem(robot, q)
+        if problem:
+            raise RigError(f"{src}: robot.joints{problem}")
         q0 = q
     return robot, q0
+
+
+def joint_limits_problem(robot, q: np.ndarray) -> Optional[str]:
+    """``"[j]: v rad is outside the joint limits [lo, hi]"`` for the first joint of ``q`` (dof,)
+    rad outside ``robot.q_min``/``q_max``, else None; callers prefix the field (``robot.joints``)."""
+    q = np.asarray(q, dtype=float)
+    bad = np.nonzero((q < robot.q_min - 1e-9) | (q > robot.q_max + 1e-9))[0]
+    if not bad.size:
+        return None
+    j = int(bad[0])
+    return (f"[{j}]: {q[j]:.4f} rad is outside the joint limits [{robot.q_min[j]:.4f}, {robot.q_max[j]:.4f}]"
+            f" of {robot.name}")
 
 
 def _format_errors(src: str, exc: ValidationError) -> str:

@@ -16,7 +16,7 @@ from __future__ import annotations
 from pathlib import Path
 from typing import Optional
 
-__all__ = ["load_rig_or_cell", "parse_vector3"]
+__all__ = ["load_rig_or_cell", "parse_vector3", "check_output_dir"]
 
 
 def load_rig_or_cell(rig: Optional[Path], cell: Optional[str], default: Optional[str] = "flacco-cell",
@@ -62,3 +62,28 @@ def parse_vector3(text: str, option: str) -> tuple[float, float, float]:
     if len(values) != 3 or not all(math.isfinite(v) for v in values):
         raise ValueError(f"{option}: expected three numbers X,Y,Z in metres (got {text!r})")
     return values
+
+
+def check_output_dir(out: Path, option: str = "--out") -> Path:
+    """``out`` as a folder the command can write, checked before any work is done.
+
+    Creates the folder (and its parents) if needed and writes and removes one
+    uniquely named probe file in it, so that nothing already stored there is touched.
+    ``ValueError`` naming ``option`` and the folder when it is a file, lies under a
+    file (``/dev/null/x``), or cannot be created or written.
+    """
+    import os
+    import tempfile
+
+    p = Path(out)
+    if p.exists() and not p.is_dir():
+        raise ValueError(f"{option} {p}: is a file, not a folder (give a folder for the results)")
+    try:
+        p.mkdir(parents=True, exist_ok=True)
+        fd, probe = tempfile.mkstemp(prefix=".depthguard-write-check-", dir=p)
+        os.close(fd)
+        os.unlink(probe)
+    except OSError as exc:
+        reason = exc.strerror or str(exc)
+        raise ValueError(f"{option} {p}: cannot write results there ({reason})") from None
+    return p

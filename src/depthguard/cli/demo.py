@@ -85,7 +85,7 @@ def demo(
 ) -> None:
     """The closed-loop human-robot cell: scenarios reach and elbow on flacco-cell, a summary table, reports.
 
-    About a minute on a 2-core machine. Each scenario writes
+    About 1 min on a 2-core machine (2 min the first time: numba compiles the kernels). Each scenario writes
     OUT/<scenario>/summary.json and plots (end-effector path, distances of
     every control point, repulsive velocity); OUT/summary.json holds both.
     """

@@ -33,6 +33,9 @@ def flacco2015_cmd(
         raise typer.BadParameter(f"padding must lie in [0, 0.3] m, got {padding}", param_hint="--padding")
     if not (0.001 <= delta_d <= 0.2):
         raise typer.BadParameter(f"delta-d must lie in [0.001, 0.2] m, got {delta_d}", param_hint="--delta-d")
+    from depthguard.cli.common import check_output_dir
+
+    check_output_dir(out)      # before any work is done
     res = run_flacco2015(rho=rho, padding=padding, delta_d=delta_d, quiet=False)
     files = write_outputs(res, out)
     typer.echo(table(res, rho))

@@ -29,6 +29,9 @@ def hamersma2011(
     for v in voxels:
         if not (0.01 <= v <= 0.5):
             raise typer.BadParameter(f"voxel size must lie in [0.01, 0.5] m, got {v}", param_hint="--voxel")
+    from depthguard.cli.common import check_output_dir
+
+    check_output_dir(out)      # before any work is done
     res = run(out, voxels=voxels, seed=seed, quick=quick, log=log, placement=not no_placement,
               calibration=not no_calibration)
     typer.echo((out / "report.md").read_text())

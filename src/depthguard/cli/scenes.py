@@ -97,6 +97,9 @@ def render_cmd(
         t = 0.0 if time is None else time
     if not (t == t) or t < 0:
         raise typer.BadParameter(f"time must be >= 0 (got {t})", param_hint="--time")
+    from depthguard.cli.common import check_output_dir
+
+    check_output_dir(out)      # before any work is done
     res = render_cell(cell, t, out, noiseless=noiseless, seed=seed,
                       title=f"{label}  t = {t:.2f} s" + (f"  [{situation}]" if situation else "")
                       + ("  (noiseless)" if noiseless else ""))
