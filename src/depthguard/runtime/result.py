@@ -104,4 +104,5 @@ class Reaction:
                 "cameras": {c: {"age_s": (round(s.age_s, 6) if math.isfinite(s.age_s) else None),
                                 "state": s.state, "frames": s.frames, "refused": s.refused}
                             for c, s in self.cameras.items()},
-                "joints_age_s": round(self.joints_age_s, 6) if math.isfinite(self.joints_age_s) else None}
+                "joints_age_s": round(self.joints_age_s, 6) if math.isfinite(self.joints_age_s) else None,
+                "q": [round(float(x), 6) for x in self.q]}
