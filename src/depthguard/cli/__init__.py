@@ -18,6 +18,7 @@ _COMMAND_MODULES = [
     "depthguard.cli.run",
     "depthguard.cli.freespace",
     "depthguard.cli.monitor",
+    "depthguard.cli.realsense",
 ]
 
 for _m in _COMMAND_MODULES:

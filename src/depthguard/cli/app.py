@@ -13,7 +13,7 @@ from typing import Optional
 import typer
 from typer.core import TyperGroup
 
-__all__ = ["app", "DepthguardGroup", "version_text"]
+__all__ = ["app", "rig_app", "DepthguardGroup", "version_text"]
 
 
 def _plain_flags(command, ctx) -> None:
@@ -69,6 +69,12 @@ def _print_version(value: bool) -> None:
     if value:
         typer.echo(version_text())
         raise typer.Exit()
+
+
+#: ``depthguard rig ...``: rig files drafted from recordings and devices (``from-bag``, ``from-realsense``)
+rig_app = typer.Typer(help="Rig files drafted from recordings and devices: ROS 2 bags, RealSense.",
+                      no_args_is_help=True)
+app.add_typer(rig_app, name="rig")
 
 
 @app.callback()
