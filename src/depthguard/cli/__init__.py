@@ -18,6 +18,7 @@ _COMMAND_MODULES = [
     "depthguard.cli.run",
     "depthguard.cli.freespace",
     "depthguard.cli.monitor",
+    "depthguard.cli.view",
     "depthguard.cli.realsense",
 ]
 

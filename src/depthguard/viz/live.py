@@ -1,0 +1,364 @@
+"""``LiveView``: what the monitor sees, live in the browser (viser) — a monitor sink (R29, R31).
+
+    view = LiveView(rig, host="127.0.0.1", port=8080)      # starts the web server and its thread
+    monitor.sinks.append(view); view.attach(monitor)        # or Monitor(rig, sinks=[view])
+    ... open http://127.0.0.1:8080 ...
+    view.close()                                            # (monitor.close() closes it too)
+
+The control thread pays for one lock and one assignment per cycle: the sink
+call keeps a reference to the newest :class:`~depthguard.runtime.result.Reaction`
+(its arrays are already its own copies). The view's own thread
+(``depthguard-view``, lower priority like the monitor's workers) wakes at
+``rate_hz`` (default 15 Hz), takes the newest reaction, reads each camera's
+newest processed frame from the monitor's camera workers (their ``product``,
+under the worker's lock, which the control thread never takes), and updates
+the scene:
+
+- the cell's static meshes (grey), the robot at the reaction's joints (orange);
+- each camera's frustum coloured by its state (fresh green, stale yellow,
+  waiting grey, anything else red = untrusted);
+- each camera's newest frame, every ``stride``-th pixel, as points: removed
+  as the robot (violet), as the known scene (grey), the rest (blue), and the
+  rest within rho of a control point (red) — the view's own per-pixel
+  reading of the frame, for looking; the monitor's distances come from its
+  depth grid;
+- control and watch points as translucent spheres coloured by distance (red
+  near, green far or nothing within rho), magenta where no camera can judge
+  (R26), with a line to the nearest obstacle (which may be space hidden
+  behind what a camera sees: unknown space is an obstacle);
+- a panel: override and reasons, per camera state / frame rate / age, the
+  step time; a rho slider (``Monitor.set_rho``) and one switch per layer.
+
+The server binds ``127.0.0.1`` unless told otherwise (it has no
+authentication: anyone who reaches the port can change rho). A playback
+(``depthguard view DIR``) calls :meth:`show` with a snapshot instead.
+"""
+
+from __future__ import annotations
+
+import contextlib
+import math
+import sys
+import threading
+import time
+from collections import deque
+
+import numpy as np
+
+from depthguard.viz import live_scene as scene
+from depthguard.viz.live_layers import LAYERS, build_gui, build_scene, ensure_spheres, wxyz as _wxyz
+
+__all__ = ["LiveView", "LAYERS"]
+
+#: where a browser's camera starts: eye and target (world m), vertical field of view (rad)
+VIEW_EYE, VIEW_TARGET, VIEW_FOV = (2.3, -0.9, 1.4), (-0.3, 0.1, 0.25), math.radians(50.0)
+
+
+def _lower_priority(thread) -> None:
+    """Give viser's event-loop thread (it encodes and sends the scene) the monitor's workers'
+    lower priority (Linux); silently nothing where that is not possible."""
+    import os
+
+    from depthguard.runtime.ingest import WORKER_NICENESS
+
+    native = getattr(thread, "native_id", None)
+    if native:
+        try:
+            os.setpriority(os.PRIO_PROCESS, native, WORKER_NICENESS)
+        except (AttributeError, OSError):
+            pass
+
+
+class LiveView:
+    """The live view of one cell (module docstring).
+
+    rig : the :class:`~depthguard.rig.Rig` (cameras, static meshes, robot).
+    host, port : where the web server listens (port 0: any free port; a busy port: the next free one —
+        :attr:`url` says which).
+    rate_hz : scene updates per second (>= 10 by default 15).
+    stride : every ``stride``-th pixel of each frame is drawn (8: 80 x 60 points of a 640 x 480 frame).
+    monitor : a :class:`~depthguard.runtime.Monitor` to read frames from and set rho on (or :meth:`attach`).
+    """
+
+    def __init__(self, rig, *, host: str = "127.0.0.1", port: int = 8080, rate_hz: float = 15.0,
+                 stride: int = 8, monitor=None, title: str | None = None, start: bool = True):
+        import viser
+
+        if not rate_hz > 0:
+            raise ValueError(f"view rate must be > 0 Hz (got {rate_hz})")
+        if int(stride) < 1:
+            raise ValueError(f"view stride must be >= 1 pixel (got {stride})")
+        if not 0 <= int(port) <= 65535:
+            raise ValueError(f"view port must be 0..65535 (got {port})")
+        self.rig = rig
+        self.robot = rig.robot
+        self.period = 1.0 / float(rate_hz)
+        self.stride = int(stride)
+        self.rho = float(rig.monitor.rho)
+        self.robot_offset = float(rig.monitor.robot_offset)
+        self._lock = threading.Lock()
+        self._latest = None              # the newest Reaction (live) or Snapshot (playback)
+        self._shown = None
+        self.received = 0                # reactions given to the sink
+        self.updates = 0                 # scene updates sent
+        self.update_s: deque = deque(maxlen=2000)     # s per update that drew something new
+        self.errors: list[str] = []
+        self.cpu_s = 0.0                 # CPU seconds of the view's thread
+        self._monitor = None
+        self._versions: dict[str, int] = {}
+        self._frames_seen: dict[str, tuple[float, int]] = {}
+        self._rates: dict[str, float] = {}
+        self._static: dict[str, np.ndarray] = {}
+        self._panel_at = -math.inf
+        self._cps = None
+        self._q_shown = None
+        self._quiet_rho = False
+        self.note = ""
+        with contextlib.redirect_stdout(sys.stderr):     # viser's banner: not on the command's output
+            self.server = viser.ViserServer(host=host, port=int(port), label=title or f"depthguard - {rig.name}",
+                                            verbose=False)
+        _lower_priority(getattr(getattr(self.server, "_websock_server", None), "_server_thread", None))
+        # no share button: it would open a tunnel through viser's public relay (nothing leaves the machine)
+        self.server.gui.configure_theme(show_share_button=False, control_width="medium")
+        self.server.scene.set_up_direction("+z")
+        self.server.initial_camera.position = VIEW_EYE
+        self.server.initial_camera.look_at = VIEW_TARGET
+        self.server.initial_camera.fov = VIEW_FOV
+        self._build_scene()
+        self._build_gui()
+        if monitor is not None:
+            self.attach(monitor)
+        self._stop = threading.Event()
+        self._thread = threading.Thread(target=self._run, name="depthguard-view", daemon=True)
+        if start:
+            self._thread.start()
+
+    # ------------------------------------------------------------ the sink (control thread)
+    def __call__(self, reaction) -> None:
+        """Keep the newest reaction: one lock, one assignment (module docstring)."""
+        with self._lock:
+            self._latest = reaction
+            self.received += 1
+
+    def show(self, snapshot: scene.Snapshot) -> None:
+        """Show ``snapshot`` at the next update (playback)."""
+        with self._lock:
+            self._latest = snapshot
+
+    def attach(self, monitor) -> None:
+        """Read frames from ``monitor``'s camera workers and set its rho from the panel."""
+        self._monitor = monitor
+        self.rho = float(monitor.config.rho)
+        self._quiet_rho = True                 # showing the monitor's rho must not set it (rounded)
+        try:
+            self.gui_rho.value = round(self.rho, 2)
+        finally:
+            self._quiet_rho = False
+
+    def freeze(self, on: bool = True) -> None:
+        """Stop (or resume) updating the scene; the monitor and the sink go on."""
+        self.gui_freeze.value = bool(on)
+
+    @property
+    def shown_q(self) -> np.ndarray | None:
+        """(dof,) rad: the joints the robot is drawn at (None before the first reaction with joints)."""
+        return None if self._q_shown is None else self._q_shown.copy()
+
+    @property
+    def url(self) -> str:
+        return f"http://{self.server.get_host()}:{self.server.get_port()}/"
+
+    @property
+    def port(self) -> int:
+        return int(self.server.get_port())
+
+    # ------------------------------------------------------------ set-up
+    def _build_scene(self) -> None:
+        build_scene(self)
+
+    def _ensure_spheres(self, names, is_watch) -> None:
+        ensure_spheres(self, names, is_watch)
+
+    def _build_gui(self) -> None:
+        build_gui(self)
+
+    def set_layer(self, name: str, on: bool) -> None:
+        """Show or hide one of :data:`LAYERS`."""
+        if name not in self.layers:
+            raise ValueError(f"no layer {name!r}; layers: {', '.join(LAYERS)}")
+        if self.gui_layers[name].value != bool(on):
+            self.gui_layers[name].value = bool(on)
+        if name == "vectors":
+            self._vectors_on = bool(on)
+        for h in self.layers[name]:
+            h.visible = bool(on)
+
+    # ------------------------------------------------------------ the view's thread
+    def _run(self) -> None:
+        from depthguard.runtime.ingest import background_thread
+
+        try:
+            background_thread()
+        except Exception:  # noqa: BLE001 - numba missing or no priority change: the view still runs
+            pass
+        next_t = time.perf_counter()
+        while not self._stop.is_set():
+            next_t += self.period
+            t0, c0 = time.perf_counter(), time.thread_time()
+            try:
+                if self.update():
+                    self.update_s.append(time.perf_counter() - t0)
+            except Exception as exc:  # noqa: BLE001 - the view must never stop the monitor
+                msg = f"{type(exc).__name__}: {exc}"
+                if not self.errors or self.errors[-1] != msg:
+                    self.errors.append(msg)
+                    from depthguard.progress import log
+                    log(f"view: {msg}")
+            self.cpu_s += time.thread_time() - c0
+            wait = next_t - time.perf_counter()
+            if wait < 0:
+                next_t = time.perf_counter()
+            else:
+                self._stop.wait(wait)
+
+    def update(self) -> bool:
+        """One scene update from the newest reaction or snapshot; False when nothing new."""
+        if self.gui_freeze.value:
+            return False
+        with self._lock:
+            latest = self._latest
+        if latest is None or latest is self._shown:
+            self._update_points(self._cps)
+            return False
+        self._shown = latest
+        snap = latest if isinstance(latest, scene.Snapshot) else scene.snapshot_of_reaction(latest)
+        with self.server.atomic():
+            self._cps = cps = self._update_robot(snap)
+            self._update_points(cps)
+            for cid, st in snap.cameras.items():
+                h = self._frustums.get(cid)
+                if h is not None:
+                    col = scene.state_colour(st["state"])
+                    if tuple(h.color) != col:
+                        h.color = col
+        now = time.perf_counter()
+        if now - self._panel_at > 0.25:
+            self._panel_at = now
+            self.gui_panel.content = scene.panel_markdown(snap, self._camera_rates(now), self._step_ms(snap),
+                                                          self.rho, self.note)
+        self.updates += 1
+        return True
+
+    def _pose_robot(self, q: np.ndarray) -> None:
+        poses = self.robot.link_poses(q)
+        for k, h in self._links:
+            h.wxyz = _wxyz(poses[k][:3, :3])
+            h.position = poses[k][:3, 3]
+
+    def _update_robot(self, snap: scene.Snapshot):
+        """Robot pose, control/watch spheres and vectors; returns the control points (M, 3) or None."""
+        if self.robot is None:
+            return None
+        self._ensure_spheres(snap.names, snap.is_watch)
+        if snap.q is None:
+            return None
+        q = np.asarray(snap.q, dtype=float)
+        if self._q_shown is None or not np.array_equal(q, self._q_shown):
+            self._pose_robot(q)
+            self._q_shown = q
+        self.robot.forward(q, self._data)
+        cps = np.array(self._data.cp_positions, dtype=float)
+        cfg = self._monitor.config if self._monitor is not None else self.rig.monitor
+        watch = [w.position for w in cfg.watch_points]
+        pos = np.concatenate([cps, np.asarray(watch, dtype=float).reshape(-1, 3)])
+        if len(pos) != len(snap.names):
+            return cps
+        cols = scene.distance_colours(snap.distance, snap.observed, self.rho)
+        for h, p, c in zip(self._spheres, pos, cols):
+            h.position = p
+            if tuple(h.color) != tuple(int(x) for x in c):
+                h.color = tuple(int(x) for x in c)
+        seen = np.isfinite(snap.distance) & snap.observed
+        if seen.any() and self._vectors_on:
+            a = pos[seen]
+            b = a + snap.direction[seen] * snap.distance[seen][:, None]
+            self._vectors.points = np.stack([a, b], axis=1).astype(np.float32)
+            self._vectors.colors = np.repeat(cols[seen][:, None, :], 2, axis=1)
+            self._vectors.visible = True
+        else:
+            self._vectors.visible = False
+        return cps
+
+    def _update_points(self, cps) -> None:
+        """Each camera's newest processed frame, when it changed (live monitors only)."""
+        mon = self._monitor
+        if mon is None:
+            return
+        workers = mon.fusion.workers
+        near_all = []
+        changed = False
+        for cid, w in list(workers.items()):
+            with w.lock:
+                p = w.product
+            if p is None or self._versions.get(cid) == p.version:
+                continue
+            self._versions[cid] = p.version
+            changed = True
+            cam = w.camera
+            if cid not in self._static:
+                from depthguard.filtering.expected import ExpectedDepth
+                self._static[cid] = ExpectedDepth(cam, None, self.rig.static_meshes()).static
+            pts, plab = scene.frame_points(cam, p.depth, p.robot_depth, self._static[cid], self.robot_offset,
+                                           self.stride)
+            near = scene.near_mask(pts, cps if cps is not None else np.zeros((0, 3)), self.rho) & \
+                (plab == scene.OTHER)
+            handles = self._clouds.get(cid)
+            if handles is not None:
+                known = plab == scene.KNOWN
+                handles[0].points = pts[~known]
+                handles[0].colors = scene.point_colours(plab[~known], near[~known])
+                if handles[1].visible:
+                    handles[1].points = pts[known]
+            near_all.append(pts[near])
+        if changed:
+            pts = np.concatenate(near_all) if near_all else np.zeros((0, 3), np.float32)
+            self._near.points = pts.astype(np.float32)
+
+    def _camera_rates(self, now: float) -> dict:
+        mon = self._monitor
+        if mon is None:
+            return {}
+        for cid, w in list(mon.fusion.workers.items()):
+            frames = w.frames
+            t_prev, f_prev = self._frames_seen.get(cid, (None, None))
+            if t_prev is None:
+                self._frames_seen[cid] = (now, frames)
+            elif now - t_prev >= 1.0:
+                self._rates[cid] = (frames - f_prev) / (now - t_prev)
+                self._frames_seen[cid] = (now, frames)
+        return dict(self._rates)
+
+    def _step_ms(self, snap: scene.Snapshot) -> dict:
+        mon = self._monitor
+        if mon is not None:
+            recent = np.asarray(mon.step_s[-2500:], dtype=float)
+            if len(recent):
+                return {"p50": float(np.percentile(recent, 50) * 1e3), "p99": float(np.percentile(recent, 99) * 1e3)}
+        return {} if not math.isfinite(snap.step_s) else {"last": snap.step_s * 1e3}
+
+    # ------------------------------------------------------------ end
+    def close(self) -> None:
+        """Stop the view's thread and the web server."""
+        if self._stop.is_set():
+            return
+        self._stop.set()
+        if self._thread.is_alive():
+            self._thread.join(2.0)
+        with contextlib.redirect_stdout(sys.stderr):
+            self.server.stop()
+
+    def __enter__(self) -> "LiveView":
+        return self
+
+    def __exit__(self, *exc) -> None:
+        self.close()
