@@ -97,10 +97,14 @@ def test_an_output_folder_holding_a_run_is_refused_before_any_work(tmp_path):
 
 
 @pytest.mark.slow
-def test_a_recording_replays_from_its_first_stamp_with_the_robot_removed_at_capture_time(tmp_path):
+@pytest.mark.parametrize("joint_hz, joint_offset", [(500, 0.0), (100, 0.0007)])
+def test_a_recording_replays_from_its_first_stamp_with_the_robot_removed_at_capture_time(tmp_path, joint_hz,
+                                                                                        joint_offset):
     """A recorded cell (depth images + joint CSV, as a real cell's recorder would write them,
     stamps on a wall clock far from 0) replayed with --fast: the log's clock starts at the first
-    stamp, every frame is used, and the robot moving through the images is not an obstacle."""
+    stamp, every frame is used, and the robot moving through the images is not an obstacle —
+    also with joint states slower than the control rate and not on its ticks (a frame then
+    waits for the joint state after its capture instead of being refused as 'future')."""
     import numpy as np
 
     from depthguard.sim.cells import cell_rig_path
@@ -115,14 +119,15 @@ def test_a_recording_replays_from_its_first_stamp_with_the_robot_removed_at_capt
     frames = []
     for k in range(int(dur * 30) + 1):
         for i, cid in enumerate(sim.camera_ids):
-            tc = k / 30 + i * 0.011
+            tc = k / 30 + i * 0.011 + 0.005                   # after the first joint state
             frames.append(Frame(cid, sim.render(cid, tc, world.history.at(tc)), T0 + tc))
     frames.sort(key=lambda f: f.stamp)
     write_image_dir(tmp_path / "rec", frames)
     rows = ["stamp," + ",".join(f"q{j + 1}" for j in range(world.robot.dof))]
-    for k in range(int((dur + 0.05) * 500)):
-        q = world.history.at(k / 500)
-        rows.append(f"{T0 + k / 500!r}," + ",".join(repr(float(x)) for x in q))
+    for k in range(int((dur + 0.05) * joint_hz)):
+        tj = k / joint_hz + joint_offset
+        q = world.history.at(tj)
+        rows.append(f"{T0 + tj!r}," + ",".join(repr(float(x)) for x in q))
     (tmp_path / "joints.csv").write_text("\n".join(rows) + "\n")
     out = tmp_path / "out"
     res = subprocess.run(DG + ["monitor", "--rig", str(cell_rig_path("flacco-cell")), "--source",

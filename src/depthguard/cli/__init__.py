@@ -19,6 +19,7 @@ _COMMAND_MODULES = [
     "depthguard.cli.freespace",
     "depthguard.cli.monitor",
     "depthguard.cli.view",
+    "depthguard.cli.bag",
     "depthguard.cli.realsense",
 ]
 

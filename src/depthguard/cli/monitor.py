@@ -36,10 +36,14 @@ def check_out_dir(out: Path, files=("log.jsonl", "summary.json")) -> None:
 
 def _status_line(r) -> str:
     name, d = r.nearest()
-    near = "nothing within rho" if name is None else f"nearest {name} {d * 100:.1f} cm"
     unobs = [n for n, o, w in zip(r.names, r.observed, r.is_watch) if not o and not w]
-    if unobs:
-        near += f", cannot judge {len(unobs)} point(s)"
+    n_cp = int((~r.is_watch).sum())
+    if name is None and len(unobs) == n_cp:
+        near = "cannot judge any point"             # never "nothing within rho" when nothing was seen
+    else:
+        near = "nothing within rho" if name is None else f"nearest {name} {d * 100:.1f} cm"
+        if unobs:
+            near += f", cannot judge {len(unobs)} point(s)"
     cams = " ".join(f"{c}:{'-' if s.age_s == float('inf') else f'{s.age_s * 1e3:.0f}ms'}" + ("!" if s.state == "stale" else "")
                     for c, s in r.cameras.items())
     why = ("  STOP: " if r.override <= 0 else "  slowing: ") + "; ".join(r.reasons.values()) if r.reasons else ""
@@ -50,8 +54,8 @@ def _status_line(r) -> str:
 def monitor(
     rig: Optional[Path] = typer.Option(None, "--rig", help="Rig file (YAML) of your cell; its monitor: section sets the runtime."),
     cell: Optional[str] = typer.Option(None, "--cell", help="A built-in cell (default flacco-cell when no --rig)."),
-    source: List[str] = typer.Option([], "--source", help="Frame source SCHEME:ARG, repeatable: sim[:CELL[:SITUATION][:alone][:dark][:noiseless]], images:DIR, units:ENDPOINT (the camera units of a fusion server; list their cameras in the rig's monitor: remote_cameras). Default: the simulator of the cell (or of the rig's own scene)."),
-    joints: Optional[str] = typer.Option(None, "--joints", help="Joint source: sim (the simulated robot, which obeys the reaction), csv:FILE, zenoh:KEY. Default: sim with a sim source."),
+    source: List[str] = typer.Option([], "--source", help="Frame source SCHEME:ARG, repeatable: sim[:CELL[:SITUATION][:alone][:dark][:noiseless]], images:DIR, bag:PATH (a ROS 2 bag, docs/BAGS.md), realsense[:CAM=SERIAL,...] and realsense-file:PATH (docs/REALSENSE.md), units:ENDPOINT (the camera units of a fusion server; list their cameras in the rig's monitor: remote_cameras). Default: the simulator of the cell (or of the rig's own scene)."),
+    joints: Optional[str] = typer.Option(None, "--joints", help="Joint source: sim (the simulated robot, which obeys the reaction), csv:FILE, zenoh:KEY, bag:PATH. Default: sim with a sim source, the bag with a bag: source."),
     out: Optional[Path] = typer.Option(None, "--out", "-o", help="Folder for log.jsonl (one line per control cycle) and summary.json (default: out/monitor/<UTC time>)."),
     duration: Optional[float] = typer.Option(None, "--duration", help="Seconds of run time (default: until Ctrl-C or the end of the sources)."),
     fast: bool = typer.Option(False, "--fast", help="As fast as possible and deterministic (recordings, simulation), not in real time."),
@@ -59,6 +63,9 @@ def monitor(
     zenoh_listen: Optional[str] = typer.Option(None, "--zenoh-listen", help="Zenoh endpoint the monitor listens on (default: the rig's monitor: zenoh_listen, loopback)."),
     zenoh_connect: List[str] = typer.Option([], "--zenoh-connect", help="Zenoh endpoints to connect to (repeatable)."),
     quiet: bool = typer.Option(False, "--quiet", "-q", help="No status line."),
+    view: bool = typer.Option(False, "--view", help="A live 3-D view in the browser (docs/VIEW.md)."),
+    view_host: str = typer.Option("127.0.0.1", "--view-host", help="Address the view listens on (anyone who reaches it can change rho)."),
+    view_port: int = typer.Option(8080, "--view-port", min=0, max=65535, help="Port of the view (a busy one: the next free)."),
 ) -> None:
     """Run the monitor: frames and joint states in, the robot's reaction out (R29).
 
@@ -83,12 +90,13 @@ def monitor(
         import datetime
 
         out = Path("out") / "monitor" / datetime.datetime.now(datetime.timezone.utc).strftime("%Y%m%d-%H%M%S")
-    check_out_dir(out)
+    check_out_dir(out, ("log.jsonl", "summary.json", "results.mcap"))
     specs = list(source) or [f"sim:{cell_name}" if cell_name else "sim"]
     zenoh_listen = zenoh_listen or the_rig.monitor.zenoh_listen
     context: dict = {"zenoh_listen": (zenoh_listen,), "zenoh_connect": tuple(zenoh_connect)}
     sources = [open_source(s, the_rig, context) for s in specs]
-    joint_spec = joints or ("sim" if "sim_world" in context else None)
+    joint_spec = joints or ("sim" if "sim_world" in context else None) \
+        or next((s for s in specs if s.startswith("bag:")), None)      # a bag holds its joint states too
     if joint_spec is None:
         raise typer.BadParameter("a non-simulated source needs --joints (csv:FILE or zenoh:KEY)", param_hint="--joints")
     joint_source = open_joints(joint_spec, the_rig, context)
@@ -100,6 +108,8 @@ def monitor(
         + ("" if duration else "; Ctrl-C stops"))
     sinks = []
     sinks.append(JsonlLog(out / "log.jsonl"))
+    from depthguard.runtime.mcap_results import McapResults      # results.mcap beside the input (R31)
+    sinks.append(McapResults(out / "results.mcap", the_rig.robot, [(w.name, w.position) for w in cfg.watch_points]))
     session = listener = None
     cell_key = cfg.cell or the_rig.name
     if zenoh:
@@ -111,6 +121,10 @@ def monitor(
     fanout = SinkFanout(sinks, block=fast)
     direct = [context["sim_world"].on_reaction] if "sim_world" in context else []
     mon = Monitor(the_rig, cfg, sinks=direct + [fanout])
+    if view:                            # a sink that keeps the newest reaction; drawn on its own thread
+        from depthguard.viz.live import LiveView
+        mon.sinks.append(LiveView(the_rig, host=view_host, port=view_port, monitor=mon))
+        log(f"monitor: live view at {mon.sinks[-1].url}")
     if session is not None:
         from depthguard.runtime.remote import SettingsListener
         listener = SettingsListener(mon, session, cell_key)
@@ -155,14 +169,22 @@ def monitor(
         typer.echo("", err=True)
     summary = summarise(mon, stats, wall, {"frames": specs, "joints": joint_spec},
                         {"interrupted": stats.interrupted, "fast": fast,
-                         "sinks_dropped": fanout.dropped, "sink_errors": fanout.errors})
+                         "sinks_dropped": fanout.dropped, "sink_errors": fanout.errors,
+                         "source_counts": {sp: s.counters() for sp, s in zip(specs, sources) if hasattr(s, "counters")}})
     (out / "summary.json").write_text(json.dumps(summary, indent=1, allow_nan=False) + "\n")
     near = summary["nearest_distance_m"]
+    if near is not None:
+        near_text = f"{near * 100:.1f} cm"
+    elif summary["unobserved_cycles"]:
+        near_text = (f"none within rho where it could judge ({summary['unobserved_cycles']} of {summary['cycles']} "
+                     f"cycles could not judge every point)")
+    else:
+        near_text = "none within rho"
     typer.echo(f"monitor: {summary['cycles']} cycles over {summary['run_time_s']:.2f} s "
                f"({'interrupted' if stats.interrupted else 'done'}); override min {summary['override_min']:.2f}, "
-               f"stopped {summary['stopped_s']:.2f} s; nearest {'none within rho' if near is None else f'{near * 100:.1f} cm'}; "
+               f"stopped {summary['stopped_s']:.2f} s; nearest {near_text}; "
                f"step p99 {summary['step_ms']['p99']} ms; frame to reaction p99 {summary['frame_to_reaction_ms']['p99']} ms"
-               + f"; wrote {out}/log.jsonl and summary.json")
+               + f"; wrote {out}/log.jsonl, summary.json and results.mcap")
 
 
 @app.command("safe-defaults")

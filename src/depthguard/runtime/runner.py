@@ -10,9 +10,10 @@ source is done, or the caller stops it (Ctrl-C, ``stop`` event).
   thread steps the monitor every ``1 / control_hz`` s. The control thread
   never waits for a frame.
 - **Fast** (``fast=True``): one thread; at each control cycle ``t = k dt``
-  the joint states and frames due by ``t`` are pushed, the frames are
-  processed to the end (``monitor.flush``), then the monitor steps. The run
-  is a pure function of its inputs: two fast runs give the same log.
+  the joint states and frames due by ``t`` are pushed (a frame once a joint
+  state at or after its capture has been), the frames are processed to the
+  end (``monitor.flush``), then the monitor steps. The run is a pure function
+  of its inputs: two fast runs give the same log.
 
 Returns the run's summary (:func:`summarise`), which ``--out DIR`` writes to
 ``DIR/summary.json`` beside ``DIR/log.jsonl``.
@@ -153,18 +154,35 @@ def run(monitor, frame_sources: list, joint_source, *, duration: float | None = 
 
 
 def _run_fast(monitor, frame_sources, joint_source, duration, stop, emit, all_done, stats, wall0, t0=0.0):
-    """Fast mode (module docstring): joints, then frames due by ``t``, processed to the end, then a step."""
+    """Fast mode (module docstring): joints, then frames due by ``t``, processed to the end, then a step.
+
+    A frame is handed to the monitor once a joint state at or after its capture stamp has
+    been (R30: its joints are interpolated, never extrapolated), as it would arrive in
+    real time with any latency longer than one joint period; until then it waits here, so
+    that a camera worker never waits for joints that a fast run has not pushed yet. Once
+    the joint source is done, the frames still waiting go to the monitor (which refuses
+    those stamped after the last joint state)."""
     dt = monitor.config.dt
     next_status = 0.0
     k = 0
+    newest_joint = -math.inf
+    waiting: list = []
     while not stop.is_set():
         t = t0 + k * dt
         if duration is not None and t - t0 > duration + 1e-12:
             break
         if joint_source is not None:
             for ts, q in joint_source.states_until(t):
-                monitor.push_joints(ts, q)
-        n = sum(_push_frames(monitor, s.frames_until(t)) for s in frame_sources)
+                if monitor.push_joints(ts, q):
+                    newest_joint = max(newest_joint, float(ts))
+        for s in frame_sources:
+            waiting.extend(s.frames_until(t))
+        if joint_source is None or joint_source.done:
+            due, waiting = waiting, []
+        else:
+            due = [f for f in waiting if f.stamp <= newest_joint]
+            waiting = [f for f in waiting if f.stamp > newest_joint]
+        n = _push_frames(monitor, due)
         for src in frame_sources:
             for cid, centres, size, stamp in getattr(src, "voxels_until", _none)(t):
                 monitor.push_voxels(cid, centres, size, stamp)

@@ -31,6 +31,7 @@ _MODULES = [
     "depthguard.evaluation.bench.monitor",
     "depthguard.evaluation.bench.view",
     "depthguard.evaluation.bench.realsense",
+    "depthguard.evaluation.bench.bag",
 ]
 
 

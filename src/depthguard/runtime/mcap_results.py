@@ -1,0 +1,188 @@
+"""The monitor's results as an MCAP file beside the input: ``monitor --out DIR`` writes
+``DIR/results.mcap`` (R31).
+
+A sink (``sink(reaction)``, ``close()``) that writes ROS 2 CDR messages, with their
+definitions embedded as ROS 2 bags do, so that Foxglove (or any MCAP reader) opens the
+results beside the input bag on the same clock — the reaction time ``t`` is the
+header stamp and the log time (the input's header stamps are on that clock too):
+
+- ``/depthguard/reaction`` — ``depthguard_msgs/msg/Reaction`` (:data:`REACTION_MSG`), every
+  cycle: the whole record of the log. "Nothing within rho" (``within_rho`` false, observed)
+  and "cannot judge" (``observed`` false) are separate fields, never one number;
+- ``/depthguard/override`` — ``std_msgs/msg/Float64``, every cycle (0 = stop);
+- ``/depthguard/markers`` — ``visualization_msgs/msg/MarkerArray`` in frame ``world``, at most
+  ``marker_hz`` times per second of run time: a sphere per control point (green: nothing
+  within rho; orange: an obstacle within rho; grey: cannot judge) and an arrow from the
+  point to its nearest obstacle (length = the distance).
+
+The file is written as a rosbag2 directory ``DIR/.results.mcap.partial/`` while the run lasts
+(zstd chunks) and moved to ``DIR/results.mcap`` at :meth:`McapResults.close`; an existing
+``results.mcap`` is never overwritten.
+"""
+
+from __future__ import annotations
+
+import math
+import os
+import shutil
+from dataclasses import replace
+from pathlib import Path
+
+import numpy as np
+
+from depthguard.sources import ros_messages as rosmsg
+
+__all__ = ["McapResults", "REACTION_MSG", "REACTION_TYPE", "TOPICS"]
+
+REACTION_TYPE = "depthguard_msgs/msg/Reaction"
+REACTION_MSG = """\
+std_msgs/Header header
+float64 override
+geometry_msgs/Vector3 repulsion
+float64[] qd_min
+float64[] qd_max
+string[] names
+bool[] watch
+bool[] observed
+bool[] within_rho
+float64[] distance
+geometry_msgs/Vector3[] direction
+string[] reason_keys
+string[] reason_texts
+string[] cameras
+string[] camera_states
+float64[] camera_age_s
+float64 joints_age_s
+float64[] q
+"""
+TOPICS = {"reaction": "/depthguard/reaction", "override": "/depthguard/override", "markers": "/depthguard/markers"}
+
+_registered = False
+
+
+def _register() -> None:
+    global _registered
+    if not _registered:
+        from rosbags.typesys import get_types_from_msg
+
+        rosmsg.TYPESTORE.register(get_types_from_msg(REACTION_MSG, REACTION_TYPE))
+        _registered = True
+
+
+def _age(x: float) -> float:
+    return float(x) if math.isfinite(x) else -1.0          # -1 = nothing yet
+
+
+class McapResults:
+    """Sink writing ``results.mcap`` (module docstring); ``robot`` places the control points
+    (``control_point_positions(q)``), ``watch_points`` are ``(name, (3,) m)`` of the config."""
+
+    def __init__(self, path: str | Path, robot, watch_points=(), marker_hz: float = 30.0, frame_id: str = "world"):
+        from rosbags.rosbag2 import StoragePlugin, Writer
+        from rosbags.rosbag2.enums import CompressionFormat, CompressionMode
+
+        _register()
+        self.path = Path(path)
+        if self.path.exists():
+            raise ValueError(f"{self.path} exists already (a run never overwrites one); choose a new folder")
+        self._tmp = self.path.parent / f".{self.path.name}.partial"
+        if self._tmp.exists():
+            raise ValueError(f"{self._tmp} exists (left by an interrupted run); remove it or choose a new folder")
+        self.robot = robot
+        self._watch = {n: np.asarray(p, dtype=np.float64) for n, p in watch_points}
+        self.frame_id = frame_id
+        self.period = 1.0 / float(marker_hz)
+        self._next_marker = -math.inf
+        self._writer = Writer(self._tmp, version=9, storage_plugin=StoragePlugin.MCAP)
+        self._writer.set_compression(CompressionMode.STORAGE, CompressionFormat.ZSTD)
+        self._writer.open()
+        ts = rosmsg.TYPESTORE
+        self._con = {"reaction": self._writer.add_connection(TOPICS["reaction"], REACTION_TYPE, typestore=ts),
+                     "override": self._writer.add_connection(TOPICS["override"], rosmsg.MSG["Float64"], typestore=ts),
+                     "markers": self._writer.add_connection(TOPICS["markers"], rosmsg.MSG["MarkerArray"], typestore=ts)}
+        self.written = 0
+
+    # ------------------------------------------------------------ messages
+    def reaction_msg(self, r):
+        T = rosmsg.TYPESTORE.types
+        vec = T["geometry_msgs/msg/Vector3"]
+        within = np.isfinite(r.distance)
+        cams = list(r.cameras)
+        return T[REACTION_TYPE](
+            header=rosmsg.header(r.t, self.frame_id), override=float(r.override),
+            repulsion=vec(x=float(r.repulsion[0]), y=float(r.repulsion[1]), z=float(r.repulsion[2])),
+            qd_min=np.asarray(r.qd_min, dtype=np.float64), qd_max=np.asarray(r.qd_max, dtype=np.float64),
+            names=list(r.names), watch=np.asarray(r.is_watch, dtype=bool), observed=np.asarray(r.observed, dtype=bool),
+            within_rho=within.astype(bool), distance=np.where(within, r.distance, 0.0).astype(np.float64),
+            direction=[vec(x=float(d[0]), y=float(d[1]), z=float(d[2])) if w else vec(x=0.0, y=0.0, z=0.0)
+                       for d, w in zip(r.direction, within)],
+            reason_keys=list(r.reasons), reason_texts=list(r.reasons.values()), cameras=cams,
+            camera_states=[r.cameras[c].state for c in cams],
+            camera_age_s=np.array([_age(r.cameras[c].age_s) for c in cams], dtype=np.float64),
+            joints_age_s=_age(r.joints_age_s), q=np.asarray(r.q, dtype=np.float64))
+
+    def markers_msg(self, r):
+        T = rosmsg.TYPESTORE.types
+        marker, point = T["visualization_msgs/msg/Marker"], T["geometry_msgs/msg/Point"]
+        pose = T["geometry_msgs/msg/Pose"](position=point(x=0.0, y=0.0, z=0.0),
+                                          orientation=T["geometry_msgs/msg/Quaternion"](x=0.0, y=0.0, z=0.0, w=1.0))
+        color = T["std_msgs/msg/ColorRGBA"]
+        hdr = rosmsg.header(r.t, self.frame_id)
+        n_cp = int(np.count_nonzero(~np.asarray(r.is_watch)))
+        pts = np.asarray(self.robot.control_point_positions(r.q), dtype=np.float64)[:n_cp] if n_cp else np.zeros((0, 3))
+        radii = [max(2.0 * float(cp.radius), 0.03) for cp in self.robot.control_points][:n_cp]
+        positions, sizes = list(pts), list(radii)
+        for name in r.names[n_cp:]:
+            positions.append(self._watch.get(name, np.zeros(3)))
+            sizes.append(0.05)
+
+        def make(i, kind, ns, pos, scale, rgba, points=()):
+            return marker(header=hdr, ns=ns, id=i, type=kind, action=0,
+                          pose=T["geometry_msgs/msg/Pose"](position=point(x=float(pos[0]), y=float(pos[1]), z=float(pos[2])),
+                                                           orientation=pose.orientation),
+                          scale=T["geometry_msgs/msg/Vector3"](x=scale[0], y=scale[1], z=scale[2]),
+                          color=color(r=rgba[0], g=rgba[1], b=rgba[2], a=rgba[3]),
+                          lifetime=T["builtin_interfaces/msg/Duration"](sec=0, nanosec=0), frame_locked=False,
+                          points=[point(x=float(p[0]), y=float(p[1]), z=float(p[2])) for p in points], colors=[],
+                          texture_resource="", texture=T["sensor_msgs/msg/CompressedImage"](
+                              header=hdr, format="", data=np.zeros(0, dtype=np.uint8)),
+                          uv_coordinates=[], text="", mesh_resource="",
+                          mesh_file=T["visualization_msgs/msg/MeshFile"](filename="", data=np.zeros(0, dtype=np.uint8)),
+                          mesh_use_embedded_materials=False)
+
+        out = [replace(make(0, 0, "", (0, 0, 0), (0.0, 0.0, 0.0), (0, 0, 0, 0)), action=3)]   # DELETEALL first
+        for i, (name, p, s) in enumerate(zip(r.names, positions, sizes)):
+            obs, d = bool(r.observed[i]), float(r.distance[i])
+            rgba = (0.6, 0.6, 0.6, 0.8) if not obs else ((1.0, 0.5, 0.0, 0.9) if math.isfinite(d) else (0.1, 0.8, 0.2, 0.8))
+            out.append(make(i, 2, "control_points" if i < n_cp else "watch_points", p, (s, s, s), rgba))  # SPHERE
+            if obs and math.isfinite(d):
+                end = np.asarray(p) + d * np.asarray(r.direction[i], dtype=np.float64)
+                out.append(make(i, 0, "distance", (0, 0, 0), (0.01, 0.02, 0.03), (1.0, 0.2, 0.1, 1.0), [p, end]))  # ARROW
+        return T[rosmsg.MSG["MarkerArray"]](markers=out)
+
+    # ------------------------------------------------------------ sink
+    def __call__(self, r) -> None:
+        if self._writer is None:
+            raise ValueError(f"{self.path}: closed")
+        if not (math.isfinite(r.t) and r.t >= 0):
+            return                                  # a ROS time cannot hold it (never on the monitor's clocks)
+        ns = rosmsg.stamp_ns(r.t)
+        T = rosmsg.TYPESTORE.types
+        self._writer.write(self._con["reaction"], ns, rosmsg.serialize(self.reaction_msg(r)))
+        self._writer.write(self._con["override"], ns, rosmsg.serialize(T[rosmsg.MSG["Float64"]](data=float(r.override))))
+        if r.t >= self._next_marker:
+            self._writer.write(self._con["markers"], ns, rosmsg.serialize(self.markers_msg(r)))
+            self._next_marker = r.t + self.period - 1e-9
+        self.written += 1
+
+    def close(self) -> None:
+        """Finish the file and move it to ``path`` (the partial directory is removed)."""
+        if self._writer is None:
+            return
+        self._writer.close()
+        self._writer = None
+        inner = self._tmp / f"{self._tmp.name}.mcap"
+        if self.path.exists():
+            raise ValueError(f"{self.path} appeared during the run; the results stay in {inner}")
+        os.replace(inner, self.path)
+        shutil.rmtree(self._tmp, ignore_errors=True)
