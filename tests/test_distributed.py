@@ -151,22 +151,55 @@ def _rig(tmp_path):
     return p
 
 
-def _spawn(rig, cam, endpoint, fps=20):
+def _spawn(rig, cam, endpoint, fps=20, keys=None):
     env = dict(os.environ, PYTHONUNBUFFERED="1")
+    extra = [] if keys is None else ["--keys", str(keys / cam)]
     return subprocess.Popen([sys.executable, "-m", "depthguard.distributed.node", "--rig", str(rig),
-                             "--camera", cam, "--connect", endpoint, "--fps", str(fps), "--quiet"],
+                             "--camera", cam, "--connect", endpoint, "--fps", str(fps), "--quiet", *extra],
                             stdout=subprocess.DEVNULL, stderr=subprocess.PIPE, env=env)
+
+
+@pytest.fixture(scope="module")
+def pki(tmp_path_factory):
+    """The cell's authority, a certificate per camera node and an administrator's (R35)."""
+    from depthguard.distributed.keys import init_authority, issue_admin, issue_node
+
+    d = tmp_path_factory.mktemp("pki")
+    init_authority(d / "ca")
+    for i in range(4):
+        issue_node(f"cam{i}", d / "ca", d / f"cam{i}")
+    issue_admin(d / "ca", d / "admin")
+    return d
+
+
+@pytest.fixture(params=["tcp", "tls"])
+def any_server(request, pki):
+    """``(server, admin client, key dir or None)``: plain loopback, and mutual TLS + signed messages."""
+    from depthguard.distributed.keys import load_identity
+
+    port = free_port()
+    tls = request.param == "tls"
+    ep = f"{request.param}/127.0.0.1:{port}"
+    srv = FusionServer(["cam0", "cam1", "cam2", "cam3"], W.Settings(stale_s=0.5), listen=[ep],
+                       identity=load_identity(pki / "ca") if tls else None).start()
+    srv.endpoint = ep
+    c = ServerClient([ep], identity=load_identity(pki / "admin") if tls else None)
+    c.wait_for_server(5.0)
+    yield srv, c, (pki if tls else None)
+    c.close()
+    srv.close()
 
 
 @pytest.mark.multiprocess
 @pytest.mark.slow
 @pytest.mark.timeout(120)
-def test_four_nodes_kill_freeze_restart_settings(tmp_path, server, client):
+def test_four_nodes_kill_freeze_restart_settings(tmp_path, any_server):
+    server, client, keys = any_server
     rig = _rig(tmp_path)
     procs = {}
     try:
         for i in range(4):
-            procs[f"cam{i}"] = _spawn(rig, f"cam{i}", server.endpoint)
+            procs[f"cam{i}"] = _spawn(rig, f"cam{i}", server.endpoint, keys=keys)
 
         def all_fresh():
             st_ = server.status()
@@ -203,7 +236,7 @@ def test_four_nodes_kill_freeze_restart_settings(tmp_path, server, client):
               f"frozen 'left' after {t_frozen_left:.3f} s")
         # restart the killed one: old id back, no new storage
         procs["cam1"].wait(5)
-        procs["cam1"] = _spawn(rig, "cam1", server.endpoint)
+        procs["cam1"] = _spawn(rig, "cam1", server.endpoint, keys=keys)
         assert wait_until(lambda: server.units["cam1"].inits == 2
                           and server.unit_state(server.units["cam1"]) == "fresh", 60.0)
         assert server.units["cam1"].id == ids["cam1"] and len(server.units) == 4
@@ -335,7 +368,18 @@ def test_network_defaults_are_loopback_and_checked():
 
     assert NS.DEFAULT_ENDPOINT.startswith("tcp/127.0.0.1:")
     assert inspect.signature(FusionServer).parameters["listen"].default == (NS.DEFAULT_ENDPOINT,)
-    assert all("127.0.0.1" in e for e in inspect.signature(CameraNode).parameters["listen"].default)
+    assert inspect.signature(CameraNode).parameters["listen"].default is None   # → ServerClient's loopback default
+    # R35: no certificates → loopback only, unless told --insecure
+    with pytest.raises(ValueError, match="refusing to listen on tcp/0.0.0.0:7447 without certificates"):
+        NS.check_exposure(["tcp/0.0.0.0:7447"])
+    NS.check_exposure(["tcp/0.0.0.0:7447"], insecure=True)
+    NS.check_exposure(["tcp/127.0.0.1:7447", "tcp/localhost:1", "tcp/[::1]:2"])
+    with pytest.raises(ValueError, match="needs certificates: give --keys"):
+        NS.check_exposure(["tls/127.0.0.1:7447"])
+    with pytest.raises(ValueError, match="needs certificates"):
+        FusionServer(["cam0"], listen=["tls/127.0.0.1:7447"])
+    with pytest.raises(ValueError, match="refusing to listen"):
+        FusionServer(["cam0"], listen=["tcp/192.168.1.10:7447"])
     with pytest.raises(ValueError, match="locator"):
         NS.zenoh_config(listen=["127.0.0.1:7447"])
     with pytest.raises(ValueError, match="lease"):

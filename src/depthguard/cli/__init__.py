@@ -14,6 +14,7 @@ _COMMAND_MODULES = [
     "depthguard.cli.scenes",
     "depthguard.cli.bench",
     "depthguard.cli.distributed",
+    "depthguard.cli.keys",
     "depthguard.cli.demo",
     "depthguard.cli.run",
     "depthguard.cli.freespace",

@@ -27,6 +27,15 @@ Sources (``frame_source``): any callable returning ``(depth (H, W) float32 m, st
 :func:`pattern_source` (a synthetic patch, for tests) and :func:`sim_source`
 (the simulated camera of a built-in cell) are provided.
 
+Trust (R35): with an ``identity`` (``--keys NODEDIR``, a certificate naming this
+camera) the node connects over ``tls/`` with mutual certificates, has no listener of
+its own, signs every request and accepts only replies signed by the cell's server.
+
+Server gone (restart, network): the node keeps its frame rate, logs the outage once
+and retries; when the server is back its first update is refused as an unknown unit
+(the server's state is new), the node initialises again and gets its id back from the
+server's registry (:mod:`depthguard.distributed.registry`).
+
 ``python -m depthguard.distributed.node`` is the process entry used by tests and
 benchmarks (the user command is ``depthguard node``).
 """
@@ -134,11 +143,21 @@ class CameraNode:
 
     def __init__(self, cam: Camera, workspace, source: FrameSource, *, static_meshes: Sequence = (),
                  robot=None, robot_q0=None, connect: Sequence[str] = (DEFAULT_ENDPOINT,),
-                 listen: Sequence[str] = ("tcp/127.0.0.1:0",), prefix: str = "depthguard",
+                 listen: Sequence[str] | None = None, prefix: str = "depthguard",
                  fps: float = 15.0, trigger: bool = False, multicast: bool = False,
                  lease_ms: int = DEFAULT_LEASE_MS, log: Callable[[str], None] | None = None,
                  joint_source=None, joint_span_s: float = 1.0, joint_gap_s: float = math.inf,
-                 joint_wait_s: float = 0.05):
+                 joint_wait_s: float = 0.05, identity=None, insecure: bool = False,
+                 init_timeout_s: float = 30.0):
+        from depthguard.distributed.keys import ROLE_NODE
+        from depthguard.distributed.settings import check_exposure
+
+        if identity is not None and (identity.role != ROLE_NODE or identity.name != cam.id):
+            raise ValueError(f"--keys {identity.directory}: a certificate of {identity.role}/{identity.name}, "
+                             f"not of camera {cam.id!r} (make one with `depthguard keys node {cam.id} ...`)")
+        check_exposure(listen or [], connect, identity, insecure)
+        self.init_timeout_s = float(init_timeout_s)
+        self._outage: float | None = None
         self.cam = cam
         self.source = source
         self.filter = VoxelFilter(cam, workspace, static_meshes=static_meshes, robot=robot)
@@ -148,7 +167,7 @@ class CameraNode:
         self.fps = float(fps)
         self.trigger = trigger
         self._log = log or (lambda m: None)
-        self.client = ServerClient(connect, listen, prefix, multicast, lease_ms)
+        self.client = ServerClient(connect, listen, prefix, multicast, lease_ms, identity=identity)
         self.keys = self.client.keys
         self.unit_id: int | None = None
         self.settings: W.Settings | None = None
@@ -234,17 +253,29 @@ class CameraNode:
                 pass
         self._token = self.client.session.liveliness().declare_token(self.keys.alive(self.cam.id))
 
-    def initialize(self, timeout: float = 30.0) -> int:
-        """INIT until the server answers; the unit id. ``ServerRefused`` if refused."""
+    def initialize(self, timeout: float | None = None) -> int:
+        """INIT until the server answers; the unit id. ``ServerRefused`` if refused,
+        ``ServerUnavailable`` (a sentence saying what to do) after ``timeout`` s (default
+        ``init_timeout_s``) without an answer."""
+        timeout = self.init_timeout_s if timeout is None else float(timeout)
         t_end = time.monotonic() + timeout
+        said = False
         while True:
             try:
                 m = self.client.request(self.keys.init, W.init_request(self.cam.id, self.address), 0.5,
                                         W.MsgType.INIT_REP)
                 break
-            except ServerUnavailable:
+            except ServerUnavailable as exc:
+                if not said:
+                    self._log(f"camera {self.cam.id}: waiting for the fusion server on "
+                              f"{', '.join(self.client.connect)} (up to {timeout:g} s)")
+                    said = True
                 if time.monotonic() > t_end:
-                    raise
+                    raise ServerUnavailable(
+                        f"no fusion server answered on {', '.join(self.client.connect)} within {timeout:g} s: "
+                        f"start `depthguard server` first, or check --connect"
+                        + (" and --keys" if self.client.identity is not None else "")
+                        + (f" ({exc})" if "refused" in str(exc) else "")) from None
                 time.sleep(0.05)
         self.unit_id = m.unit_id
         self._apply(m.settings)
@@ -273,7 +304,7 @@ class CameraNode:
         except ServerRefused as exc:
             if exc.code == 3:                  # server restarted: unknown unit → initialise again
                 self._log(f"camera {self.cam.id}: {exc}; re-initialising")
-                self.initialize()
+                self.initialize(timeout=1.0)
                 return len(keys)
             raise
         if rep.flags & 1:                       # the server does not see our token: declare again
@@ -299,8 +330,13 @@ class CameraNode:
             try:
                 if self.step() is not None:
                     n += 1
+                if self._outage is not None:
+                    self._log(f"camera {self.cam.id}: server back after {time.monotonic() - self._outage:.1f} s")
+                    self._outage = None
             except ServerUnavailable as exc:
-                self._log(f"camera {self.cam.id}: {exc}")
+                if self._outage is None:
+                    self._outage = time.monotonic()
+                    self._log(f"camera {self.cam.id}: {exc}; retrying every frame (logged once)")
             if period and not self.trigger:
                 next_t += period
                 delay = next_t - time.monotonic()
@@ -409,20 +445,27 @@ def main(argv: list[str] | None = None) -> int:
     ap.add_argument("--joints", help="joint stream, e.g. zenoh:KEY: remove the robot at each frame's capture joints")
     ap.add_argument("--joints-connect", action="append", default=None)
     ap.add_argument("--quiet", action="store_true")
+    ap.add_argument("--keys", help="node key directory (depthguard keys node)")
+    ap.add_argument("--insecure", action="store_true")
+    ap.add_argument("--wait", type=float, default=30.0)
     a = ap.parse_args(argv)
     from depthguard.progress import log
 
     try:
+        from depthguard.distributed.keys import load_identity
+
+        identity = None if a.keys is None else load_identity(a.keys)
         node = build_node(a.rig, a.camera, a.source, a.cell, a.sim_time, resolution=_resolution(a.resolution),
-                          connect=a.connect or [DEFAULT_ENDPOINT], listen=a.listen or ["tcp/127.0.0.1:0"],
+                          connect=a.connect or [DEFAULT_ENDPOINT], listen=a.listen, identity=identity,
+                          insecure=a.insecure, init_timeout_s=a.wait,
                           prefix=a.prefix, fps=a.fps, trigger=a.trigger, log=None if a.quiet else log,
                           joints=a.joints, joints_connect=a.joints_connect or ())
-    except ValueError as exc:
+    except (ValueError, FileNotFoundError) as exc:
         print(f"depthguard node: error: {exc}", file=sys.stderr)
         return 2
     try:
         node.run()
-    except ServerRefused as exc:
+    except (ServerRefused, ServerUnavailable) as exc:
         print(f"depthguard node: error: {exc}", file=sys.stderr)
         return 2
     except KeyboardInterrupt:

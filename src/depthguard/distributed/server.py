@@ -26,6 +26,19 @@ units are left out and reported (R20, R27).
 
 Malformed, oversized or unexpected messages are answered with ERROR_REP and counted
 (``rejected``); the server keeps running.
+
+Trust (R35, ``docs/THREAT_MODEL.md``). With an ``identity`` (``--keys``) the server
+listens only on ``tls/`` endpoints with mutual certificates of the cell's authority,
+and every request must be signed (:mod:`depthguard.distributed.auth`): INIT and
+UPDATE by a node certificate naming the camera they are for, STATUS and SETTINGS by
+an administrator certificate. Anything else is refused (ERROR_REP ``ERR_AUTH``),
+counted in ``refused`` and logged with the reason; replies are signed by the server.
+Without an identity the server listens on loopback only unless ``insecure``.
+
+Restarts. With a ``registry`` file the camera → unit id assignment survives a
+restart (:mod:`depthguard.distributed.registry`); a node re-initialises by itself
+(its update to an id not initialised in this run is refused with ERR_UNKNOWN_UNIT)
+and gets its old id back.
 """
 
 from __future__ import annotations
@@ -40,15 +53,17 @@ from typing import Callable, Sequence
 import numpy as np
 
 from depthguard.distributed import wire as W
-from depthguard.distributed.settings import DEFAULT_ENDPOINT, DEFAULT_LEASE_MS, Keys, zenoh_config
+from depthguard.distributed.settings import DEFAULT_ENDPOINT, DEFAULT_LEASE_MS, Keys, check_exposure, zenoh_config
 from depthguard.fusion.voxels import VoxelSet, regrid, union
 
-__all__ = ["FusionServer", "Unit", "ERR_REFUSED", "ERR_MALFORMED", "ERR_UNKNOWN_UNIT", "ERR_BAD_SETTINGS"]
+__all__ = ["FusionServer", "Unit", "ERR_REFUSED", "ERR_MALFORMED", "ERR_UNKNOWN_UNIT", "ERR_BAD_SETTINGS",
+           "ERR_AUTH"]
 
 ERR_MALFORMED = 1
 ERR_REFUSED = 2
 ERR_UNKNOWN_UNIT = 3
 ERR_BAD_SETTINGS = 4
+ERR_AUTH = 5
 _RATE_WINDOW_S = 5.0
 
 
@@ -68,6 +83,7 @@ class Unit:
     invalid_frac: float = float("nan")   # share of the node's pixels without a valid measurement (R28)
     updates: int = 0
     inits: int = 1
+    lost: int = 0            # updates missing from the node's sequence numbers (gaps), since the first
 
 
 class FusionServer:
@@ -80,23 +96,41 @@ class FusionServer:
     listen / connect : zenoh endpoints (default ``tcp/127.0.0.1:7447``).
     multicast : enable zenoh multicast scouting (off by default).
     log : ``str -> None`` for refused / rejected messages and joins / leaves.
+    identity : the server's :class:`~depthguard.distributed.keys.Identity` (mutual TLS +
+        signed messages, module docstring) or None (loopback only unless ``insecure``).
+    registry : path of the camera → unit id file (kept across restarts) or None.
     """
 
     def __init__(self, cameras: Sequence[str], settings: W.Settings | None = None, *,
                  listen: Sequence[str] = (DEFAULT_ENDPOINT,), connect: Sequence[str] = (),
                  prefix: str = "depthguard", multicast: bool = False, lease_ms: int = DEFAULT_LEASE_MS,
-                 log: Callable[[str], None] | None = None):
+                 log: Callable[[str], None] | None = None, identity=None, insecure: bool = False,
+                 registry=None, auth_window_s: float = 30.0):
         self.cameras = list(cameras)
         if not self.cameras:
             raise ValueError("the server needs at least one camera id (from the rig)")
         self.settings = (settings or W.Settings()).check()
         self.keys = Keys(prefix)
-        self._conf = zenoh_config(listen, connect, multicast, lease_ms)
+        check_exposure(listen, connect, identity, insecure)
+        self.listen = list(listen)
+        self.identity = identity
+        self._signer = self._verifier = None
+        if identity is not None:
+            from depthguard.distributed.auth import Signer, Verifier
+            from depthguard.distributed.keys import ROLE_SERVER
+
+            if identity.role != ROLE_SERVER:
+                raise ValueError(f"--keys {identity.directory}: the server needs the server's certificate "
+                                 f"(a directory made by `depthguard keys init`), not a {identity.role} one")
+            self._signer, self._verifier = Signer(identity), Verifier(identity.ca_cert, auth_window_s)
+        self._conf = zenoh_config(listen, connect, multicast, lease_ms, identity=identity)
+        from depthguard.distributed.registry import Registry
+
+        self.registry = Registry(registry)
         self._log = log or (lambda m: None)
         self._lock = threading.RLock()
         self.units: dict[str, Unit] = {}
         self._alive: set[str] = set()
-        self._next_id = 1
         self.rejected = 0
         self.refused = 0
         self._bytes: deque[tuple[float, int]] = deque()
@@ -108,7 +142,15 @@ class FusionServer:
     def start(self) -> "FusionServer":
         import zenoh
 
-        self._session = zenoh.open(self._conf)
+        try:
+            self._session = zenoh.open(self._conf)
+        except zenoh.ZError as exc:
+            text = str(exc)
+            if "in use" in text.lower():
+                raise ValueError(f"cannot listen on {', '.join(self.listen)}: the address is already in use "
+                                 f"(another depthguard server?). Stop it, or choose another port with "
+                                 f"--listen tcp/127.0.0.1:PORT") from None
+            raise ValueError(f"cannot open the server's Zenoh session on {', '.join(self.listen)}: {text}") from None
         s, k = self._session, self.keys
         self._decls = [
             s.liveliness().declare_subscriber(k.alive("*"), self._on_liveliness, history=True),
@@ -152,6 +194,9 @@ class FusionServer:
         clean = {}
         for name, v in changes.items():
             if name == "joints":
+                if not isinstance(v, (list, tuple)) or not all(
+                        isinstance(q, (int, float)) and not isinstance(q, bool) for q in v):
+                    raise ValueError(f"setting joints must be a list of numbers (got {str(v)[:60]})")
                 clean[name] = tuple(float(q) for q in v)
             else:
                 if isinstance(v, bool) or not isinstance(v, (int, float)):
@@ -168,13 +213,33 @@ class FusionServer:
         return new
 
     # ---------------------------------------------------------------- queries
+    def _refuse(self, text: str, code: int = ERR_AUTH) -> bytes:
+        """Count, log and answer a refusal (R35)."""
+        with self._lock:
+            self.refused += 1
+        self._log(f"refused: {text}")
+        return W.error_reply(code, text)
+
     def _guard(self, fn):
-        """Wrap a queryable callback: bad input → ERROR_REP + counted; never raises."""
+        """Wrap a queryable callback: check the envelope (with an identity), then ``fn(data, who)``;
+        bad input → ERROR_REP + counted; never raises."""
+        from depthguard.distributed.auth import NO_NONCE, AuthError
+
         def cb(query):
             payload = query.payload
             data = payload.to_bytes() if payload is not None else b""
+            key = str(query.key_expr)
+            nonce = NO_NONCE
             try:
-                reply = fn(data)
+                who = None
+                if self._verifier is not None:
+                    try:
+                        who = self._verifier.open(data, key)
+                        data, nonce = who.message, who.nonce
+                    except AuthError as exc:
+                        who = exc
+                reply = (self._refuse(f"message on {key}: {who}") if isinstance(who, AuthError)
+                         else fn(data, who))
             except W.WireError as exc:
                 with self._lock:
                     self.rejected += 1
@@ -186,13 +251,31 @@ class FusionServer:
                 self._log(f"error handling {query.key_expr}: {type(exc).__name__}: {exc}")
                 reply = W.error_reply(ERR_MALFORMED, f"{type(exc).__name__}: {exc}")
             try:
+                if self._signer is not None:
+                    reply, _ = self._signer.seal(reply, key, reply_to=nonce)
                 query.reply(query.key_expr, reply)
             except Exception as exc:  # noqa: BLE001
                 self._log(f"reply failed on {query.key_expr}: {exc}")
         return cb
 
-    def _on_init(self, data: bytes) -> bytes:
+    def _role_check(self, who, role: str, what: str) -> str | None:
+        """None when ``who`` (an opened envelope, or None without identity) may do ``what``;
+        else the sentence to refuse with."""
+        if who is None:
+            return None
+        if who.role != role:
+            return f"{what} needs a {role} certificate; {who.role}/{who.name} may not"
+        return None
+
+    def _on_init(self, data: bytes, who=None) -> bytes:
+        from depthguard.distributed.keys import ROLE_NODE
+
         m = W.decode(data, expect=W.MsgType.INIT_REQ)
+        bad = self._role_check(who, ROLE_NODE, f"joining as camera {m.camera!r}")
+        if bad is None and who is not None and who.name != m.camera:
+            bad = f"certificate of camera {who.name!r} cannot join as camera {m.camera!r}"
+        if bad is not None:
+            return self._refuse(f"{bad} (address {m.address!r})")
         with self._lock:
             if m.camera not in self.cameras:
                 self.refused += 1
@@ -200,9 +283,8 @@ class FusionServer:
                 return W.error_reply(ERR_REFUSED, f"camera {m.camera!r} is not in the rig")
             u = self.units.get(m.camera)
             if u is None:
-                u = Unit(self._next_id, m.camera, m.address, alive=m.camera in self._alive,
+                u = Unit(self.registry.assign(m.camera), m.camera, m.address, alive=m.camera in self._alive,
                          voxel_size=self.settings.voxel_size)
-                self._next_id += 1
                 self.units[m.camera] = u
                 self._log(f"unit {u.id} joined: camera {m.camera} at {m.address}")
             else:
@@ -218,20 +300,35 @@ class FusionServer:
                 return u
         return None
 
-    def _on_update(self, data: bytes) -> bytes:
+    def _on_update(self, data: bytes, who=None) -> bytes:
+        from depthguard.distributed.keys import ROLE_NODE
+
         now = time.monotonic()
         m = W.decode(data, expect=W.MsgType.UPDATE_REQ)
+        bad = self._role_check(who, ROLE_NODE, f"an update of unit id {m.unit_id}")
+        if bad is not None:
+            return self._refuse(bad)
         with self._lock:
             u = self._unit_by_id(m.unit_id)
             if u is None:
                 self.refused += 1
-                self._log(f"refused update from unknown unit id {m.unit_id}")
+                self._log(f"refused update from unknown unit id {m.unit_id}"
+                          + ("" if who is None else f" (certificate of camera {who.name!r})"))
                 return W.error_reply(ERR_UNKNOWN_UNIT, f"unit id {m.unit_id} is not initialised")
+            if who is not None and who.name != u.camera:
+                self.refused += 1
+                self._log(f"refused: certificate of camera {who.name!r} sent an update for unit id "
+                          f"{m.unit_id}, which is camera {u.camera!r}")
+                return W.error_reply(ERR_AUTH, f"unit id {m.unit_id} is not camera {who.name!r}")
+            if u.updates and m.seq > u.seq + 1:
+                u.lost += m.seq - u.seq - 1
             u.keys, u.counts, u.voxel_size = m.keys, m.counts, m.voxel_size
             u.stamp, u.seq, u.t_update = m.stamp, m.seq, now
             u.invalid_frac = m.invalid_frac
             u.updates += 1
             self._bytes.append((now, len(data)))
+            while now - self._bytes[0][0] > _RATE_WINDOW_S:     # bounded without status queries
+                self._bytes.popleft()
             token_missing = not u.alive
             reply = W.update_reply(self.settings, token_missing=token_missing)
         if self.on_update is not None:
@@ -248,8 +345,7 @@ class FusionServer:
         with self._lock:
             u = self.units.get(camera)
             if u is None:
-                u = Unit(self._next_id, camera, address)
-                self._next_id += 1
+                u = Unit(self.registry.assign(camera), camera, address)
                 self.units[camera] = u
             u.alive = True
             self._alive.add(camera)
@@ -260,12 +356,22 @@ class FusionServer:
             u.updates += 1
         return u
 
-    def _on_status(self, data: bytes) -> bytes:
+    def _on_status(self, data: bytes, who=None) -> bytes:
+        from depthguard.distributed.keys import ROLE_ADMIN
+
         W.decode(data, expect=W.MsgType.STATUS_REQ)
+        bad = self._role_check(who, ROLE_ADMIN, "the status")
+        if bad is not None:
+            return self._refuse(bad)
         return W.status_reply(self.status())
 
-    def _on_settings(self, data: bytes) -> bytes:
+    def _on_settings(self, data: bytes, who=None) -> bytes:
+        from depthguard.distributed.keys import ROLE_ADMIN
+
         m = W.decode(data, expect=W.MsgType.SETTINGS_REQ)
+        bad = self._role_check(who, ROLE_ADMIN, "changing settings")
+        if bad is not None:
+            return self._refuse(f"{bad} (asked {m.text[:200]!r})")
         try:
             changes = json.loads(m.text)
             self.set_settings(**changes)
@@ -381,7 +487,8 @@ class FusionServer:
             return sum(b for _, b in self._bytes) / _RATE_WINDOW_S
 
     def status(self) -> dict:
-        """The server's view: ``{"cameras": [rig camera ids], "nodes": [{"camera", "id", "state",
+        """The server's view: ``{"cameras": [rig camera ids], "missing": [rig cameras that never
+        joined since this server started], "nodes": [{"camera", "id", "state",
         "age_s", "voxels", "invalid_frac", ...}],
         "voxels_total", "bytes_per_s", "rejected", "refused", "settings"}``."""
         now = time.monotonic()
@@ -396,11 +503,12 @@ class FusionServer:
                     "voxels": int(len(u.keys)) if state == "fresh" else 0,
                     "voxel_size": u.voxel_size, "address": u.address,
                     "invalid_frac": None if u.invalid_frac != u.invalid_frac else round(u.invalid_frac, 4),
-                    "updates": u.updates, "inits": u.inits,
+                    "updates": u.updates, "inits": u.inits, "lost": u.lost,
                 })
             st = self.settings
             return {
                 "cameras": list(self.cameras),
+                "missing": [c for c in self.cameras if c not in self.units],
                 "nodes": nodes, "voxels_total": int(len(keys)), "voxel_size": s,
                 "bytes_per_s": round(self.bytes_per_s(now), 1),
                 "rejected": self.rejected, "refused": self.refused,

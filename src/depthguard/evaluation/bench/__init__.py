@@ -32,6 +32,7 @@ _MODULES = [
     "depthguard.evaluation.bench.view",
     "depthguard.evaluation.bench.realsense",
     "depthguard.evaluation.bench.bag",
+    "depthguard.evaluation.bench.soak",
 ]
 
 
