@@ -352,3 +352,43 @@ def _init_or_none(client):
         return client.request("depthguard/init", W.init_request("camA", "node"), timeout=1.0)
     except ServerUnavailable:
         return None
+
+
+@pytest.mark.multiprocess
+@pytest.mark.timeout(60)
+def test_the_monitors_units_source_reads_a_tls_server_with_an_admin_certificate(pki, tmp_path):
+    """The monitor's side of a server started with --keys: ``units:tls/...`` with the cell's admin
+    certificate (context ``units_keys``, CLI ``monitor --units-keys``) gets camA's voxels over mutual
+    TLS; without a certificate the same source finds no server."""
+    from depthguard.distributed.node import build_node
+    from depthguard.distributed.server import FusionServer
+    from depthguard.rig import Rig
+    from depthguard.sources.base import open_source
+
+    rig_path = write_rig(tmp_path / "rig.yaml")
+    rig = Rig.load(rig_path)
+    ep = f"tls/127.0.0.1:{free_port()}"
+    srv = FusionServer(["camA", "camB", "camC"], W.Settings(stale_s=30.0), listen=[ep],
+                       identity=load_identity(pki / "ca")).start()
+    node = build_node(str(rig_path), "camA", "pattern", connect=[ep], identity=load_identity(pki / "camA"))
+    src = None
+    try:
+        node.declare_token()
+        node.initialize(timeout=20)
+        assert wait_until(lambda: srv.units["camA"].alive, 10.0)
+        assert node.step() > 0
+        with pytest.raises(ValueError, match="no fusion server answered"):
+            open_source(f"units:tcp/127.0.0.1:{ep.rsplit(':', 1)[1]}", rig,
+                        {"units_timeout_s": 2.0})                     # no certificate: no link at all
+        src = open_source(f"units:{ep}", rig, {"units_keys": pki / "admin", "units_poll_hz": 50.0,
+                                               "units_timeout_s": 20.0})
+        assert src.camera_ids == ["camA", "camB", "camC"]
+        assert wait_until(lambda: src.received >= 1, 10.0), src.last_error
+        (cam, centres, size, stamp), = src.voxels_until(1e18)
+        u = srv.units["camA"]
+        assert cam == "camA" and stamp == u.stamp and len(centres) == len(u.keys) > 0
+    finally:
+        if src is not None:
+            src.close()
+        node.close()
+        srv.close()

@@ -63,6 +63,7 @@ def monitor(
     zenoh_listen: Optional[str] = typer.Option(None, "--zenoh-listen", help="Zenoh endpoint the monitor listens on (default: the rig's monitor: zenoh_listen, loopback)."),
     zenoh_connect: List[str] = typer.Option([], "--zenoh-connect", help="Zenoh endpoints to connect to (repeatable)."),
     quiet: bool = typer.Option(False, "--quiet", "-q", help="No status line."),
+    units_keys: Optional[Path] = typer.Option(None, "--units-keys", help="Certificate directory (depthguard keys admin) for a units:tls/HOST:PORT source of a server started with --keys (docs/THREAT_MODEL.md)."),
     view: bool = typer.Option(False, "--view", help="A live 3-D view in the browser (docs/VIEW.md)."),
     view_host: str = typer.Option("127.0.0.1", "--view-host", help="Address the view listens on (anyone who reaches it can change rho)."),
     view_port: int = typer.Option(8080, "--view-port", min=0, max=65535, help="Port of the view (a busy one: the next free)."),
@@ -94,6 +95,8 @@ def monitor(
     specs = list(source) or [f"sim:{cell_name}" if cell_name else "sim"]
     zenoh_listen = zenoh_listen or the_rig.monitor.zenoh_listen
     context: dict = {"zenoh_listen": (zenoh_listen,), "zenoh_connect": tuple(zenoh_connect)}
+    if units_keys is not None:
+        context["units_keys"] = units_keys
     sources = [open_source(s, the_rig, context) for s in specs]
     joint_spec = joints or ("sim" if "sim_world" in context else None) \
         or next((s for s in specs if s.startswith("bag:")), None)      # a bag holds its joint states too

@@ -29,7 +29,10 @@ set, kept by the monitor, grows old until the robot stops.
 Context keys (``open_source(spec, rig, context)``): ``units_prefix`` (default
 ``"depthguard"``), ``units_poll_hz`` (default 100), ``units_timeout_s`` (seconds to
 wait for the server at open, default 5), ``units_listen`` (own endpoints, default
-``tcp/127.0.0.1:0``), ``units_session`` (a shared zenoh session).
+``tcp/127.0.0.1:0``), ``units_session`` (a shared zenoh session), ``units_keys`` (a
+certificate directory of the cell, ``depthguard keys admin``: the link is Zenoh's mutual
+TLS and the status request is signed, for a server started with ``--keys``; the
+endpoint is then ``tls/HOST:PORT``, R35).
 
 Imports :mod:`depthguard.distributed` lazily, at open (the import graph puts
 ``distributed`` to the right of ``sources``).
@@ -56,7 +59,8 @@ class UnitsSource:
     live = True                 # stamps on the wall clock (time.time()): the runner's clock is then too
 
     def __init__(self, endpoint: str, rig=None, *, prefix: str = "depthguard", poll_hz: float = 100.0,
-                 timeout_s: float = 5.0, listen: Sequence[str] = ("tcp/127.0.0.1:0",), session=None):
+                 timeout_s: float = 5.0, listen: Sequence[str] | None = ("tcp/127.0.0.1:0",), session=None,
+                 identity=None):
         from depthguard.distributed import wire as W
         from depthguard.distributed.client import ServerClient, ServerUnavailable
         from depthguard.distributed.settings import check_endpoint
@@ -65,7 +69,9 @@ class UnitsSource:
             raise ValueError(f"units: poll_hz must be > 0 (got {poll_hz!r})")
         self.endpoint = check_endpoint(endpoint)
         self._W = W
-        self._client = ServerClient([self.endpoint], listen, prefix, session=session)
+        if identity is not None:
+            listen = None                    # with certificates: no listener of our own (ServerClient)
+        self._client = ServerClient([self.endpoint], listen, prefix, session=session, identity=identity)
         self.keys = self._client.keys
         try:
             status = self._client.wait_for_server(timeout_s)
@@ -176,8 +182,13 @@ def open_units(argument: str, rig, context: dict) -> UnitsSource:
     """Factory of ``units:ENDPOINT`` (module docstring; ``ENDPOINT`` default ``tcp/127.0.0.1:7447``)."""
     from depthguard.distributed.settings import DEFAULT_ENDPOINT
 
+    identity = None
+    if context.get("units_keys"):
+        from depthguard.distributed.keys import load_identity
+
+        identity = load_identity(context["units_keys"])
     return UnitsSource(argument or DEFAULT_ENDPOINT, rig, prefix=context.get("units_prefix", "depthguard"),
                        poll_hz=float(context.get("units_poll_hz", 100.0)),
                        timeout_s=float(context.get("units_timeout_s", 5.0)),
                        listen=context.get("units_listen", ("tcp/127.0.0.1:0",)),
-                       session=context.get("units_session"))
+                       session=context.get("units_session"), identity=identity)
