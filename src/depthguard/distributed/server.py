@@ -194,11 +194,15 @@ class FusionServer:
         clean = {}
         for name, v in changes.items():
             if name == "joints":
+                if isinstance(v, np.ndarray) and v.ndim == 1 and v.dtype.kind in "fiu":
+                    v = v.tolist()                 # a joint vector from Python code
                 if not isinstance(v, (list, tuple)) or not all(
                         isinstance(q, (int, float)) and not isinstance(q, bool) for q in v):
                     raise ValueError(f"setting joints must be a list of numbers (got {str(v)[:60]})")
                 clean[name] = tuple(float(q) for q in v)
             else:
+                if isinstance(v, np.generic) and v.dtype.kind in "fiu":
+                    v = v.item()
                 if isinstance(v, bool) or not isinstance(v, (int, float)):
                     raise ValueError(f"setting {name} must be a number (got {v!r})")
                 clean[name] = float(v)

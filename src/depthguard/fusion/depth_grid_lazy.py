@@ -32,6 +32,8 @@ from depthguard.distance.window import start_point, surveillance_window
 from depthguard.fusion.depth_grid_kernels import (KIND_SURFACE, MAX_CAPS_PER_PIXEL, METHOD_MIN, TILE, _f2,
                                                   _finish_point, _fold_pixel, _in_caps)
 from depthguard.fusion.depth_grid_memo import gray_stretch
+from depthguard.fusion.depth_grid_memo import mask_range as _mask_range
+from depthguard.fusion.depth_grid_memo import msb as _msb
 
 __all__ = ["tile_min_free", "ensure_cells", "grid_distances_lazy"]
 
@@ -58,18 +60,6 @@ def tile_min_free(pfree, out):
 @njit(cache=True, inline="always")
 def _bit(bits, v, u, g):
     return (bits[v, u, g >> 6] >> np.uint64(g & 63)) & _ONE
-
-
-@njit(cache=True, inline="always")
-def _msb(x):
-    """Index of the highest set bit of a non-zero uint64."""
-    n = 0
-    for s in (32, 16, 8, 4, 2, 1):
-        y = x >> np.uint64(s)
-        if y != np.uint64(0):
-            x = y
-            n += s
-    return n
 
 
 @njit(cache=True, inline="always")
@@ -119,16 +109,6 @@ def _all_set(bits, v, u, lo, hi):
         if (bits[v, u, w] & need) != need:
             return False
     return True
-
-
-@njit(cache=True, inline="always")
-def _mask_range(w, lo, hi):
-    m = _ALL
-    if (hi >> 6) == w and (hi & 63) < 63:
-        m = m & ((_ONE << np.uint64((hi & 63) + 1)) - _ONE)
-    if (lo >> 6) == w:
-        m = m & (_ALL << np.uint64(lo & 63))
-    return m
 
 
 @njit(cache=True, inline="always")

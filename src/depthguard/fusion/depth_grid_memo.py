@@ -34,7 +34,7 @@ from numba import njit
 from depthguard.fusion.depth_grid_kernels import (_box_max, _box_min, _cleared_by_sections, _section,
                                                   cell_footprint)
 
-__all__ = ["new_memo", "gray_stretch"]
+__all__ = ["new_memo", "gray_stretch", "mask_range", "msb"]
 
 _ONE = np.uint64(1)
 _ALL = np.uint64(0xFFFFFFFFFFFFFFFF)
@@ -51,8 +51,8 @@ def new_memo(nk: int, height: int, width: int, n_words: int) -> tuple:
 
 
 @njit(cache=True, inline="always")
-def _mask(w, lo, hi):
-    """Word ``w``'s bits of slices ``lo..hi``."""
+def mask_range(w, lo, hi):
+    """Word ``w``'s bits of slices ``lo..hi`` (uint64)."""
     m = _ALL
     if (hi >> 6) == w and (hi & 63) < 63:
         m = m & ((_ONE << np.uint64((hi & 63) + 1)) - _ONE)
@@ -62,10 +62,9 @@ def _mask(w, lo, hi):
 
 
 @njit(cache=True, inline="always")
-def _lowest(x):
-    """Index of the lowest set bit of a non-zero uint64."""
+def msb(x):
+    """Index of the highest set bit of a non-zero uint64."""
     n = 0
-    x = x & (~x + _ONE)
     for s in (32, 16, 8, 4, 2, 1):
         y = x >> np.uint64(s)
         if y != _ZERO:
@@ -75,9 +74,15 @@ def _lowest(x):
 
 
 @njit(cache=True, inline="always")
+def _lowest(x):
+    """Index of the lowest set bit of a non-zero uint64."""
+    return msb(x & (~x + _ONE))
+
+
+@njit(cache=True, inline="always")
 def _todo_word(obits, kdone, k, v, u, w, lo, hi):
     """Slices of word ``w`` in ``lo..hi`` still obstacle candidates and not evaluated for ``k``."""
-    return obits[v, u, w] & ~kdone[k, v, u, w] & _mask(w, lo, hi)
+    return obits[v, u, w] & ~kdone[k, v, u, w] & mask_range(w, lo, hi)
 
 
 @njit(cache=True, nogil=True)
@@ -91,7 +96,7 @@ def _next_todo(obits, kdone, k, v, u, lo, hi):
             # the run ends before the first slice from a on that is not to do
             w2 = a >> 6
             while w2 <= (hi >> 6):
-                y = ~_todo_word(obits, kdone, k, v, u, w2, lo, hi) & _mask(w2, a, hi)
+                y = ~_todo_word(obits, kdone, k, v, u, w2, lo, hi) & mask_range(w2, a, hi)
                 if y != _ZERO:
                     return a, w2 * 64 + _lowest(y) - 1
                 w2 += 1
@@ -133,7 +138,7 @@ def _camera_stretch(kfree, kpmin, kpmax, koff, kdims, rays, origins, kint, nk, k
             if r != 0:
                 h = g + span - 1
                 for w in range(g >> 6, (h >> 6) + 1):
-                    m = _mask(w, g, h)
+                    m = mask_range(w, g, h)
                     kdone[k, v, u, w] = kdone[k, v, u, w] | m
                     if r == 1:
                         kclr[k, v, u, w] = kclr[k, v, u, w] | m
@@ -166,7 +171,7 @@ def gray_stretch(u, v, g, e, kfree, kpmin, kpmax, koff, kdims, rays, origins, ki
     looked at, from the memo where camera ``k`` already evaluated them for its frame."""
     kver, kstamp, kdone, kclr = kmemo
     for w in range(g >> 6, (e >> 6) + 1):
-        m = _mask(w, g, e)
+        m = mask_range(w, g, e)
         cbits[v, u, w] = cbits[v, u, w] | m
         obits[v, u, w] = obits[v, u, w] | m          # candidates; cleared ones are dropped below
     for k in range(nk):
@@ -185,9 +190,9 @@ def gray_stretch(u, v, g, e, kfree, kpmin, kpmax, koff, kdims, rays, origins, ki
             lo = b + 1
         any_left = False
         for w in range(g >> 6, (e >> 6) + 1):
-            x = obits[v, u, w] & ~(kclr[k, v, u, w] & _mask(w, g, e))
+            x = obits[v, u, w] & ~(kclr[k, v, u, w] & mask_range(w, g, e))
             obits[v, u, w] = x
-            if (x & _mask(w, g, e)) != _ZERO:
+            if (x & mask_range(w, g, e)) != _ZERO:
                 any_left = True
         if not any_left:
             return
