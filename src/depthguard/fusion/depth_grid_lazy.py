@@ -215,17 +215,24 @@ def _point_terms(px, py, dp, fx, fy, cx, cy):
     return (px - cx) * dp / fx, (py - cy) * dp / fy
 
 
-@njit(cache=True, nogil=True)
-def _ensure_pixel(u, v, ga, gb, gs, direct, ncp, fx, fy, cx, cy, dmin, dd, kfree, kpmin, kpmax, koff, kdims,
-                  rays, origins, kint, nk, kmemo, caps, ncaps, cap_lo, cap_hi, band, frame, stamp, obits, cbits, clear,
-                  free_to):
+@njit(cache=True, inline="always")
+def _ensure_pixel(u, v, ga, gb, gs, direct, ncp, pint, dmin, dd, kfree, kpmin, kpmax, koff, kdims,
+                  rays, origins, kint, nk, kmemo, caps, ncaps, cap_lo, cap_hi, band, frame, pmemo, obits, cbits):
     """Classify the not yet classified slices of ``ga..gb`` (inside the grid, ``>= gs``) of
     column ``(u, v)`` in this ``frame`` (resetting the pixel's bits on its first touch).
     ``clear[v, u]``: the largest ``h`` with every slice ``max(gs, 0)..h`` classified free
     (-1 for a pixel not yet touched in this frame: every frame starts with -1);
     ``free_to[v, u]``: the principal depth up to which the column is known free —
     its free depth ``df`` (R12 case 1; what every frame starts with), raised here to
-    ``d_min + (clear + 1) delta_d`` when ``r(df)`` lies inside the grid."""
+    ``d_min + (clear + 1) delta_d`` when ``r(df)`` lies inside the grid.
+    ``pmemo = (stamp, clear, free_to)``; ``pint`` the principal's intrinsics. (At most 30
+    parameters: CPython packs a longer call into ``*args``, which numba cannot inline.)"""
+    stamp, clear, free_to = pmemo
+    fx = pint[0]
+    fy = pint[1]
+    cx = pint[2]
+    cy = pint[3]
+    g = ga
     if stamp[v, u] != frame:
         for w in range(obits.shape[2]):
             obits[v, u, w] = np.uint64(0)
@@ -233,8 +240,7 @@ def _ensure_pixel(u, v, ga, gb, gs, direct, ncp, fx, fy, cx, cy, dmin, dd, kfree
         stamp[v, u] = frame
         clear[v, u] = max(gs, 0) - 1
     elif _all_set(cbits, v, u, ga, gb):
-        return
-    g = ga
+        g = gb + 1                      # every slice classified already: only the free stretch below
     while g <= gb:
         g = _lowest_stop(cbits, cbits, v, u, g, gb, False)      # next unclassified slice
         if g < 0:
@@ -254,6 +260,15 @@ def _ensure_pixel(u, v, ga, gb, gs, direct, ncp, fx, fy, cx, cy, dmin, dd, kfree
     clear[v, u] = h - 1
     if gs >= 0:
         free_to[v, u] = max(free_to[v, u], dmin + h * dd)
+
+
+@njit(cache=True, nogil=True)
+def _ensure_one(u, v, ga, gb, gs, direct, ncp, pint, dmin, dd, kfree, kpmin, kpmax, koff, kdims,
+                rays, origins, kint, nk, kmemo, caps, ncaps, cap_lo, cap_hi, band, frame, pmemo, obits, cbits):
+    """:func:`_ensure_pixel` as a call of its own, for the query's fill path (it meets a pixel
+    to classify rarely: the cells were classified ahead)."""
+    _ensure_pixel(u, v, ga, gb, gs, direct, ncp, pint, dmin, dd, kfree, kpmin, kpmax, koff, kdims,
+                  rays, origins, kint, nk, kmemo, caps, ncaps, cap_lo, cap_hi, band, frame, pmemo, obits, cbits)
 
 
 @njit(cache=True, inline="always")
@@ -371,21 +386,19 @@ def _ensure_row_cells(v, ulo, uhi, span, pfree, pkind, pint, dmin, dd, nd, kfree
                       rays, origins, kint, nk, kmemo, caps, ncaps, cap_lo, cap_hi, cap_n, band, frame, stamp,
                       obits, cbits, clear, free_to):
     """Classify row ``v``'s merged slice ranges ``span[:, v, ulo..uhi]`` (:func:`ensure_cells`).
-    A function of its own so that the parallel region stays small (numba compiles a
-    prange body apart)."""
-    fx = pint[0]
-    fy = pint[1]
-    cx = pint[2]
-    cy = pint[3]
+    One call per row (a prange body of its own): :func:`_ensure_pixel` is inlined here — a
+    call per pixel passing some twenty arrays cost ~300 ns, more than a pixel whose cells
+    are all memoised."""
+    pmemo = (stamp, clear, free_to)
     for u in range(ulo, uhi + 1):
         ga = span[0, v, u]
         gb = span[1, v, u]
         if ga > gb or (stamp[v, u] == frame and _all_set(cbits, v, u, ga, gb)):
             continue
         gs, ncp = _col_setup(u, v, pfree, dmin, dd, nd, cap_n, ncaps)
-        _ensure_pixel(u, v, ga, gb, gs, pkind[v, u] == KIND_SURFACE, ncp, fx, fy, cx, cy, dmin, dd,
-                      kfree, kpmin, kpmax, koff, kdims, rays, origins, kint, nk, kmemo, caps, ncaps,
-                      cap_lo, cap_hi, band, frame, stamp, obits, cbits, clear, free_to)
+        direct = pkind[v, u] == KIND_SURFACE
+        _ensure_pixel(u, v, ga, gb, gs, direct, ncp, pint, dmin, dd, kfree, kpmin, kpmax, koff, kdims, rays,
+                      origins, kint, nk, kmemo, caps, ncaps, cap_lo, cap_hi, band, frame, pmemo, obits, cbits)
 
 
 @njit(cache=True, inline="always")
@@ -555,10 +568,10 @@ def grid_distances_lazy(pfree, tmin, obits, cap_n, caps, ncaps, cap_lo, cap_hi, 
                     gs, ncp = _col_setup(u, v, pfree, dmin, dd, nd, cap_n, ncaps)
                     if (fill and max(ga, gs, 0) <= min(gb, nd - 1)
                             and (stamp[v, u] != frame or not _all_set(cbits, v, u, max(ga, gs, 0), min(gb, nd - 1)))):
-                        _ensure_pixel(u, v, max(ga, gs, 0), min(gb, nd - 1), gs, pkind[v, u] == KIND_SURFACE,
-                                      ncp, fx, fy, cx, cy, dmin, dd, kfree, kpmin, kpmax, koff, kdims, rays,
-                                      origins, kint, nk, kmemo, caps, ncaps, cap_lo, cap_hi, band, frame, stamp,
-                                      obits, cbits, clear, free_to)
+                        _ensure_one(u, v, max(ga, gs, 0), min(gb, nd - 1), gs, pkind[v, u] == KIND_SURFACE,
+                                    ncp, pint, dmin, dd, kfree, kpmin, kpmax, koff, kdims, rays, origins, kint,
+                                    nk, kmemo, caps, ncaps, cap_lo, cap_hi, band, frame, (stamp, clear, free_to),
+                                    obits, cbits)
                     a = max(ga, gs)
                     if a > gb:
                         continue
