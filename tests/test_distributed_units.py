@@ -77,7 +77,10 @@ def test_units_queryable(server):
 
 @pytest.mark.multiprocess
 @pytest.mark.timeout(120)
-def test_units_source_pulls_a_unit_from_a_real_server(tmp_path):
+@pytest.mark.parametrize("link", ["tcp", "tls"])
+def test_units_source_pulls_a_unit_from_a_real_server(tmp_path, link):
+    """Also with the cell's certificates (R35): server, node and the monitor's source on mutual TLS."""
+    from depthguard.distributed.keys import init_authority, issue_admin, issue_node, load_identity
     from depthguard.distributed.node import build_node
     from depthguard.rig import Rig
     from depthguard.runtime.voxel_input import VoxelObstacles
@@ -86,18 +89,27 @@ def test_units_source_pulls_a_unit_from_a_real_server(tmp_path):
     assert "units" in source_schemes()
     rig_path = _rig(tmp_path)
     rig = Rig.load(rig_path)
-    ep = f"tcp/127.0.0.1:{free_port()}"
+    ep = f"{link}/127.0.0.1:{free_port()}"
+    ids = {"server": None, "node": None}
+    context = {"units_poll_hz": 50.0}
+    if link == "tls":
+        init_authority(tmp_path / "ca")
+        issue_node("cam0", tmp_path / "ca", tmp_path / "cam0")
+        issue_admin(tmp_path / "ca", tmp_path / "admin")
+        ids = {"server": load_identity(tmp_path / "ca"), "node": load_identity(tmp_path / "cam0")}
+        context.update(units_keys=tmp_path / "admin", units_timeout_s=20.0)
     # units stay fresh for 30 s here: the node steps by hand
-    server = FusionServer(["cam0", "cam1", "cam2", "cam3"], W.Settings(stale_s=30.0), listen=[ep]).start()
+    server = FusionServer(["cam0", "cam1", "cam2", "cam3"], W.Settings(stale_s=30.0), listen=[ep],
+                          identity=ids["server"]).start()
     server.endpoint = ep
-    node = build_node(str(rig_path), "cam0", "pattern", connect=[server.endpoint])
+    node = build_node(str(rig_path), "cam0", "pattern", connect=[server.endpoint], identity=ids["node"])
     src = None
     try:
         node.declare_token()
         node.initialize(timeout=10)
         assert wait_until(lambda: server.units["cam0"].alive, 5.0)
         assert node.step() > 0
-        src = open_source(f"units:{server.endpoint}", rig, {"units_poll_hz": 50.0})
+        src = open_source(f"units:{server.endpoint}", rig, context)
         assert src.camera_ids == ["cam0", "cam1", "cam2", "cam3"]
         assert src.frames_until(1e18) == [] and not src.done and src.lost is None
         u = server.units["cam0"]
