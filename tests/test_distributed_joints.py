@@ -136,3 +136,64 @@ def test_node_without_robot_refuses_a_joint_stream(tmp_path):
 
     with pytest.raises(ValueError, match="no robot"):
         build_node(str(_rig(tmp_path)), "cam0", "pattern", joints="zenoh:x/y", connect=["tcp/127.0.0.1:1"])
+
+
+@pytest.mark.multiprocess
+@pytest.mark.timeout(180)
+def test_node_with_certificates_takes_its_joint_stream_over_tls(cell, tmp_path):
+    """R35 with R30: server, node and the robot side's publisher on mutual TLS with the cell's
+    certificates; the node removes the robot at the joints interpolated at the capture stamp
+    (nothing unknown left), as without certificates. A publisher without a certificate
+    cannot reach the node's session: its states never arrive."""
+    import zenoh
+
+    from depthguard.distributed.keys import init_authority, issue_admin, issue_node, load_identity
+    from depthguard.distributed.node import build_node
+    from depthguard.distributed.settings import zenoh_config
+    from depthguard.filtering.expected import ExpectedDepth
+
+    rig = cell.rig
+    q_of = _trajectory(cell)
+    cam_id = rig.cameras[0].id
+    init_authority(tmp_path / "ca")
+    issue_node(cam_id, tmp_path / "ca", tmp_path / "node")
+    issue_admin(tmp_path / "ca", tmp_path / "robot")              # the robot side's certificate
+    port = free_port()
+    ep = f"tls/127.0.0.1:{port}"
+    srv = FusionServer(rig.camera_ids, W.Settings(threshold=0.1, joints=tuple(q_of(0.0))), listen=[ep],
+                       identity=load_identity(tmp_path / "ca")).start()
+    node = build_node(None, cam_id, "sim", "ur3-cell", resolution=(424, 240), connect=[ep],
+                      joints=f"zenoh:{KEY}", identity=load_identity(tmp_path / "node"))
+    pub = zenoh.open(zenoh_config(connect=[ep], identity=load_identity(tmp_path / "robot")))
+    stranger = zenoh.open(zenoh_config(connect=[f"tcp/127.0.0.1:{port}"]))
+    try:
+        node.declare_token()
+        node.initialize(timeout=20)
+        assert node.joint_source is not None
+
+        def publish(session, stamp):
+            session.put(KEY, json.dumps({"stamp": stamp, "q": q_of(stamp).tolist(), "seq": 1}))
+
+        def arrived():
+            publish(pub, -10.0)
+            node._drain_joints()
+            return node.history.newest_stamp == -10.0
+        assert wait_until(arrived, 30.0, step=0.1)
+        for _ in range(5):
+            publish(stranger, 5.0)                       # no certificate: no link, never arrives
+        for k in range(51):
+            publish(pub, round(0.02 * k, 10))
+        assert wait_until(lambda: (node._drain_joints(), node.history.newest_stamp)[1] == 1.0, 10.0)
+        expected = ExpectedDepth(node.cam, rig.robot, rig.static_meshes())
+        node.source = _Frames()
+        node.source.queue.append((np.array(expected.known(q_of(0.55)), copy=True), 0.55))
+        assert node.step() == 0, node.last_skip                         # the robot removed where it was
+        np.testing.assert_allclose(node.q_used, q_of(0.55), atol=1e-9)
+        time.sleep(0.5)
+        node._drain_joints()
+        assert node.history.newest_stamp == 1.0                          # the stranger's 5.0 never came
+    finally:
+        stranger.close()
+        pub.close()
+        node.close()
+        srv.close()
