@@ -17,7 +17,8 @@ Targets: ``wire`` (:func:`depthguard.distributed.wire.decode`), ``envelope``
 (:class:`depthguard.distributed.auth.Verifier`), ``settings`` (the server's
 SETTINGS_REQ JSON), ``registry`` (the registry file), ``rig`` (rig YAML files,
 :meth:`depthguard.rig.Rig.load`), ``depth`` (``.npy`` / ``.png`` depth files,
-:func:`depthguard.depth_io.read_depth`). :func:`run` returns one :class:`FuzzResult`
+:func:`depthguard.depth_io.read_depth`), ``ros`` and ``bag`` (ROS 2 messages and bag files as the
+``bag:`` source reads them, :mod:`depthguard.distributed.fuzz_ros`). :func:`run` returns one :class:`FuzzResult`
 per target; the tests run a few hundred cases, the command ≥ 10,000 per target.
 """
 
@@ -299,8 +300,19 @@ def _depth_target(work: Path):
     return seeds, case, None
 
 
+def _ros_target(work: Path):
+    from depthguard.distributed.fuzz_ros import ros_target
+    return ros_target(work)
+
+
+def _bag_target(work: Path):
+    from depthguard.distributed.fuzz_ros import bag_target
+    return bag_target(work)
+
+
 TARGETS: dict[str, Callable] = {"wire": _wire_target, "envelope": _envelope_target, "settings": _settings_target,
-                                "registry": _registry_target, "rig": _rig_target, "depth": _depth_target}
+                                "registry": _registry_target, "rig": _rig_target, "depth": _depth_target,
+                                "ros": _ros_target, "bag": _bag_target}
 
 
 def run(targets=None, cases: int = 10_000, seed: int = 0, progress: Callable[[str, int], None] | None = None

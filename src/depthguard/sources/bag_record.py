@@ -50,7 +50,7 @@ class BagRecorder:
     written as 0 (no measurement). Use as a context manager or call :meth:`close`.
     """
 
-    def __init__(self, path: str | Path, rig, encoding: str = "16UC1", start: float = 0.0):
+    def __init__(self, path: str | Path, rig, encoding: str = "16UC1", start: float = 0.0, compress: bool = True):
         from rosbags.rosbag2 import StoragePlugin, Writer
         from rosbags.rosbag2.enums import CompressionFormat, CompressionMode
 
@@ -63,7 +63,8 @@ class BagRecorder:
             raise BagError(f"--out {self.path}: the folder {self.path.parent} does not exist")
         self.rig, self.encoding = rig, encoding
         self._writer = Writer(self.path, version=9, storage_plugin=StoragePlugin.MCAP)
-        self._writer.set_compression(CompressionMode.STORAGE, CompressionFormat.ZSTD)
+        if compress:                    # zstd chunks (False: plain chunks, e.g. for the fuzzer's seeds)
+            self._writer.set_compression(CompressionMode.STORAGE, CompressionFormat.ZSTD)
         self._writer.open()
         ts = rosmsg.TYPESTORE
         self._img, self._info = {}, {}
