@@ -26,19 +26,19 @@ def bench(
     from rich.console import Console
     from rich.table import Table
 
-    from depthguard.evaluation import bench as B
+    from depthguard.evaluation import bench as bench_harness
     from depthguard.progress import log
 
     if list_groups:
-        for name in B.load_groups():
+        for name in bench_harness.load_groups():
             typer.echo(name)
         raise typer.Exit()
-    ctx = B.BenchContext(quick=quick, repeats=5 if quick else 30, log=log)
-    known = list(B.load_groups())
+    ctx = bench_harness.BenchContext(quick=quick, repeats=5 if quick else 30, log=log)
+    known = list(bench_harness.load_groups())
     for o in only or []:
         if not any(k.startswith(o) or o.startswith(k) for k in known):
             raise typer.BadParameter(f"no benchmark group matches {o!r}; groups: {', '.join(known)}", param_hint="--only")
-    rows = B.run(only=only, ctx=ctx)
+    rows = bench_harness.run(only=only, ctx=ctx)
     table = Table(title="depthguard bench")
     for col in ("name", "value", "unit", "paper", "peer", "peer value", "note"):
         table.add_column(col, overflow="fold")

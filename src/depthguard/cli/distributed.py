@@ -80,7 +80,7 @@ def server_cmd(
 
     With --centralised the same pipeline runs for every camera in this one process
     (all images into one place), and the status reports it the same way."""
-    from depthguard.distributed import wire as W
+    from depthguard.distributed import wire
     from depthguard.distributed.server import FusionServer
     from depthguard.progress import log
 
@@ -94,10 +94,10 @@ def server_cmd(
     if r.robot is not None:
         q = c.scene.robot_q(sim_time) if (c is not None and sim_time is not None) else r.robot_q0
         joints = tuple(float(x) for x in (q if q is not None else []))
-    settings = W.Settings(voxel_size=voxel_size, threshold=threshold, stale_s=stale, joints=joints)
+    settings = wire.Settings(voxel_size=voxel_size, threshold=threshold, stale_s=stale, joints=joints)
     try:
         settings.check()
-    except W.WireError as exc:
+    except wire.WireError as exc:
         raise ValueError(str(exc)) from None
     stop = _stop_event()
     if identity is not None:                 # TLS handshake failures are logged by Zenoh itself

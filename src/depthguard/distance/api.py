@@ -17,7 +17,7 @@ import numba
 import numpy as np
 
 from depthguard.camera import Camera, check_depth_image
-from depthguard.distance import kernels as K
+from depthguard.distance import kernels
 from depthguard.distance.gaps import GapBuffers, check_gap_px
 from depthguard.distance.silhouette import SilhouetteBuffers, check_silhouette_px
 
@@ -189,8 +189,8 @@ class DistanceWorkspace:
         """
         cam = self.cam
         d = check_depth_image(cam, depth)
-        pol = _check_choice("invalid", invalid, K.INVALID_POLICIES)
-        mode = _check_choice("robot_mode", robot_mode, K.ROBOT_MODES)
+        pol = _check_choice("invalid", invalid, kernels.INVALID_POLICIES)
+        mode = _check_choice("robot_mode", robot_mode, kernels.ROBOT_MODES)
         off = float(robot_offset)
         if not (np.isfinite(off) and off >= 0):
             raise ValueError(f"robot_offset must be finite and >= 0 metres (got {robot_offset!r})")
@@ -201,16 +201,16 @@ class DistanceWorkspace:
         else:
             rd, use = check_depth_image(cam, robot_depth, name="robot_depth"), True
         sil = None
-        if use and n_sil > 0 and pol == K.INVALID_UNKNOWN:
+        if use and n_sil > 0 and pol == kernels.INVALID_UNKNOWN:
             if self._silhouette is None:
                 self._silhouette = SilhouetteBuffers(cam.shape)
             sil = self._silhouette.dilate(rd, n_sil)
         gaps = None
-        if n_gap > 0 and pol == K.INVALID_UNKNOWN:
+        if n_gap > 0 and pol == kernels.INVALID_UNKNOWN:
             if self._gaps is None:
                 self._gaps = GapBuffers(cam.shape)
             gaps = self._gaps.gaps(d, cam.min_range, cam.max_range, n_gap)
-        K.obstacle_start_depth(d, rd, use, cam.min_range, cam.max_range, pol, mode, off, self.d0, sil, gaps)
+        kernels.obstacle_start_depth(d, rd, use, cam.min_range, cam.max_range, pol, mode, off, self.d0, sil, gaps)
         self.has_depth = True
 
     def query(self, points: np.ndarray, rho: float = 0.4, method: str = "hybrid") -> DistanceResult:
@@ -223,15 +223,15 @@ class DistanceWorkspace:
             raise ValueError("DistanceWorkspace.query: call set_depth(depth) first")
         p = check_points(points)
         r = check_rho(rho)
-        m = _check_choice("method", method, K.METHODS)
+        m = _check_choice("method", method, kernels.METHODS)
         n = len(p)
         if n > self.capacity:
             self._alloc(n)
         cam = self.cam
         par = self.parallel
         if par == "auto":
-            par = n >= K.PARALLEL_MIN_POINTS and numba.get_num_threads() > 1
-        kernel = K.depth_space_distances if par else K.depth_space_distances_serial
+            par = n >= kernels.PARALLEL_MIN_POINTS and numba.get_num_threads() > 1
+        kernel = kernels.depth_space_distances if par else kernels.depth_space_distances_serial
         kernel(self.d0, self._R, self._t, cam.fx, cam.fy, cam.cx, cam.cy,
                cam.min_range, cam.max_range, p, n, r, m,
                self._dist, self._dir, self._count, self._obs)

@@ -11,7 +11,7 @@ from __future__ import annotations
 import time
 from typing import Sequence
 
-from depthguard.distributed import wire as W
+from depthguard.distributed import wire
 from depthguard.distributed.settings import DEFAULT_ENDPOINT, DEFAULT_LEASE_MS, Keys, zenoh_config
 
 __all__ = ["ServerClient", "ServerUnavailable", "ServerRefused"]
@@ -65,7 +65,7 @@ class ServerClient:
         self.close()
 
     def request(self, key: str, payload: bytes, timeout: float = 1.0,
-                expect: W.MsgType | tuple[W.MsgType, ...] | None = None) -> W.Message:
+                expect: wire.MsgType | tuple[wire.MsgType, ...] | None = None) -> wire.Message:
         """Send one query, decode the first reply; ``ServerRefused`` on ERROR_REP,
         ``ServerUnavailable`` when nobody answers in ``timeout`` seconds."""
         nonce = None
@@ -94,13 +94,13 @@ class ServerClient:
                     self.last_refused_reply = str(exc)
                     continue
                 data = signed.message
-            m = W.decode(data)
-            if m.type == W.MsgType.ERROR_REP:
+            m = wire.decode(data)
+            if m.type == wire.MsgType.ERROR_REP:
                 raise ServerRefused(m.code, m.text)
             if expect is not None:
-                ok = (expect,) if isinstance(expect, W.MsgType) else expect
+                ok = (expect,) if isinstance(expect, wire.MsgType) else expect
                 if m.type not in ok:
-                    raise W.WireError(f"unexpected reply {m.type.name} on {key}")
+                    raise wire.WireError(f"unexpected reply {m.type.name} on {key}")
             return m
         why = f" (a reply was refused: {self.last_refused_reply})" if self.last_refused_reply else ""
         raise ServerUnavailable(f"no reply on {key} within {timeout:g} s{why}")
@@ -119,11 +119,11 @@ class ServerClient:
     def status(self, timeout: float = 1.0) -> dict:
         import json
 
-        m = self.request(self.keys.status, W.status_request(), timeout, W.MsgType.STATUS_REP)
+        m = self.request(self.keys.status, wire.status_request(), timeout, wire.MsgType.STATUS_REP)
         return json.loads(m.text)
 
     def set_settings(self, timeout: float = 1.0, **changes) -> dict:
         import json
 
-        m = self.request(self.keys.settings, W.settings_request(**changes), timeout, W.MsgType.STATUS_REP)
+        m = self.request(self.keys.settings, wire.settings_request(**changes), timeout, wire.MsgType.STATUS_REP)
         return json.loads(m.text)

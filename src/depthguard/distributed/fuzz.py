@@ -94,15 +94,15 @@ def _kind(exc: BaseException, work: str) -> str:
 
 # ------------------------------------------------------------------ targets
 def _wire_target(work: Path):
-    from depthguard.distributed import wire as W
+    from depthguard.distributed import wire
 
     rng = np.random.default_rng(0)
     keys = rng.integers(-300, 300, (40, 3))
-    seeds = [W.init_request("cam0", "host/pid1"), W.init_reply(3, W.Settings(joints=(0.1, 0.2))),
-             W.update_request(2, 7, 12.5, 0.02, keys, np.arange(40), 0.3), W.update_reply(W.Settings(), True),
-             W.error_reply(3, "unit id 9 is not initialised"), W.status_request(), W.status_reply({"a": [1, 2]}),
-             W.settings_request(voxel_size=0.05), W.units_request({"cam0": (4, 1.5), "cam1": (1, 2.0)}),
-             W.units_reply("cam0", 1, 4, 7, 3.25, 0.02, keys, 0.1), W.units_reply("cam1", 2, 1, 1, 1.0, 0.02, keys[:0],
+    seeds = [wire.init_request("cam0", "host/pid1"), wire.init_reply(3, wire.Settings(joints=(0.1, 0.2))),
+             wire.update_request(2, 7, 12.5, 0.02, keys, np.arange(40), 0.3), wire.update_reply(wire.Settings(), True),
+             wire.error_reply(3, "unit id 9 is not initialised"), wire.status_request(), wire.status_reply({"a": [1, 2]}),
+             wire.settings_request(voxel_size=0.05), wire.units_request({"cam0": (4, 1.5), "cam1": (1, 2.0)}),
+             wire.units_reply("cam0", 1, 4, 7, 3.25, 0.02, keys, 0.1), wire.units_reply("cam1", 2, 1, 1, 1.0, 0.02, keys[:0],
                                                                                    unchanged=True)]
 
     def recrc(data: bytes, rnd: random.Random) -> bytes:
@@ -117,14 +117,14 @@ def _wire_target(work: Path):
         return bytes(head) + body + struct.pack("<I", zlib.crc32(bytes(head) + body))
 
     def case(data: bytes):
-        m = W.decode(data)
-        W.encode(m)                  # an accepted message must encode again (it is whole)
+        m = wire.decode(data)
+        wire.encode(m)                  # an accepted message must encode again (it is whole)
         return True
     return seeds, case, recrc
 
 
 def _envelope_target(work: Path):
-    from depthguard.distributed import wire as W
+    from depthguard.distributed import wire
     from depthguard.distributed.auth import Signer, Verifier
     from depthguard.distributed.keys import init_authority, issue_node, load_identity
 
@@ -134,8 +134,8 @@ def _envelope_target(work: Path):
     signer = Signer(ident)
     originals = set()
     seeds = []
-    for msg, key in ((W.init_request("cam0", "a"), "depthguard/init"),
-                     (W.update_request(1, 1, 1.0, 0.02, np.zeros((3, 3)), np.ones(3)), "depthguard/update")):
+    for msg, key in ((wire.init_request("cam0", "a"), "depthguard/init"),
+                     (wire.update_request(1, 1, 1.0, 0.02, np.zeros((3, 3)), np.ones(3)), "depthguard/update")):
         env, _ = signer.seal(msg, key)
         seeds.append(env)
         originals.add(env)
@@ -175,10 +175,10 @@ def _envelope_target(work: Path):
 
 
 def _settings_target(work: Path):
-    from depthguard.distributed import wire as W
+    from depthguard.distributed import wire
     from depthguard.distributed.server import FusionServer
 
-    srv = FusionServer(["cam0"], W.Settings())
+    srv = FusionServer(["cam0"], wire.Settings())
     seeds = [json.dumps(x).encode() for x in (
         {"voxel_size": 0.05}, {"threshold": 0.3, "stale_s": 1.0}, {"offset_const": 0.01, "offset_k": 0.002},
         {"joints": [0.1, -0.2, 0.3]}, {"voxel_size": 0.02, "joints": []})]
@@ -200,11 +200,11 @@ def _settings_target(work: Path):
     def case(data: bytes):
         before = srv.settings
         try:
-            msg = W._frame(W.MsgType.SETTINGS_REQ, data)
-        except W.WireError:
+            msg = wire._frame(wire.MsgType.SETTINGS_REQ, data)
+        except wire.WireError:
             return False
-        rep = W.decode(srv._on_settings(msg))
-        if rep.type == W.MsgType.ERROR_REP:
+        rep = wire.decode(srv._on_settings(msg))
+        if rep.type == wire.MsgType.ERROR_REP:
             if srv.settings != before:
                 raise AssertionError("a rejected settings message changed the settings")
             raise ValueError(rep.text)

@@ -54,7 +54,7 @@ from typing import Callable, Sequence
 import numpy as np
 
 from depthguard.camera import Camera
-from depthguard.distributed import wire as W
+from depthguard.distributed import wire
 from depthguard.distributed.client import ServerClient, ServerRefused, ServerUnavailable
 from depthguard.distributed.settings import DEFAULT_ENDPOINT, DEFAULT_LEASE_MS
 from depthguard.fusion.voxels import FilterOffset, VoxelFilter, regrid
@@ -116,7 +116,7 @@ def fit_to_wire(keys: np.ndarray, counts: np.ndarray, voxel_size: float):
     """Make a voxel set fit one message: while it has more than ``wire.MAX_VOXELS``,
     coarsen the voxel size (×2) conservatively (:func:`regrid`; counts become 1)."""
     s = voxel_size
-    while len(keys) > W.MAX_VOXELS:
+    while len(keys) > wire.MAX_VOXELS:
         keys = regrid(keys, s, 2 * s)
         s *= 2
         counts = np.ones(len(keys), np.int32)
@@ -170,7 +170,7 @@ class CameraNode:
         self.client = ServerClient(connect, listen, prefix, multicast, lease_ms, identity=identity)
         self.keys = self.client.keys
         self.unit_id: int | None = None
-        self.settings: W.Settings | None = None
+        self.settings: wire.Settings | None = None
         self.seq = 0
         self._token = None
         self._trigger_ev = threading.Event()
@@ -229,7 +229,7 @@ class CameraNode:
         return f"{socket.gethostname()}/pid{os.getpid()}/zid{self.client.session.info.zid()}"
 
     # -------------------------------------------------------------- protocol
-    def _apply(self, s: W.Settings) -> None:
+    def _apply(self, s: wire.Settings) -> None:
         """Adopt the server's settings (cheap when nothing changed: the filter keeps its
         buffers for an unchanged voxel size and its robot render for unchanged joints).
         No epoch shortcut: a restarted server counts its epochs from 0 again."""
@@ -262,8 +262,8 @@ class CameraNode:
         said = False
         while True:
             try:
-                m = self.client.request(self.keys.init, W.init_request(self.cam.id, self.address), 0.5,
-                                        W.MsgType.INIT_REP)
+                m = self.client.request(self.keys.init, wire.init_request(self.cam.id, self.address), 0.5,
+                                        wire.MsgType.INIT_REP)
                 break
             except ServerUnavailable as exc:
                 if not said:
@@ -297,10 +297,10 @@ class CameraNode:
         keys, counts, s = fit_to_wire(vs.keys, vs.counts, vs.voxel_size)
         self.seq = self._trigger_seq if self.trigger else self.seq + 1
         invalid = vs.n_invalid / (self.cam.width * self.cam.height)
-        msg = W.update_request(self.unit_id, self.seq, stamp, s, keys, counts, invalid)
+        msg = wire.update_request(self.unit_id, self.seq, stamp, s, keys, counts, invalid)
         self.sent_bytes += len(msg)
         try:
-            rep = self.client.request(self.keys.update, msg, 1.0, W.MsgType.UPDATE_REP)
+            rep = self.client.request(self.keys.update, msg, 1.0, wire.MsgType.UPDATE_REP)
         except ServerRefused as exc:
             if exc.code == 3:                  # server restarted: unknown unit → initialise again
                 self._log(f"camera {self.cam.id}: {exc}; re-initialising")

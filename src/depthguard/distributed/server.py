@@ -52,7 +52,7 @@ from typing import Callable, Sequence
 
 import numpy as np
 
-from depthguard.distributed import wire as W
+from depthguard.distributed import wire
 from depthguard.distributed.settings import DEFAULT_ENDPOINT, DEFAULT_LEASE_MS, Keys, check_exposure, zenoh_config
 from depthguard.fusion.voxels import VoxelSet, regrid, union
 
@@ -101,7 +101,7 @@ class FusionServer:
     registry : path of the camera → unit id file (kept across restarts) or None.
     """
 
-    def __init__(self, cameras: Sequence[str], settings: W.Settings | None = None, *,
+    def __init__(self, cameras: Sequence[str], settings: wire.Settings | None = None, *,
                  listen: Sequence[str] = (DEFAULT_ENDPOINT,), connect: Sequence[str] = (),
                  prefix: str = "depthguard", multicast: bool = False, lease_ms: int = DEFAULT_LEASE_MS,
                  log: Callable[[str], None] | None = None, identity=None, insecure: bool = False,
@@ -109,7 +109,7 @@ class FusionServer:
         self.cameras = list(cameras)
         if not self.cameras:
             raise ValueError("the server needs at least one camera id (from the rig)")
-        self.settings = (settings or W.Settings()).check()
+        self.settings = (settings or wire.Settings()).check()
         self.keys = Keys(prefix)
         check_exposure(listen, connect, identity, insecure)
         self.listen = list(listen)
@@ -184,7 +184,7 @@ class FusionServer:
         return self._session
 
     # ---------------------------------------------------------------- settings
-    def set_settings(self, **changes) -> W.Settings:
+    def set_settings(self, **changes) -> wire.Settings:
         """Change settings (voxel_size, threshold, stale_s, offset_const, offset_k, joints);
         the epoch increases and the new values go out with every following reply."""
         allowed = {"voxel_size", "threshold", "stale_s", "offset_const", "offset_k", "joints"}
@@ -210,7 +210,7 @@ class FusionServer:
             new = replace(self.settings, epoch=self.settings.epoch + 1, **clean)
             try:
                 new.check()
-            except W.WireError as exc:
+            except wire.WireError as exc:
                 raise ValueError(str(exc)) from None
             self.settings = new
         self._log(f"settings epoch {new.epoch}: {clean}")
@@ -222,7 +222,7 @@ class FusionServer:
         with self._lock:
             self.refused += 1
         self._log(f"refused: {text}")
-        return W.error_reply(code, text)
+        return wire.error_reply(code, text)
 
     def _guard(self, fn):
         """Wrap a queryable callback: check the envelope (with an identity), then ``fn(data, who)``;
@@ -244,16 +244,16 @@ class FusionServer:
                         who = exc
                 reply = (self._refuse(f"message on {key}: {who}") if isinstance(who, AuthError)
                          else fn(data, who))
-            except W.WireError as exc:
+            except wire.WireError as exc:
                 with self._lock:
                     self.rejected += 1
                 self._log(f"rejected message on {query.key_expr}: {exc}")
-                reply = W.error_reply(ERR_MALFORMED, str(exc))
+                reply = wire.error_reply(ERR_MALFORMED, str(exc))
             except Exception as exc:  # noqa: BLE001 - the server must keep running
                 with self._lock:
                     self.rejected += 1
                 self._log(f"error handling {query.key_expr}: {type(exc).__name__}: {exc}")
-                reply = W.error_reply(ERR_MALFORMED, f"{type(exc).__name__}: {exc}")
+                reply = wire.error_reply(ERR_MALFORMED, f"{type(exc).__name__}: {exc}")
             try:
                 if self._signer is not None:
                     reply, _ = self._signer.seal(reply, key, reply_to=nonce)
@@ -274,7 +274,7 @@ class FusionServer:
     def _on_init(self, data: bytes, who=None) -> bytes:
         from depthguard.distributed.keys import ROLE_NODE
 
-        m = W.decode(data, expect=W.MsgType.INIT_REQ)
+        m = wire.decode(data, expect=wire.MsgType.INIT_REQ)
         bad = self._role_check(who, ROLE_NODE, f"joining as camera {m.camera!r}")
         if bad is None and who is not None and who.name != m.camera:
             bad = f"certificate of camera {who.name!r} cannot join as camera {m.camera!r}"
@@ -284,7 +284,7 @@ class FusionServer:
             if m.camera not in self.cameras:
                 self.refused += 1
                 self._log(f"refused unknown camera {m.camera!r} from {m.address!r}")
-                return W.error_reply(ERR_REFUSED, f"camera {m.camera!r} is not in the rig")
+                return wire.error_reply(ERR_REFUSED, f"camera {m.camera!r} is not in the rig")
             u = self.units.get(m.camera)
             if u is None:
                 u = Unit(self.registry.assign(m.camera), m.camera, m.address, alive=m.camera in self._alive,
@@ -296,7 +296,7 @@ class FusionServer:
                 u.address = m.address
                 u.alive = m.camera in self._alive
                 self._log(f"unit {u.id} re-initialised: camera {m.camera} at {m.address}")
-            return W.init_reply(u.id, self.settings)
+            return wire.init_reply(u.id, self.settings)
 
     def _unit_by_id(self, uid: int) -> Unit | None:
         for u in self.units.values():
@@ -308,7 +308,7 @@ class FusionServer:
         from depthguard.distributed.keys import ROLE_NODE
 
         now = time.monotonic()
-        m = W.decode(data, expect=W.MsgType.UPDATE_REQ)
+        m = wire.decode(data, expect=wire.MsgType.UPDATE_REQ)
         bad = self._role_check(who, ROLE_NODE, f"an update of unit id {m.unit_id}")
         if bad is not None:
             return self._refuse(bad)
@@ -318,12 +318,12 @@ class FusionServer:
                 self.refused += 1
                 self._log(f"refused update from unknown unit id {m.unit_id}"
                           + ("" if who is None else f" (certificate of camera {who.name!r})"))
-                return W.error_reply(ERR_UNKNOWN_UNIT, f"unit id {m.unit_id} is not initialised")
+                return wire.error_reply(ERR_UNKNOWN_UNIT, f"unit id {m.unit_id} is not initialised")
             if who is not None and who.name != u.camera:
                 self.refused += 1
                 self._log(f"refused: certificate of camera {who.name!r} sent an update for unit id "
                           f"{m.unit_id}, which is camera {u.camera!r}")
-                return W.error_reply(ERR_AUTH, f"unit id {m.unit_id} is not camera {who.name!r}")
+                return wire.error_reply(ERR_AUTH, f"unit id {m.unit_id} is not camera {who.name!r}")
             if u.updates and m.seq > u.seq + 1:
                 u.lost += m.seq - u.seq - 1
             u.keys, u.counts, u.voxel_size = m.keys, m.counts, m.voxel_size
@@ -334,7 +334,7 @@ class FusionServer:
             while now - self._bytes[0][0] > _RATE_WINDOW_S:     # bounded without status queries
                 self._bytes.popleft()
             token_missing = not u.alive
-            reply = W.update_reply(self.settings, token_missing=token_missing)
+            reply = wire.update_reply(self.settings, token_missing=token_missing)
         if self.on_update is not None:
             self.on_update(u)
         return reply
@@ -363,16 +363,16 @@ class FusionServer:
     def _on_status(self, data: bytes, who=None) -> bytes:
         from depthguard.distributed.keys import ROLE_ADMIN
 
-        W.decode(data, expect=W.MsgType.STATUS_REQ)
+        wire.decode(data, expect=wire.MsgType.STATUS_REQ)
         bad = self._role_check(who, ROLE_ADMIN, "the status")
         if bad is not None:
             return self._refuse(bad)
-        return W.status_reply(self.status())
+        return wire.status_reply(self.status())
 
     def _on_settings(self, data: bytes, who=None) -> bytes:
         from depthguard.distributed.keys import ROLE_ADMIN
 
-        m = W.decode(data, expect=W.MsgType.SETTINGS_REQ)
+        m = wire.decode(data, expect=wire.MsgType.SETTINGS_REQ)
         bad = self._role_check(who, ROLE_ADMIN, "changing settings")
         if bad is not None:
             return self._refuse(f"{bad} (asked {m.text[:200]!r})")
@@ -383,8 +383,8 @@ class FusionServer:
             with self._lock:
                 self.rejected += 1
             self._log(f"rejected settings {m.text[:200]!r}: {exc}")
-            return W.error_reply(ERR_BAD_SETTINGS, str(exc))
-        return W.status_reply(self.status())
+            return wire.error_reply(ERR_BAD_SETTINGS, str(exc))
+        return wire.status_reply(self.status())
 
     def units_replies(self, known=None, cameras=None) -> list[tuple[str, bytes]]:
         """``[(camera, UNITS_REP bytes)]`` for every fresh unit (of ``cameras``, default all):
@@ -398,14 +398,14 @@ class FusionServer:
         out = []
         for cam, uid, version, seq, stamp, vs, keys, inv in units:
             same = known.get(cam) == (version & 0xFFFFFFFF, stamp)
-            if not same and len(keys) > W.MAX_UNIT_VOXELS:
-                while len(keys) > W.MAX_UNIT_VOXELS:          # conservative: every old voxel covered
+            if not same and len(keys) > wire.MAX_UNIT_VOXELS:
+                while len(keys) > wire.MAX_UNIT_VOXELS:          # conservative: every old voxel covered
                     keys = regrid(keys, vs, 2 * vs)
                     vs *= 2
             try:
-                out.append((cam, W.units_reply(cam, uid, version, seq, stamp, vs, keys,
+                out.append((cam, wire.units_reply(cam, uid, version, seq, stamp, vs, keys,
                                                inv if inv == inv else 0.0, unchanged=same)))
-            except W.WireError as exc:
+            except wire.WireError as exc:
                 self._log(f"units: cannot send camera {cam}'s voxels: {exc}")
         return out
 
@@ -415,7 +415,7 @@ class FusionServer:
 
         try:
             payload = query.payload
-            m = W.decode(payload.to_bytes() if payload is not None else b"", expect=W.MsgType.UNITS_REQ)
+            m = wire.decode(payload.to_bytes() if payload is not None else b"", expect=wire.MsgType.UNITS_REQ)
             asked = zenoh.KeyExpr(str(query.key_expr))
             tail = str(query.key_expr)[len(f"{self.keys.prefix}/units/"):]
             one = None if any(ch in tail for ch in "*$") else {tail}     # one camera asked: encode only it
@@ -427,12 +427,12 @@ class FusionServer:
                     continue
                 if asked.intersects(zenoh.KeyExpr(key)):
                     query.reply(key, msg)
-        except W.WireError as exc:
+        except wire.WireError as exc:
             with self._lock:
                 self.rejected += 1
             self._log(f"rejected message on {query.key_expr}: {exc}")
             try:
-                query.reply_err(W.error_reply(ERR_MALFORMED, str(exc)))
+                query.reply_err(wire.error_reply(ERR_MALFORMED, str(exc)))
             except Exception as exc2:  # noqa: BLE001
                 self._log(f"reply failed on {query.key_expr}: {exc2}")
         except Exception as exc:  # noqa: BLE001 - the server must keep running

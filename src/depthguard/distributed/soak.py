@@ -65,7 +65,7 @@ def _rss_mb(pid: int) -> float:
 def serve_main(argv: list[str]) -> int:
     """``serve --units N --port P --out FILE``: a server for ``unit0..unitN-1`` until SIGTERM;
     then the refresh histogram and per-unit counts go to FILE (JSON)."""
-    from depthguard.distributed import wire as W
+    from depthguard.distributed import wire
     from depthguard.distributed.server import FusionServer
 
     ap = argparse.ArgumentParser(prog="depthguard-soak-serve")
@@ -90,7 +90,7 @@ def serve_main(argv: list[str]) -> int:
         if ("rejected" in line or "error" in line or "refused" in line) and len(problems) < 20:
             problems.append(line)
 
-    srv = FusionServer([f"unit{i}" for i in range(a.units)], W.Settings(stale_s=0.5),
+    srv = FusionServer([f"unit{i}" for i in range(a.units)], wire.Settings(stale_s=0.5),
                        listen=[f"tcp/127.0.0.1:{a.port}"], log=log)
     srv.on_update = on_update
     stop = threading.Event()
@@ -122,24 +122,24 @@ class _Unit(threading.Thread):
         self.ready = threading.Event()
 
     def run(self) -> None:
-        from depthguard.distributed import wire as W
+        from depthguard.distributed import wire
         from depthguard.distributed.client import ServerClient, ServerUnavailable
 
         try:
             with ServerClient([self.endpoint]) as c:
                 tok = c.session.liveliness().declare_token(c.keys.alive(self.camera))
-                uid = c.request(c.keys.init, W.init_request(self.camera, f"soak/{os.getpid()}"), 10.0,
-                                W.MsgType.INIT_REP).unit_id
+                uid = c.request(c.keys.init, wire.init_request(self.camera, f"soak/{os.getpid()}"), 10.0,
+                                wire.MsgType.INIT_REP).unit_id
                 self.ready.set()
                 period = 1.0 / self.hz
                 next_t = time.monotonic()
                 seq = 0
                 while not self.stop.is_set():
                     seq += 1
-                    msg = W.update_request(uid, seq, time.time(), 0.02, self.keys, self.counts, 0.2)
+                    msg = wire.update_request(uid, seq, time.time(), 0.02, self.keys, self.counts, 0.2)
                     t0 = time.perf_counter()
                     try:
-                        c.request(c.keys.update, msg, 1.0, W.MsgType.UPDATE_REP)
+                        c.request(c.keys.update, msg, 1.0, wire.MsgType.UPDATE_REP)
                         _add(self.rtt, (time.perf_counter() - t0) * 1000.0)
                     except ServerUnavailable:
                         self.failed += 1

@@ -49,8 +49,8 @@ from depthguard.camera import Camera, check_depth_image
 from depthguard.distance.api import DistanceResult, check_points, check_rho
 from depthguard.distance.gaps import GapBuffers, check_gap_px
 from depthguard.distance.silhouette import SilhouetteBuffers, check_silhouette_px
-from depthguard.fusion import depth_grid_kernels as K
-from depthguard.fusion import depth_grid_lazy as L
+from depthguard.fusion import depth_grid_kernels
+from depthguard.fusion import depth_grid_lazy
 from depthguard.fusion.depth_grid_memo import new_memo
 
 __all__ = ["DepthGridMap", "MultiPrincipalDepthGrid", "default_cache_dir"]
@@ -59,7 +59,7 @@ _FORMAT = 1
 PARALLEL_MIN_POINTS = 16     # below this many points a query runs on one thread (steadier)
 ENSURE_CHUNK_ROWS = 4        # image rows per parallel work item of the per-frame classification
 RUNS_PER_COLUMN = 8          # obstacle runs kept per principal column; more are merged (safe side)
-_METHODS = {"min": K.METHOD_MIN, "mean": K.METHOD_MEAN, "hybrid": K.METHOD_HYBRID}
+_METHODS = {"min": depth_grid_kernels.METHOD_MIN, "mean": depth_grid_kernels.METHOD_MEAN, "hybrid": depth_grid_kernels.METHOD_HYBRID}
 
 
 def default_cache_dir() -> Path:
@@ -285,7 +285,7 @@ class DepthGridMap:
         if not (0 <= gx < W and 0 <= gy < H and 0 <= gd < nd):
             raise ValueError(f"cell ({gx}, {gy}, {gd}) outside the grid {W}x{H}x{nd}")
         d1 = self.d_min + gd * self.delta_d
-        seen, u0, u1, v0, v1, zmin, zmax = K.cell_footprint(self.rays, self.origins, self._kint,
+        seen, u0, u1, v0, v1, zmin, zmax = depth_grid_kernels.cell_footprint(self.rays, self.origins, self._kint,
                                                             ids.index(camera_id), gx, gy, d1,
                                                             d1 + self.delta_d)
         if not seen:
@@ -309,7 +309,7 @@ class DepthGridMap:
         self._band = np.zeros(P.shape + (2,), dtype=np.int32)
         self._band_full = False
         self._boxes = np.zeros((32, 4), dtype=np.int64)   # capsule_boxes output (grown if needed)
-        self._tile_first = np.zeros((-(-P.height // K.TILE), -(-P.width // K.TILE)), dtype=np.int32)
+        self._tile_first = np.zeros((-(-P.height // depth_grid_kernels.TILE), -(-P.width // depth_grid_kernels.TILE)), dtype=np.int32)
         self._koff = np.zeros((max(nk, 1), levels), dtype=np.int64)
         self._kdims = np.ones((max(nk, 1), levels, 2), dtype=np.int64)
         size = 1
@@ -324,8 +324,8 @@ class DepthGridMap:
         self._silhouette_px = 0
         self._gaps = GapBuffers((max(P.height, Hk), max(P.width, Wk)))
         self._gap_px = 0
-        self._cap_lo = np.zeros(P.shape + (K.MAX_CAPS_PER_PIXEL,))
-        self._cap_hi = np.zeros(P.shape + (K.MAX_CAPS_PER_PIXEL,))
+        self._cap_lo = np.zeros(P.shape + (depth_grid_kernels.MAX_CAPS_PER_PIXEL,))
+        self._cap_hi = np.zeros(P.shape + (depth_grid_kernels.MAX_CAPS_PER_PIXEL,))
         self._cap_n = np.zeros(P.shape, dtype=np.int64)
         # lazy per-frame work: memoised cell classes per principal pixel (bits), frame stamps
         nw = (self.n_d + 63) // 64
@@ -482,20 +482,20 @@ class DepthGridMap:
                             self._kfree[k], self._kkind, robot_in_others == "free")
             else:
                 self._kfree[k].fill(0.0)          # nothing seen: clears nothing
-            K.build_pyramids(self._kfree[k], cam.height, cam.width, self._kpmin[k], self._kpmax[k],
+            depth_grid_kernels.build_pyramids(self._kfree[k], cam.height, cam.width, self._kpmin[k], self._kpmax[k],
                              self._koff[k], self._kdims[k])
         self._set_band(reach)
         self.lazy = bool(lazy)
         self.set_robot_capsules(robot_capsules)
         if self.lazy:
-            L.tile_min_free(self._pfree, self._tmin)
+            depth_grid_lazy.tile_min_free(self._pfree, self._tmin)
             self.has_frames = True
             return
-        K.column_runs(self._pfree, self._pkind, self._pint, self.d_min, self.delta_d, self.n_d,
+        depth_grid_kernels.column_runs(self._pfree, self._pkind, self._pint, self.d_min, self.delta_d, self.n_d,
                       self._kfree, self._kpmin, self._kpmax, self._koff, self._kdims, self._rays_arg,
                       self._orig_arg, self._kint_arg, len(self.others), self._caps, self._ncaps,
                       self._cap_lo, self._cap_hi, self._cap_n, self._band, self._runs, self._nruns)
-        K.tile_first_cells(self._runs, self._nruns, self._tile_first)
+        depth_grid_kernels.tile_first_cells(self._runs, self._nruns, self._tile_first)
         self.has_frames = True
 
     def _set_band(self, reach) -> None:
@@ -517,14 +517,14 @@ class DepthGridMap:
             a = caps[:, 0:3] @ self._Rp.T + self._tp
             b = caps[:, 3:6] @ self._Rp.T + self._tp
             cc = np.ascontiguousarray(np.concatenate([a, b, caps[:, 6:7] + grow], axis=1))
-            K.reach_band_capsules(cc, len(cc), self._capsule_boxes(cc), P.fx, P.fy, P.cx, P.cy,
+            depth_grid_kernels.reach_band_capsules(cc, len(cc), self._capsule_boxes(cc), P.fx, P.fy, P.cx, P.cy,
                                   self.d_min, self.delta_d, self._band)
             return
         lo, hi = (np.asarray(x, dtype=np.float64).reshape(3) for x in reach)
         if not (np.all(np.isfinite(lo)) and np.all(np.isfinite(hi)) and np.all(lo <= hi)):
             raise ValueError(f"reach must be a finite box with lo <= hi (got {lo}, {hi})")
         pad = 2.0 * float(np.hypot(1 / P.fx, 1 / P.fy))
-        K.reach_band(lo, hi, np.ascontiguousarray(P.world_from_camera[:3, :3]),
+        depth_grid_kernels.reach_band(lo, hi, np.ascontiguousarray(P.world_from_camera[:3, :3]),
                      np.ascontiguousarray(P.position), P.fx, P.fy, P.cx, P.cy, self.d_min, self.delta_d,
                      pad, self._band)
 
@@ -547,7 +547,7 @@ class DepthGridMap:
             b = caps[:, 3:6] @ self._Rp.T + self._tp
             self._caps = np.ascontiguousarray(np.concatenate([a, b, caps[:, 6:7]], axis=1))
             P = self.principal
-            K.capsule_intervals(self._caps, len(caps), self._capsule_boxes(self._caps), P.fx, P.fy,
+            depth_grid_kernels.capsule_intervals(self._caps, len(caps), self._capsule_boxes(self._caps), P.fx, P.fy,
                                 P.cx, P.cy, P.height, P.width, self._cap_lo, self._cap_hi, self._cap_n)
         else:
             self._caps = np.zeros((1, 7))
@@ -563,7 +563,7 @@ class DepthGridMap:
         if len(caps) > len(self._boxes):
             self._boxes = np.zeros((len(caps), 4), dtype=np.int64)
         boxes = self._boxes[:len(caps)]
-        K.capsule_boxes(caps, len(caps), P.fx, P.fy, P.cx, P.cy, P.height, P.width, boxes)
+        depth_grid_kernels.capsule_boxes(caps, len(caps), P.fx, P.fy, P.cx, P.cy, P.height, P.width, boxes)
         return boxes
 
     def _capsule_boxes_numpy(self, caps: np.ndarray) -> np.ndarray:
@@ -596,7 +596,7 @@ class DepthGridMap:
         gaps = None
         if self._gap_px > 0 and not self._invalid_free:
             gaps = self._gaps.gaps(d, cam.min_range, cam.max_range, self._gap_px)
-        K.frame_state(d, rd, use, cam.min_range, cam.max_range, off, self._invalid_free,
+        depth_grid_kernels.frame_state(d, rd, use, cam.min_range, cam.max_range, off, self._invalid_free,
                       robot_free, out_free, out_kind, sil, gaps)
 
     def query(self, points, rho: float = 0.4, method: str = "hybrid",
@@ -663,7 +663,7 @@ class DepthGridMap:
             self._ensure_rows(p, n, r)
 
     def _ensure_rows(self, p, n, r) -> None:
-        L.ensure_cells(self._pfree, self._pkind, self._tmin, self._pint, self.d_min, self.delta_d, self.n_d,
+        depth_grid_lazy.ensure_cells(self._pfree, self._pkind, self._tmin, self._pint, self.d_min, self.delta_d, self.n_d,
                        self._kfree, self._kpmin, self._kpmax, self._koff, self._kdims, self._rays_arg,
                        self._orig_arg, self._kint_arg, len(self.others), self._kmemo, self._caps, self._ncaps,
                        self._cap_lo, self._cap_hi, self._cap_n, self._band, self._Rp, self._tp, p, n, r,
@@ -677,7 +677,7 @@ class DepthGridMap:
             fill = numba.get_num_threads() == 1
             if not fill:
                 self._ensure(p, n, r)
-            L.grid_distances_lazy(self._pfree, self._tmin, self._obits, self._cap_n, self._caps, self._ncaps,
+            depth_grid_lazy.grid_distances_lazy(self._pfree, self._tmin, self._obits, self._cap_n, self._caps, self._ncaps,
                                   self._cap_lo, self._cap_hi, self.n_d, self._Rp, self._tp, self._pint,
                                   self.d_min, self.delta_d, p, n, r, m,
                                   self._dist, self._dir, self._count, self._obs,
@@ -686,7 +686,7 @@ class DepthGridMap:
                                   len(self.others), self._kmemo, self._band, self._frame, self._stamp, self._cbits,
                                   self._clear, self._free_to, self._axbuf)
             return
-        K.grid_distances(self._pfree, self._runs, self._nruns, self._tile_first, self._Rp, self._tp, self._pint,
+        depth_grid_kernels.grid_distances(self._pfree, self._runs, self._nruns, self._tile_first, self._Rp, self._tp, self._pint,
                          self.d_min, self.delta_d, p, n, r, m,
                          self._dist, self._dir, self._count, self._obs)
 

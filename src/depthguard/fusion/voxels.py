@@ -29,7 +29,7 @@ import numpy as np
 
 from depthguard.camera import Camera, check_depth_image
 from depthguard.filtering.expected import ExpectedDepth
-from depthguard.fusion import voxel_kernels as K
+from depthguard.fusion import voxel_kernels
 
 __all__ = ["VoxelSet", "VoxelFilter", "FilterOffset", "offset_for_camera", "vote",
            "regrid", "union", "pack_keys", "unpack_keys", "VOXEL_SIZE_RANGE"]
@@ -225,7 +225,7 @@ class VoxelFilter:
                 static = static.astype(np.float32)
             robot = self._empty_expected
         cam = self.cam
-        n, n_kept, n_invalid = K.filter_voxelize(
+        n, n_kept, n_invalid = voxel_kernels.filter_voxelize(
             d, static, robot, cam.fx, cam.fy, cam.cx, cam.cy, self._Rwc, self._twc,
             cam.min_range, cam.max_range, self.offset.const, self.offset.k,
             self._key_lo, self._dims, self.voxel_size, self.lo, self.hi,
@@ -334,7 +334,7 @@ def vote(sets: Mapping[str, VoxelSet], cameras: Sequence[Camera], depths: Mappin
         r = np.max(np.linalg.norm(centres[:, None, :] - pos[None], axis=2), axis=1)
         margin = offset(r) + (0.0 if rule == "footprint" else s * math.sqrt(3) / 2)
         free = np.zeros((len(centres), len(cams)), dtype=bool)
-        K.vote_free(np.ascontiguousarray(vs.keys * s, dtype=np.float64), s, stack, table,
+        voxel_kernels.vote_free(np.ascontiguousarray(vs.keys * s, dtype=np.float64), s, stack, table,
                     np.ascontiguousarray(margin, dtype=np.float64), rule == "footprint", free)
         free[:, ids.index(cid)] = False
         keep = free.sum(axis=1) < min_free

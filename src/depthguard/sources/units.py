@@ -61,14 +61,14 @@ class UnitsSource:
     def __init__(self, endpoint: str, rig=None, *, prefix: str = "depthguard", poll_hz: float = 100.0,
                  timeout_s: float = 5.0, listen: Sequence[str] | None = ("tcp/127.0.0.1:0",), session=None,
                  identity=None):
-        from depthguard.distributed import wire as W
+        from depthguard.distributed import wire
         from depthguard.distributed.client import ServerClient, ServerUnavailable
         from depthguard.distributed.settings import check_endpoint
 
         if not (math.isfinite(poll_hz) and poll_hz > 0):
             raise ValueError(f"units: poll_hz must be > 0 (got {poll_hz!r})")
         self.endpoint = check_endpoint(endpoint)
-        self._W = W
+        self._wire = wire
         if identity is not None:
             listen = None                    # with certificates: no listener of our own (ServerClient)
         self._client = ServerClient([self.endpoint], listen, prefix, session=session, identity=identity)
@@ -97,23 +97,23 @@ class UnitsSource:
     # ------------------------------------------------------------ polling thread
     def poll_once(self, timeout: float = 1.0) -> int:
         """One query of every fresh unit's voxels; the number of new sets received."""
-        W = self._W
+        wire = self._wire
         with self._lock:
             known = dict(self._known)
-        replies = self._client.session.get(self.keys.units("*"), payload=W.units_request(known), timeout=timeout)
+        replies = self._client.session.get(self.keys.units("*"), payload=wire.units_request(known), timeout=timeout)
         new = 0
         for r in replies:
             if r.ok is None:
                 with self._lock:
                     self.rejected += 1
                     try:
-                        self.last_error = W.decode(r.err.payload.to_bytes()).text
+                        self.last_error = wire.decode(r.err.payload.to_bytes()).text
                     except Exception:  # noqa: BLE001 - an undecodable error is still an error
                         self.last_error = "the server answered with an error"
                 continue
             try:
-                m = W.decode(r.ok.payload.to_bytes(), expect=W.MsgType.UNITS_REP)
-            except W.WireError as exc:
+                m = wire.decode(r.ok.payload.to_bytes(), expect=wire.MsgType.UNITS_REP)
+            except wire.WireError as exc:
                 with self._lock:
                     self.rejected += 1
                     self.last_error = f"{r.ok.key_expr}: {exc}"

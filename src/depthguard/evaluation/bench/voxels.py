@@ -133,7 +133,7 @@ class _Refresh:
     """Server in this process + node processes in trigger mode; times trigger → last update."""
 
     def __init__(self, cam_ids, w, h, t, qs=None, cell_name=CELL):
-        from depthguard.distributed import wire as W
+        from depthguard.distributed import wire
         from depthguard.distributed.server import FusionServer
 
         import socket
@@ -142,7 +142,7 @@ class _Refresh:
             port = so.getsockname()[1]
         self.ep = f"tcp/127.0.0.1:{port}"
         self.cam_ids = list(cam_ids)
-        self.server = FusionServer(self.cam_ids, W.Settings(stale_s=5.0), listen=[self.ep]).start()
+        self.server = FusionServer(self.cam_ids, wire.Settings(stale_s=5.0), listen=[self.ep]).start()
         self._cv = threading.Condition()
         self._seen: dict[str, int] = {}
         self.server.on_update = self._on_update
@@ -227,9 +227,9 @@ def distributed_refresh(cam_ids, w, h, t, repeats: int, qs=None, cpu: dict | Non
 def bench_voxels(ctx: BenchContext) -> list[BenchRow]:
     import pyoctomap
 
-    from depthguard.distributed import wire as W
+    from depthguard.distributed import wire
     from depthguard.distributed.central import CentralisedPipeline
-    from depthguard.fusion import voxel_kernels as K
+    from depthguard.fusion import voxel_kernels
     from depthguard.fusion.voxels import VoxelFilter, vote
     from depthguard.sim import load_cell
     from depthguard.sources import SimSource
@@ -265,7 +265,7 @@ def bench_voxels(ctx: BenchContext) -> list[BenchRow]:
         exp = np.array(f.expected_depth(q))
         kern = time_call(lambda: f.filter(depth, expected=exp), rep)
         off = f.offset
-        twin = time_call(lambda: K.filter_voxelize_numpy(cam, depth, exp, off.const, off.k, ws[0], ws[1],
+        twin = time_call(lambda: voxel_kernels.filter_voxelize_numpy(cam, depth, exp, off.const, off.k, ws[0], ws[1],
                                                           0.02, f.threshold), 1 if ctx.quick else 3, warmup=0)
         goal = goals.get((w, h))
         cpu = cpu_ms(lambda: f.filter(depth, q=q_next()), rep)
@@ -275,7 +275,7 @@ def bench_voxels(ctx: BenchContext) -> list[BenchRow]:
                              + f"expected depth (robot render) + R17-R19, 20 mm, worst {full.max() * 1e3:.1f} ms, "
                              f"CPU {cpu:.1f} ms, load avg {os.getloadavg()[0]:.1f}"))
         # OctoMap inserting the same kept cloud
-        keep = K.keep_mask_numpy(cam, depth, exp, off.const, off.k)
+        keep = voxel_kernels.keep_mask_numpy(cam, depth, exp, off.const, off.k)
         pts = cam.depth_to_points(depth, mask=keep)
         pts = np.ascontiguousarray(pts[np.all((pts >= ws[0]) & (pts < ws[1]), axis=1)])
         origin = np.asarray(cam.position, dtype=np.float64)
@@ -286,10 +286,10 @@ def bench_voxels(ctx: BenchContext) -> list[BenchRow]:
                              "OctoMap insertPointCloud (same kept cloud, 20 mm)", float(np.median(octo) * 1e3),
                              f"{speed:.0f}x faster than OctoMap (goal >= 20x); {len(pts)} kept points"))
         vs = f.filter(depth, expected=exp)
-        msg = W.update_request(1, 1, 0.0, vs.voxel_size, vs.keys, vs.counts)
+        msg = wire.update_request(1, 1, 0.0, vs.voxel_size, vs.keys, vs.counts)
         rows.append(BenchRow(f"voxels.bytes.{tag}", float(len(msg)), "bytes",
                              1162.5 if (w, h) == (640, 480) else None, "raw float32 image", float(w * h * 4),
-                             f"{len(vs)} voxels, {W.BYTES_PER_VOXEL} B/voxel; paper: ~100 voxels x 96 bit"))
+                             f"{len(vs)} voxels, {wire.BYTES_PER_VOXEL} B/voxel; paper: ~100 voxels x 96 bit"))
     # voxel-size sweep at 640x480
     rig, frames = frames_by_res[(640, 480)]
     cam = rig.cameras[0]
