@@ -215,3 +215,28 @@ def test_view_cli_errors_are_one_line(run_dir, tmp_path):
     assert r.returncode == 2 and "exists already" in r.stderr and shot.read_bytes() == b"keep"
     r = run(str(run_dir), "--size", "12x9000")
     assert r.returncode == 2 and "--size" in r.stderr
+
+
+def test_a_connection_closed_before_its_request_is_not_a_traceback():
+    """websockets logs "opening handshake failed" with a traceback when a browser opens a
+    speculative connection and closes it unused; the view's filter drops exactly that case."""
+    import logging
+    import sys
+
+    from depthguard.viz.live import _ClosedBeforeRequest
+
+    def record(exc):
+        try:
+            raise exc
+        except Exception:
+            info = sys.exc_info()
+        return logging.LogRecord("websockets.server", logging.ERROR, __file__, 1, "opening handshake failed",
+                                 None, info)
+
+    closed = ValueError("did not receive a valid HTTP request")
+    closed.__cause__ = EOFError("connection closed while reading HTTP request line")
+    keep = _ClosedBeforeRequest()
+    assert keep.filter(record(closed)) is False
+    assert keep.filter(record(ValueError("bad Sec-WebSocket-Key"))) is True        # a real failure shows
+    other = logging.LogRecord("websockets.server", logging.ERROR, __file__, 1, "something else", None, None)
+    assert keep.filter(other) is True

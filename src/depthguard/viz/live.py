@@ -37,6 +37,7 @@ authentication: anyone who reaches the port can change rho). A playback
 from __future__ import annotations
 
 import contextlib
+import logging
 import math
 import sys
 import threading
@@ -52,6 +53,28 @@ __all__ = ["LiveView", "LAYERS"]
 
 #: where a browser's camera starts: eye and target (world m), vertical field of view (rad)
 VIEW_EYE, VIEW_TARGET, VIEW_FOV = (2.3, -0.9, 1.4), (-0.3, 0.1, 0.25), math.radians(50.0)
+
+
+class _ClosedBeforeRequest(logging.Filter):
+    """Drops websockets' "opening handshake failed" (a traceback on the command's output) when
+    the peer closed before it sent a request — a browser's speculative connection, or a tab
+    closed while connecting: nothing went wrong with the view. Other failures still show."""
+
+    def filter(self, record: logging.LogRecord) -> bool:
+        if record.getMessage() != "opening handshake failed" or not record.exc_info:
+            return True
+        exc, seen = record.exc_info[1], 0
+        while exc is not None and seen < 10:
+            if isinstance(exc, EOFError):
+                return False
+            exc, seen = exc.__cause__ or exc.__context__, seen + 1
+        return True
+
+
+def _quiet_handshakes() -> None:
+    logger = logging.getLogger("websockets.server")
+    if not any(isinstance(f, _ClosedBeforeRequest) for f in logger.filters):
+        logger.addFilter(_ClosedBeforeRequest())
 
 
 def _lower_priority(thread) -> None:
@@ -114,6 +137,7 @@ class LiveView:
         self._q_shown = None
         self._quiet_rho = False
         self.note = ""
+        _quiet_handshakes()
         with contextlib.redirect_stdout(sys.stderr):     # viser's banner: not on the command's output
             self.server = viser.ViserServer(host=host, port=int(port), label=title or f"depthguard - {rig.name}",
                                             verbose=False)
