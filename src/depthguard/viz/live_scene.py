@@ -133,18 +133,17 @@ def pixel_labels(depth: np.ndarray, robot_depth: np.ndarray, static_depth: np.nd
 def frame_points(cam, depth: np.ndarray, robot_depth: np.ndarray, static_depth: np.ndarray,
                  robot_offset: float, stride: int) -> tuple[np.ndarray, np.ndarray]:
     """Every ``stride``-th pixel (both axes) with a measurement, labelled (:func:`pixel_labels`),
-    as world points: ``(points (N, 3) float32 m, labels (N,) int8)``. Only the sampled pixels
-    are read (cheap enough for the view's thread at 15 Hz)."""
+    as world points: ``(points (N, 3) float32 m, labels (N,) int8)``, back-projected by the
+    camera's own :meth:`~depthguard.camera.Camera.depth_to_points` (R1)."""
     s = max(1, int(stride))
-    d = np.asarray(depth)[::s, ::s]
-    lab = pixel_labels(d, np.asarray(robot_depth)[::s, ::s], np.asarray(static_depth)[::s, ::s], robot_offset)
-    v, u = np.nonzero(lab != INVALID)
-    z = d[v, u].astype(np.float64)
-    pc = np.empty((z.size, 3))
-    pc[:, 0] = (u * s - cam.cx) * z / cam.fx
-    pc[:, 1] = (v * s - cam.cy) * z / cam.fy
-    pc[:, 2] = z
-    return cam.camera_to_world(pc).astype(np.float32), lab[v, u]
+    d = np.asarray(depth)
+    lab = pixel_labels(d[::s, ::s], np.asarray(robot_depth)[::s, ::s], np.asarray(static_depth)[::s, ::s],
+                       robot_offset)
+    keep = lab != INVALID
+    mask = np.zeros(d.shape, dtype=bool)
+    mask[::s, ::s] = keep
+    pts = cam.depth_to_points(d, "world", mask)         # row-major, as lab[keep]
+    return pts.astype(np.float32), lab[keep]
 
 
 def near_mask(points: np.ndarray, centres: np.ndarray, radius: float) -> np.ndarray:
