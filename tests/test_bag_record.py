@@ -76,3 +76,27 @@ def test_recording_a_bag_again_gives_the_same_frames_and_joint_states(tmp_path):
         assert (x.camera_id, x.stamp) == (y.camera_id, y.stamp) and np.array_equal(x.depth, y.depth)
     ja, jb = BagJoints(a, rig).states_until(99.0), BagJoints(b, rig).states_until(99.0)
     assert len(ja) == len(jb) == 60 and all(s == t and np.array_equal(p, q) for (s, p), (t, q) in zip(ja, jb))
+
+
+def test_depth_beyond_16uc1_is_counted_and_read_back_as_no_measurement(tmp_path):
+    """A return beyond 65.535 m cannot be 16UC1 millimetres: it is written as 0 (no measurement,
+    never a wrapped-around near value) and counted, so that `record` can say so."""
+    from depthguard.sources.bag import BagFrames, BagReplay
+    from depthguard.sources.frame import Frame
+
+    rig = load_cell("flacco-cell").rig
+    cam = rig.cameras[0]
+    d = np.full((cam.height, cam.width), 2.0, np.float32)
+    d[:5, :7] = 70.0
+    with BagRecorder(tmp_path / "bag", rig) as rec:
+        rec.write_joints(0.0, rig.robot_q0)
+        rec.write_joints(1.0, rig.robot_q0)
+        for c in rig.cameras:
+            rec.write_frame(Frame(c.id, d if c.id == cam.id else np.full_like(d, 2.0), 0.5))
+    assert rec.clipped == 35
+    replay = BagReplay(tmp_path / "bag")
+    try:
+        (f,) = [f for f in BagFrames(replay, rig).frames_until(1.0) if f.camera_id == cam.id]
+    finally:
+        replay.close()
+    assert np.all(f.depth[:5, :7] == 0.0) and np.allclose(f.depth[5:], 2.0)

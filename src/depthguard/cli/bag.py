@@ -51,7 +51,7 @@ def record(
         with BagRecorder(out, the_rig, encoding=encoding) as rec:
             seconds = record_sources(rec, sources, joint_source, duration, dt=the_rig.monitor.dt, stop=stop,
                                      progress=lambda t: log(f"record: {t:.1f} s ..."))
-            raw, frames, states = rec.raw_bytes, rec.frames, rec.states
+            raw, frames, states, clipped = rec.raw_bytes, rec.frames, rec.states, rec.clipped
     finally:
         signal.signal(signal.SIGINT, previous)
         for s in sources:
@@ -60,6 +60,9 @@ def record(
             joint_source.close()
     size = sum(f.stat().st_size for f in out.glob("*.mcap"))
     log(f"record: {seconds:.2f} s, {frames} frames, {states} joint states")
+    if clipped:
+        typer.echo(f"record: warning: {clipped} pixels beyond 65.535 m cannot be stored as 16UC1 millimetres and "
+                   f"were written as 0 (no measurement); record with --encoding 32FC1 to keep them", err=True)
     typer.echo(f"record: wrote {out} ({size / 1e6:.1f} MB; the depth images raw would be {raw / 1e6:.1f} MB): "
                f"{frames} frames of {', '.join(the_rig.camera_ids)}, {states} joint states, camera poses on /tf_static")
 
