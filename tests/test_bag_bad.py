@@ -18,7 +18,7 @@ from depthguard.sim import load_cell
 from depthguard.sources.bag import BagError, BagFrames, BagJoints, BagReplay
 
 mcap_writer = pytest.importorskip("mcap_ros2.writer", reason="mcap-ros2-support (test extra) writes the bad bags")
-from test_bag_interop import IMAGE_DEF, INFO_DEF, JOINT_DEF, _stamp  # noqa: E402 - after the skip
+from ros_defs import IMAGE_DEF, INFO_DEF, JOINT_DEF, _stamp  # noqa: E402 - after the skip
 
 DG = [sys.executable, "-m", "depthguard.cli"]
 

@@ -18,6 +18,7 @@ from depthguard.sources.bag import BagFrames, BagJoints, BagReplay
 from depthguard.sources.bag_record import BagRecorder, optical_frame
 from depthguard.sources.frame import Frame
 from depthguard.transforms import quat_to_matrix
+from ros_defs import IMAGE_DEF, INFO_DEF, JOINT_DEF, TF_DEF, _stamp
 
 mcap_reader = pytest.importorskip("mcap.reader", reason="the mcap package (test extra) is the independent reader")
 mcap_decoder = pytest.importorskip("mcap_ros2.decoder", reason="mcap-ros2-support (test extra) decodes CDR")
@@ -85,30 +86,6 @@ def test_the_independent_reader_decodes_everything_depthguard_records(rig, tmp_p
 
 
 # message definitions as ROS 2 ships them (concatenated with their dependencies, as rosbag2 embeds them)
-_SEP = "\n" + "=" * 80 + "\n"
-_HEADER = "MSG: std_msgs/Header\nbuiltin_interfaces/Time stamp\nstring frame_id"
-_TIME = "MSG: builtin_interfaces/Time\nint32 sec\nuint32 nanosec"
-IMAGE_DEF = ("std_msgs/Header header\nuint32 height\nuint32 width\nstring encoding\nuint8 is_bigendian\n"
-             "uint32 step\nuint8[] data" + _SEP + _HEADER + _SEP + _TIME)
-INFO_DEF = ("std_msgs/Header header\nuint32 height\nuint32 width\nstring distortion_model\nfloat64[] d\n"
-            "float64[9] k\nfloat64[9] r\nfloat64[12] p\nuint32 binning_x\nuint32 binning_y\n"
-            "sensor_msgs/RegionOfInterest roi" + _SEP + _HEADER + _SEP + _TIME + _SEP +
-            "MSG: sensor_msgs/RegionOfInterest\nuint32 x_offset\nuint32 y_offset\nuint32 height\nuint32 width\nbool do_rectify")
-JOINT_DEF = ("std_msgs/Header header\nstring[] name\nfloat64[] position\nfloat64[] velocity\nfloat64[] effort"
-             + _SEP + _HEADER + _SEP + _TIME)
-TF_DEF = ("geometry_msgs/TransformStamped[] transforms" + _SEP +
-          "MSG: geometry_msgs/TransformStamped\nstd_msgs/Header header\nstring child_frame_id\ngeometry_msgs/Transform transform"
-          + _SEP + _HEADER + _SEP + _TIME + _SEP +
-          "MSG: geometry_msgs/Transform\ngeometry_msgs/Vector3 translation\ngeometry_msgs/Quaternion rotation" + _SEP +
-          "MSG: geometry_msgs/Vector3\nfloat64 x\nfloat64 y\nfloat64 z" + _SEP +
-          "MSG: geometry_msgs/Quaternion\nfloat64 x 0\nfloat64 y 0\nfloat64 z 0\nfloat64 w 1")
-
-
-def _stamp(s: float) -> dict:
-    ns = round(s * 1e9)
-    return {"sec": ns // 10**9, "nanosec": ns % 10**9}
-
-
 def write_foreign_bag(path, rig, n_frames=4, joints=50, info=True, encodings=("16UC1", "32FC1"), extra=None):
     """An .mcap written by mcap_ros2.writer; returns the depths written per camera (float64 m)."""
     written: dict[str, list] = {}

@@ -19,7 +19,7 @@ from depthguard.sources.frame import Frame
 
 mcap_writer = pytest.importorskip("mcap_ros2.writer", reason="mcap-ros2-support (test extra) writes the foreign bag")
 from conftest import PRISMATIC_URDF  # noqa: E402
-from test_bag_interop import INFO_DEF, TF_DEF, _stamp  # noqa: E402
+from ros_defs import INFO_DEF, TF_DEF, _stamp  # noqa: E402
 
 WORKSPACE = {"min": [-1.0, -1.0, -0.5], "max": [1.0, 1.0, 1.5]}
 

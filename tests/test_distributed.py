@@ -21,6 +21,7 @@ from hypothesis import strategies as st
 from depthguard.distributed import wire as W
 from depthguard.distributed.client import ServerClient, ServerRefused
 from depthguard.distributed.server import ERR_REFUSED, FusionServer
+from small_rigs import write_rig
 from loopback import free_port, wait_until
 
 
@@ -125,30 +126,8 @@ def test_fuzzed_messages_crash_nothing(server, client, key, data):
 
 
 # ------------------------------------------------------------------ multi-process
-RIG = """
-name: four-cams
-workspace: {{min: [-0.6, -0.6, 0.0], max: [0.6, 0.6, 1.0]}}
-cameras:
-{cams}
-"""
-CAM = """  - id: {id}
-    width: 160
-    height: 120
-    fx: 140.0
-    fy: 140.0
-    cx: 79.5
-    cy: 59.5
-    range: [0.2, 6.0]
-    pose: {{look_at: {{eye: [{x}, {y}, 1.4], target: [0.0, 0.0, 0.5]}}}}
-"""
-
-
 def _rig(tmp_path):
-    eyes = [(1.6, 0.1), (-1.6, -0.1), (0.1, 1.6), (-0.1, -1.6)]
-    cams = "".join(CAM.format(id=f"cam{i}", x=x, y=y) for i, (x, y) in enumerate(eyes))
-    p = tmp_path / "rig.yaml"
-    p.write_text(RIG.format(cams=cams))
-    return p
+    return write_rig(tmp_path / "rig.yaml")
 
 
 def _spawn(rig, cam, endpoint, fps=20, keys=None):

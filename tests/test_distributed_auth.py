@@ -22,30 +22,7 @@ from depthguard.distributed.client import ServerClient, ServerRefused, ServerUna
 from depthguard.distributed.keys import (ROLE_ADMIN, ROLE_NODE, ROLE_SERVER, init_authority, issue_admin,
                                          issue_node, load_identity)
 from loopback import free_port, wait_until
-
-RIG = """
-name: tls-cell
-workspace: {{min: [-0.6, -0.6, 0.0], max: [0.6, 0.6, 1.0]}}
-cameras:
-{cams}
-"""
-CAM = """  - id: {id}
-    width: 160
-    height: 120
-    fx: 140.0
-    fy: 140.0
-    cx: 79.5
-    cy: 59.5
-    range: [0.2, 6.0]
-    pose: {{look_at: {{eye: [{x}, 0.1, 1.4], target: [0.0, 0.0, 0.5]}}}}
-"""
-
-
-def write_rig(path, ids=("camA", "camB", "camC")):
-    xs = [1.6, -1.6, 0.3, -0.3]
-    path.write_text(RIG.format(cams="".join(CAM.format(id=c, x=x) for c, x in zip(ids, xs))))
-    return path
-
+from small_rigs import write_abc_rig as write_rig
 
 @pytest.fixture(scope="module")
 def pki(tmp_path_factory):

@@ -10,7 +10,7 @@ import time
 import pytest
 
 from loopback import free_port, wait_until
-from test_distributed_auth import write_rig
+from small_rigs import write_abc_rig as write_rig
 
 
 def _cli(*args):

@@ -132,10 +132,10 @@ def test_node_removes_robot_at_interpolated_capture_joints(cell):
 def test_node_without_robot_refuses_a_joint_stream(tmp_path):
     from depthguard.distributed.node import build_node
 
-    from test_distributed import _rig
+    from small_rigs import write_rig
 
     with pytest.raises(ValueError, match="no robot"):
-        build_node(str(_rig(tmp_path)), "cam0", "pattern", joints="zenoh:x/y", connect=["tcp/127.0.0.1:1"])
+        build_node(str(write_rig(tmp_path / "rig.yaml")), "cam0", "pattern", joints="zenoh:x/y", connect=["tcp/127.0.0.1:1"])
 
 
 @pytest.mark.multiprocess

@@ -4,7 +4,6 @@ cameras go stale there. Truth: the ids before the kill, the node processes' own 
 (they are never restarted), the wall clock, and the registry file on disk."""
 
 import json
-import os
 import signal
 import subprocess
 import sys
@@ -17,7 +16,7 @@ from depthguard.distributed.client import ServerClient, ServerUnavailable
 from depthguard.distributed.keys import init_authority, issue_admin, issue_node, load_identity
 from depthguard.distributed.registry import Registry
 from loopback import free_port, wait_until
-from test_distributed_auth import write_rig
+from small_rigs import write_abc_rig as write_rig
 
 
 def _cli(*args):

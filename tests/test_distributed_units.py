@@ -15,7 +15,11 @@ from depthguard.distributed.client import ServerClient
 from depthguard.distributed.server import FusionServer
 
 from loopback import free_port, wait_until
-from test_distributed import _rig
+from small_rigs import write_rig
+
+
+def _rig(tmp_path):
+    return write_rig(tmp_path / "rig.yaml")
 
 
 @pytest.fixture
