@@ -149,13 +149,18 @@ def _pct(xs, q, empty: float = math.nan) -> float:
 
 
 # ---------------------------------------------------------------- the monitor in real time
-def _run_monitor(script: _Script, rig, feeds, cfg, duration: float) -> dict:
+def _run_monitor(script: _Script, rig, feeds, cfg, duration: float, attach=None) -> dict:
+    """The real-time run (module docstring). ``attach(monitor) -> finish`` (optional) is called
+    before the clock starts (the ``view`` group adds its live view and a browser there);
+    ``finish(wall seconds) -> dict`` after the run, its items added to the result."""
     from depthguard.runtime.monitor import Monitor
     from depthguard.sources.frame import Frame
 
     dt = 1.0 / CONTROL_HZ
     stop = threading.Event()
     with Monitor(rig, cfg) as mon:
+        finish = attach(mon) if attach is not None else None
+        step0 = len(mon.step_s)                # steps taken by ``attach`` are not the run's
         t0 = time.perf_counter() + 0.05
 
         def camera(cid, source, phase):
@@ -197,9 +202,11 @@ def _run_monitor(script: _Script, rig, feeds, cfg, duration: float) -> dict:
             stop.set()
             for th in threads:
                 th.join(2.0)
-        skip = int(SKIP_S * CONTROL_HZ)
+        wall = time.perf_counter() - t0
+        skip = step0 + int(SKIP_S * CONTROL_HZ)
         st = mon.stats()
-        return {"step_s": list(mon.step_s[skip:]), "f2r_s": list(mon.frame_to_reaction_s),
+        extra = finish(wall) if finish is not None else {}
+        return {**extra, "step_s": list(mon.step_s[skip:]), "f2r_s": list(mon.frame_to_reaction_s),
                 "build_s": list(mon.fusion.build_seconds), "late": late, "cycles": n_cycles,
                 "scheduling": rt.status, "dropped": sum(c["dropped"] for c in st["cameras"].values()),
                 "refused": sum(sum(c["refused"].values()) for c in st["cameras"].values()),

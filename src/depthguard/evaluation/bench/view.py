@@ -2,8 +2,9 @@
 
 The same input as the ``monitor`` group (:mod:`depthguard.evaluation.bench.monitor`):
 ``flacco-cell``, two 640x480 cameras at 30 Hz from their own threads with
-pre-rendered frames, joint states at 500 Hz, ``step`` at 500 Hz — run twice
-on this machine, one after the other:
+pre-rendered frames, joint states at 500 Hz, ``step`` at 500 Hz, the same run
+(its ``_run_monitor``: the control thread under the rig's ``control_priority``) —
+twice on this machine, one after the other:
 
 * **view off**: the monitor alone;
 * **view on**: a :class:`~depthguard.viz.live.LiveView` is one of the
@@ -29,14 +30,12 @@ Skipped (no rows, a log line) where no Chromium is installed.
 from __future__ import annotations
 
 import sys
-import threading
 import time
 
 import numpy as np
 
 from depthguard.evaluation.bench import BenchContext, BenchRow, group
-from depthguard.evaluation.bench.monitor import (CAMERA_HZ, CAPTURE_LATENCY, CONTROL_HZ, SKIP_S, _pct,
-                                                 _rig_with, _Script, _sleep_until)
+from depthguard.evaluation.bench.monitor import _pct, _rig_with, _run_monitor, _Script
 
 STEP_GOAL_MS = 1.0
 UPDATE_GOAL_HZ = 10.0
@@ -45,75 +44,37 @@ BROWSER_NICE = 10
 
 
 def _run(script: _Script, rig, feeds, cfg, duration: float, view: bool) -> dict:
-    """The monitor bench's real-time run (module docstring), with or without the view and a browser."""
-    from depthguard.runtime.monitor import Monitor
-    from depthguard.sources.frame import Frame
+    """The monitor bench's real-time run (:func:`~depthguard.evaluation.bench.monitor._run_monitor`,
+    control thread under the rig's ``control_priority``), with or without the view and a browser."""
+    if not view:
+        return {**_run_monitor(script, rig, feeds, cfg, duration), "updates": 0, "update_s": [], "browser": False}
+    held: dict = {}
 
-    dt = 1.0 / CONTROL_HZ
-    stop = threading.Event()
-    out: dict = {"updates": 0, "update_s": [], "browser": False}
-    live = browser = None
-    with Monitor(rig, cfg) as mon:
-        if view:
-            from depthguard.viz.browser import HeadlessBrowser, wait_for_client
-            from depthguard.viz.live import LiveView
+    def attach(mon):
+        from depthguard.viz.browser import HeadlessBrowser, wait_for_client
+        from depthguard.viz.live import LiveView
 
-            live = LiveView(rig, port=0, monitor=mon)
-            mon.sinks.append(live)
-            browser = HeadlessBrowser(live.url, size=(1024, 768), nice=BROWSER_NICE)
-            wait_for_client(live.server, 60.0)
-            out["browser"] = True
-            mon.push_joints(-0.002, script.q_cycle(0))
-            mon.step(-0.001)                       # the browser draws the scene once before the clock starts
-            time.sleep(3.0)
-        t0 = time.perf_counter() + 0.05
+        live = held["live"] = LiveView(rig, port=0, monitor=mon)
+        mon.sinks.append(live)
+        browser = held["browser"] = HeadlessBrowser(live.url, size=(1024, 768), nice=BROWSER_NICE)
+        wait_for_client(live.server, 60.0)
+        mon.push_joints(-0.002, script.q_cycle(0))
+        mon.step(-0.001)                       # the browser draws the scene once before the clock starts
+        time.sleep(3.0)
+        n0, cpu0 = live.updates, (live.cpu_s, _thread_cpu(live))
 
-        def camera(cid, source, phase):
-            k = 0
-            while not stop.is_set():
-                s = (k + phase) / CAMERA_HZ
-                if s + CAPTURE_LATENCY > duration:
-                    return
-                _sleep_until(t0 + s + CAPTURE_LATENCY, stop)
-                if not stop.is_set():
-                    mon.push_frame(Frame(cid, script.frame(source, s), s))
-                k += 1
+        def finish(wall: float) -> dict:
+            return {"updates": live.updates - n0, "wall": wall,
+                    "cpu": ((live.cpu_s - cpu0[0]) / wall, (_thread_cpu(live) - cpu0[1]) / wall),
+                    "update_s": list(live.update_s), "errors": list(live.errors),
+                    "browser": browser.proc.poll() is None and bool(live.server.get_clients())}
+        return finish
 
-        def joints():
-            i = 0
-            while not stop.is_set() and i * dt <= duration + 0.1:
-                _sleep_until(t0 + i * dt, stop)
-                mon.push_joints(i * dt, script.q_cycle(i))
-                i += 1
-
-        threads = [threading.Thread(target=camera, args=f, daemon=True) for f in feeds]
-        threads.append(threading.Thread(target=joints, daemon=True))
-        for th in threads:
-            th.start()
-        n0 = live.updates if live else 0
-        cpu0 = (live.cpu_s, _thread_cpu(live)) if live else (0.0, 0.0)
-        step0 = len(mon.step_s)
-        try:
-            for i in range(int(duration * CONTROL_HZ)):
-                _sleep_until(t0 + i * dt)
-                mon.step(i * dt)
-        finally:
-            stop.set()
-            for th in threads:
-                th.join(2.0)
-        wall = time.perf_counter() - t0
-        skip = step0 + int(SKIP_S * CONTROL_HZ)
-        out["step_s"] = list(mon.step_s[skip:])
-        if live is not None:
-            out["updates"] = live.updates - n0
-            out["wall"] = wall
-            out["cpu"] = ((live.cpu_s - cpu0[0]) / wall, (_thread_cpu(live) - cpu0[1]) / wall)
-            out["update_s"] = list(live.update_s)
-            out["browser"] = out["browser"] and browser.proc.poll() is None and bool(live.server.get_clients())
-            out["errors"] = list(live.errors)
-    if browser is not None:
-        browser.close()
-    return out
+    try:
+        return _run_monitor(script, rig, feeds, cfg, duration, attach=attach)
+    finally:
+        if "browser" in held:
+            held["browser"].close()
 
 
 def _thread_cpu(live) -> float:
