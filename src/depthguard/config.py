@@ -89,6 +89,11 @@ class MonitorConfig(BaseModel):
     real-time run (1–99, as ros2_control's ``thread_priority``; 0 = normal
     scheduling; where the system does not permit it the run goes on with
     normal scheduling and its summary says so, :mod:`depthguard.runtime.realtime`).
+    ``distance_hz``: in a real-time run the grid is queried on a thread of its own at this
+    rate and each cycle bounds the newest answer at its own joints (a point that moved by
+    Δ is reported ``Δ`` nearer); ``distance_margin`` the band beyond ``rho`` that the thread
+    queries: a point that moved farther since is queried by the cycle itself
+    (:mod:`depthguard.runtime.distances`); 0 Hz = every cycle queries (as fast runs do).
 
     ``remote_cameras``: rig cameras served by distributed camera units (R20):
     their voxels, not their frames, reach the monitor (``push_voxels``); the
@@ -123,6 +128,8 @@ class MonitorConfig(BaseModel):
     joint_wait_s: float = Field(0.05, ge=0.0, le=1.0)
     control_hz: float = Field(500.0, gt=0.0, le=10000.0)
     control_priority: int = Field(50, ge=0, le=99)
+    distance_hz: float = Field(250.0, ge=0.0, le=10000.0)
+    distance_margin: float = Field(0.02, gt=0.0, le=0.5)
     v_max: float = Field(1.5, gt=0.0, le=10.0)
     alpha: float = Field(5.0, gt=0.0, le=100.0)
     stop_time: float = Field(0.5, gt=0.0, le=10.0)

@@ -600,7 +600,7 @@ class DepthGridMap:
                       robot_free, out_free, out_kind, sil, gaps)
 
     def query(self, points, rho: float = 0.4, method: str = "hybrid",
-              threads: int | None = None) -> DistanceResult:
+              threads: int | None = None, rho_core: float | None = None) -> DistanceResult:
         """Distances of control points (N, 3) world metres to the fused obstacles (R12).
 
         threads : numba threads for this call. Default: one thread below
@@ -610,6 +610,12 @@ class DepthGridMap:
             classifies the cells it needs first, per pixel over the merged slice
             range of all points, on all threads by default (a few ms of work that
             splits well over image rows), then looks up.
+
+        rho_core : (lazy grid only) the mean / hybrid direction from the pixels within
+            ``rho_core <= rho``, the distance from every pixel within ``rho`` (a point with
+            none within ``rho_core`` gets the nearest and its direction); default ``rho``.
+            A result with ``rho > rho_core`` bounds the distance of a point that has moved
+            since (:mod:`depthguard.runtime.distances`).
 
         The arrays of the result are views of reused buffers, overwritten by
         the next query: ``.copy()`` the result to keep it.
@@ -622,6 +628,11 @@ class DepthGridMap:
             m = _METHODS[method]
         except (KeyError, TypeError):
             raise ValueError(f"method must be one of 'min', 'mean', 'hybrid' (got {method!r})") from None
+        rc = r if rho_core is None else check_rho(rho_core)
+        if rc > r:
+            raise ValueError(f"rho_core must be <= rho (got rho_core={rho_core!r}, rho={rho!r})")
+        if rc < r and not self.lazy:
+            raise ValueError("rho_core < rho needs the lazy grid (lazy=True)")
         n = len(p)
         if n > self._cap:
             self._alloc_points(n)
@@ -645,13 +656,20 @@ class DepthGridMap:
                 self._ensure(p, n, r)
                 if auto:
                     numba.set_num_threads(1)
-            self._run_query(p, n, r, m)
+            self._run_query(p, n, r, m, rc)
         finally:
             if prev is not None:
                 import numba
 
                 numba.set_num_threads(prev)
         return DistanceResult(self._dist[:n], self._dir[:n], self._obs[:n], self._count[:n])
+
+    def principal_view(self) -> tuple:
+        """``(R (3, 3), t (3,), pint, W, H)``: the principal camera's world → camera transform and
+        intrinsics row (fx, fy, cx, cy, …, min range, max range), the image the points' R26
+        test uses (:mod:`depthguard.runtime.distances`)."""
+        P = self.principal
+        return self._Rp, self._tp, self._pint, P.width, P.height
 
     def _ensure(self, p, n, r) -> None:
         """Classify (lazy, on the current numba threads) every cell a query of ``p`` needs.
@@ -670,7 +688,7 @@ class DepthGridMap:
                        self._frame, self._stamp, self._obits, self._cbits, self._clear, self._free_to,
                        self._ws, self._span)
 
-    def _run_query(self, p, n, r, m) -> None:
+    def _run_query(self, p, n, r, m, rc=None) -> None:
         if self.lazy:
             import numba
 
@@ -684,7 +702,7 @@ class DepthGridMap:
                                   fill, self._pkind, self._kfree, self._kpmin, self._kpmax, self._koff,
                                   self._kdims, self._rays_arg, self._orig_arg, self._kint_arg,
                                   len(self.others), self._kmemo, self._band, self._frame, self._stamp, self._cbits,
-                                  self._clear, self._free_to, self._axbuf)
+                                  self._clear, self._free_to, self._axbuf, r if rc is None else rc)
             return
         depth_grid_kernels.grid_distances(self._pfree, self._runs, self._nruns, self._tile_first, self._Rp, self._tp, self._pint,
                          self.d_min, self.delta_d, p, n, r, m,

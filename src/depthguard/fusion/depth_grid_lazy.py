@@ -515,12 +515,20 @@ def grid_distances_lazy(pfree, tmin, obits, cap_n, caps, ncaps, cap_lo, cap_hi, 
                         points, n_points, rho, method,
                         out_distance, out_direction, out_count, out_observed,
                         fill, pkind, kfree, kpmin, kpmax, koff, kdims, rays, origins, kint, nk, kmemo, band,
-                        frame, stamp, cbits, clear, free_to, axbuf):
+                        frame, stamp, cbits, clear, free_to, axbuf, rho_core):
     """:func:`~depthguard.fusion.depth_grid_kernels.grid_distances` over the memoised cells: same cases, same R10 distance, same
     R7 reduction. ``fill`` False: :func:`ensure_cells` was called first with the same
     points. ``fill`` True: the cells are classified here as they are met (one pass; only
     on one thread — the points' windows overlap). axbuf : (>= n_points, W) float64
-    workspace (each point's column terms ``ax``)."""
+    workspace (each point's column terms ``ax``).
+
+    ``rho_core <= rho`` (m): the mean / hybrid direction is that of the pixels within
+    ``rho_core`` (R7 with radius ``rho_core``); the pixels between ``rho_core`` and ``rho``
+    (the band) count for the distance only. A point with no pixel within ``rho_core`` but
+    one in the band gets the band's nearest distance and its direction (the min rule). With
+    ``rho_core == rho`` there is no band: the R7 answer of radius ``rho``. The band lets a
+    result stay a bound for a point that moved less than ``rho - rho_core`` since
+    (:mod:`depthguard.runtime.distances`)."""
     H = pfree.shape[0]
     W = pfree.shape[1]
     fx = pint[0]
@@ -536,8 +544,11 @@ def grid_distances_lazy(pfree, tmin, obits, cap_n, caps, ncaps, cap_lo, cap_hi, 
             continue
         u0, u1, v0, v1 = surveillance_window(xc, yc, dp, rho, fx, fy, cx, cy, rmin, W, H)
         rho2 = rho * rho
+        rc2 = rho_core * rho_core
         best2 = rho2
         n = 0
+        nb = 0                                                     # pixels in the band only
+        bb2 = rho2
         sD = 0.0
         dmin_found = np.inf
         sx = 0.0
@@ -581,7 +592,20 @@ def grid_distances_lazy(pfree, tmin, obits, cap_n, caps, ncaps, cap_lo, cap_hi, 
                                                          dmin, dd, ga, gb)
                     if not found:
                         continue
+                    if method != METHOD_MIN and D2 > rc2:                # the band: its nearest only
+                        if nb == 0 or D2 < bb2:
+                            bb2 = D2
+                            bx = vx
+                            by = vy
+                            bz = vz
+                        nb += 1
+                        continue
                     n, best2, dmin_found, bx, by, bz, sD, sx, sy, sz = _fold_pixel(
                         method, D2, vx, vy, vz, n, best2, dmin_found, bx, by, bz, sD, sx, sy, sz)
-        _finish_point(i, method, n, dmin_found, bx, by, bz, sD, sx, sy, sz, Rp, out_distance, out_direction,
-                      out_count)
+        if n == 0 and nb > 0:
+            dmin_found = math.sqrt(bb2)
+            _finish_point(i, METHOD_MIN, nb, dmin_found, bx, by, bz, sD, sx, sy, sz, Rp, out_distance,
+                          out_direction, out_count)
+        else:
+            _finish_point(i, method, n, dmin_found, bx, by, bz, sD, sx, sy, sz, Rp, out_distance, out_direction,
+                          out_count)

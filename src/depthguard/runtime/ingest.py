@@ -223,6 +223,7 @@ class FusionWorker:
         self.make_grid = make_grid
         self.settings = settings
         self.robot = robot
+        self.ahead_margin = 0.0          # m beyond rho classified ahead (the distance worker's band)
         self.swap_lock = threading.Lock()
         self.front: GridBuffer | None = None
         self._back: GridBuffer | None = None
@@ -313,7 +314,8 @@ class FusionWorker:
                                  changed=changed, silhouette_px=cfg.silhouette_px,
                                  gap_px=cfg.gap_px)
             if points is not None and len(points):
-                back.grid.query(points, rho=cfg.rho, method=cfg.method, threads=1)   # classify ahead
+                back.grid.query(points, rho=cfg.rho + self.ahead_margin, method=cfg.method,
+                                threads=1)                               # classify ahead
             for c in cams:
                 p = products[c]
                 if self._last_fused.get(c) != p.version:

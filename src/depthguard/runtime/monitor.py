@@ -33,12 +33,14 @@ from __future__ import annotations
 import math
 import threading
 import time
+from contextlib import contextmanager
 
 import numpy as np
 
 from depthguard.config import MonitorConfig
 from depthguard.control.reaction import reaction as reaction_of
 from depthguard.control.supervisor import SafetySupervisor, stop_reasons
+from depthguard.runtime.distances import DistanceWorker, bound_distances
 from depthguard.runtime.ingest import CameraWorker, FusionWorker
 from depthguard.runtime.joints import JointHistory
 from depthguard.runtime.result import CameraStatus, Reaction
@@ -108,6 +110,10 @@ class Monitor:
         self._t_last: float | None = None
         self._last_q: np.ndarray | None = None
         self._seen: dict[str, int] = {}          # camera -> version already used by a cycle
+        self._dist_worker: DistanceWorker | None = None     # real_time(): distances off this thread
+        self._worker_data = self.robot.create_data()
+        self.distance_fallbacks: dict[str, int] = {}   # cycles that queried the grid themselves, by why
+        self.distance_queries = 0
         self.frame_to_reaction_s: list[float] = []
         self.step_s: list[float] = []
         self.cycles = 0
@@ -251,26 +257,7 @@ class Monitor:
         D = np.full(m, np.inf)
         V = np.zeros((m, 3))
         obs = np.zeros(m, dtype=bool)
-        stamps: dict[str, float] = {}
-        with self.fusion.swap_lock:
-            buf = self.fusion.front
-            if buf is not None:
-                buf.lock.acquire()
-        if buf is not None:
-            try:
-                if buf.loaded:
-                    res = buf.grid.query(self._P, rho=cfg.rho, method=cfg.method, threads=1)
-                    D[:] = res.distance
-                    V[:] = res.direction
-                    obs[:] = res.observed
-                    stamps = dict(buf.stamps)
-                    now = time.perf_counter()
-                    for c, v in buf.versions.items():
-                        if self._seen.get(c) != v:
-                            self._seen[c] = v
-                            self.frame_to_reaction_s.append(now - buf.pushed_at[c])
-            finally:
-                buf.lock.release()
+        stamps = self._distances(cfg, q, D, V, obs)
         remote = cfg.remote_cameras
         if remote:                                     # the units' voxel boxes (R20, R25)
             caps = robot.collision_segments(q, cfg.robot_padding)
@@ -315,6 +302,92 @@ class Monitor:
         for s in self.sinks:
             s(r)
         return r
+
+    def _distances(self, cfg, q, D, V, obs) -> dict[str, float]:
+        """Distances of ``self._P`` into ``D``, ``V``, ``obs``: the distance worker's newest
+        answer bounded at ``self._P`` when it holds, else a query of the front grid here
+        (:mod:`depthguard.runtime.distances`). Returns the capture stamps of the frames used."""
+        worker = self._dist_worker
+        if worker is not None:
+            worker.request(q.copy())
+            snap = worker.latest(time.perf_counter())
+            if snap is None:
+                why = "no_recent_answer"
+            elif snap.rho != cfg.rho or snap.method != cfg.method:
+                why = "settings_changed"
+            elif not bound_distances(snap, self._P, cfg.rho, D, V, obs):
+                why = "moved_beyond_margin"
+            else:
+                self._count_frames(snap.versions, snap.pushed_at)
+                return dict(snap.stamps)
+            stamps = self._query_front(cfg, D, V, obs)
+            if stamps:                          # a grid answered here (not: no frame yet)
+                self.distance_fallbacks[why] = self.distance_fallbacks.get(why, 0) + 1
+            return stamps
+        return self._query_front(cfg, D, V, obs)
+
+    def _query_front(self, cfg, D, V, obs) -> dict[str, float]:
+        """Query the front grid on this thread (the cycle's own query)."""
+        stamps: dict[str, float] = {}
+        with self.fusion.swap_lock:
+            buf = self.fusion.front
+            if buf is not None:
+                buf.lock.acquire()
+        if buf is not None:
+            try:
+                if buf.loaded:
+                    res = buf.grid.query(self._P, rho=cfg.rho, method=cfg.method, threads=1)
+                    D[:] = res.distance
+                    V[:] = res.direction
+                    obs[:] = res.observed
+                    stamps = dict(buf.stamps)
+                    self._count_frames(buf.versions, buf.pushed_at)
+            finally:
+                buf.lock.release()
+        return stamps
+
+    def _count_frames(self, versions, pushed_at) -> None:
+        """Frame-to-reaction times of the frames a cycle uses for the first time."""
+        now = time.perf_counter()
+        for c, v in versions.items():
+            if self._seen.get(c) != v:
+                self._seen[c] = v
+                self.frame_to_reaction_s.append(now - pushed_at[c])
+
+    @contextmanager
+    def real_time(self):
+        """``with monitor.real_time(): ...`` around a real-time run's control loop, entered on
+        the control thread (after its SCHED_FIFO, :mod:`depthguard.runtime.realtime`): the grid
+        is queried on a thread of its own at ``distance_hz`` and each cycle bounds the newest
+        answer (:mod:`depthguard.runtime.distances`). ``distance_hz`` 0 or the ``mean`` method
+        (not a bound under motion): nothing changes. Fast runs do not use it: their logs do not
+        depend on thread timing."""
+        cfg = self.config
+        if cfg.distance_hz <= 0 or cfg.method == "mean" or self._dist_worker is not None:
+            yield self
+            return
+        worker = DistanceWorker(self.fusion, self._points_at, self._distance_settings, cfg.distance_hz,
+                                cfg.distance_margin)
+        self.fusion.ahead_margin = cfg.distance_margin
+        self._dist_worker = worker
+        worker.start()
+        try:
+            yield self
+        finally:
+            self._dist_worker = None
+            self.fusion.ahead_margin = 0.0
+            worker.close()
+            self.distance_queries += worker.queries
+
+    def _points_at(self, q) -> np.ndarray:
+        """(m, 3) the control points at ``q`` then the watch points (the distance worker's thread)."""
+        data = self._worker_data
+        self.robot.forward(q, data)
+        return np.concatenate([data.cp_positions, self._watch]) if len(self._watch) else data.cp_positions.copy()
+
+    def _distance_settings(self):
+        with self._settings_lock:
+            return self.config.rho, self.config.method
 
     # ------------------------------------------------------------ state
     @property

@@ -89,6 +89,8 @@ def summarise(monitor, stats: RunStats, wall_s: float, sources: dict, extra: dic
         "unobserved_cycles": stats.unobserved_cycles,
         "source_errors": list(stats.source_errors),
         "control_scheduling": stats.control_scheduling,
+        "distance_thread": {"queries": monitor.distance_queries,
+                            "cycles_that_queried_themselves": dict(monitor.distance_fallbacks)},
         "episodes": monitor.episodes,
         "step_ms": {"p50": pct(monitor.step_s, 50), "p99": pct(monitor.step_s, 99), "max": pct(monitor.step_s, 100)},
         "frame_to_reaction_ms": {"p50": pct(monitor.frame_to_reaction_s, 50),
@@ -250,7 +252,7 @@ def _run_paced(monitor, frame_sources, joint_source, duration, stop, emit, all_d
     from depthguard.runtime.realtime import realtime_control
 
     try:
-        with realtime_control(monitor.config.control_priority) as rt:
+        with realtime_control(monitor.config.control_priority) as rt, monitor.real_time():
             stats.control_scheduling = rt.status
             _paced_loop(monitor, stop, emit, all_done, clock, dt, t0, duration, next_status)
     finally:

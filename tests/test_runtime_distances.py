@@ -1,0 +1,167 @@
+"""Distances off the control thread (R12, R29): the band query, its bound at moved points, and
+the monitor's real-time mode.
+
+Truth: the depth grid's own answer queried at the moved points (a second query of the same
+frames, not the bound), the same grid queried with the min method (the band's distance), and
+the plain-numpy twin of the bound kernel. Frames: flacco-cell's noisy simulated cameras with
+the person of situation ``reach`` next to the robot, so that most control points have
+obstacles within rho.
+"""
+
+from __future__ import annotations
+
+import time
+
+import numpy as np
+import pytest
+
+from depthguard.runtime.distances import (DistanceSnapshot, DistanceWorker, bound_distances,
+                                          bound_distances_numpy)
+from depthguard.runtime.monitor import Monitor, warm_up
+from depthguard.sim import load_cell
+from depthguard.sources.frame import Frame
+
+RHO = 0.4
+MARGIN = 0.03
+TAU = 9.3                      # scene time of ``reach``: the person's hand near the end effector
+
+
+@pytest.fixture(scope="module")
+def setup():
+    from depthguard.sources.sim_source import SimFrames, SimWorld
+
+    cell = load_cell("flacco-cell")
+    rig = cell.rig
+    warm_up(rig, rig.monitor)
+    q = np.asarray(cell.scene.robot_q(TAU), dtype=np.float64)
+    sim = SimFrames(SimWorld("flacco-cell", seed=3))
+    frames = {cid: sim.render(cid, TAU, q) for cid in rig.camera_ids}
+    return rig, q, frames
+
+
+def loaded(rig, q, frames, cfg=None):
+    mon = Monitor(rig, cfg if cfg is not None else rig.monitor)
+    mon.push_joints(0.0, q)
+    mon.push_joints(0.01, q)
+    for cid, d in frames.items():
+        mon.push_frame(Frame(cid, d, 0.005))
+    mon.flush(timeout=120.0)
+    return mon
+
+
+def points_near(mon, q, rng):
+    """The control points at ``q`` and two clouds of points around them (m, 3)."""
+    data = mon.robot.create_data()
+    mon.robot.forward(q, data)
+    P = data.cp_positions.copy()
+    return np.concatenate([P, P + rng.normal(0, 0.1, P.shape), P + rng.normal(0, 0.25, P.shape)])
+
+
+def query(grid, P, **kw):
+    r = grid.query(P, threads=1, **kw)
+    return r.distance.copy(), r.direction.copy(), r.observed.copy()
+
+
+def discretisation(grid) -> float:
+    """m: the grid's slice depth plus a pixel's diagonal at its far end (R10, R12)."""
+    P = grid.principal
+    return grid.delta_d + float(np.hypot(1 / P.fx, 1 / P.fy)) * grid.d_max
+
+
+def test_band_query_keeps_the_rho_answer_and_adds_the_nearest_in_the_band(setup):
+    rig, q, frames = setup
+    with loaded(rig, q, frames) as mon:
+        grid = mon.fusion.front.grid
+        P = points_near(mon, q, np.random.default_rng(0))
+        D, V, obs = query(grid, P, rho=RHO, method="hybrid")
+        Db, Vb, obsb = query(grid, P, rho=RHO + MARGIN, method="hybrid", rho_core=RHO)
+        Dm, Vm, _ = query(grid, P, rho=RHO + MARGIN, method="min")
+    inside = np.isfinite(D)
+    band = ~inside & np.isfinite(Db)
+    assert inside.sum() >= 10, "the scene must put obstacles within rho of many points"
+    # within rho: the R7 hybrid answer of radius rho, bit for bit (distance and mean direction)
+    assert np.array_equal(D[inside], Db[inside]) and np.array_equal(V[inside], Vb[inside])
+    # only in the band: the nearest (the min rule at rho + margin), never nearer than rho
+    assert np.array_equal(Db[band], Dm[band]) and np.allclose(Vb[band], Vm[band], atol=1e-12)
+    assert np.all(Db[band] >= RHO - 1e-12)
+    assert np.all(np.isinf(Db[~inside & ~band])) and np.array_equal(obs, obsb)
+    with pytest.raises(ValueError, match="rho_core must be <= rho"):
+        grid.query(P, rho=RHO, rho_core=RHO + 0.01)
+
+
+def test_bound_at_moved_points_never_exceeds_the_grids_answer_there(setup):
+    rig, q, frames = setup
+    rng = np.random.default_rng(1)
+    with loaded(rig, q, frames) as mon:
+        grid = mon.fusion.front.grid
+        P0 = points_near(mon, q, rng)
+        D0, V0, obs0 = query(grid, P0, rho=RHO + MARGIN, method="hybrid", rho_core=RHO)
+        snap = DistanceSnapshot(P0, D0, V0, obs0, RHO, MARGIN, "hybrid", {}, {}, {}, grid.principal_view(), 0.0)
+        m = len(P0)
+        checked = finite = 0
+        over = 0.0
+        tol = discretisation(grid)
+        for _ in range(25):
+            step = rng.normal(size=P0.shape)
+            step *= rng.uniform(0, MARGIN, (m, 1)) / np.linalg.norm(step, axis=1)[:, None]
+            P = P0 + step
+            D, V, obs = np.empty(m), np.empty((m, 3)), np.empty(m, dtype=bool)
+            assert bound_distances(snap, P, RHO, D, V, obs)
+            twin = bound_distances_numpy(snap, P, RHO)
+            assert np.array_equal(twin[0], D) and np.array_equal(twin[1], V) and np.array_equal(twin[2], obs)
+            Dt, _, obst = query(grid, P, rho=RHO, method="hybrid")
+            # R12 kept: the bound is never farther than the grid's own answer at P by more than
+            # the discretisation (the grid's distance is one to a point of each cell, not the
+            # cell's nearest; measured: never farther at all); "nothing within rho" only where
+            # the grid finds nothing within rho - tol; observed only where it is
+            fin = np.isfinite(Dt)
+            assert np.all(D[fin] <= Dt[fin] + tol)
+            over = max(over, float(np.max(D[fin] - Dt[fin], initial=0.0)))
+            assert np.all(Dt[np.isinf(D) & fin] >= RHO - tol)
+            assert not np.any(obs & ~obst)
+            checked += m
+            finite += int(np.isfinite(D).sum())
+        assert finite > checked // 4
+        print(f"bound farther than the grid's answer at the moved points by at most {over * 1e3:.3f} mm")
+        # a point that moved farther than the margin: no answer, nothing written
+        P = P0.copy()
+        P[3, 0] += MARGIN * 1.01
+        D = np.full(m, -1.0)
+        assert not bound_distances(snap, P, RHO, D, np.empty((m, 3)), np.empty(m, dtype=bool))
+        assert np.all(D == -1.0) and bound_distances_numpy(snap, P, RHO) is None
+
+
+def test_real_time_monitor_bounds_the_workers_answers_and_falls_back_when_it_has_none(setup):
+    rig, q, frames = setup
+    cfg = rig.monitor.with_changes(distance_hz=500.0)
+    with loaded(rig, q, frames, cfg) as mon:
+        inline = mon.step(0.011, q)
+        with mon.real_time():
+            deadline = time.perf_counter() + 30.0
+            while mon._dist_worker.queries < 3 and time.perf_counter() < deadline:
+                mon.step(0.011, q)
+                time.sleep(0.002)
+            assert mon._dist_worker.queries >= 3, mon._dist_worker.last_error
+            still = mon.step(0.011, q)
+            # a robot that has not moved: the worker's answer itself
+            assert np.array_equal(still.distance, inline.distance)
+            assert np.array_equal(still.observed, inline.observed)
+            assert still.frame_stamps == inline.frame_stamps
+            # moved a little: never farther than the grid's answer at the new joints
+            q2 = q + 0.004
+            fb = sum(mon.distance_fallbacks.values())
+            r2 = mon.step(0.012, q2)
+            assert sum(mon.distance_fallbacks.values()) == fb, mon.distance_fallbacks    # the bound answered
+        truth = mon.step(0.012, q2)                  # the worker is gone: this cycle queried
+        assert sum(mon.distance_fallbacks.values()) == fb
+        fin = np.isfinite(truth.distance)
+        tol = discretisation(mon.fusion.front.grid)
+        assert np.all(r2.distance[fin] <= truth.distance[fin] + tol)
+        assert np.all(truth.distance[np.isinf(r2.distance) & fin] >= cfg.rho - tol)
+        # the worker without an answer (stopped): the cycle queries the grid itself, same answer
+        worker = DistanceWorker(mon.fusion, mon._points_at, mon._distance_settings, 500.0, MARGIN)
+        mon._dist_worker = worker                   # never started: no answer
+        r3 = mon.step(0.013, q2)
+        mon._dist_worker = None
+        assert mon.distance_fallbacks.get("no_recent_answer", 0) >= 1
+        assert np.array_equal(r3.distance, truth.distance)
