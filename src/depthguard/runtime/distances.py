@@ -21,8 +21,11 @@ points ``P`` (:func:`bound_distances`):
 * A point that moved more than ``margin`` since the snapshot, a snapshot older
   than ``max_age_s`` of wall time (the worker starved or failed), another ρ
   or method than the cycle's: the cycle queries the grid itself, as without
-  the worker. ``observed`` is the snapshot's and ``P`` in the principal's
-  image and range (R26).
+  the worker — unless the grid is being built (one grid,
+  :meth:`~depthguard.runtime.ingest.FusionWorker.set_single`): the cycle does
+  not wait; it keeps the bound where it holds and reports the other points
+  unobserved (R26: cannot judge), which slows the robot. ``observed`` is the
+  snapshot's and ``P`` in the principal's image and range (R26).
 * The frames' capture stamps that the supervision checks (R27) are those of
   the snapshot's grid: an old snapshot makes the cameras older, never younger.
 
@@ -70,13 +73,13 @@ class DistanceSnapshot:
 
 
 @numba.njit(cache=True, nogil=True)
-def _bound_kernel(P0, D0, V0, obs0, P, rho, margin, R, t, pint, W, H, D, V, obs):
+def _bound_kernel(P0, D0, V0, obs0, P, rho, margin, R, t, pint, W, H, D, V, obs, strict):
     m = P.shape[0]
     for i in range(m):
         dx = P[i, 0] - P0[i, 0]
         dy = P[i, 1] - P0[i, 1]
         dz = P[i, 2] - P0[i, 2]
-        if dx * dx + dy * dy + dz * dz > margin * margin:
+        if strict and dx * dx + dy * dy + dz * dz > margin * margin:
             return False
     fx = pint[0]
     fy = pint[1]
@@ -106,23 +109,29 @@ def _bound_kernel(P0, D0, V0, obs0, P, rho, margin, R, t, pint, W, H, D, V, obs)
             D[i] = np.inf
             for a in range(3):
                 V[i, a] = 0.0
+            if not math.isfinite(d) and delta > margin:
+                obs[i] = False          # nothing within rho + margin, moved farther: cannot judge
     return True
 
 
-def bound_distances(snap: DistanceSnapshot, P, rho: float, D, V, obs) -> bool:
+def bound_distances(snap: DistanceSnapshot, P, rho: float, D, V, obs, strict: bool = True) -> bool:
     """Bound ``snap`` at the points ``P`` (m, 3) into ``D`` (m,), ``V`` (m, 3), ``obs`` (m,)
-    (module docstring). Returns False — and writes nothing — when a point moved more than
-    ``snap.margin`` (the caller queries the grid itself)."""
+    (module docstring). ``strict``: returns False — and writes nothing — when a point moved
+    more than ``snap.margin`` (the caller queries the grid itself). Not strict (the grid is
+    busy and the cycle must not wait): such a point keeps its bound ``D₀ - Δ`` where it had
+    something within ``rho + margin``, and is *unobserved* (cannot judge, R26) where it had
+    nothing — it may have come within rho of something."""
     R, t, pint, W, H = snap.view
     return bool(_bound_kernel(snap.P, snap.D, snap.V, snap.observed, P, float(rho), float(snap.margin),
-                              R, t, pint, int(W), int(H), D, V, obs))
+                              R, t, pint, int(W), int(H), D, V, obs, bool(strict)))
 
 
-def bound_distances_numpy(snap: DistanceSnapshot, P, rho: float):
-    """Plain twin of :func:`bound_distances`: ``(D, V, obs)`` or None when a point moved too far."""
+def bound_distances_numpy(snap: DistanceSnapshot, P, rho: float, strict: bool = True):
+    """Plain twin of :func:`bound_distances`: ``(D, V, obs)``, or None when strict and a point
+    moved too far."""
     P = np.asarray(P, dtype=np.float64)
     delta = np.linalg.norm(P - snap.P, axis=1)
-    if np.any(delta > snap.margin):
+    if strict and np.any(delta > snap.margin):
         return None
     R, t, pint, W, H = snap.view
     c = P @ np.asarray(R).T + t
@@ -135,7 +144,8 @@ def bound_distances_numpy(snap: DistanceSnapshot, P, rho: float):
     near = np.isfinite(d) & (d < rho)
     D = np.where(near, np.maximum(d, 0.0), np.inf)
     V = np.where(near[:, None], snap.V, 0.0)
-    return D, V, snap.observed & seen
+    undecided = ~np.isfinite(d) & (delta > snap.margin)
+    return D, V, snap.observed & seen & ~undecided
 
 
 class DistanceWorker:
@@ -183,6 +193,10 @@ class DistanceWorker:
         if s is None or now - s.wall > self.max_age_s:
             return None
         return s
+
+    def newest(self) -> DistanceSnapshot | None:
+        """The newest snapshot however old (None before the first)."""
+        return self._snap
 
     def close(self, timeout: float = 2.0) -> None:
         self._stop.set()
@@ -234,15 +248,13 @@ class DistanceWorker:
         fusion = self.fusion
         with fusion.swap_lock:
             buf = fusion.front
-            if buf is None:
-                return
-            buf.lock.acquire()
+        if buf is None:
+            return
+        buf.lock.acquire()        # may wait for a build into the one grid; never with swap_lock held
         try:
             if not buf.loaded:
                 return
             grid = buf.grid
-            if not hasattr(grid, "principal_view"):   # one camera: no band; the cycle queries itself
-                return
             res = grid.query(P, rho=rho + self.margin, method=method, threads=1, rho_core=rho)
             snap = DistanceSnapshot(P, res.distance.copy(), res.direction.copy(), res.observed.copy(), rho,
                                     self.margin, method, dict(buf.stamps), dict(buf.versions),

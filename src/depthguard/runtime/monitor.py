@@ -304,35 +304,50 @@ class Monitor:
         return r
 
     def _distances(self, cfg, q, D, V, obs) -> dict[str, float]:
-        """Distances of ``self._P`` into ``D``, ``V``, ``obs``: the distance worker's newest
-        answer bounded at ``self._P`` when it holds, else a query of the front grid here
-        (:mod:`depthguard.runtime.distances`). Returns the capture stamps of the frames used."""
+        """Distances of ``self._P`` into ``D``, ``V``, ``obs``; returns the capture stamps of the
+        frames used. With the distance worker (:meth:`real_time`): its newest answer bounded at
+        ``self._P``; when that answer is older than the worker's ``max_age_s`` (the worker
+        starved or failed) or a point moved beyond the margin, a query of the grid here — unless
+        the one grid is being built: then the bound of the newest answer however old (its
+        frames' stamps say how old), points it cannot decide unobserved
+        (:mod:`depthguard.runtime.distances`). Without the worker: a query of the front grid."""
         worker = self._dist_worker
-        if worker is not None:
-            worker.request(q.copy())
-            snap = worker.latest(time.perf_counter())
-            if snap is None:
-                why = "no_recent_answer"
-            elif snap.rho != cfg.rho or snap.method != cfg.method:
-                why = "settings_changed"
-            elif not bound_distances(snap, self._P, cfg.rho, D, V, obs):
-                why = "moved_beyond_margin"
-            else:
-                self._count_frames(snap.versions, snap.pushed_at)
-                return dict(snap.stamps)
-            stamps = self._query_front(cfg, D, V, obs)
-            if stamps:                          # a grid answered here (not: no frame yet)
-                self.distance_fallbacks[why] = self.distance_fallbacks.get(why, 0) + 1
-            return stamps
-        return self._query_front(cfg, D, V, obs)
+        if worker is None:
+            return self._query_front(cfg, D, V, obs)
+        worker.request(q.copy())
+        snap = worker.newest()
+        usable = snap is not None and snap.rho == cfg.rho and snap.method == cfg.method
+        if not usable:
+            why = "no_answer" if snap is None else "settings_changed"
+        elif time.perf_counter() - snap.wall > worker.max_age_s:
+            why = "answer_too_old"
+        elif bound_distances(snap, self._P, cfg.rho, D, V, obs):
+            self._count_frames(snap.versions, snap.pushed_at)
+            return dict(snap.stamps)
+        else:
+            why = "moved_beyond_margin"
+        stamps = self._query_front(cfg, D, V, obs, wait=not self.fusion.single)
+        if stamps is None:                      # the one grid is being built: never wait
+            if not usable:
+                return {}                       # nothing to bound: unobserved, no frame in use
+            why += "_grid_busy"
+            if not bound_distances(snap, self._P, cfg.rho, D, V, obs):
+                bound_distances(snap, self._P, cfg.rho, D, V, obs, strict=False)
+                why += "_some_points_unjudged"
+            self._count_frames(snap.versions, snap.pushed_at)
+            stamps = dict(snap.stamps)
+        if stamps:                              # a grid answered (not: no frame yet)
+            self.distance_fallbacks[why] = self.distance_fallbacks.get(why, 0) + 1
+        return stamps
 
-    def _query_front(self, cfg, D, V, obs) -> dict[str, float]:
-        """Query the front grid on this thread (the cycle's own query)."""
+    def _query_front(self, cfg, D, V, obs, wait: bool = True) -> dict[str, float] | None:
+        """Query the front grid on this thread (the cycle's own query). ``wait`` False: None
+        when the grid is locked (a build into the one grid, or another reader)."""
         stamps: dict[str, float] = {}
         with self.fusion.swap_lock:
             buf = self.fusion.front
-            if buf is not None:
-                buf.lock.acquire()
+            if buf is not None and not buf.lock.acquire(blocking=wait):
+                return None
         if buf is not None:
             try:
                 if buf.loaded:
@@ -364,20 +379,43 @@ class Monitor:
         depend on thread timing."""
         cfg = self.config
         if cfg.distance_hz <= 0 or cfg.method == "mean" or self._dist_worker is not None:
-            yield self
+            single = self.fusion.single
+            if self._dist_worker is None:
+                self.fusion.set_single(False)    # the cycles read the grid: two, never wait
+            try:
+                yield self
+            finally:
+                self.fusion.set_single(single)
             return
         worker = DistanceWorker(self.fusion, self._points_at, self._distance_settings, cfg.distance_hz,
                                 cfg.distance_margin)
         self.fusion.ahead_margin = cfg.distance_margin
+        single = self.fusion.single
+        self.fusion.set_single(True)             # no cycle reads the grid: one grid, half the builds' work
         self._dist_worker = worker
         worker.start()
         try:
             yield self
         finally:
             self._dist_worker = None
+            self.fusion.set_single(single)
             self.fusion.ahead_margin = 0.0
             worker.close()
             self.distance_queries += worker.queries
+
+    @contextmanager
+    def replay(self):
+        """``with monitor.replay(): ...`` for runs that ``flush()`` before every ``step`` (the
+        simulated closed loop, fast replays): one grid instead of two
+        (:meth:`~depthguard.runtime.ingest.FusionWorker.set_single` — the same answers at half
+        the work per frame when cameras take turns); a cycle then waits for a build in progress,
+        which a real-time loop must never do."""
+        single = self.fusion.single
+        self.fusion.set_single(True)
+        try:
+            yield self
+        finally:
+            self.fusion.set_single(single)
 
     def _points_at(self, q) -> np.ndarray:
         """(m, 3) the control points at ``q`` then the watch points (the distance worker's thread)."""

@@ -147,7 +147,9 @@ def run(monitor, frame_sources: list, joint_source, *, duration: float | None = 
         t0 = time.time()                          # live sources stamp with the wall clock: so does the run
     try:
         if fast:
-            return _run_fast(monitor, frame_sources, joint_source, duration, stop, emit, all_done, stats, wall0, t0)
+            with monitor.replay():                # one grid: each cycle follows a flush
+                return _run_fast(monitor, frame_sources, joint_source, duration, stop, emit, all_done, stats,
+                                 wall0, t0)
         return _run_real_time(monitor, frame_sources, joint_source, duration, stop, emit, all_done, stats, wall0, t0)
     except KeyboardInterrupt:
         stats.interrupted = True

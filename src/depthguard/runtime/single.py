@@ -11,6 +11,8 @@ and ``step`` treat one camera and several alike.
 
 from __future__ import annotations
 
+import numpy as np
+
 from depthguard.distance.api import DistanceResult, DistanceWorkspace
 
 __all__ = ["OneCameraMap"]
@@ -33,6 +35,28 @@ class OneCameraMap:
         self.ws.set_depth(depths[cid], robot_depth=rd, invalid=invalid, robot_mode="drop",
                           robot_offset=robot_offset, silhouette_px=silhouette_px, gap_px=gap_px)
 
-    def query(self, points, rho: float = 0.4, method: str = "hybrid", threads: int | None = None) -> DistanceResult:
-        """Distances of the points (N, 3) world m to what the camera sees (views of reused buffers)."""
-        return self.ws.query(points, rho=rho, method=method)
+    def query(self, points, rho: float = 0.4, method: str = "hybrid", threads: int | None = None,
+              rho_core: float | None = None) -> DistanceResult:
+        """Distances of the points (N, 3) world m to what the camera sees (views of reused buffers).
+        ``rho_core < rho``: the answer of radius ``rho_core`` where it finds something, else the
+        nearest within ``rho`` (the min rule), as the depth grid's band
+        (:meth:`depthguard.fusion.depth_grid.DepthGridMap.query`)."""
+        if rho_core is None or rho_core >= rho:
+            if rho_core is not None and rho_core > rho:
+                raise ValueError(f"rho_core must be <= rho (got rho_core={rho_core!r}, rho={rho!r})")
+            return self.ws.query(points, rho=rho, method=method)
+        core = self.ws.query(points, rho=rho_core, method=method)
+        D, V, obs, n = (np.array(a) for a in (core.distance, core.direction, core.observed, core.count))
+        wide = self.ws.query(points, rho=rho, method="min")
+        band = ~np.isfinite(D)
+        D[band] = wide.distance[band]
+        V[band] = wide.direction[band]
+        n[band] = wide.count[band]
+        return DistanceResult(D, V, obs, n)
+
+    def principal_view(self) -> tuple:
+        """``(R, t, pint, W, H)`` of the camera, as :meth:`DepthGridMap.principal_view`."""
+        c = self.camera
+        pint = np.array([c.fx, c.fy, c.cx, c.cy, float(c.width), float(c.height), c.min_range, c.max_range])
+        return np.ascontiguousarray(c.R, dtype=np.float64), np.ascontiguousarray(c.t, dtype=np.float64), pint, \
+            c.width, c.height

@@ -314,7 +314,8 @@ class ClosedLoop:
 
         mon = Monitor(self.cell.rig, self.monitor_config())
         try:
-            return self._run(T, steps, snapshot_times, cams_sim, timing, mon)
+            with mon.replay():                     # frames flushed before each cycle: one grid
+                return self._run(T, steps, snapshot_times, cams_sim, timing, mon)
         finally:
             mon.close()
             cams_sim.close()
