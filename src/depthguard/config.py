@@ -82,6 +82,12 @@ class MonitorConfig(BaseModel):
     ``joint_wait_s`` how long a frame stamped after the newest joint state
     waits for the joints to catch up before it is refused.
 
+    Drift watch (R34, :mod:`depthguard.runtime.drift`): ``drift_watch`` turns it on; a camera
+    whose frames show more than ``drift_share`` of the known static scene farther than expected
+    (by ``drift_sigma`` times its noise + 1 cm) in ``drift_frames`` consecutive frames is
+    untrusted (stop reason ``untrusted:<camera>``) until recalibrated or accepted
+    (``Monitor.accept_camera``).
+
     Reaction (R13, R14): ``v_max``, ``alpha`` of the repulsion and the
     limits; ``stop_time`` / ``resume_time`` the override's ramps from 1 to 0
     and back; ``control_hz`` the rate ``step`` is called at (its ``dt``);
@@ -126,6 +132,10 @@ class MonitorConfig(BaseModel):
     joints_stale_s: float = Field(0.05, gt=0.0, le=10.0)
     joint_history_s: float = Field(1.0, gt=0.0, le=60.0)
     joint_wait_s: float = Field(0.05, ge=0.0, le=1.0)
+    drift_watch: bool = True
+    drift_share: float = Field(0.02, gt=0.0, le=1.0)
+    drift_sigma: float = Field(3.0, gt=0.0, le=20.0)
+    drift_frames: int = Field(3, ge=1, le=300)
     control_hz: float = Field(500.0, gt=0.0, le=10000.0)
     control_priority: int = Field(50, ge=0, le=99)
     distance_hz: float = Field(250.0, ge=0.0, le=10000.0)

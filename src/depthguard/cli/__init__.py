@@ -22,6 +22,7 @@ _COMMAND_MODULES = [
     "depthguard.cli.view",
     "depthguard.cli.bag",
     "depthguard.cli.realsense",
+    "depthguard.cli.calibrate",
 ]
 
 for _m in _COMMAND_MODULES:

@@ -42,6 +42,7 @@ import numpy as np
 
 from depthguard.camera import check_depth_image
 from depthguard.filtering.expected import ExpectedDepth
+from depthguard.runtime.drift import DriftWatch
 from depthguard.runtime.joints import JointHistory, OutsideHistory
 
 __all__ = ["CameraProduct", "CameraWorker", "GridBuffer", "FusionWorker", "background_thread"]
@@ -90,10 +91,12 @@ class CameraWorker:
     """
 
     def __init__(self, cam, robot, static_meshes, joints: JointHistory, joint_wait_s: float,
-                 on_product, name: str | None = None):
+                 on_product, name: str | None = None, drift: dict | None = None):
         self.camera = cam
         self.id = cam.id
         self.expected = ExpectedDepth(cam, robot, static_meshes)
+        # R34: the drift watch on the static scene (settings: DriftWatch's keywords), None = off
+        self.drift = DriftWatch(cam, self.expected.static, **drift) if drift is not None else None
         self.joints = joints
         self.joint_wait_s = float(joint_wait_s)
         self.on_product = on_product
@@ -170,6 +173,8 @@ class CameraWorker:
         if not math.isfinite(stamp):
             self._refuse("bad_stamp", f"frame stamp {stamp!r} is not finite")
             return
+        if self.drift is not None:
+            self.drift.update(depth, stamp)       # R34: a cheap statistic on a subsample
         deadline = time.perf_counter() + self.joint_wait_s
         while True:
             try:

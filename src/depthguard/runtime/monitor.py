@@ -129,8 +129,11 @@ class Monitor:
         return tuple([p] + [c for c in ids if c != p])
 
     def _start_worker(self, cid: str) -> None:
+        cfg = self.config
+        drift = (dict(k_sigma=cfg.drift_sigma, share=cfg.drift_share, frames=cfg.drift_frames)
+                 if cfg.drift_watch else None)                       # R34
         self._workers[cid] = CameraWorker(self._cameras[cid], self.robot, self._static, self.joints,
-                                          self.config.joint_wait_s, self.fusion.notify)
+                                          cfg.joint_wait_s, self.fusion.notify, drift=drift)
 
     def _make_grid(self, cams: tuple[str, ...]):
         from depthguard.fusion.depth_grid import DepthGridMap
@@ -220,6 +223,28 @@ class Monitor:
             self._camera_ids = self._camera_ids + (camera_id,)
         self._added_at[camera_id] = -math.inf if t is None else float(t)
 
+    def accept_camera(self, camera_id: str) -> None:
+        """The user trusts camera ``camera_id`` as it is now (R34): its drift flag is cleared and its
+        current residual level becomes the baseline — a further growth is flagged again. (A moved
+        camera is better recalibrated: ``depthguard calibrate``, then run with the corrected rig.)"""
+        w = self._workers.get(camera_id)
+        if w is None:
+            raise ValueError(f"camera {camera_id!r} is not monitored; monitored: {', '.join(self._camera_ids)}")
+        if w.drift is not None:
+            w.drift.accept()
+
+    def drift(self) -> dict:
+        """Per monitored camera: ``untrusted``, the last judged ``share`` farther than the static
+        scene, its ``baseline``, the ``flagged_at`` stamp and the ``message`` (R34); {} when off."""
+        out = {}
+        for c, w in list(self._workers.items()):
+            d = w.drift
+            if d is not None:
+                out[c] = {"untrusted": d.untrusted, "share": d.share, "baseline": d.baseline,
+                          "flagged_at": d.flagged_at, "judged": d.judged, "samples": d.samples,
+                          "message": d.message}
+        return out
+
     def remove_camera(self, camera_id: str) -> None:
         """Stop monitoring a camera: its frames are no longer awaited nor used. The principal
         can be removed: the next camera becomes principal."""
@@ -271,6 +296,7 @@ class Monitor:
         # an added camera is not awaited before its first frame only while some monitored camera
         # has a frame in use: a grid made of removed cameras' frames alone must not run unsupervised
         in_use = any(c in stamps for c in ids)
+        untrusted: dict[str, str] = {}
         for i, c in enumerate(ids):
             w = self._workers.get(c)
             st = stamps.get(c)
@@ -278,9 +304,15 @@ class Monitor:
             awaited = not (st is None and c in self._added_at and in_use)   # added, no frame yet: not awaited
             ages[i] = age if awaited else 0.0
             state = "waiting" if st is None else ("stale" if age > limit + 1e-9 else "fresh")
+            dw = w.drift if w is not None else None
+            if dw is not None and dw.untrusted:       # R34: moved; latched until recalibrated or accepted
+                state = "untrusted"
+                untrusted[c] = dw.message
             cams[c] = CameraStatus(age, state, w.frames if w else 0, w.refused if w else 0,
                                    -math.inf if st is None else st)
         reasons = stop_reasons(ages, limit, ids, obs[:m_cp], D[:m_cp], V[:m_cp], self._cp_names)
+        for c, msg in untrusted.items():
+            reasons[f"untrusted:{c}"] = msg
         if joints_age > cfg.joints_stale_s + 1e-9:
             reasons["stale:joints"] = (f"joint states: none for more than {cfg.joints_stale_s * 1e3:.0f} ms "
                                        f"- stale data (R27)" if latest is not None else

@@ -22,7 +22,9 @@ class CameraStatus:
 
     ``age_s``: seconds since the capture of its newest frame in use (``inf``
     before the first); ``state``: ``"fresh"``, ``"stale"`` (older than its
-    limit, R27), ``"waiting"`` (no frame yet); ``frames``: frames used so
+    limit, R27), ``"waiting"`` (no frame yet), ``"untrusted"`` (the drift watch found it
+    moved against the static scene, R34: a stop reason until recalibrated or accepted,
+    :meth:`depthguard.runtime.Monitor.accept_camera`); ``frames``: frames used so
     far; ``refused``: frames refused so far (bad image, stamp outside the
     joint history, R30); ``stamp``: capture stamp of the frame in use.
     """

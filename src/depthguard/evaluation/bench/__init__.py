@@ -33,6 +33,7 @@ _MODULES = [
     "depthguard.evaluation.bench.realsense",
     "depthguard.evaluation.bench.bag",
     "depthguard.evaluation.bench.soak",
+    "depthguard.evaluation.bench.calibrate",
 ]
 
 

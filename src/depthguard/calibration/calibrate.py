@@ -1,0 +1,164 @@
+"""Check and refine every camera of a rig against the known static scene (R34).
+
+:func:`calibrate_camera` takes a camera, one or more of its depth frames
+(H, W) float32 metres and the joints the robot stood at for each, and
+
+1. fuses the frames per pixel (the median of the valid measurements; a pixel
+   valid in fewer than half of them is left out — moving people vanish);
+2. checks the pose it was given: residual statistics and a verdict
+   (:func:`~depthguard.calibration.residuals.residual_stats`), robot removed;
+3. refines the pose (:func:`~depthguard.calibration.refine.refine_pose`) and
+   reports the directions the scene does not constrain (kept as given);
+4. checks the refined pose the same way.
+
+:func:`calibrate_rig` does this for each camera of a rig; :func:`pose_diff`
+prints what changed.
+"""
+
+from __future__ import annotations
+
+import math
+from dataclasses import dataclass
+
+import numpy as np
+
+from depthguard.calibration.refine import Refinement, pose_error, refine_pose
+from depthguard.calibration.residuals import ResidualStats, residual_stats
+from depthguard.calibration.scene import StaticScene
+
+__all__ = ["CameraCalibration", "calibrate_camera", "calibrate_rig", "fuse_frames", "pose_diff"]
+
+
+def fuse_frames(frames) -> np.ndarray:
+    """(H, W) float32 m: per-pixel median of the valid (finite, > 0) values of a list of (H, W)
+    frames; 0 where fewer than half of the frames measured."""
+    stack = np.stack([np.asarray(f, dtype=np.float32) for f in frames])
+    if stack.shape[0] == 1:
+        out = stack[0].copy()
+        out[~np.isfinite(out)] = 0.0
+        return out
+    valid = np.isfinite(stack) & (stack > 0)
+    data = np.where(valid, stack, np.nan)
+    with np.errstate(all="ignore"):
+        import warnings
+        with warnings.catch_warnings():
+            warnings.simplefilter("ignore", RuntimeWarning)
+            med = np.nanmedian(data, axis=0)
+    enough = valid.sum(axis=0) * 2 >= stack.shape[0]
+    return np.where(enough & np.isfinite(med), med, 0.0).astype(np.float32)
+
+
+@dataclass
+class CameraCalibration:
+    """One camera's check and refinement: ``before`` / ``after`` :class:`ResidualStats`, the
+    ``refinement``, the camera as given (``camera``) and refined (``refined``)."""
+    camera: object
+    refined: object
+    before: ResidualStats
+    after: ResidualStats
+    refinement: Refinement
+
+    @property
+    def correction(self) -> tuple[float, float]:
+        """``(degrees, metres)`` between the given and the refined pose."""
+        return pose_error(self.camera.world_from_camera, self.refined.world_from_camera)
+
+    def report(self) -> list[str]:
+        """Lines for a terminal: the check before and after, the refinement, the unconstrained directions."""
+        ref = self.refinement
+        deg, m = self.correction
+        lines = [f"camera {self.camera.id}: as given {self.before.line()}",
+                 f"  refined ({ref.iterations} iterations, {'converged' if ref.converged else 'NOT converged'}, "
+                 f"{ref.inliers} of {ref.pixels} pixels inliers): moved {deg:.3f} deg, {m * 1e3:.1f} mm",
+                 f"  refined pose: {self.after.line()}"]
+        for s in ref.unconstrained:
+            lines.append(f"  NOT CONSTRAINED by the scene (kept as given): {s}")
+        return lines
+
+
+def _robot_fn(robot, qs):
+    if robot is None or not qs:
+        return None
+    uniq = []
+    for q in qs:
+        qa = np.asarray(q, dtype=np.float64)
+        if not any(np.array_equal(qa, u) for u in uniq):
+            uniq.append(qa)
+    meshes = [list(robot.link_meshes(q)) for q in uniq]
+
+    def robot_depth(cam) -> np.ndarray:
+        from depthguard.render import Renderer
+        r = Renderer(cam)
+        out = np.zeros(cam.shape, dtype=np.float32)
+        for ms in meshes:
+            d, _ = r.render(ms)
+            np.maximum(out, d, out=out)          # only "> 0 = robot" is used
+        return out
+
+    return robot_depth
+
+
+def calibrate_camera(cam, frames, scene: StaticScene, robot=None, qs=None, refine: bool = True,
+                     stride: int | None = None) -> CameraCalibration:
+    """Check (and refine) camera ``cam`` from ``frames`` (list of (H, W) float32 m) of the static
+    scene ``scene``; ``robot`` and ``qs`` (one joint vector per frame, or fewer: the robot stood
+    at each) remove the robot. ``stride``: sample every stride-th pixel (default 2 for images
+    wider than 400 pixels, else 1)."""
+    from depthguard.camera import check_depth_image
+
+    frames = list(frames)
+    if not frames:
+        raise ValueError(f"camera {cam.id}: no frame to calibrate with")
+    for f in frames:
+        check_depth_image(cam, f, "frame")
+    measured = fuse_frames(frames)
+    robot_depth = _robot_fn(robot, list(qs) if qs is not None else [])
+    rd0 = robot_depth(cam) if robot_depth is not None else None
+    before = residual_stats(cam, measured, scene.view(cam).depth, rd0)
+    if stride is None:
+        stride = 2 if cam.width > 400 else 1
+    if refine:
+        ref = refine_pose(cam, measured, scene, robot_depth, stride=stride)
+    else:
+        ref = Refinement(np.array(cam.world_from_camera), 0, True, 0, 0, math.nan)
+    refined = cam.with_pose(ref.world_from_camera)
+    rd1 = robot_depth(refined) if robot_depth is not None else None
+    after = residual_stats(refined, measured, scene.view(refined).depth, rd1)
+    return CameraCalibration(cam, refined, before, after, ref)
+
+
+def calibrate_rig(rig, frames: dict, qs: dict | None = None, refine: bool = True, log=None) -> dict:
+    """``{camera id: CameraCalibration}`` for the cameras of ``rig`` that have frames in ``frames``
+    (``{camera id: [depth, ...]}``); ``qs``: ``{camera id: [q, ...]}`` the joints at each frame."""
+    scene = StaticScene(rig.static_meshes())
+    out = {}
+    for cid, fr in frames.items():
+        cam = rig.camera(cid)
+        out[cid] = calibrate_camera(cam, fr, scene, rig.robot, (qs or {}).get(cid), refine=refine)
+        if log is not None:
+            log(f"calibrate: camera {cid} done ({out[cid].before.verdict} -> {out[cid].after.verdict})")
+    return out
+
+
+def pose_diff(cam_old, cam_new) -> str:
+    """A few lines: the optical centre and the rotation before and after, and the change."""
+    from depthguard.transforms import matrix_to_quat
+
+    To, Tn = cam_old.world_from_camera, cam_new.world_from_camera
+    deg, m = pose_error(To, Tn)
+    d = Tn[:3, 3] - To[:3, 3]
+    # the rotation change, world axes: R_new R_old^T
+    dR = Tn[:3, :3] @ To[:3, :3].T
+    ang = math.acos(max(-1.0, min(1.0, (np.trace(dR) - 1) / 2)))
+    axis = np.array([dR[2, 1] - dR[1, 2], dR[0, 2] - dR[2, 0], dR[1, 0] - dR[0, 1]])
+    axis = axis / np.linalg.norm(axis) if np.linalg.norm(axis) > 1e-12 else np.zeros(3)
+
+    def v(a):
+        return "(" + ", ".join(f"{x:+.4f}" for x in a) + ")"
+
+    return "\n".join([
+        f"camera {cam_old.id}: moved {m * 1e3:.1f} mm, turned {deg:.3f} deg",
+        f"  position  {v(To[:3, 3])} -> {v(Tn[:3, 3])} m  (change {v(d * 1e3)} mm)",
+        f"  rotation  quaternion xyzw {v(matrix_to_quat(To[:3, :3]))} -> {v(matrix_to_quat(Tn[:3, :3]))}",
+        f"            turn {math.degrees(ang):.3f} deg about world axis {v(axis)}",
+    ])
