@@ -21,6 +21,8 @@ from typing import Literal, Optional
 
 from pydantic import BaseModel, ConfigDict, Field, field_validator, model_validator
 
+from depthguard.control.ssm_config import SSMConfig
+
 __all__ = ["MonitorConfig", "WatchPoint", "CAMERA_ID_PATTERN", "check_camera_id"]
 
 _Vec3 = tuple[float, float, float]
@@ -107,6 +109,11 @@ class MonitorConfig(BaseModel):
     camera's (R27). A unit drops invalid pixels (R17), so its camera clears
     nothing and judges nothing: only cameras with frames make a point observed.
 
+    ``reaction`` (R33): ``"repulsion"`` (R13, R14, the default), ``"ssm"`` speed and separation
+    monitoring (ISO/TS 15066: a speed scale and a protective stop, no repulsion, the joint
+    box from the joint limits only), ``"both"``; ``ssm`` its settings
+    (:class:`~depthguard.control.ssm_config.SSMConfig`, docs/SSM.md).
+
     ``watch_points``: fixed points reported like control points (distance,
     direction, observed); they do not change the reaction. ``cell``: the
     name under ``depthguard/<cell>/...`` of the Zenoh publications;
@@ -148,6 +155,8 @@ class MonitorConfig(BaseModel):
     watch_points: tuple[WatchPoint, ...] = ()
     cell: Optional[str] = None
     zenoh_listen: str = "tcp/127.0.0.1:0"
+    reaction: Literal["repulsion", "ssm", "both"] = "repulsion"
+    ssm: SSMConfig = Field(default_factory=SSMConfig)
 
     @field_validator("cameras")
     @classmethod
@@ -202,6 +211,12 @@ class MonitorConfig(BaseModel):
     def dt(self) -> float:
         """Seconds between two control cycles (1 / ``control_hz``)."""
         return 1.0 / self.control_hz
+
+    @property
+    def query_rho(self) -> float:
+        """Radius (m) the distances are looked for in: ``rho``, or ``max(rho, ssm.range)`` when
+        speed and separation monitoring runs (R33)."""
+        return self.rho if self.reaction == "repulsion" else max(self.rho, self.ssm.range)
 
     @property
     def camera_stale_limit(self) -> float:

@@ -17,6 +17,7 @@ _COMMAND_MODULES = [
     "depthguard.cli.keys",
     "depthguard.cli.demo",
     "depthguard.cli.run",
+    "depthguard.cli.ssm",
     "depthguard.cli.freespace",
     "depthguard.cli.monitor",
     "depthguard.cli.view",

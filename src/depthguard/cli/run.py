@@ -30,6 +30,7 @@ def run(
     distance_hz: Optional[float] = typer.Option(None, "--distance-hz", help="Rate of the distance computation (default: every 500 Hz control cycle, R15)."),
     no_noise: bool = typer.Option(False, "--no-noise", help="Ideal depth images (no sensor noise)."),
     camera_latency: Optional[float] = typer.Option(None, "--camera-latency", help="Seconds from a frame's capture to its delivery (default: one camera period; 0: each frame is used in the cycle it is captured)."),
+    reaction: str = typer.Option("repulsion", "--reaction", help="repulsion (R13, R14), ssm (speed and separation monitoring, ISO/TS 15066, R33; docs/SSM.md) or both."),
     quiet: bool = typer.Option(False, "--quiet", "-q", help="No progress output."),
 ) -> None:
     """Run the robot's hexagon task with a scenario's obstacles, closing the loop: the LWR on
@@ -60,6 +61,8 @@ def run(
     if cameras not in ("all", "principal"):
         raise typer.BadParameter(f"must be 'all' or 'principal' (got {cameras!r})", param_hint="--cameras")
     fusion = "grid" if cameras == "all" else "single"
+    if reaction not in ("repulsion", "ssm", "both"):
+        raise typer.BadParameter(f"must be repulsion, ssm or both (got {reaction!r})", param_hint="--reaction")
     if duration is not None and not duration > 0:
         raise typer.BadParameter("must be > 0 seconds", param_hint="--duration")
     if distance_hz is not None and not distance_hz > 0:
@@ -73,7 +76,8 @@ def run(
     if the_rig.robot is None:
         raise ValueError(f"{rig if rig is not None else the_cell.name}: the rig has no robot to drive "
                          f"(add a robot: section)")
-    cfg = LoopConfig(fusion=fusion, noise=not no_noise, distance_hz=distance_hz, camera_latency=camera_latency)
+    cfg = LoopConfig(fusion=fusion, noise=not no_noise, distance_hz=distance_hz, camera_latency=camera_latency,
+                     reaction=reaction)
     paper_task = rig is None and the_cell.name == "flacco-cell"
     if not paper_task or centre is not None or hexagon_radius is not None:
         if paper_task:   # the paper's hexagon, with the centre or radius the user set
@@ -84,9 +88,18 @@ def run(
     def progress(it, total):
         return track(it, f"scenario {scenario}", total=total, quiet=quiet)
 
-    summary, _ = run_scenario(scenario, out=out, duration=duration, seed=seed, config=cfg,
-                              cell=the_cell.name if rig is None else the_cell, progress=progress)
+    summary, res = run_scenario(scenario, out=out, duration=duration, seed=seed, config=cfg,
+                                cell=the_cell.name if rig is None else the_cell, progress=progress)
     typer.echo(_one_line(summary))
+    if reaction != "repulsion":                     # R33: the SSM's figures, also in summary.json
+        import json
+
+        from depthguard.evaluation.ssm_compare import row_of
+        row = row_of(summary, res, reaction)
+        (out / "summary.json").write_text(json.dumps(dict(summary, ssm_compare=row), indent=2))
+        typer.echo(f"SSM: task progress {row['progress']:.2f}, protective stops {row['protective_stops']}, "
+                   f"time stopped {row['time_stopped_s']:.2f} s, SSM violations {row['ssm_violations']} "
+                   f"(with Z_d {row['ssm_violations_with_Z_d']})")
     typer.echo(f"wrote {out}/summary.json and plots")
 
 

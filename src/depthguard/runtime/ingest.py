@@ -328,7 +328,7 @@ class FusionWorker:
                                  changed=changed, silhouette_px=cfg.silhouette_px,
                                  gap_px=cfg.gap_px)
             if points is not None and len(points):
-                back.grid.query(points, rho=cfg.rho + self.ahead_margin, method=cfg.method,
+                back.grid.query(points, rho=cfg.query_rho + self.ahead_margin, method=cfg.method,
                                 threads=1)                               # classify ahead
             for c in cams:
                 p = products[c]
@@ -357,9 +357,6 @@ class FusionWorker:
         with self.swap_lock:
             self.single = bool(single)
             self._back = self.front if self.single else None
-
-
-
 
 def robot_volume(robot, poses, padding: float) -> tuple[np.ndarray, np.ndarray]:
     """The robot's own volume for frames captured at several joint poses (R9, R12): its padded

@@ -21,7 +21,10 @@ frame:
    → the override ramps to 0 (R26, R27), with the reasons;
 4. reaction: repulsion at the end effector (R13), joint-velocity limits
    from the other control points and the joint limits (R14), both times the
-   override.
+   override; or (``reaction: ssm | both``) speed and separation monitoring
+   (R33, :mod:`depthguard.control.ssm_runtime`): a speed scale for the
+   commanded motion and a protective stop, distances looked for within
+   ``max(rho, ssm.range)``.
 
 Every clock is the caller's: stamps of frames and joints and the ``t`` of
 ``step`` are seconds on one clock (``time.monotonic()`` for a live cell,
@@ -107,6 +110,17 @@ class Monitor:
                                                   (self.robot.q_min, self.robot.q_max, self.robot.qd_max))
         self._react_buf = (np.empty(3), np.empty(self.robot.dof), np.empty(self.robot.dof))
         self._sup = SafetySupervisor(cfg.dt, cfg.stop_time, cfg.resume_time)
+        # speed and separation monitoring (R33): the mode is fixed for the monitor's life
+        m_cp = len(self._cp_names)
+        self._ssm = None
+        if cfg.reaction != "repulsion":
+            from depthguard.control.ssm_runtime import SpeedSeparation
+            self._ssm = SpeedSeparation(cfg.ssm, [self._cameras[c] for c in self._camera_ids], m_cp,
+                                        self.robot.dof, cfg.delta_d, cfg.gap_px, cfg.dt)
+        self._D_none = np.full(m_cp, np.inf)          # ssm mode: no repulsion, the joint box alone
+        self._D_rep = np.empty(m_cp)                  # both: the repulsion sees only what is within rho
+        self._qd_meas = np.zeros(self.robot.dof)      # qd not given: from the joints of two cycles
+        self._q_ssm_prev: tuple[float, np.ndarray] | None = None
         self._t_last: float | None = None
         self._last_q: np.ndarray | None = None
         self._seen: dict[str, int] = {}          # camera -> version already used by a cycle
@@ -260,9 +274,11 @@ class Monitor:
         self.fusion.notify()
 
     # ------------------------------------------------------------ the control cycle
-    def step(self, t: float, q=None) -> Reaction:
+    def step(self, t: float, q=None, qd=None) -> Reaction:
         """The reaction at time ``t`` (s) with the robot at ``q`` (dof,) rad — default: the newest
-        joint state received. Never waits for a frame (module docstring)."""
+        joint state received. Never waits for a frame (module docstring). ``qd`` (dof,) rad/s:
+        the commanded joint velocity before any scaling, for speed and separation monitoring
+        (R33; default: the joints' rate between the last two cycles)."""
         t_wall = time.perf_counter()
         cfg = self.config
         robot, data = self.robot, self._data
@@ -286,7 +302,7 @@ class Monitor:
         remote = cfg.remote_cameras
         if remote:                                     # the units' voxel boxes (R20, R25)
             caps = robot.collision_segments(q, cfg.robot_padding)
-            stamps.update(self.voxels.nearest(self._P, cfg.rho, D, V, robot_capsules=caps))
+            stamps.update(self.voxels.nearest(self._P, cfg.query_rho, D, V, robot_capsules=caps))
         # supervision (R26, R27)
         with self._settings_lock:
             ids = self._camera_ids + tuple(remote)
@@ -320,7 +336,30 @@ class Monitor:
         dt = cfg.dt if self._t_last is None else min(max(t - self._t_last, 0.0), 1.0)
         self._t_last = t
         k = self._sup.update(t, reasons, dt=dt)
-        rep, lo, hi = reaction_of(D[:m_cp], V[:m_cp], data.cp_jacobians, q, self._q_min, self._q_max,
+        D_rep = D[:m_cp]
+        scale, pstop, ssm_table, s_ssm = float(k), False, None, 1.0
+        if self._ssm is not None:                      # R33: speed scale and protective stop
+            if cfg.reaction == "ssm":
+                D_rep = self._D_none
+            else:
+                np.copyto(self._D_rep, D_rep)
+                self._D_rep[self._D_rep > cfg.rho] = np.inf
+                D_rep = self._D_rep
+            if qd is None:
+                prev = self._q_ssm_prev
+                if prev is not None and t > prev[0]:
+                    np.subtract(q, prev[1], out=self._qd_meas)
+                    self._qd_meas /= t - prev[0]
+                self._q_ssm_prev = (t, q.copy())
+            age = t - min(stamps.values()) if stamps else cfg.camera_stale_limit   # none: nothing observed
+            s_ssm, pstop = self._ssm.update(t, dt, D[:m_cp], V[:m_cp], data.cp_positions, data.cp_jacobians,
+                                            self._qd_meas if qd is None else np.asarray(qd, dtype=np.float64),
+                                            obs[:m_cp], age)
+            scale = float(k) * s_ssm
+            ssm_table = self._ssm.table.copy()
+            if pstop:
+                reasons = {**reasons, **self._ssm.reason(self._cp_names)}
+        rep, lo, hi = reaction_of(D_rep, V[:m_cp], data.cp_jacobians, q, self._q_min, self._q_max,
                                   self._qd_max, cfg.dt, cfg.rho, cfg.v_max, cfg.alpha, k, out=self._react_buf)
         step_s = time.perf_counter() - t_wall
         self.cycles += 1
@@ -330,7 +369,8 @@ class Monitor:
         r = Reaction(t=float(t), override=float(k), repulsion=rep.copy(), qd_min=lo.copy(), qd_max=hi.copy(),
                      names=self._names, distance=D, direction=V, observed=obs, is_watch=self._is_watch,
                      reasons=reasons, cameras=cams, joints_age_s=float(joints_age), q=q.copy(),
-                     frame_stamps=stamps, step_s=step_s)
+                     frame_stamps=stamps, step_s=step_s, reaction=cfg.reaction, speed_scale=scale,
+                     protective_stop=pstop, ssm=ssm_table, ssm_scale=float(s_ssm))
         for s in self.sinks:
             s(r)
         return r
@@ -348,12 +388,12 @@ class Monitor:
             return self._query_front(cfg, D, V, obs)
         worker.request(q.copy())
         snap = worker.newest()
-        usable = snap is not None and snap.rho == cfg.rho and snap.method == cfg.method
+        usable = snap is not None and snap.rho == cfg.query_rho and snap.method == cfg.method
         if not usable:
             why = "no_answer" if snap is None else "settings_changed"
         elif time.perf_counter() - snap.wall > worker.max_age_s:
             why = "answer_too_old"
-        elif bound_distances(snap, self._P, cfg.rho, D, V, obs):
+        elif bound_distances(snap, self._P, cfg.query_rho, D, V, obs):
             self._count_frames(snap.versions, snap.pushed_at)
             return dict(snap.stamps)
         else:
@@ -363,8 +403,8 @@ class Monitor:
             if not usable:
                 return {}                       # nothing to bound: unobserved, no frame in use
             why += "_grid_busy"
-            if not bound_distances(snap, self._P, cfg.rho, D, V, obs):
-                bound_distances(snap, self._P, cfg.rho, D, V, obs, strict=False)
+            if not bound_distances(snap, self._P, cfg.query_rho, D, V, obs):
+                bound_distances(snap, self._P, cfg.query_rho, D, V, obs, strict=False)
                 why += "_some_points_unjudged"
             self._count_frames(snap.versions, snap.pushed_at)
             stamps = dict(snap.stamps)
@@ -383,7 +423,7 @@ class Monitor:
         if buf is not None:
             try:
                 if buf.loaded:
-                    res = buf.grid.query(self._P, rho=cfg.rho, method=cfg.method, threads=1)
+                    res = buf.grid.query(self._P, rho=cfg.query_rho, method=cfg.method, threads=1)
                     D[:] = res.distance
                     V[:] = res.direction
                     obs[:] = res.observed
@@ -457,7 +497,7 @@ class Monitor:
 
     def _distance_settings(self):
         with self._settings_lock:
-            return self.config.rho, self.config.method
+            return self.config.query_rho, self.config.method
 
     # ------------------------------------------------------------ state
     @property

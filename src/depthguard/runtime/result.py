@@ -15,6 +15,9 @@ import numpy as np
 
 __all__ = ["Reaction", "CameraStatus"]
 
+#: the SSM table's columns (:data:`depthguard.control.ssm.TERMS`, repeated to keep this module light)
+_SSM_TERMS = ("D", "v_h", "v_r", "T_r", "T_s", "S_h", "S_r", "S_s", "C", "Z_d", "Z_r", "S_p", "limit")
+
 
 @dataclass(frozen=True)
 class CameraStatus:
@@ -57,6 +60,15 @@ class Reaction:
     q : (dof,) the joints the distances were computed at.
     frame_stamps : camera id -> capture stamp of the frame this cycle used.
     step_s : wall seconds the cycle took inside ``step``.
+    reaction : the monitor's mode, ``"repulsion"``, ``"ssm"`` or ``"both"`` (R33).
+    speed_scale : in [0, 1], the factor for the commanded motion (what ros2_control's speed
+        scaling or a UR speed slider takes): ``override`` times the SSM scale (``override``
+        alone in repulsion mode).
+    protective_stop : True while speed and separation monitoring holds a protective stop.
+    ssm_scale : in [0, 1], the SSM's scale alone (1 in repulsion mode).
+    ssm : (m_cp, 13) float64 or None, one row per control point (not the watch points), the
+        columns :data:`depthguard.control.ssm.TERMS` (``D v_h v_r T_r T_s S_h S_r S_s C Z_d Z_r
+        S_p limit``) at the SSM scale commanded: ``S_p = S_h + S_r + S_s + C + Z_d + Z_r``.
     """
     t: float
     override: float
@@ -74,6 +86,11 @@ class Reaction:
     q: np.ndarray
     frame_stamps: dict[str, float] = field(default_factory=dict)
     step_s: float = 0.0
+    reaction: str = "repulsion"
+    speed_scale: float = 1.0
+    protective_stop: bool = False
+    ssm: np.ndarray | None = None
+    ssm_scale: float = 1.0
 
     @property
     def stopped(self) -> bool:
@@ -100,6 +117,8 @@ class Reaction:
                         "distance": round(d, 6) if math.isfinite(d) else None,
                         "direction": [round(float(x), 6) for x in self.direction[i]] if math.isfinite(d) else None,
                         "observed": bool(self.observed[i])})
+            if self.ssm is not None and i < len(self.ssm):
+                pts[-1]["ssm"] = {k: round(float(v), 6) for k, v in zip(_SSM_TERMS, self.ssm[i])}
         return {"t": round(float(self.t), 6), "override": round(float(self.override), 6),
                 "repulsion": [round(float(x), 6) for x in self.repulsion],
                 "points": pts, "reasons": dict(self.reasons),
@@ -107,4 +126,6 @@ class Reaction:
                                 "state": s.state, "frames": s.frames, "refused": s.refused}
                             for c, s in self.cameras.items()},
                 "joints_age_s": round(self.joints_age_s, 6) if math.isfinite(self.joints_age_s) else None,
-                "q": [round(float(x), 6) for x in self.q]}
+                "q": [round(float(x), 6) for x in self.q],
+                "reaction": self.reaction, "speed_scale": round(float(self.speed_scale), 6),
+                "protective_stop": bool(self.protective_stop), "ssm_scale": round(float(self.ssm_scale), 6)}

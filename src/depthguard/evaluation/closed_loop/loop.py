@@ -23,12 +23,16 @@ One control cycle (500 Hz, ``dt = 2 ms``) at time ``t``:
    joint-velocity limits of the other control points (R14), times ``k``.
 3. **The robot obeys**: EE task ``ẋ_d = k·ṗ_d(τ) + K_p (p_d(τ) − x)``, ``ẋ_c = ẋ_d + ẋ_rep``;
    joint box = the reaction's limits; SNS gives ``q̇`` with task scale ``s`` and a
-   low-priority posture term; ``τ += s·k·dt``; ``q += q̇·dt``.
+   low-priority posture term; ``τ += s·k·dt``; ``q += q̇·dt``. With ``reaction`` ``ssm`` or
+   ``both`` (R33) the monitor gets that command before scaling and returns a speed scale;
+   the robot applies it to ``q̇`` and ``τ``, braking no harder than the stopping model's
+   deceleration allows (:mod:`depthguard.evaluation.closed_loop.ssm_truth`).
 4. **Ground truth** (not part of the system): the robot's collision capsules
    against the true obstacles (``scene.true_distance`` + the scenario's
    scripted primitives), sampled along each capsule axis every
    ``gt_step`` m (overestimates by at most ``gt_step/2``):
-   :mod:`depthguard.evaluation.closed_loop.loop_truth`.
+   :mod:`depthguard.evaluation.closed_loop.loop_truth`; in ssm and both modes the SSM
+   guarantee against the true human speed, per cycle (``ssm_violation``).
 
 Numba runs on ``LoopConfig.threads`` threads while the loop runs (default:
 all but the one the camera thread takes); the results do not depend on the
@@ -82,8 +86,12 @@ class LoopConfig:
     grid_delta_d: float = 0.01       # m, depth slice of the grid (R10)
     gt_step: float = 0.01            # m, ground-truth sampling along capsule axes
     hexagon: Hexagon = field(default_factory=Hexagon)
+    reaction: str = "repulsion"     # R33: "repulsion" | "ssm" | "both" (the monitor's mode)
+    ssm: object = None               # SSMConfig (None: its defaults); the robot brakes by its stopping model
 
     def __post_init__(self):
+        if self.reaction not in ("repulsion", "ssm", "both"):
+            raise ValueError(f"LoopConfig.reaction must be repulsion, ssm or both, got {self.reaction!r}")
         for name in ("rho", "v_max", "alpha", "control_hz", "camera_hz", "stale_periods",
                      "stop_time", "resume_time", "gt_step", "grid_delta_d"):
             v = getattr(self, name)
@@ -153,6 +161,12 @@ class LoopResult:
     n_frames: dict[str, int]
     excluded_capsules: list[str]
     snapshots: list = field(default_factory=list)   # (t, camera id, depth (H, W)) of the principal
+    tau: np.ndarray | None = None  # (T,) s, the task's progress (its own time: = t when never slowed)
+    ssm_scale: np.ndarray | None = None      # (T,) the scale the robot applied (braking included), R33
+    protective_stop: np.ndarray | None = None  # (T,) bool
+    ssm_margin: np.ndarray | None = None     # (T,) m, ground truth: min over points of d - S_p (ssm_truth.py)
+    ssm_violation: np.ndarray | None = None  # (T,) bool
+    ssm_violation_zd: np.ndarray | None = None  # (T,) bool, the stricter count with Z_d
 
 
 class ClosedLoop:
@@ -238,7 +252,8 @@ class ClosedLoop:
             camera_hz=cfg.camera_hz, camera_stale_s=cfg.stale_periods / cfg.camera_hz,
             joints_stale_s=max(10.0 * cfg.dt, 0.01), joint_history_s=max(1.0, 3.0 * cfg.latency + 0.5),
             joint_wait_s=0.0, control_hz=cfg.control_hz, v_max=cfg.v_max, alpha=cfg.alpha,
-            stop_time=cfg.stop_time, resume_time=cfg.resume_time)
+            stop_time=cfg.stop_time, resume_time=cfg.resume_time, reaction=cfg.reaction,
+            **({} if cfg.ssm is None else {"ssm": cfg.ssm}))
 
     # ------------------------------------------------------------ pieces
     def extra(self, t: float) -> list:
@@ -336,8 +351,20 @@ class ClosedLoop:
         R = {k: np.zeros(s) for k, s in dict(q=(T, n), qd=(T, n), ee=(T, 3), ee_des=(T, 3), D=(T, m),
                                                rep=(T, 3), gt_cp=(T, m), frame_age=(T, nc)).items()}
         R["observed"] = np.zeros((T, m), dtype=bool)
-        for k in ("scale", "override", "gt_robot", "gt_robot_dyn", "t"):
+        for k in ("scale", "override", "gt_robot", "gt_robot_dyn", "t", "tau", "ssm_scale", "ssm_margin"):
             R[k] = np.zeros(T)
+        for k in ("protective_stop", "ssm_violation", "ssm_violation_zd"):
+            R[k] = np.zeros(T, dtype=bool)
+        ssm_on = cfg.reaction != "repulsion"
+        mcfg = mon.config
+        truth_ssm = None
+        if ssm_on:
+            from depthguard.evaluation.closed_loop.ssm_truth import SSMTruth
+            truth_ssm = SSMTruth(mcfg.ssm, dt)
+        from depthguard.evaluation.closed_loop.ssm_truth import braking_deceleration
+        brake = braking_deceleration(mcfg.ssm)
+        qd_nom = np.zeros(n)                    # the previous cycle's command before the SSM scale
+        s_applied, table, pstop = 1.0, None, False
         q = self.q_start.copy()
         tau = 0.0
         data = self.data
@@ -379,8 +406,9 @@ class ClosedLoop:
                 if new_frames:                         # fused before this cycle's distances
                     mon.flush()
                     new_frames = set()
-                react = mon.step(t, q)
-                D, obs = react.distance, react.observed
+                react = mon.step(t, q, qd=qd_nom) if ssm_on else mon.step(t, q)
+                D, obs = react.distance[:m], react.observed[:m]
+                table, pstop, s_cmd = react.ssm, react.protective_stop, react.ssm_scale
                 kov = react.override
                 rep, lo, hi = react.repulsion, react.qd_min, react.qd_max   # R13, R14, joint limits, times k
                 n_distance += 1
@@ -396,12 +424,22 @@ class ClosedLoop:
             xc = xd + rep
             r = sns_velocity(data.cp_jacobians[0], xc, lo, hi, qd0=cfg.k_posture * (self.q_start - q),
                              workspace=self.sns_ws)
+            qd_c = r.qd
+            if ssm_on:                     # R33: the robot obeys the scale, braking at most by its model
+                qd_nom = r.qd.copy()
+                v_peak = float(np.sqrt((np.einsum("mij,j->mi", data.cp_jacobians, r.qd) ** 2).sum(axis=1)).max())
+                floor = s_applied - brake * dt / v_peak if v_peak > 0 else 0.0
+                s_applied = min(1.0, max(s_cmd, floor))
+                qd_c = s_applied * r.qd
             t2 = time.perf_counter()
             timing["reaction"] += t2 - t1
             # record (before integrating: state at t)
             R["t"][k] = t
             R["q"][k] = q
-            R["qd"][k] = r.qd
+            R["qd"][k] = qd_c
+            R["tau"][k] = tau
+            R["ssm_scale"][k] = s_applied if ssm_on else 1.0
+            R["protective_stop"][k] = pstop
             R["ee"][k] = x
             R["ee_des"][k] = p_d
             R["D"][k] = D
@@ -412,10 +450,16 @@ class ClosedLoop:
             R["frame_age"][k] = ages
             # 5. ground truth
             R["gt_cp"][k], R["gt_robot"][k], R["gt_robot_dyn"][k] = self.ground_truth(P, q, t)
+            if truth_ssm is not None:
+                Xdot = np.einsum("mij,j->mi", data.cp_jacobians, qd_c)
+                moving = ([] if not self.cell_dynamic else list(self.scene.dynamic_at(t))) + list(self.extra(t))
+                standing = float(np.abs(qd_c).max()) < 1e-9
+                R["ssm_margin"][k], R["ssm_violation"][k], R["ssm_violation_zd"][k] = truth_ssm.check(
+                    P, Xdot, moving, table, pstop or standing)
             timing["ground_truth"] += time.perf_counter() - t2
             # integrate
-            q = q + r.qd * dt
-            tau += r.scale * kov * dt
+            q = q + qd_c * dt
+            tau += r.scale * kov * (s_applied if ssm_on else 1.0) * dt
         timing["total"] = time.perf_counter() - wall0
         timing["distance_cycles"] = n_distance
         return LoopResult(t=R["t"], q=R["q"], qd=R["qd"], ee=R["ee"], ee_des=R["ee_des"], D=R["D"],
@@ -423,7 +467,10 @@ class ClosedLoop:
                           gt_cp=R["gt_cp"], gt_robot=R["gt_robot"], gt_robot_dyn=R["gt_robot_dyn"], frame_age=R["frame_age"],
                           control_point_names=list(self.cp_names), camera_ids=cam_ids,
                           episodes=mon.episodes, timing=timing, n_frames=n_frames,
-                          excluded_capsules=list(self.excluded_caps), snapshots=snapshots)
+                          excluded_capsules=list(self.excluded_caps), snapshots=snapshots, tau=R["tau"],
+                          ssm_scale=R["ssm_scale"], protective_stop=R["protective_stop"],
+                          ssm_margin=R["ssm_margin"], ssm_violation=R["ssm_violation"],
+                          ssm_violation_zd=R["ssm_violation_zd"])
 
 
 def _depth_span(cam, workspace) -> tuple[float, float]:
