@@ -287,3 +287,25 @@ def test_a_cycle_never_waits_for_a_build_into_the_one_grid(setup):
         assert any(k.startswith("unobserved") for k in r.reasons), r.reasons
         assert np.array_equal(r.observed[~moved], snap.observed[:m][~moved])
     assert not mon.fusion.single                 # real_time() gave the two grids back
+
+
+def test_a_cycle_does_not_query_itself_when_a_query_takes_more_than_half_a_period(setup):
+    rig, q, frames = setup
+    cfg = rig.monitor.with_changes(distance_hz=500.0)
+    with loaded(rig, q, frames, cfg) as mon:
+        with mon.real_time():
+            deadline = time.perf_counter() + 30.0
+            while mon._dist_worker.queries < 3 and time.perf_counter() < deadline:
+                mon.step(0.011, q)
+                time.sleep(0.002)
+
+            def forbidden(*_a, **_k):
+                raise AssertionError("the control cycle queried the grid")
+            mon._query_front = forbidden
+            mon._dist_worker.last_query_s = 0.5 * cfg.dt + 1e-4     # as a query of a large radius takes
+            q_far = q.copy()
+            q_far[:2] += (0.4, 0.3)
+            mon._dist_worker.request = lambda _q: None               # keep the answer at q
+            r = mon.step(0.012, q_far)
+        assert any("_query_too_slow" in k for k in mon.distance_fallbacks), mon.distance_fallbacks
+        assert r.frame_stamps and any(k.startswith("unobserved") for k in r.reasons)

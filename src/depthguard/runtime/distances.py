@@ -22,9 +22,11 @@ points ``P`` (:func:`bound_distances`):
   than ``max_age_s`` of wall time (the worker starved or failed), another ρ
   or method than the cycle's: the cycle queries the grid itself, as without
   the worker — unless the grid is being built (one grid,
-  :meth:`~depthguard.runtime.ingest.FusionWorker.set_single`): the cycle does
-  not wait; it keeps the bound where it holds and reports the other points
-  unobserved (R26: cannot judge), which slows the robot. ``observed`` is the
+  :meth:`~depthguard.runtime.ingest.FusionWorker.set_single`) or a query takes
+  more than half a control period (the worker's last one did: a large radius,
+  as speed and separation monitoring asks): the cycle does not wait; it keeps
+  the bound where it holds and reports the other points unobserved (R26:
+  cannot judge), which slows the robot. ``observed`` is the
   snapshot's and ``P`` in the principal's image and range (R26).
 * The frames' capture stamps that the supervision checks (R27) are those of
   the snapshot's grid: an old snapshot makes the cameras older, never younger.
@@ -169,6 +171,7 @@ class DistanceWorker:
         self._wake = threading.Event()
         self._stop = threading.Event()
         self.queries = 0
+        self.last_query_s = 0.0          # wall seconds of the newest query
         self.errors = 0
         self.last_error = ""
         self._thread: threading.Thread | None = None
@@ -243,6 +246,7 @@ class DistanceWorker:
                 self.last_error = f"{type(exc).__name__}: {exc}"
 
     def _query(self, q) -> None:
+        t0 = time.perf_counter()
         rho, method = self._settings()
         P = np.ascontiguousarray(self._points(q), dtype=np.float64)
         fusion = self.fusion
@@ -263,3 +267,4 @@ class DistanceWorker:
             buf.lock.release()
         self._snap = snap
         self.queries += 1
+        self.last_query_s = snap.wall - t0

@@ -380,8 +380,9 @@ class Monitor:
         frames used. With the distance worker (:meth:`real_time`): its newest answer bounded at
         ``self._P``; when that answer is older than the worker's ``max_age_s`` (the worker
         starved or failed) or a point moved beyond the margin, a query of the grid here — unless
-        the one grid is being built: then the bound of the newest answer however old (its
-        frames' stamps say how old), points it cannot decide unobserved
+        the one grid is being built or the worker's last query took more than half a control
+        period: then the bound of the newest answer however old (its frames' stamps say how
+        old), points it cannot decide unobserved
         (:mod:`depthguard.runtime.distances`). Without the worker: a query of the front grid."""
         worker = self._dist_worker
         if worker is None:
@@ -398,11 +399,14 @@ class Monitor:
             return dict(snap.stamps)
         else:
             why = "moved_beyond_margin"
-        stamps = self._query_front(cfg, D, V, obs, wait=not self.fusion.single)
+        if worker.last_query_s > 0.5 * cfg.dt:  # a query here would take the cycle: never
+            stamps, busy = None, "_query_too_slow"
+        else:
+            stamps, busy = self._query_front(cfg, D, V, obs, wait=not self.fusion.single), "_grid_busy"
         if stamps is None:                      # the one grid is being built: never wait
             if not usable:
                 return {}                       # nothing to bound: unobserved, no frame in use
-            why += "_grid_busy"
+            why += busy
             if not bound_distances(snap, self._P, cfg.query_rho, D, V, obs):
                 bound_distances(snap, self._P, cfg.query_rho, D, V, obs, strict=False)
                 why += "_some_points_unjudged"
