@@ -74,6 +74,12 @@ def _open(path, rig):
     return BagFrames(replay, rig), BagJoints(replay, rig)
 
 
+def _start(path, rig):
+    """Open the sources and read the start of the bag, as the runner does before its first cycle."""
+    frames, joints = _open(path, rig)
+    return frames, joints, min(frames.first_stamp, joints.first_stamp)
+
+
 def test_a_good_bag_serves_every_frame_and_counts_nothing(rig, tmp_path):
     frames, joints = _open(write(tmp_path / "good.mcap", good(rig)), rig)
     got = frames.frames_until(100.0)
@@ -97,7 +103,7 @@ def test_a_camera_info_that_is_not_the_rigs_camera_is_an_error(rig, tmp_path, ch
     cam = rig.camera("cam0")
     msgs.append(("/cam0/depth/camera_info", "info", _info(cam, 0.35, **change)))   # one bad, late in the bag
     with pytest.raises(BagError, match=words):
-        _open(write(tmp_path / "b.mcap", msgs), rig)
+        _start(write(tmp_path / "b.mcap", msgs), rig)
 
 
 def test_frames_with_an_unknown_encoding_or_the_wrong_size_are_skipped_and_counted(rig, tmp_path):
@@ -118,7 +124,7 @@ def test_a_camera_without_a_usable_frame_is_an_error(rig, tmp_path):
     cam = rig.camera("cam1")
     msgs += [("/cam1/depth/image_rect_raw", "img", _image(cam, 0.1 * k, enc="bgr8")) for k in range(3)]
     with pytest.raises(BagError, match=r"camera cam1: none of the 3 images .*\(unknown_encoding 3\)"):
-        _open(write(tmp_path / "b.mcap", msgs), rig)
+        _start(write(tmp_path / "b.mcap", msgs), rig)
 
 
 def test_stamps_out_of_order_are_put_in_order_and_repeated_ones_are_dropped(rig, tmp_path):
@@ -153,8 +159,9 @@ def test_joint_states_that_do_not_name_the_robots_joints_are_an_error(rig, tmp_p
     msgs = [m if m[0] != "/joint_states" else (m[0], m[1], {**m[2], "name": [f"j{i}" for i in range(7)]})
             for m in good(rig)]
     replay = BagReplay(write(tmp_path / "b.mcap", msgs))
+    joints = BagJoints(replay, rig)                        # the topic is there: its messages are read first
     with pytest.raises(BagError, match=r"no JointState on /joint_states names all of the robot lwr4's joints"):
-        BagJoints(replay, rig)
+        joints.first_stamp
 
 
 def test_a_truncated_bag_is_one_clear_line_from_the_cli(rig, tmp_path):
@@ -204,6 +211,8 @@ def test_a_bag_with_wall_clock_stamps_plays_in_real_time_on_its_own_clock(rig, t
     finally:
         mon.close()
     assert records[0].t == pytest.approx(epoch, abs=0.01)                  # the first stamp (a joint state at +0)
-    assert records[-1].t - records[0].t == pytest.approx(0.39, abs=0.05)   # the last joint state at +0.39 s
+    # the last joint state is at +0.39 s: the run reaches it, and ends soon after the bag does
+    # (how soon depends on the machine's load: the sources' threads see the end of the bag)
+    assert 0.34 <= records[-1].t - records[0].t <= 0.39 + 0.25
     assert wall == pytest.approx(0.39, abs=0.25)                          # real time, not as fast as possible
     assert max(r.cameras["cam0"].frames for r in records[-5:]) >= 1       # frames reached the monitor

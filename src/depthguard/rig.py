@@ -8,6 +8,7 @@ loading, a :class:`Rig` holds only validated, immutable objects.
 
 from __future__ import annotations
 
+import math
 from dataclasses import dataclass, field
 from pathlib import Path
 from typing import Any, Literal, Optional, Union
@@ -108,6 +109,7 @@ class CameraSpec(_Strict):
     cy: Optional[float] = None
     range: Optional[tuple[float, float]] = None
     topic: Optional[str] = None          # its depth Image topic in a ROS 2 bag (R31, docs/BAGS.md)
+    depth_scale: Optional[float] = None  # metres per unit of its 16-bit depth in a bag (default 0.001; D405: 0.0001)
     pose: PoseSpec
 
     @field_validator("id")
@@ -136,6 +138,15 @@ class CameraSpec(_Strict):
     def _positive_size(cls, v: Optional[int]) -> Optional[int]:
         if v is not None and v <= 0:
             raise ValueError(f"image size must be > 0 (got {v})")
+        return v
+
+    @field_validator("depth_scale")
+    @classmethod
+    def _depth_scale(cls, v: Optional[float]) -> Optional[float]:
+        # the span RealSense devices accept for their depth units (1 um .. 1 cm per unit)
+        if v is not None and not (math.isfinite(v) and 1e-6 <= v <= 1e-2):
+            raise ValueError(f"depth_scale is metres per unit of 16-bit depth, 1e-6..0.01 "
+                             f"(0.001 = millimetres, 0.0001 = a RealSense D405's 0.1 mm); got {v}")
         return v
 
     @field_validator("range")
@@ -357,6 +368,7 @@ class Rig:
     description: str = ""
     monitor: MonitorConfig = field(default_factory=MonitorConfig)   # the rig's ``monitor:`` section
     topics: dict = field(default_factory=dict)   # camera id -> depth Image topic (``topic:``, R31)
+    depth_scales: dict = field(default_factory=dict)   # camera id -> m per 16-bit unit (``depth_scale:``, R31)
 
     def __repr__(self) -> str:
         """One line: the name, file, camera ids, workspace, robot and object names (no mesh arrays)."""
@@ -435,7 +447,8 @@ class Rig:
         return cls(name=spec.name, cameras=cameras, workspace=ws, robot=robot, robot_q0=q0,
                    objects=objects, path=Path(source) if isinstance(source, Path) else None,
                    description=spec.description, monitor=spec.monitor or MonitorConfig(),
-                   topics={c.id: c.topic for c in spec.cameras if c.topic})
+                   topics={c.id: c.topic for c in spec.cameras if c.topic},
+                   depth_scales={c.id: c.depth_scale for c in spec.cameras if c.depth_scale is not None})
 
 
 def _make_object(o: ObjectSpec, base_dir: Path) -> StaticObject:

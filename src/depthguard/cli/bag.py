@@ -61,8 +61,9 @@ def record(
     size = sum(f.stat().st_size for f in out.glob("*.mcap"))
     log(f"record: {seconds:.2f} s, {frames} frames, {states} joint states")
     if clipped:
-        typer.echo(f"record: warning: {clipped} pixels beyond 65.535 m cannot be stored as 16UC1 millimetres and "
-                   f"were written as 0 (no measurement); record with --encoding 32FC1 to keep them", err=True)
+        typer.echo(f"record: warning: {clipped} pixels beyond 65535 depth units (65.535 m in millimetres; "
+                   f"less with a camera's smaller depth_scale) cannot be stored as 16UC1 and were written as 0 "
+                   f"(no measurement); record with --encoding 32FC1 to keep them", err=True)
     typer.echo(f"record: wrote {out} ({size / 1e6:.1f} MB; the depth images raw would be {raw / 1e6:.1f} MB): "
                f"{frames} frames of {', '.join(the_rig.camera_ids)}, {states} joint states, camera poses on /tf_static")
 

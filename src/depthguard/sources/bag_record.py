@@ -1,7 +1,8 @@
 """Write what sources deliver as a ROS 2 bag (MCAP, zstd chunks): ``depthguard record`` (R31).
 
-Per rig camera ``ID``: ``sensor_msgs/msg/Image`` (``16UC1`` millimetres by default,
-or ``32FC1`` metres) on ``/ID/depth/image_rect_raw`` and its
+Per rig camera ``ID``: ``sensor_msgs/msg/Image`` (``16UC1`` millimetres by default —
+in the camera's ``depth_scale`` units when the rig gives one, so that ``bag:`` reads it
+back with the same rig — or ``32FC1`` metres) on ``/ID/depth/image_rect_raw`` and its
 ``sensor_msgs/msg/CameraInfo`` on ``/ID/depth/camera_info`` (one per frame, same
 stamp, frame ``ID_depth_optical_frame``: z forward, x right, y down);
 ``sensor_msgs/msg/JointState`` on ``/joint_states`` (the robot's joint names);
@@ -23,7 +24,7 @@ from pathlib import Path
 import numpy as np
 
 from depthguard.sources import ros_messages as rosmsg
-from depthguard.sources.bag import BagError, default_topic, info_topic
+from depthguard.sources.bag import BagError, camera_depth_scale, default_topic, info_topic
 
 __all__ = ["BagRecorder", "optical_frame", "WORLD_FRAME"]
 
@@ -46,8 +47,9 @@ def _qos(transient_local: bool):
 class BagRecorder:
     """Records frames and joint states of ``rig`` into the new bag directory ``path`` (module docstring).
 
-    ``frames`` / ``states``: messages written; ``clipped``: 16UC1 pixels beyond 65.535 m
-    written as 0 (no measurement). Use as a context manager or call :meth:`close`.
+    ``frames`` / ``states``: messages written; ``clipped``: 16UC1 pixels beyond 65535 depth
+    units (65.535 m at the default millimetres, ``depth_scale`` of the camera) written as 0
+    (no measurement). Use as a context manager or call :meth:`close`.
     """
 
     def __init__(self, path: str | Path, rig, encoding: str = "16UC1", start: float = 0.0, compress: bool = True):
@@ -96,10 +98,11 @@ class BagRecorder:
         if not math.isfinite(frame.stamp) or frame.stamp < 0:
             raise BagError(f"frame of {frame.camera_id}: stamp {frame.stamp!r} cannot be a ROS time")
         cam = self.rig.camera(frame.camera_id)
+        scale = camera_depth_scale(self.rig, cam.id)      # the rig's depth units (None: mm), as bag: reads them
         if self.encoding == "16UC1":
             d = np.asarray(frame.depth)
-            self.clipped += int(np.count_nonzero(d > 65.535))
-        img = rosmsg.image_from_depth(frame.depth, frame.stamp, optical_frame(cam.id), self.encoding)
+            self.clipped += int(np.count_nonzero(d > 65535 * (scale or 0.001)))
+        img = rosmsg.image_from_depth(frame.depth, frame.stamp, optical_frame(cam.id), self.encoding, scale=scale)
         info = rosmsg.camera_info_for(cam, frame.stamp, optical_frame(cam.id))
         ns = rosmsg.stamp_ns(frame.stamp)
         self._writer.write(self._img[cam.id], ns, rosmsg.serialize(img))

@@ -14,8 +14,11 @@ What the bag decides:
 
 What it cannot decide is written as a commented field with a sentence, never guessed: the
 ``workspace`` (required: the rig does not load until it is filled in), each camera's
-``range`` (the sensor's datasheet; the loader's default is 0.4..6 m), a camera pose
-missing from TF, and the robot when the bag has no description and no ``--urdf`` is given.
+``range`` (the sensor's datasheet; the loader's default is 0.4..6 m), the ``depth_scale`` of a
+camera whose depth is 16-bit (an Image does not say its units: 0.001 m = millimetres by
+default, 0.0001 m for a RealSense D405 — a wrong one reads every distance 10 times off), a
+camera pose missing from TF, and the robot when the bag has no description and no ``--urdf``
+is given.
 """
 
 from __future__ import annotations
@@ -29,6 +32,9 @@ from depthguard.sources import ros_messages as rosmsg
 from depthguard.sources.bag import BagError, BagReplay, info_topic
 
 __all__ = ["draft_rig", "tf_tree", "chain"]
+
+#: encodings whose units an Image does not say (the rig's ``depth_scale``)
+_SIXTEEN_BIT = {"16UC1", "mono16"}
 
 
 def tf_tree(replay: BagReplay) -> dict[str, tuple[str, np.ndarray]]:
@@ -109,11 +115,16 @@ def _draft(replay: BagReplay, out: Path, urdf, base_frame) -> tuple[str, list[st
             continue
         cid = _camera_id(topic, taken)
         taken.add(cid)
-        cams.append((cid, topic, k))
+        encodings = {e.encoding for e in replay.images[topic]}
+        cams.append((cid, topic, k, bool(encodings & _SIXTEEN_BIT)))
     if not cams:
         raise BagError(f"bag {replay.path}: no depth Image topic with a usable CameraInfo beside it "
                        f"(image topics: {', '.join(sorted(replay.images)) or 'none'})")
-    roots = {chain(edges, k["frame_id"].lstrip("/"), None)[0] for _c, _t, k in cams if k["frame_id"]}
+    sixteen_bit = [cid for cid, _t, _k, sixteen in cams if sixteen]
+    if sixteen_bit:
+        notes.append(f"camera {', '.join(sixteen_bit)}: 16-bit depth, read as millimetres unless you give its "
+                     "depth_scale (a RealSense D405 counts 0.1 mm)")
+    roots = {chain(edges, k["frame_id"].lstrip("/"), None)[0] for _c, _t, k, _s in cams if k["frame_id"]}
     base = base_frame or (sorted(roots)[0] if len(roots) == 1 else None)
     if base is None and roots:
         notes.append(f"the cameras' TF frames have several roots ({', '.join(sorted(roots))}): give --base-frame")
@@ -124,10 +135,13 @@ def _draft(replay: BagReplay, out: Path, urdf, base_frame) -> tuple[str, list[st
              "# workspace: the box of interest in the world frame, metres (required; not in a bag), e.g.",
              "# workspace: {min: [-1.0, -1.0, 0.0], max: [1.0, 1.0, 2.0]}",
              "cameras:"]
-    for cid, topic, k in cams:
+    for cid, topic, k, sixteen in cams:
         lines += [f"  - id: {cid}", f"    topic: {topic}", f"    width: {k['width']}", f"    height: {k['height']}",
                   f"    fx: {_num(k['fx'])}", f"    fy: {_num(k['fy'])}", f"    cx: {_num(k['cx'])}", f"    cy: {_num(k['cy'])}",
                   "    # range: [min, max]  # metres, from the sensor's datasheet (not in a bag; default 0.4..6)"]
+        if sixteen:
+            lines.append("    # depth_scale: 0.001  # metres per unit of its 16-bit depth (not in a bag; default 0.001 = mm; "
+                         "a RealSense D405 writes 0.0001: its SDK's depth units)")
         found = chain(edges, k["frame_id"].lstrip("/"), base) if (base and k["frame_id"]) else None
         if found is None:
             lines += [f"    # pose: the pose of TF frame {k['frame_id'] or '(none)'} in {base or 'the world'} is not in the "

@@ -5,10 +5,11 @@ message definitions of ROS 2 Humble (:data:`TYPESTORE`).
 
 Depth images (``sensor_msgs/msg/Image``) -> (H, W) float32 metres, 0 = no measurement:
 
-- ``16UC1`` and ``mono16``: unsigned millimetres (``mono16`` is how the RealSense
-  driver writes depth); 0 = no measurement;
-- ``32FC1``: metres; NaN, +inf and -inf (REP 117: no return, too far, too near)
-  become 0 = no measurement, so that they count as unknown space, never as free.
+- ``16UC1`` and ``mono16``: unsigned integers in units of ``scale`` metres (the rig camera's
+  ``depth_scale``; default 0.001 = millimetres, the ROS convention (REP 118); a RealSense
+  D405 counts 0.0001 m, as its SDK's depth units say); 0 = no measurement;
+- ``32FC1``: metres (REP 117; ``scale`` does not apply); NaN, +inf and -inf (no return, too
+  far, too near) become 0 = no measurement, so that they count as unknown space, never as free.
 
 Any other encoding, a ``step`` smaller than a row, or ``data`` whose length is not
 ``step * height`` raises :class:`RosMessageError` (the bag source skips and
@@ -28,13 +29,14 @@ Stamps: ``builtin_interfaces/msg/Time`` <-> float seconds, rounded to the nanose
 from __future__ import annotations
 
 import math
+import struct
 
 import numpy as np
 from rosbags.typesys import Stores, get_typestore
 
 __all__ = ["TYPESTORE", "RosMessageError", "DEPTH_ENCODINGS", "stamp_s", "time_msg", "header",
-           "depth_from_image", "image_from_depth", "intrinsics_from_camera_info", "camera_info_for",
-           "joint_state", "joint_state_values", "transform_stamped", "matrix_from_transform",
+           "depth_from_image", "scale_depth", "image_from_depth", "intrinsics_from_camera_info", "camera_info_for",
+           "joint_state", "joint_state_values", "joint_state_fields", "transform_stamped", "matrix_from_transform",
            "serialize", "deserialize", "MSG"]
 
 TYPESTORE = get_typestore(Stores.ROS2_HUMBLE)
@@ -50,7 +52,7 @@ MSG = {
     "Float64": "std_msgs/msg/Float64",
     "MarkerArray": "visualization_msgs/msg/MarkerArray",
 }
-#: encoding -> (numpy dtype of one value, metres per unit)
+#: encoding -> (numpy dtype of one value, metres per unit by default)
 DEPTH_ENCODINGS = {"16UC1": (np.uint16, 1e-3), "mono16": (np.uint16, 1e-3), "32FC1": (np.float32, 1.0)}
 
 
@@ -91,12 +93,14 @@ def header(seconds: float, frame_id: str):
 
 
 # ----------------------------------------------------------------- depth
-def depth_from_image(msg, expect_shape: tuple[int, int] | None = None) -> np.ndarray:
-    """``sensor_msgs/msg/Image`` -> (H, W) float32 metres, 0 = no measurement (module docstring)."""
+def depth_from_image(msg, expect_shape: tuple[int, int] | None = None, scale: float | None = None) -> np.ndarray:
+    """``sensor_msgs/msg/Image`` -> (H, W) float32 metres, 0 = no measurement (module docstring).
+
+    ``scale``: metres per unit of a 16-bit image (``None``: 0.001, millimetres); ignored for 32FC1."""
     enc = str(msg.encoding)
     if enc not in DEPTH_ENCODINGS:
         raise RosMessageError(f"depth encoding {enc!r} is not one of {', '.join(DEPTH_ENCODINGS)}")
-    dtype, _unit = DEPTH_ENCODINGS[enc]
+    dtype, unit = DEPTH_ENCODINGS[enc]
     h, w, step = int(msg.height), int(msg.width), int(msg.step)
     if h <= 0 or w <= 0:
         raise RosMessageError(f"image size {w}x{h} is empty")
@@ -112,24 +116,38 @@ def depth_from_image(msg, expect_shape: tuple[int, int] | None = None) -> np.nda
     rows = data.reshape(h, step)[:, :w * item]
     values = np.ascontiguousarray(rows).view(np.dtype(dtype).newbyteorder(order)).reshape(h, w)
     if dtype is np.uint16:
-        return values.astype(np.float32) / np.float32(1000.0)        # exact for every representable mm value
+        return scale_depth(values, unit if scale is None else scale)
     depth = values.astype(np.float32)
     depth[~np.isfinite(depth)] = 0.0            # NaN / +-inf: no measurement (unknown, never free)
     depth[depth < 0] = 0.0
     return depth
 
 
-def image_from_depth(depth: np.ndarray, stamp: float, frame_id: str, encoding: str = "16UC1"):
-    """(H, W) float metres (0 = no measurement) -> ``Image`` in ``16UC1`` (mm, rounded; beyond
-    65.535 m or non-finite -> 0) or ``32FC1`` (metres; 0 stays 0)."""
+def scale_depth(values: np.ndarray, scale: float) -> np.ndarray:
+    """Integer depth (H, W) in units of ``scale`` m -> float32 metres (0 stays 0).
+
+    When ``1 / scale`` is a whole number (0.001 -> 1000, 0.0001 -> 10000) the value is divided
+    by it: the float32 nearest to the exact quotient, for every 16-bit value; otherwise it is
+    multiplied in float64 and rounded once to float32."""
+    per_m = 1.0 / float(scale)
+    if per_m == round(per_m):
+        return values.astype(np.float32) / np.float32(per_m)
+    return (values.astype(np.float64) * float(scale)).astype(np.float32)
+
+
+def image_from_depth(depth: np.ndarray, stamp: float, frame_id: str, encoding: str = "16UC1",
+                     scale: float | None = None):
+    """(H, W) float metres (0 = no measurement) -> ``Image`` in ``16UC1`` (units of ``scale`` m,
+    default 0.001 = mm, rounded; beyond 65535 units or non-finite -> 0) or ``32FC1`` (metres; 0 stays 0)."""
     d = np.asarray(depth, dtype=np.float64)
     if d.ndim != 2:
         raise RosMessageError(f"a depth image is 2-D (got shape {d.shape})")
     h, w = d.shape
     if encoding in ("16UC1", "mono16"):
-        mm = np.where(np.isfinite(d) & (d > 0), np.rint(d * 1000.0), 0.0)
-        mm[mm > 65535] = 0.0
-        values = mm.astype("<u2")
+        per_m = 1.0 / (DEPTH_ENCODINGS[encoding][1] if scale is None else float(scale))
+        units = np.where(np.isfinite(d) & (d > 0), np.rint(d * per_m), 0.0)
+        units[units > 65535] = 0.0
+        values = units.astype("<u2")
     elif encoding == "32FC1":
         values = np.where(np.isfinite(d) & (d > 0), d, 0.0).astype("<f4")
     else:
@@ -201,6 +219,61 @@ def joint_state_values(msg, names) -> np.ndarray | None:
     if not all(n in index for n in names):
         return None
     return np.array([pos[index[n]] for n in names], dtype=np.float64)
+
+
+_LAST_NAMES: tuple[bytes, tuple] = (b"", ())    # the names section last read and its names (joint_state_fields)
+
+
+def joint_state_fields(raw: bytes | memoryview) -> tuple[float, list[str], np.ndarray]:
+    """``(stamp s, names, positions (n,) float64)`` of a CDR-serialised ``JointState``, read
+    directly (a replay reads hundreds per second; building the whole message costs more than
+    the rest of its handling). ``velocity`` and ``effort`` are not read.
+    :class:`RosMessageError` for bytes that are not such a message (plain CDR, either byte order)."""
+    global _LAST_NAMES
+    buf = memoryview(raw).cast("B")
+    size = len(buf)
+    if size < 12 or buf[0] != 0 or buf[1] not in (0, 1):
+        raise RosMessageError("not a plain CDR message (encapsulation header)")
+    end = "<" if buf[1] == 1 else ">"
+    u32 = struct.Struct(end + "I")
+    try:
+        sec, nanosec = struct.unpack_from(end + "iI", buf, 4)
+        pos = 12
+        (n,) = u32.unpack_from(buf, pos)                        # header.frame_id, NUL included
+        pos += 4 + n
+        pos = 4 + ((pos - 4 + 3) & ~3)
+        (count,) = u32.unpack_from(buf, pos)
+        pos += 4
+        if count > (size - pos) // 5:
+            raise RosMessageError(f"JointState claims {count} names in {size} bytes")
+        seen, seen_names = _LAST_NAMES                 # a robot's states repeat their names: bytes compared
+        if seen and buf[pos - 4:pos - 4 + len(seen)] == seen:
+            names = list(seen_names)
+            pos += len(seen) - 4
+        else:
+            start, names = pos - 4, []
+            for _ in range(count):
+                pos = 4 + ((pos - 4 + 3) & ~3)
+                (n,) = u32.unpack_from(buf, pos)
+                pos += 4
+                if n < 1 or pos + n > size or buf[pos + n - 1] != 0:
+                    raise RosMessageError("JointState name is not a terminated string")
+                names.append(bytes(buf[pos:pos + n - 1]).decode("utf-8"))
+                pos += n
+            _LAST_NAMES = (bytes(buf[start:pos]), tuple(names))    # 4-aligned: the same bytes wherever they are
+        pos = 4 + ((pos - 4 + 3) & ~3)
+        (count,) = u32.unpack_from(buf, pos)
+        pos += 4
+        if count:
+            pos = 4 + ((pos - 4 + 7) & ~7)
+        if pos + 8 * count > size:
+            raise RosMessageError(f"JointState claims {count} positions in {size} bytes")
+        positions = np.frombuffer(buf, dtype=np.dtype(end + "f8"), count=count, offset=pos).astype(np.float64)
+    except (struct.error, UnicodeDecodeError, ValueError) as exc:
+        if isinstance(exc, RosMessageError):
+            raise
+        raise RosMessageError(f"JointState does not parse: {exc}") from None
+    return float(sec) + float(nanosec) * 1e-9, names, positions
 
 
 # -------------------------------------------------------------------- TF

@@ -9,8 +9,8 @@ badly; a noiseless image would flatter the size).
 Rows:
 
 - ``bag.replay_x_realtime``: seconds of bag per wall second of a ``--fast`` replay by the
-  ``bag:`` sources alone (first pass at open + every frame decoded to float32 metres and
-  every joint state served, pulled at the 500 Hz control rate as the runner does). Goal
+  ``bag:`` sources alone (their one pass over the bag, every frame decoded to float32 metres
+  and every joint state served, pulled at the 500 Hz control rate as the runner does). Goal
   >= 10. Peer: the independent ``mcap`` reader iterating the same file's messages without
   decoding (zstd decompression + record parsing: the floor of any reader).
 - ``bag.replay_x_realtime_cpu``: the same per CPU second (a loaded machine lowers the wall figure).
