@@ -30,8 +30,9 @@ the scene:
   step time; a rho slider (``Monitor.set_rho``) and one switch per layer.
 
 The server binds ``127.0.0.1`` unless told otherwise (it has no
-authentication: anyone who reaches the port can change rho). A playback
-(``depthguard view DIR``) calls :meth:`show` with a snapshot instead.
+authentication: anyone who reaches the port can change rho). A replay
+(``depthguard view DIR|BAG``, :mod:`depthguard.viz.replay`) calls :meth:`show`
+with a snapshot instead, its frames in ``snapshot.extra["frames"]``.
 """
 
 from __future__ import annotations
@@ -132,7 +133,9 @@ class LiveView:
         self._frames_seen: dict[str, tuple[float, int]] = {}
         self._rates: dict[str, float] = {}
         self._static: dict[str, np.ndarray] = {}
+        self._near_points: dict[str, np.ndarray] = {}     # camera id -> its points near the robot (N, 3)
         self._panel_at = -math.inf
+        self._panel_due = None           # a snapshot whose panel text the rate limit held back
         self._cps = None
         self._q_shown = None
         self._quiet_rho = False
@@ -253,25 +256,34 @@ class LiveView:
             latest = self._latest
         if latest is None or latest is self._shown:
             self._update_points(self._cps)
+            if self._panel_due is not None and time.perf_counter() - self._panel_at > 0.25:
+                self._write_panel(self._panel_due)     # the last snapshot's text, held back by the rate limit
             return False
         self._shown = latest
         snap = latest if isinstance(latest, scene.Snapshot) else scene.snapshot_of_reaction(latest)
         with self.server.atomic():
             self._cps = cps = self._update_robot(snap)
-            self._update_points(cps)
+            self._update_points(cps, snap)
             for cid, st in snap.cameras.items():
                 h = self._frustums.get(cid)
                 if h is not None:
                     col = scene.state_colour(st["state"])
                     if tuple(h.color) != col:
                         h.color = col
-        now = time.perf_counter()
-        if now - self._panel_at > 0.25:
-            self._panel_at = now
-            self.gui_panel.content = scene.panel_markdown(snap, self._camera_rates(now), self._step_ms(snap),
-                                                          self.rho, self.note)
+        if time.perf_counter() - self._panel_at > 0.25:
+            self._write_panel(snap)
+        else:
+            self._panel_due = snap
         self.updates += 1
         return True
+
+    def _write_panel(self, snap: scene.Snapshot) -> None:
+        """The panel's text for ``snap`` (at most 4 times a second)."""
+        now = time.perf_counter()
+        self._panel_at = now
+        self._panel_due = None
+        self.gui_panel.content = scene.panel_markdown(snap, self._camera_rates(now), self._step_ms(snap),
+                                                      self.rho, self.note)
 
     def _pose_robot(self, q: np.ndarray) -> None:
         poses = self.robot.link_poses(q)
@@ -313,22 +325,41 @@ class LiveView:
             self._vectors.visible = False
         return cps
 
-    def _update_points(self, cps) -> None:
-        """Each camera's newest processed frame, when it changed (live monitors only)."""
+    def _update_points(self, cps, snap: scene.Snapshot | None = None) -> None:
+        """Each camera's newest processed frame, when it changed: from the monitor's camera
+        workers (live), or from ``snap.extra["frames"]`` (a replay: camera id ->
+        :class:`~depthguard.runtime.ingest.CameraProduct` or None, ``depthguard.viz.replay``)."""
         mon = self._monitor
-        if mon is None:
+        if mon is not None:
+            products = {}
+            for cid, w in list(mon.fusion.workers.items()):
+                with w.lock:
+                    products[cid] = (w.camera, w.product)
+        elif snap is not None and snap.extra.get("frames") is not None:
+            cams = {c.id: c for c in self.rig.cameras}
+            products = {cid: (cams[cid], p) for cid, p in snap.extra["frames"].items() if cid in cams}
+        else:
             return
-        workers = mon.fusion.workers
-        near_all = []
+        self._draw_frames(products, cps)
+
+    def _draw_frames(self, products: dict, cps) -> None:
+        """Draw ``products`` (camera id -> (camera, CameraProduct or None)) whose version changed;
+        None clears the camera's points (a replay before its first frame)."""
         changed = False
-        for cid, w in list(workers.items()):
-            with w.lock:
-                p = w.product
-            if p is None or self._versions.get(cid) == p.version:
+        for cid, (cam, p) in products.items():
+            version = None if p is None else p.version
+            if self._versions.get(cid) == version:
                 continue
-            self._versions[cid] = p.version
+            self._versions[cid] = version
             changed = True
-            cam = w.camera
+            handles = self._clouds.get(cid)
+            if p is None:
+                if handles is not None:
+                    handles[0].points = np.zeros((0, 3), np.float32)
+                    handles[0].colors = np.zeros((0, 3), np.uint8)
+                    handles[1].points = np.zeros((0, 3), np.float32)
+                self._near_points.pop(cid, None)
+                continue
             if cid not in self._static:
                 from depthguard.filtering.expected import ExpectedDepth
                 self._static[cid] = ExpectedDepth(cam, None, self.rig.static_meshes()).static
@@ -336,15 +367,15 @@ class LiveView:
                                            self.stride)
             near = scene.near_mask(pts, cps if cps is not None else np.zeros((0, 3)), self.rho) & \
                 (plab == scene.OTHER)
-            handles = self._clouds.get(cid)
             if handles is not None:
                 known = plab == scene.KNOWN
                 handles[0].points = pts[~known]
                 handles[0].colors = scene.point_colours(plab[~known], near[~known])
                 if handles[1].visible:
                     handles[1].points = pts[known]
-            near_all.append(pts[near])
+            self._near_points[cid] = pts[near]
         if changed:
+            near_all = list(self._near_points.values())
             pts = np.concatenate(near_all) if near_all else np.zeros((0, 3), np.float32)
             self._near.points = pts.astype(np.float32)
 
