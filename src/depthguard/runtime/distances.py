@@ -171,7 +171,7 @@ class DistanceWorker:
         self._wake = threading.Event()
         self._stop = threading.Event()
         self.queries = 0
-        self.last_query_s = 0.0          # wall seconds of the newest query
+        self.last_query_s = 0.0          # wall seconds of the newest query, from the grid's lock on
         self.errors = 0
         self.last_error = ""
         self._thread: threading.Thread | None = None
@@ -246,7 +246,6 @@ class DistanceWorker:
                 self.last_error = f"{type(exc).__name__}: {exc}"
 
     def _query(self, q) -> None:
-        t0 = time.perf_counter()
         rho, method = self._settings()
         P = np.ascontiguousarray(self._points(q), dtype=np.float64)
         fusion = self.fusion
@@ -255,6 +254,7 @@ class DistanceWorker:
         if buf is None:
             return
         buf.lock.acquire()        # may wait for a build into the one grid; never with swap_lock held
+        t0 = time.perf_counter()  # the query's own time (not the wait): what a cycle's query would take
         try:
             if not buf.loaded:
                 return
