@@ -54,14 +54,18 @@ def _status_line(r) -> str:
 def monitor(
     rig: Optional[Path] = typer.Option(None, "--rig", help="Rig file (YAML) of your cell; its monitor: section sets the runtime."),
     cell: Optional[str] = typer.Option(None, "--cell", help="A built-in cell (default flacco-cell when no --rig)."),
-    source: List[str] = typer.Option([], "--source", help="Frame source SCHEME:ARG, repeatable: sim[:CELL[:SITUATION][:alone][:dark][:noiseless]], images:DIR, bag:PATH (a ROS 2 bag, docs/BAGS.md), realsense[:CAM=SERIAL,...] and realsense-file:PATH (docs/REALSENSE.md), units:ENDPOINT (the camera units of a fusion server; list their cameras in the rig's monitor: remote_cameras). Default: the simulator of the cell (or of the rig's own scene)."),
-    joints: Optional[str] = typer.Option(None, "--joints", help="Joint source: sim (the simulated robot, which obeys the reaction), csv:FILE, zenoh:KEY, bag:PATH. Default: sim with a sim source, the bag with a bag: source."),
+    source: List[str] = typer.Option([], "--source", help="Frame source SCHEME:ARG, repeatable: sim[:CELL[:SITUATION][:alone][:dark][:noiseless]], images:DIR, bag:PATH (a ROS 2 bag, docs/BAGS.md), realsense[:CAM=SERIAL,...] and realsense-file:PATH (docs/REALSENSE.md), ros2: (live ROS 2 topics through rmw_zenoh, docs/ROS2.md), units:ENDPOINT (the camera units of a fusion server; list their cameras in the rig's monitor: remote_cameras). Default: the simulator of the cell (or of the rig's own scene)."),
+    joints: Optional[str] = typer.Option(None, "--joints", help="Joint source: sim (the simulated robot, which obeys the reaction), csv:FILE, zenoh:KEY, bag:PATH, ros2:[TOPIC] (default /joint_states). Default: sim with a sim source, the bag with a bag: source, ros2: with a ros2: source."),
     out: Optional[Path] = typer.Option(None, "--out", "-o", help="Folder for log.jsonl (one line per control cycle) and summary.json (default: out/monitor/<UTC time>)."),
     duration: Optional[float] = typer.Option(None, "--duration", help="Seconds of run time (default: until Ctrl-C or the end of the sources)."),
     fast: bool = typer.Option(False, "--fast", help="As fast as possible and deterministic (recordings, simulation), not in real time."),
     zenoh: bool = typer.Option(False, "--zenoh", help="Publish reactions, distances and health under depthguard/<cell>/... (loopback unless --zenoh-listen)."),
     zenoh_listen: Optional[str] = typer.Option(None, "--zenoh-listen", help="Zenoh endpoint the monitor listens on (default: the rig's monitor: zenoh_listen, loopback)."),
     zenoh_connect: List[str] = typer.Option([], "--zenoh-connect", help="Zenoh endpoints to connect to (repeatable)."),
+    ros2: bool = typer.Option(False, "--ros2", help="Publish the reaction as ROS 2 topics through rmw_zenoh: <ns>/override (std_msgs/Float64), <ns>/reaction, <ns>/markers (docs/ROS2.md)."),
+    ros2_domain: Optional[int] = typer.Option(None, "--ros2-domain", min=0, max=232, help="ROS 2 domain id of ros2: sources and --ros2 (default: ROS_DOMAIN_ID, else 0)."),
+    ros2_router: Optional[str] = typer.Option(None, "--ros2-router", help="Zenoh router of the ROS 2 cell (default tcp/127.0.0.1:7447, where rmw_zenohd listens)."),
+    ros2_namespace: str = typer.Option("/depthguard", "--ros2-namespace", help="Namespace of the topics --ros2 publishes."),
     quiet: bool = typer.Option(False, "--quiet", "-q", help="No status line."),
     units_keys: Optional[Path] = typer.Option(None, "--units-keys", help="Certificate directory (depthguard keys admin) for a units:tls/HOST:PORT source of a server started with --keys (docs/THREAT_MODEL.md)."),
     view: bool = typer.Option(False, "--view", help="A live 3-D view in the browser (docs/VIEW.md)."),
@@ -97,9 +101,14 @@ def monitor(
     context: dict = {"zenoh_listen": (zenoh_listen,), "zenoh_connect": tuple(zenoh_connect)}
     if units_keys is not None:
         context["units_keys"] = units_keys
+    context.update(ros2_domain=ros2_domain, ros2_router=ros2_router)     # ros2: sources and --ros2 (docs/ROS2.md)
+    if fast and any(s.startswith("ros2:") for s in [*specs, joints or ""]):
+        raise typer.BadParameter("ros2: sources are live (stamped on the wall clock): run in real time, without --fast",
+                                 param_hint="--fast")
     sources = [open_source(s, the_rig, context) for s in specs]
     joint_spec = joints or ("sim" if "sim_world" in context else None) \
-        or next((s for s in specs if s.startswith("bag:")), None)      # a bag holds its joint states too
+        or next((s for s in specs if s.startswith("bag:")), None) \
+        or ("ros2:" if any(s.startswith("ros2:") for s in specs) else None)   # a bag / a ROS cell has joints too
     if joint_spec is None:
         raise typer.BadParameter("a non-simulated source needs --joints (csv:FILE or zenoh:KEY)", param_hint="--joints")
     joint_source = open_joints(joint_spec, the_rig, context)
@@ -121,6 +130,11 @@ def monitor(
         from depthguard.distributed.settings import zenoh_config
         session = zenoh_lib.open(zenoh_config([zenoh_listen], list(zenoh_connect)))
         sinks.append(ZenohPublisher(cell_key, session=session))
+    if ros2:
+        from depthguard.runtime.ros2_sink import open_ros2_sink
+        sinks.append(open_ros2_sink(context, the_rig.robot, [(w.name, w.position) for w in cfg.watch_points],
+                                    ros2_namespace))
+        log(f"monitor: publishing {ros2_namespace}/override, reaction and markers as ROS 2 topics (rmw_zenoh)")
     fanout = SinkFanout(sinks, block=fast)
     direct = [context["sim_world"].on_reaction] if "sim_world" in context else []
     mon = Monitor(the_rig, cfg, sinks=direct + [fanout])

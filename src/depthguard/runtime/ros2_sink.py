@@ -1,0 +1,117 @@
+"""The monitor's reactions as live ROS 2 topics, through Zenoh (``monitor --ros2``) (R29, R31).
+
+A sink (``sink(reaction)``, ``close()``) that publishes, as the node ``/depthguard`` on
+the cell's rmw_zenoh network (wire contract: :mod:`depthguard.sources.ros2_zenoh`), under a
+namespace (default ``/depthguard``):
+
+- ``<ns>/override`` — ``std_msgs/msg/Float64``, every control cycle: the speed override in
+  [0, 1], 0 = stop (a robot driver scales its commanded speed by it);
+- ``<ns>/reaction`` — ``depthguard_msgs/msg/Reaction`` (the definition of
+  :data:`~depthguard.runtime.mcap_results.REACTION_MSG`), every cycle: the whole record, where
+  "nothing within rho" (``within_rho`` false, ``observed`` true) and "cannot judge"
+  (``observed`` false) are separate fields. A ROS node decodes it with a package holding
+  that ``.msg`` (its RIHS01 hash is in the key);
+- ``<ns>/markers`` — ``visualization_msgs/msg/MarkerArray`` at most ``marker_hz`` times per
+  second of run time, the markers of ``results.mcap`` (green / orange / grey spheres, arrows
+  to the nearest obstacles) for RViz or Foxglove.
+
+Header stamps are the reaction time ``t`` (the wall clock in a live run). The messages are
+built by :class:`~depthguard.runtime.mcap_results.McapResults`' own functions, so the live
+topics and ``results.mcap`` carry the same values.
+"""
+
+from __future__ import annotations
+
+import math
+
+from depthguard.sources.ros2_zenoh import WIRE, Ros2Error, check_topic
+
+__all__ = ["Ros2Sink", "open_ros2_sink", "DEFAULT_NAMESPACE"]
+
+DEFAULT_NAMESPACE = "/depthguard"
+
+
+class _Messages:
+    """The message builders of ``McapResults`` without its file: they read only ``robot``,
+    ``_watch`` and ``frame_id``."""
+
+    def __init__(self, robot, watch_points, frame_id: str):
+        import numpy as np
+
+        from depthguard.runtime.mcap_results import McapResults, _register
+
+        _register()                          # depthguard_msgs/msg/Reaction in the messages' typestore
+        self.robot, self.frame_id = robot, frame_id
+        self._watch = {n: np.asarray(p, dtype=np.float64) for n, p in watch_points}
+        self.reaction = McapResults.reaction_msg.__get__(self)
+        self.markers = McapResults.markers_msg.__get__(self)
+
+
+def _register_wire() -> None:
+    from depthguard.runtime.mcap_results import REACTION_MSG, REACTION_TYPE
+
+    if REACTION_TYPE not in WIRE.fielddefs:
+        from rosbags.typesys import get_types_from_msg
+
+        WIRE.register(get_types_from_msg(REACTION_MSG, REACTION_TYPE))
+
+
+class Ros2Sink:
+    """Publishes reactions on ``<namespace>/{override,reaction,markers}`` (module docstring).
+
+    ``node``: an acquired :class:`~depthguard.sources.ros2_zenoh.Ros2Node` (released at
+    :meth:`close`); ``robot`` places the control points; ``watch_points``: ``(name, (3,) m)``.
+    ``published``: reactions sent.
+    """
+
+    name = "ros2"
+
+    def __init__(self, node, robot, watch_points=(), namespace: str = DEFAULT_NAMESPACE, marker_hz: float = 30.0,
+                 frame_id: str = "world"):
+        from depthguard.runtime.mcap_results import REACTION_TYPE
+        from depthguard.sources import ros_messages as rosmsg
+
+        self.node = node
+        try:
+            if not marker_hz > 0:
+                raise Ros2Error(f"marker rate must be > 0 Hz (got {marker_hz})")
+            ns = check_topic(namespace).rstrip("/")
+            _register_wire()
+            self._msgs = _Messages(robot, watch_points, frame_id)
+            self.topics = {"override": f"{ns}/override", "reaction": f"{ns}/reaction", "markers": f"{ns}/markers"}
+            types = {"override": rosmsg.MSG["Float64"], "reaction": REACTION_TYPE, "markers": rosmsg.MSG["MarkerArray"]}
+            self._pubs = {k: node.publisher(t, types[k]) for k, t in self.topics.items()}
+        except Exception:
+            node.release()
+            raise
+        self._float64 = rosmsg.TYPESTORE.types[rosmsg.MSG["Float64"]]
+        self.period = 1.0 / float(marker_hz)
+        self._next_marker = -math.inf
+        self.published = 0
+
+    def __call__(self, r) -> None:
+        if self._pubs is None:
+            raise Ros2Error("the ROS 2 sink is closed")
+        if not (math.isfinite(r.t) and r.t >= 0):
+            return                                  # a ROS time cannot hold it (never on the monitor's clocks)
+        self._pubs["override"].publish(self._float64(data=float(r.override)))
+        self._pubs["reaction"].publish(self._msgs.reaction(r))
+        if r.t >= self._next_marker:
+            self._pubs["markers"].publish(self._msgs.markers(r))
+            self._next_marker = r.t + self.period - 1e-9
+        self.published += 1
+
+    def close(self) -> None:
+        if self._pubs is None:
+            return
+        for p in self._pubs.values():
+            p.close()
+        self._pubs = None
+        self.node.release()
+
+
+def open_ros2_sink(context: dict, robot, watch_points=(), namespace: str = DEFAULT_NAMESPACE) -> Ros2Sink:
+    """The sink on the run's node (shared with ``ros2:`` sources through ``context``)."""
+    from depthguard.sources.ros2_zenoh import node_for
+
+    return Ros2Sink(node_for(context), robot, watch_points, namespace)
