@@ -575,6 +575,18 @@ def warm_up(rig, config: MonitorConfig | None = None) -> float:
                                  0.0005))
         mon.flush(timeout=600.0)
         mon.step(0.001)
+        # the distance thread's band query and the cycles' bound of its answer (real_time())
+        from depthguard.runtime.distances import DistanceSnapshot, bound_distances
+
+        cfg = mon.config
+        grid = mon.fusion.front.grid
+        P = mon._P.copy()
+        res = grid.query(P, rho=cfg.query_rho + cfg.distance_margin, method=cfg.method, threads=1,
+                         rho_core=cfg.query_rho)
+        snap = DistanceSnapshot(P, res.distance.copy(), res.direction.copy(), res.observed.copy(), cfg.query_rho,
+                                cfg.distance_margin, cfg.method, {}, {}, {}, grid.principal_view(), 0.0)
+        m = len(P)
+        bound_distances(snap, P, cfg.query_rho, np.empty(m), np.empty((m, 3)), np.empty(m, dtype=bool))
     from depthguard.runtime.voxel_input import VoxelObstacles
     units = VoxelObstacles()                      # the remote units' kernel
     units.push("warm-up", np.zeros((1, 3)), 0.05, 0.0)
