@@ -124,16 +124,17 @@ class Refinement:
 
 
 def _sample(cam, depth: np.ndarray, stride: int):
+    """Every ``stride``-th pixel in range: rows ``vv``, columns ``uu``, depths ``z`` and the
+    camera-frame rays at unit depth, from :meth:`Camera.depth_to_points` (the one back-projection)."""
     d = np.asarray(depth, dtype=np.float64)
-    H, W = d.shape
-    vv, uu = np.mgrid[0:H:stride, 0:W:stride]
-    vv, uu = vv.ravel(), uu.ravel()
-    z = d[vv, uu]
+    mask = np.zeros(d.shape, dtype=bool)
+    mask[::stride, ::stride] = True
     with np.errstate(invalid="ignore"):
-        ok = np.isfinite(z) & (z >= cam.min_range) & (z <= cam.max_range)
-    vv, uu, z = vv[ok], uu[ok], z[ok]
-    ray = np.stack([(uu - cam.cx) / cam.fx, (vv - cam.cy) / cam.fy, np.ones_like(z)], axis=1)
-    return vv, uu, z, ray
+        mask &= np.isfinite(d) & (d >= cam.min_range) & (d <= cam.max_range)
+    vv, uu = np.nonzero(mask)
+    pc = cam.depth_to_points(d, frame="camera", mask=mask)
+    z = pc[:, 2]
+    return vv, uu, z, pc / z[:, None]
 
 
 def refine_pose(cam, measured: np.ndarray, scene, robot_depth=None, stride: int = 2, max_iter: int = 40,
