@@ -232,6 +232,14 @@ def safe_defaults(
                    f"{r['tolerance_m'] * 100:.0f} cm nearer than the truth (worst {r['worst_m']} m at {r['worst_at']}); "
                    f"{r['missed_within_rho']} fixed objects within rho not reported; repulsion up to "
                    f"{r['repulsion_max_m_s']} m/s")
+        if r["blind_spots"]:
+            typer.echo(f"{name}: space that no camera sees, within rho of the robot (unknown is an obstacle; "
+                       f"the camera layout's fault): {len(r['blind_spots'])} at the false readings' times, e.g.")
+            for line in r["blind_spots"][:4]:
+                typer.echo(f"  {line}")
+        elif r["false_near"]:
+            typer.echo(f"{name}: no space unseen by every camera explains the false readings "
+                       f"(noise, dropout or the grid's discretisation)")
     if dark_duration > 0:
         log(f"safe-defaults: flacco-cell's person, visible and dark, {dark_duration:g} s each ...")
         d = dark_person("flacco-cell", duration=dark_duration)

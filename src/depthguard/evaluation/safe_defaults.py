@@ -10,6 +10,9 @@ Two runs of the monitor (:class:`depthguard.runtime.Monitor`, the rig's own
   limits of R14 slow it near an obstacle), and readings more than ``tolerance`` nearer than
   ``min(truth, rho)`` (the robot seeing itself, or its shadow); and, for
   safety, readings farther than the truth by more than the discretisation.
+  Where there are false readings, :func:`depthguard.evaluation.coverage.blind_spots`
+  looks at their times for space that no camera sees (a fault of the layout, not of
+  the monitor: unknown is an obstacle).
 - **dark person** (``sim:CELL:dark``, the person's pixels all invalid) beside
   the same run with the person visible: the closest approach of the person to
   the end effector, and how the robot reacted to each (its lowest speed along
@@ -61,6 +64,7 @@ def robot_alone(cell_name: str, duration: float = 60.0, tolerance: float = 0.05,
     worst, false_n, miss_n, n = math.inf, 0, 0, 0
     rep_max = max((float(np.linalg.norm(r.repulsion)) for r in kept), default=0.0)
     worst_at = None
+    false_times: list = []
     for r in kept:
         m = int(np.sum(~r.is_watch))
         P = rig.robot.control_point_positions(r.q)
@@ -76,8 +80,16 @@ def robot_alone(cell_name: str, duration: float = 60.0, tolerance: float = 0.05,
                     worst, worst_at = d - ref, (r.names[i], round(r.t, 3))
                 if d < ref - tolerance:
                     false_n += 1
+                    if not false_times or r.t - false_times[-1] >= 0.5:
+                        false_times.append(r.t)
             elif truth[i] < cfg.rho - 0.02:           # nothing reported where a fixed object is within rho
                 miss_n += 1
+    spots = []
+    if false_times:                     # explain them: space that no camera sees (the layout's fault)?
+        from depthguard.evaluation.coverage import blind_spots
+
+        spots = [str(b) for b in blind_spots(cell, false_times[:12], rho=cfg.rho, padding=cfg.robot_padding,
+                                              tolerance=tolerance)]
     return {"cell": cell_name, "duration_s": duration, "readings": n,
             "override_min": summary["override_min"], "stopped_s": summary["stopped_s"],
             "robot_speed_min": round(world.scale_min, 4), "robot_slowed_s": round(world.slowed_s, 3),
@@ -85,7 +97,7 @@ def robot_alone(cell_name: str, duration: float = 60.0, tolerance: float = 0.05,
             "unobserved_cycles": summary["unobserved_cycles"],
             "worst_m": None if worst_at is None else round(worst, 4), "worst_at": worst_at,
             "false_near": false_n, "missed_within_rho": miss_n, "tolerance_m": tolerance,
-            "repulsion_max_m_s": round(rep_max, 4),
+            "repulsion_max_m_s": round(rep_max, 4), "blind_spots": spots,
             "real_time_factor": summary["real_time_factor"]}
 
 
