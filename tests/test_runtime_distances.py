@@ -167,6 +167,39 @@ def test_real_time_monitor_bounds_the_workers_answers_and_falls_back_when_it_has
         assert np.array_equal(r3.distance, truth.distance)
 
 
+def test_a_builds_own_query_is_the_newest_answer_at_once(setup):
+    """The fusion build's classify-ahead query is the worker's query (same radius, same
+    direction rule, the newest joints' points): published when the build ends, the next cycle
+    uses the new frame without waiting for the worker's next period (here 1 s)."""
+    rig, q, frames = setup
+    cfg = rig.monitor.with_changes(distance_hz=1.0)
+    cid = rig.camera_ids[0]
+    with loaded(rig, q, frames, cfg) as mon:
+        with mon.real_time():
+            worker = mon._dist_worker
+            deadline = time.perf_counter() + 30.0
+            while worker.newest() is None and time.perf_counter() < deadline:
+                mon.step(0.011, q)
+                time.sleep(0.002)
+            before = mon.step(0.011, q)
+            assert before.frame_stamps[cid] == pytest.approx(0.005)
+            offered = worker.offered
+            mon.push_joints(0.02, q)
+            mon.push_frame(Frame(cid, frames[cid], 0.015))
+            mon.flush(timeout=60.0)
+            assert worker.offered == offered + 1
+            after = mon.step(0.021, q)
+            assert after.frame_stamps[cid] == pytest.approx(0.015)       # the new frame, at once
+            snap = worker.newest()
+            front = mon.fusion.front
+            assert snap.generation == front.generation and snap.stamps[cid] == pytest.approx(0.015)
+            with front.lock:
+                D, V, obs = query(front.grid, snap.P, rho=cfg.query_rho + worker.margin, method=cfg.method,
+                                  rho_core=cfg.query_rho)
+            assert np.array_equal(snap.D, D) and np.array_equal(snap.V, V) and np.array_equal(snap.observed, obs)
+            assert np.array_equal(snap.P, mon._points_at(q))
+
+
 def test_relaxed_bound_keeps_what_it_knows_and_cannot_judge_the_rest(setup):
     rig, q, frames = setup
     with loaded(rig, q, frames) as mon:
@@ -254,6 +287,10 @@ def test_a_cycle_never_waits_for_a_build_into_the_one_grid(setup):
                 mon.step(0.011, q)
                 time.sleep(0.002)
             snap = mon._dist_worker.newest()
+            # the worker stops with a fast last query: the cycle must try the grid (not give up
+            # because the worker's queries are slow, which a busy machine can make them)
+            mon._dist_worker.close()
+            mon._dist_worker.last_query_s = 0.0
             buf = mon.fusion.front
             buf.lock.acquire()                   # a build in progress, for as long as the test says
             try:

@@ -46,7 +46,7 @@ distance (:func:`~depthguard.distance.kernels.obstacle_start_depth`) read its ou
 from __future__ import annotations
 
 import numpy as np
-from numba import njit
+from numba import njit, prange
 
 from depthguard.camera import RETURN_LIMIT_FACTOR
 __all__ = ["gap_depth", "gap_depth_numpy", "GapBuffers", "check_gap_px"]
@@ -70,7 +70,7 @@ def _end_depth(m, min_range, max_range):
     return 0.0
 
 
-@njit(cache=True, nogil=True)
+@njit(cache=True, parallel=True, nogil=True)
 def gap_depth(depth, min_range, max_range, n, out):
     """Per pixel: the free depth the small-gap rule gives an invalid pixel, 0 where it does not
     apply (module docstring).
@@ -87,12 +87,12 @@ def gap_depth(depth, min_range, max_range, n, out):
     allocation.
     """
     H, W = depth.shape
-    for v in range(H):
+    for v in prange(H):                       # rows on the caller's numba threads
         for u in range(W):
             out[v, u] = 0.0
     if n <= 0:
         return
-    for v in range(H):
+    for v in prange(H):
         for u in range(W):
             if _end_depth(np.float64(depth[v, u]), min_range, max_range) > 0.0:
                 continue

@@ -69,7 +69,7 @@ _FX, _FY, _CX, _CY, _W, _H, _RMIN, _RMAX = range(8)
 D_ZERO = 1e-9
 
 
-@njit(cache=True, nogil=True)
+@njit(cache=True, parallel=True, nogil=True)
 def frame_state(depth, robot_depth, use_robot, min_range, max_range, robot_offset,
                 invalid_free, robot_free, out_free, out_kind, silhouette=None, gap=None):
     """Per-pixel state of one depth frame (R1, R9, R28, R32).
@@ -108,7 +108,7 @@ def frame_state(depth, robot_depth, use_robot, min_range, max_range, robot_offse
         gap, unknown behind it.
     """
     H, W = depth.shape
-    for v in range(H):
+    for v in prange(H):                       # rows on the caller's numba threads
         for u in range(W):
             m = np.float64(depth[v, u])
             if not ((m == m) and m > 0.0 and m >= min_range and m <= max_range):
@@ -141,7 +141,7 @@ def frame_state(depth, robot_depth, use_robot, min_range, max_range, robot_offse
             out_kind[v, u] = KIND_SURFACE
 
 
-@njit(cache=True, nogil=True)
+@njit(cache=True, parallel=True, nogil=True)
 def build_pyramids(free, H, W, pmin, pmax, offsets, dims):
     """Min- and max-pyramids of a free-depth image: level ``l`` holds the
     minimum (maximum) over aligned ``2^l x 2^l`` blocks (level 0 is the image).
@@ -151,7 +151,7 @@ def build_pyramids(free, H, W, pmin, pmax, offsets, dims):
     one whose maximum is below a depth is occupied or hidden before it in every pixel."""
     nl = offsets.shape[0]
     o = offsets[0]
-    for v in range(H):
+    for v in prange(H):                       # rows of a level on the caller's numba threads
         for u in range(W):
             pmin[o + v * W + u] = free[v, u]
             pmax[o + v * W + u] = free[v, u]
@@ -163,7 +163,7 @@ def build_pyramids(free, H, W, pmin, pmax, offsets, dims):
         op = offsets[lv - 1]
         ol = offsets[lv]
         # a block past the last row / column repeats it (min / max of an element twice: same result)
-        for v in range(hl):
+        for v in prange(hl):
             r0 = op + 2 * v * wp
             r1 = op + min(2 * v + 1, hp - 1) * wp
             for u in range(wl):

@@ -59,6 +59,7 @@ class DistanceSnapshot:
     stamps, versions, pushed_at : per camera, of the grid's frames.
     view : the principal's ``(R, t, pint, W, H)`` (world → camera, intrinsics) for R26.
     wall : ``perf_counter`` when the query finished.
+    generation : the grid buffer's build count when queried (a newer build wins).
     """
     P: np.ndarray
     D: np.ndarray
@@ -72,6 +73,7 @@ class DistanceSnapshot:
     pushed_at: dict
     view: tuple
     wall: float
+    generation: int = -1
 
 
 @numba.njit(cache=True, nogil=True)
@@ -168,6 +170,8 @@ class DistanceWorker:
         self.max_age_s = 3.0 * self.period + 0.02
         self._q: np.ndarray | None = None
         self._snap: DistanceSnapshot | None = None
+        self._snap_lock = threading.Lock()
+        self.offered = 0                 # answers published by the fusion thread's builds
         self._wake = threading.Event()
         self._stop = threading.Event()
         self.queries = 0
@@ -188,6 +192,25 @@ class DistanceWorker:
         """The joints of the newest control cycle (dof,) rad: the next query's."""
         self._q = q
         self._wake.set()
+
+    def offer(self, buf, P, D, V, observed, rho: float, margin: float, method: str) -> None:
+        """A fusion build's own query of grid buffer ``buf`` (held by the caller, just built):
+        the classify-ahead query at the newest joints' points ``P`` with radius ``rho + margin``
+        and the direction from ``rho`` — the worker's query, so it is published as the newest
+        answer at once instead of at the worker's next period. Ignored when its band is not the
+        worker's."""
+        if margin != self.margin:
+            return
+        self._store(DistanceSnapshot(np.ascontiguousarray(P, dtype=np.float64), D, V, observed, rho, margin,
+                                     method, dict(buf.stamps), dict(buf.versions), dict(buf.pushed_at),
+                                     buf.grid.principal_view(), time.perf_counter(), buf.generation))
+        self.offered += 1
+
+    def _store(self, snap: DistanceSnapshot) -> None:
+        with self._snap_lock:
+            old = self._snap
+            if old is None or snap.generation >= old.generation:
+                self._snap = snap
 
     def latest(self, now: float) -> DistanceSnapshot | None:
         """The newest snapshot, or None when there is none younger than ``max_age_s`` at ``now``
@@ -262,9 +285,10 @@ class DistanceWorker:
             res = grid.query(P, rho=rho + self.margin, method=method, threads=1, rho_core=rho)
             snap = DistanceSnapshot(P, res.distance.copy(), res.direction.copy(), res.observed.copy(), rho,
                                     self.margin, method, dict(buf.stamps), dict(buf.versions),
-                                    dict(buf.pushed_at), grid.principal_view(), time.perf_counter())
+                                    dict(buf.pushed_at), grid.principal_view(), time.perf_counter(),
+                                    buf.generation)
         finally:
             buf.lock.release()
-        self._snap = snap
+        self._store(snap)
         self.queries += 1
         self.last_query_s = snap.wall - t0

@@ -52,9 +52,10 @@ __all__ = ["CameraProduct", "CameraWorker", "GridBuffer", "FusionWorker", "backg
 WORKER_NICENESS = 3      # weight 526 against 1024: another busy process does not starve the frames
 
 
-def background_thread() -> None:
-    """Make the calling thread a background one: one numba thread, and a lower scheduling
-    priority where the system allows it per thread (Linux); silently nothing elsewhere."""
+def background_thread(numba_threads: int = 1) -> None:
+    """Make the calling thread a background one: ``numba_threads`` numba threads (0: all), and
+    a lower scheduling priority where the system allows it per thread (Linux); silently nothing
+    elsewhere."""
     import os
 
     import numba
@@ -62,7 +63,8 @@ def background_thread() -> None:
     from depthguard.runtime.realtime import normal_scheduling
 
     normal_scheduling()                  # started by a real-time control thread: not one itself
-    numba.set_num_threads(1)
+    n_all = numba.config.NUMBA_NUM_THREADS
+    numba.set_num_threads(n_all if numba_threads <= 0 else min(int(numba_threads), n_all))
     try:
         os.setpriority(os.PRIO_PROCESS, threading.get_native_id(), WORKER_NICENESS)
     except (AttributeError, OSError):
@@ -236,6 +238,7 @@ class FusionWorker:
         self.settings = settings
         self.robot = robot
         self.ahead_margin = 0.0          # m beyond rho classified ahead (the distance worker's band)
+        self.answer = None               # answer(snapshot): the classify-ahead query as a distance answer
         self.single = False              # one grid instead of two (set_single)
         self.swap_lock = threading.Lock()
         self.front: GridBuffer | None = None
@@ -269,7 +272,9 @@ class FusionWorker:
         self._thread.join(timeout)
 
     def _run(self) -> None:
-        background_thread()
+        # the cells classified ahead split over every core (they are most of a build, and the
+        # control and distance threads need little); the lookup after it runs on one
+        background_thread(numba_threads=0)
         while True:
             with self._wake:
                 while not self._pending and not self._stop:
@@ -327,9 +332,14 @@ class FusionWorker:
                                  invalid=cfg.invalid, robot_in_others=cfg.robot_in_others,
                                  changed=changed, silhouette_px=cfg.silhouette_px,
                                  gap_px=cfg.gap_px)
+            answer, res = self.answer, None
             if points is not None and len(points):
-                back.grid.query(points, rho=cfg.query_rho + self.ahead_margin, method=cfg.method,
-                                threads=1)                               # classify ahead
+                # classify ahead; with a distance worker the query is its own (the band beyond
+                # rho counts for the distance only) and its answer is published at once
+                res = back.grid.query(points, rho=cfg.query_rho + self.ahead_margin, method=cfg.method,
+                                      rho_core=cfg.query_rho if answer is not None else None)
+                if answer is not None:
+                    res = (points, res.distance.copy(), res.direction.copy(), res.observed.copy())
             for c in cams:
                 p = products[c]
                 if self._last_fused.get(c) != p.version:
@@ -341,6 +351,8 @@ class FusionWorker:
                 back.q_caps[c] = p.q
             back.loaded = True
             back.generation += 1
+            if answer is not None and res is not None:
+                answer(back, *res, cfg.query_rho, self.ahead_margin, cfg.method)
         with self.swap_lock:
             if self.single:
                 self._back = self.front = back

@@ -128,6 +128,7 @@ class Monitor:
         self._worker_data = self.robot.create_data()
         self.distance_fallbacks: dict[str, int] = {}   # cycles that queried the grid themselves, by why
         self.distance_queries = 0
+        self.distance_answers_from_builds = 0
         self.frame_to_reaction_s: list[float] = []
         self.step_s: list[float] = []
         self.cycles = 0
@@ -469,15 +470,18 @@ class Monitor:
         single = self.fusion.single
         self.fusion.set_single(True)             # no cycle reads the grid: one grid, half the builds' work
         self._dist_worker = worker
+        self.fusion.answer = worker.offer        # a build's own query is the newest answer at once
         worker.start()
         try:
             yield self
         finally:
             self._dist_worker = None
+            self.fusion.answer = None
             self.fusion.set_single(single)
             self.fusion.ahead_margin = 0.0
             worker.close()
             self.distance_queries += worker.queries
+            self.distance_answers_from_builds += worker.offered
 
     @contextmanager
     def replay(self):

@@ -90,6 +90,7 @@ def summarise(monitor, stats: RunStats, wall_s: float, sources: dict, extra: dic
         "source_errors": list(stats.source_errors),
         "control_scheduling": stats.control_scheduling,
         "distance_thread": {"queries": monitor.distance_queries,
+                            "answers_from_builds": monitor.distance_answers_from_builds,
                             "cycles_that_queried_themselves": dict(monitor.distance_fallbacks)},
         "episodes": monitor.episodes,
         "step_ms": {"p50": pct(monitor.step_s, 50), "p99": pct(monitor.step_s, 99), "max": pct(monitor.step_s, 100)},

@@ -214,6 +214,7 @@ def _run_monitor(script: _Script, rig, feeds, cfg, duration: float, attach=None)
                 "refusals": {k: v for c in st["cameras"].values() for k, v in c["refused"].items()},
                 "fusion_errors": st["fusion_errors"], "last_error": st["fusion_last_error"],
                 "distance_fallbacks": mon.distance_fallbacks, "distance_queries": mon.distance_queries,
+                "distance_offers": mon.distance_answers_from_builds,
                 "override_min": None}
 
 
@@ -366,7 +367,8 @@ def _bench_monitor(ctx: BenchContext) -> list[BenchRow]:
                        f"{len(mon['step_s'])} cycles, {mon['late']} started > 1 cycle late, control thread "
                        f"{mon['scheduling']}, switch interval "
                        f"{swi * 1e3:g} ms; distances on their own thread at {cfg.distance_hz:g} Hz "
-                       f"({mon['distance_queries']} queries, {mon['distance_fallbacks']} cycles queried "
+                       f"({mon['distance_queries']} queries and {mon['distance_offers']} answers of the fusion builds' "
+                       f"own queries, {mon['distance_fallbacks']} cycles queried "
                        f"the grid themselves, distance_margin {cfg.distance_margin:g} m); goal <= 1 ms{extra}")),
         BenchRow("monitor.frame_to_reaction_p99_ms", _pct(mon["f2r_s"], 99, math.inf), "ms",   # inf: no frame used
                  peer="today: delivery -> end of the cycle that loads it", peer_value=_pct(peer["f2r_s"], 99, math.inf),
