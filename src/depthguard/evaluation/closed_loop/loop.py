@@ -47,6 +47,7 @@ from typing import Callable
 
 import numpy as np
 
+from depthguard.config import MonitorConfig
 from depthguard.evaluation.closed_loop.camera_pipeline import CameraPipeline, threadsafe_numba
 from depthguard.evaluation.closed_loop.loop_truth import LoopTruth
 from depthguard.control.sns import SNSWorkspace, sns_velocity
@@ -57,6 +58,9 @@ from depthguard.render.composite import nearest_depth
 from depthguard.sources.frame import Frame
 
 __all__ = ["LoopConfig", "LoopResult", "ClosedLoop", "SafetySupervisor", "solve_ik", "stop_reasons"]
+
+
+_PRODUCT = {name: MonitorConfig.model_fields[name].default for name in ("robot_offset", "robot_padding")}
 
 
 @dataclass(frozen=True)
@@ -78,9 +82,10 @@ class LoopConfig:
     principal: str | None = None     # default: the rig's first camera
     cameras: tuple[str, ...] | None = None   # subset of the rig's cameras (default all)
     noise: bool = True               # the cameras' noise models
-    robot_offset: float = 0.08       # m, R9 self-removal margin (Kinect v1: ~2.7 cm disparity step at 3 m)
-    robot_padding: float = 0.05      # m, robot volume padding: grid cells inside are never obstacles (R12)
-    invalid: str = "far"             # R28 policy for invalid pixels, see ClosedLoop
+    # self removal and invalid pixels: the product's defaults (MonitorConfig, R9, R12, R28, R32)
+    robot_offset: float = _PRODUCT["robot_offset"]    # m, R9 self-removal margin
+    robot_padding: float = _PRODUCT["robot_padding"]  # m, robot volume: grid cells inside are never obstacles
+    invalid: str = "unknown"         # R28: "unknown" (the product's) | "far" (an invalid pixel is free)
     threads: int | None = None       # numba threads of the loop (None: all, but one for the camera thread)
     distance_hz: float | None = None  # None: distances at every control cycle (R15); else this rate
     grid_delta_d: float = 0.01       # m, depth slice of the grid (R10)
@@ -240,10 +245,8 @@ class ClosedLoop:
     # ------------------------------------------------------------ set-up
     def monitor_config(self):
         """The runtime's settings for this loop (:class:`~depthguard.config.MonitorConfig`): the
-        loop's rho, reaction and supervision parameters; ``invalid="far"`` is the runtime's
-        ``"free"`` (R28); the robot volume and self removal as in the product."""
-        from depthguard.config import MonitorConfig
-
+        loop's rho, reaction and supervision parameters; self removal, the robot volume and the
+        invalid-pixel rules the product's (``invalid="far"`` is the runtime's ``"free"``, R28)."""
         cfg = self.cfg
         return MonitorConfig(
             rho=cfg.rho, method=cfg.method, delta_d=cfg.grid_delta_d, principal=self.principal,
