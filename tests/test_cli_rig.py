@@ -266,3 +266,40 @@ def test_rig_errors_are_one_line_exit_2(tmp_path):
     bad.write_text("workspace: {min: [0, 0, 0], max: [1, 1, 1]}\ncameras:\n  - {id: c, fx: -1, pose: {}}\n")
     r = run_cli("run", "--rig", str(bad), "-s", "empty", "-o", str(tmp_path / "r"))
     assert r.returncode == 2 and r.stderr.strip().count("\n") == 0 and str(bad) in r.stderr and "cameras" in r.stderr
+
+
+def test_monitor_on_a_rig_without_walls_sees_no_phantom_where_nothing_is_modelled(tmp_path):
+    """A user's rig with a floor and a table only: the simulated camera's rays that meet nothing
+    return from beyond the rated range (as a real cell's walls would: free up to max_range,
+    R28), so the product's defaults (invalid = unknown) do not stop the robot alone."""
+    from depthguard.sources.base import open_source
+    from depthguard.sources.simulated import BEYOND_RANGE
+
+    f = write_ur3_rig(tmp_path / "rig.yaml")
+    rig = Rig.load(f)
+    cam = rig.cameras[0]
+    src = open_source("sim", rig, {})
+    q = np.asarray(UR3_JOINTS, dtype=float)
+    d = src.render(cam.id, 0.0, q)
+    ideal = src._expected[cam.id].known(q)
+    empty = ideal <= 0
+    assert empty.any() and (~empty).any()
+    assert np.all(d[empty] == np.float32(BEYOND_RANGE * cam.max_range))
+    assert cam.max_range < BEYOND_RANGE * cam.max_range <= 3.0 * cam.max_range
+    out = tmp_path / "mon"
+    res = CliRunner().invoke(app, ["monitor", "--rig", str(f), "--duration", "2", "--fast", "--out", str(out)])
+    assert res.exit_code == 0, res.output
+    s = json.loads((out / "summary.json").read_text())
+    assert s["override_min"] == 1.0 and s["episodes"] == [], (s["override_min"], s["episodes"])
+    # no control point reads anything much nearer than the fixed objects really are
+    from depthguard.sim.cells import cell_from_rig
+    from depthguard.sim.ground_truth import true_distance
+
+    truth = true_distance(list(cell_from_rig(rig).scene.static), rig.robot.control_point_positions(q))
+    rho = rig.monitor.rho
+    worst = np.inf
+    for line in (out / "log.jsonl").read_text().splitlines():
+        for i, p in enumerate(x for x in json.loads(line)["points"] if not x["watch"]):
+            if p["distance"] is not None:
+                worst = min(worst, p["distance"] - min(truth[i], rho))
+    assert worst > -0.05, worst

@@ -35,6 +35,7 @@ from depthguard.render import Renderer
 from depthguard.render.composite import nearest_depth
 from depthguard.runtime.joints import JointHistory
 from depthguard.sources.base import register_joints, register_source
+from depthguard.sources.simulated import returns_beyond_the_model
 from depthguard.sources.frame import Frame
 
 __all__ = ["SimWorld", "SimFrames", "SimJoints", "parse_sim_spec"]
@@ -220,6 +221,7 @@ class SimFrames:
             person = np.array(self._dyn[camera_id].render([p.mesh() for p in dyn])[0], copy=True)
             nearest_depth(ideal, person)
         d = self._sims[camera_id].measure(ideal, stamp=t)
+        returns_beyond_the_model(d, ideal, self._sims[camera_id].cam)       # a rig without walls (R28)
         if self.world.dark and person is not None:
             d[(person > 0) & (person <= ideal + 1e-6)] = 0.0      # dark clothing: no return
         return d

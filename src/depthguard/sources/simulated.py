@@ -23,7 +23,18 @@ from depthguard.sources.frame import Frame
 from depthguard.sources.noise import NoiseWorkspace, apply_noise
 from depthguard.sources.sensors import SensorModel, sensor_model
 
-__all__ = ["SimulatedCamera", "SimSource", "frame_rng"]
+__all__ = ["SimulatedCamera", "SimSource", "frame_rng", "returns_beyond_the_model", "BEYOND_RANGE"]
+
+BEYOND_RANGE = 1.5       # x max_range: where a ray that meets nothing modelled returns from (R28)
+
+
+def returns_beyond_the_model(measured: np.ndarray, ideal: np.ndarray, cam: Camera) -> np.ndarray:
+    """``measured`` (H, W) float32 m, changed in place: where the ideal render met nothing the
+    scene models (``ideal <= 0``: a user's rig without walls), a return from beyond the rated
+    range (``BEYOND_RANGE x max_range``), as a real cell's walls would give — free up to
+    ``max_range``, unknown behind (R28). Dropouts on modelled surfaces stay "no return"."""
+    measured[ideal <= 0] = np.float32(BEYOND_RANGE * cam.max_range)
+    return measured
 
 
 def frame_rng(seed: int, camera_id: str, stamp: float) -> np.random.Generator:

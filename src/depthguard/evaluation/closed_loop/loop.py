@@ -56,11 +56,11 @@ from depthguard.evaluation.closed_loop.trajectory import Hexagon
 from depthguard.filtering.expected import ExpectedDepth
 from depthguard.render.composite import nearest_depth
 from depthguard.sources.frame import Frame
+from depthguard.sources.simulated import returns_beyond_the_model
 
 __all__ = ["LoopConfig", "LoopResult", "ClosedLoop", "SafetySupervisor", "solve_ik", "stop_reasons"]
 
 
-BEYOND_RANGE = 1.5       # x max_range: where a ray that meets nothing modelled returns from (R28)
 _PRODUCT = {name: MonitorConfig.model_fields[name].default for name in ("robot_offset", "robot_padding")}
 
 
@@ -304,10 +304,7 @@ class ClosedLoop:
         if self.cfg.invalid == "far":
             d = np.where(d > 0, d, np.float32(cam.max_range - 1e-3)).astype(np.float32)
         else:
-            # a ray that meets nothing the rig models (a user's rig without walls) returns, as a
-            # real cell's walls would, from beyond the rated range: free up to max_range, unknown
-            # behind (R28); dropouts on modelled surfaces stay "no return" (unknown)
-            d[ideal <= 0] = np.float32(BEYOND_RANGE * cam.max_range)
+            returns_beyond_the_model(d, ideal, cam)     # a user's rig without walls (R28)
         return d, rd, t1 - t0, time.perf_counter() - t1
 
     def _dynamic_meshes(self, t: float) -> list:
