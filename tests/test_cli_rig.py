@@ -303,3 +303,16 @@ def test_monitor_on_a_rig_without_walls_sees_no_phantom_where_nothing_is_modelle
             if p["distance"] is not None:
                 worst = min(worst, p["distance"] - min(truth[i], rho))
     assert worst > -0.05, worst
+
+
+def test_placement_rig_names_the_space_next_to_the_robot_that_no_camera_sees(tmp_path):
+    """One camera cannot see behind the robot: placement reports the pockets at the rig joints
+    and what hides them (R12: unknown is an obstacle); ur3-cell's four cameras leave none."""
+    f = write_ur3_rig(tmp_path / "rig.yaml")
+    res = CliRunner().invoke(app, ["placement", "--rig", str(f), "--no-improve", "--voxel", "0.2"])
+    assert res.exit_code == 0, res.output
+    assert "have space that no camera sees" in res.output, res.output
+    assert "hidden by cam0: robot/" in res.output, res.output
+    res = CliRunner().invoke(app, ["placement", "--cell", "ur3-cell", "--no-improve", "--voxel", "0.2"])
+    assert res.exit_code == 0, res.output
+    assert "some camera sees around every control point" in res.output, res.output

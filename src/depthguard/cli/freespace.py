@@ -55,7 +55,9 @@ def placement(
     """R23: share of the (empty) space of interest seen by >= 3 cameras pairwise >= 100° apart in
     the horizontal plane, by number of cameras, and how many cameras a greedy placement on the
     walls (two rings) and the ceiling needs. Works on a built-in cell or your rig file (R2); the
-    static objects outside the workspace (walls) hide what lies behind them."""
+    static objects outside the workspace (walls) hide what lies behind them. With a robot in the
+    rig: the space next to it (within rho, at its rig joints) that no camera sees, and what hides
+    it from each camera — unknown is an obstacle, so the robot alone would read it (R12, R32)."""
     import numpy as np
 
     from depthguard.cli.common import load_rig_or_cell
@@ -94,6 +96,20 @@ def placement(
                          **kw)
     curve = share_vs_cameras(seen, az, g.chosen, **kw)
     typer.echo("share vs cameras (best first): " + ", ".join(f"{i + 1}:{100 * v:.1f}" for i, v in enumerate(curve)))
+    robot = the_rig.robot
+    if robot is not None and len(getattr(robot, "control_points", ())) > 0:
+        from depthguard.evaluation.coverage import blind_spots
+
+        spots = blind_spots(c, [0.0])              # the robot at its rig joints (R12, R32)
+        if spots:
+            typer.echo(f"next to the robot at its rig joints: {len(spots)} control point(s) have space that no "
+                       f"camera sees nearer than the fixed objects (unknown is an obstacle: the robot alone "
+                       f"reads it there):")
+            for b in spots[:5]:
+                typer.echo(f"  {b}")
+        else:
+            typer.echo("next to the robot at its rig joints: some camera sees around every control point "
+                       "(within rho, outside the robot's padding)")
     if improve:
         mid = (lo + hi) / 2
         h = hi[2] - lo[2]
