@@ -7,8 +7,9 @@ is the right answer for the monitor (a hand could be in it) and a fault of the
 layout. This module finds such pockets without the depth grid, from geometry
 alone: the cell's fixed objects and the robot rendered into every camera with
 no noise, and points on a lattice around each control point tested one by one
-(a point is seen when some camera has it in view, beyond its ``min_range``, and
-its ideal depth there is more than ``margin`` behind the point).
+(a point is seen when some camera has it in view, within its rated range, and
+its ideal depth there is more than ``margin`` behind the point, or nothing is modelled
+along that ray).
 
 ``blind_spots(cell, times)`` lists, per time and control point, the nearest
 lattice point that no camera sees, outside the robot's padded volume (cells in
@@ -34,7 +35,7 @@ class BlindSpot:
     ``t`` scene time (s); ``point`` the control point's name; ``distance`` (m) from it to
     the nearest unseen lattice point ``where`` (3,) world metres; ``truth`` (m) its
     distance to the fixed objects; ``hidden_by`` camera id -> what that camera sees in
-    front of ``where`` (a mesh name; ``"out of view"`` or ``"too near"`` when it cannot).
+    front of ``where`` (a mesh name; ``"out of view"``, ``"too near"`` or ``"too far"`` when it cannot).
     """
     t: float
     point: str
@@ -108,7 +109,8 @@ def blind_spots(cell, times, rho: float | None = None, padding: float | None = N
             for cam in rig.cameras:
                 ds = cam.world_to_depth_space(Y)
                 u, v = cam.pixel_of(ds[:, 0], ds[:, 1])
-                ok = (ds[:, 2] >= cam.min_range) & (u >= 0) & (u < cam.width) & (v >= 0) & (v < cam.height)
+                ok = ((ds[:, 2] >= cam.min_range) & (ds[:, 2] <= cam.max_range) & (u >= 0) & (u < cam.width)
+                      & (v >= 0) & (v < cam.height))
                 d = np.zeros(len(Y))
                 d[ok] = views[cam.id][0][v[ok], u[ok]]
                 seen |= ok & ((d == 0) | (d > ds[:, 2] + margin))
@@ -128,6 +130,8 @@ def blind_spots(cell, times, rho: float | None = None, padding: float | None = N
                     hidden[cam.id] = "out of view"
                 elif ds[2] < cam.min_range:
                     hidden[cam.id] = "too near"
+                elif ds[2] > cam.max_range:
+                    hidden[cam.id] = "too far"
                 else:
                     lab = int(views[cam.id][1][v, u])
                     hidden[cam.id] = mesh_names[lab] if lab >= 0 else "nothing"
