@@ -135,7 +135,7 @@ def test_zenoh_states_arrive_in_order_and_bad_payloads_are_counted(wired, rig, r
     pub.put(payload(truth[0][0], truth[0][1]))                 # older than the last one: dropped
     pub.put(payload(*truth[2]))
     pub.put(payload(*truth[3]))
-    assert wait_until(lambda: src.rejected + src.out_of_order + len(src._pending) >= len(bad) + 5, 5.0)
+    assert wait_until(lambda: src.rejected + src.out_of_order + len(src._queue) >= len(bad) + 5, 5.0)
     assert src.rejected == len(bad) and src.out_of_order == 1
     assert "outside its limits" in src.last_error
     got = src.states_until(truth[1][0])

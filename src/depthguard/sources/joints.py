@@ -24,13 +24,13 @@ import csv
 import json
 import math
 import threading
-from collections import deque
 from pathlib import Path
 from typing import Sequence
 
 import numpy as np
 
 from depthguard.sources.base import register_joints
+from depthguard.sources.stamped_queue import StampedQueue
 
 __all__ = ["CsvJointSource", "ZenohJointSource", "JointSourceError", "check_joint_state"]
 
@@ -179,8 +179,7 @@ class ZenohJointSource:
         self.overflow = 0
         self.last_error: str | None = None
         self._lock = threading.Lock()
-        self._pending: deque[tuple[float, np.ndarray]] = deque()
-        self._last_stamp = -math.inf
+        self._queue = StampedQueue(_MAX_PENDING)
         self._closed = False
         self._own = session is None
         self.session = session if session is not None else zenoh.open(zenoh_config(listen, connect))
@@ -197,23 +196,17 @@ class ZenohJointSource:
                 self.rejected += 1
                 self.last_error = f"{sample.key_expr}: {exc}"
             return
-        with self._lock:
-            if stamp <= self._last_stamp:
-                self.out_of_order += 1
-                return
-            self._last_stamp = stamp
-            if len(self._pending) >= _MAX_PENDING:
-                self._pending.popleft()
-                self.overflow += 1
-            self._pending.append((stamp, q))
+        what = self._queue.offer(stamp, (stamp, q))
+        if what is not None:
+            with self._lock:
+                if what == "out_of_order":
+                    self.out_of_order += 1
+                else:
+                    self.overflow += 1
 
     def states_until(self, t: float) -> list[tuple[float, np.ndarray]]:
         """The received states with stamp <= ``t`` (s) not given yet, in stamp order."""
-        out = []
-        with self._lock:
-            while self._pending and self._pending[0][0] <= t:
-                out.append(self._pending.popleft())
-        return out
+        return self._queue.until(t)
 
     @property
     def done(self) -> bool:

@@ -33,9 +33,7 @@ summary) by ``reason:camera`` or ``reason:topic``:
 
 from __future__ import annotations
 
-import math
 import threading
-from collections import deque
 
 import numpy as np
 
@@ -45,6 +43,7 @@ from depthguard.sources.base import register_joints, register_source
 from depthguard.sources.frame import Frame
 from depthguard.sources.joints import JointSourceError, _robot, check_joint_state
 from depthguard.sources.ros2_zenoh import Ros2Error, check_topic, node_for
+from depthguard.sources.stamped_queue import StampedQueue
 
 __all__ = ["Ros2Frames", "Ros2Joints", "MAX_PENDING_FRAMES", "MAX_PENDING_STATES"]
 
@@ -69,11 +68,9 @@ class Ros2Frames:
         self.camera_ids = list(rig.camera_ids)
         self._cams = {c.id: c for c in rig.cameras}
         self._order = {c: i for i, c in enumerate(self.camera_ids)}
-        self._pending: dict[str, deque] = {c: deque() for c in self.camera_ids}
-        self._last = {c: -math.inf for c in self.camera_ids}
+        self._queues = {c: StampedQueue(MAX_PENDING_FRAMES) for c in self.camera_ids}   # the monitor uses the newest
         self._info_ok: dict[str, bool] = {}
         self.frames = {c: 0 for c in self.camera_ids}
-        self.max_pending = MAX_PENDING_FRAMES     # per camera; the monitor uses only the newest anyway
         self.lost = None
         try:
             self.topics = {c.id: check_topic(rig.topics.get(c.id) or default_topic(c.id)) for c in rig.cameras}
@@ -85,6 +82,19 @@ class Ros2Frames:
         except Exception:
             self.close()
             raise
+
+    @property
+    def max_pending(self) -> int:
+        """Frames per camera waiting to be taken (default ``MAX_PENDING_FRAMES``; one more drops
+        the oldest, counted ``overflow``)."""
+        return next(iter(self._queues.values())).max_pending if self._queues else MAX_PENDING_FRAMES
+
+    @max_pending.setter
+    def max_pending(self, n: int) -> None:
+        if int(n) < 1:
+            raise ValueError(f"max_pending must be >= 1 (got {n!r})")
+        for q in self._queues.values():
+            q.max_pending = int(n)
 
     def _on_info(self, cid: str, msg) -> None:
         cam = self._cams[cid]
@@ -123,27 +133,18 @@ class Ros2Frames:
         except rosmsg.RosMessageError as exc:
             self.node.count(f"undecodable:{cid}", f"frame of {cid} at {stamp:.9f}: {exc}")
             return
-        with self._lock:
-            if self._closed:
-                return
-            if not stamp > self._last[cid]:
-                self.node.count(f"out_of_order:{cid}")
-                return
-            self._last[cid] = stamp
-            q = self._pending[cid]
-            if len(q) >= self.max_pending:
-                q.popleft()
-                self.node.count(f"overflow:{cid}")
-            q.append(Frame(cid, depth, stamp))
-            self.frames[cid] += 1
+        if self._closed:
+            return
+        what = self._queues[cid].offer(stamp, Frame(cid, depth, stamp))
+        if what is not None:
+            self.node.count(f"{what}:{cid}")
+        if what != "out_of_order":
+            with self._lock:
+                self.frames[cid] += 1
 
     def frames_until(self, t: float) -> list[Frame]:
         """The frames received with stamp <= ``t`` (s) not given yet, in stamp order."""
-        out = []
-        with self._lock:
-            for q in self._pending.values():
-                while q and q[0].stamp <= t:
-                    out.append(q.popleft())
+        out = [f for q in self._queues.values() for f in q.until(t)]
         out.sort(key=lambda f: (f.stamp, self._order[f.camera_id]))
         return out
 
@@ -174,9 +175,8 @@ class Ros2Joints:
 
     def __init__(self, node, rig, topic: str = "/joint_states"):
         self.node = node
+        self._queue = StampedQueue(MAX_PENDING_STATES)
         self._lock = threading.Lock()
-        self._pending: deque = deque()
-        self._last = -math.inf
         self.states = 0
         self._closed = False
         try:
@@ -204,23 +204,16 @@ class Ros2Joints:
         except JointSourceError as exc:
             self.node.count("joints_invalid", f"{self.topic} at {stamp:.9f}: {exc}")
             return
-        with self._lock:
-            if not stamp > self._last:
-                self.node.count("joints_out_of_order")
-                return
-            self._last = stamp
-            if len(self._pending) >= MAX_PENDING_STATES:
-                self._pending.popleft()
-                self.node.count("joints_overflow")
-            self._pending.append((stamp, q))
-            self.states += 1
+        what = self._queue.offer(stamp, (stamp, q))
+        if what is not None:
+            self.node.count(f"joints_{what}")
+        if what != "out_of_order":
+            with self._lock:
+                self.states += 1
 
     def states_until(self, t: float) -> list[tuple[float, np.ndarray]]:
-        out = []
-        with self._lock:
-            while self._pending and self._pending[0][0] <= t:
-                out.append(self._pending.popleft())
-        return out
+        """The received states with stamp <= ``t`` (s) not given yet, in stamp order."""
+        return self._queue.until(t)
 
     @property
     def done(self) -> bool:
