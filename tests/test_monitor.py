@@ -323,6 +323,46 @@ def test_camera_added_while_running_is_not_awaited_before_its_first_frame(rig, s
         assert "cam1" not in mon.stats()["cameras"]
 
 
+def test_the_grids_are_made_before_the_frames_that_need_them(rig, still, q0):
+    """The grid over every camera is made (and its pages touched) when the monitor starts, and
+    the one over a new set of cameras when a camera is added: the build that first has a frame
+    of each camera uses that grid, it does not make one on the frames' path (R29)."""
+    from depthguard.fusion.depth_grid import DepthGridMap
+
+    with Monitor(rig, free_cfg(rig)) as mon:
+        started = mon.fusion._prepared
+        assert started is not None and started.camera_ids == ("cam0", "cam1")
+        assert isinstance(started.grid, DepthGridMap)
+        still_drive(mon, still, q0).until(0.1)
+        assert mon.fusion._prepared is None
+        assert started in (mon.fusion.front, mon.fusion._back)   # one of the two grids (R29)
+
+    with Monitor(rig, free_cfg(rig, cameras=("cam0",))) as mon:
+        d = still_drive(mon, still, q0, cams={"cam0"})
+        d.until(0.1)
+        mon.add_camera("cam1", t=d.t)
+        added = mon.fusion._prepared
+        assert added is not None and added.camera_ids == ("cam0", "cam1")
+        d.until(d.t + 0.1)                              # cam1 delivers nothing yet: not needed
+        assert mon.fusion._prepared is added and mon.fusion.front.camera_ids == ("cam0",)
+        d.cams.add("cam1")
+        d.until_true(lambda r: "cam1" in r.frame_stamps, t_max=d.t + 2.0 / CAM_HZ)
+        assert mon.fusion.front is added and mon.fusion._prepared is None
+
+
+def test_touching_a_grids_pages_changes_nothing_in_it():
+    from depthguard.fusion.depth_grid import touch_pages
+
+    rng = np.random.default_rng(1)
+    for dtype in (np.float64, np.float32, np.int64, np.int32, np.int8, np.uint64):
+        a = (rng.random((97, 131, 3)) * 100).astype(dtype)
+        before = a.copy()
+        assert touch_pages(a) == a.nbytes
+        assert np.array_equal(a, before)
+    with pytest.raises(ValueError, match="contiguous"):
+        touch_pages(np.zeros((64, 64))[:, ::2])
+
+
 def test_removed_camera_that_stops_is_not_awaited(rig, still, q0):
     cfg = free_cfg(rig)
     limit = cfg.camera_stale_limit

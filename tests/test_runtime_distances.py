@@ -266,9 +266,9 @@ def test_one_grid_gives_the_same_answers_with_half_the_per_camera_work(setup):
     assert builds1 == builds2 == len(shots)
     for a, b in zip(two, one):
         assert all(np.array_equal(x, y) for x, y in zip(a, b))
-    # build 1 has cam0 only (the one-camera map); build 2 loads both into a new grid; from then
-    # on one grid loads the new camera only, while two grids load both (the third build starts
-    # the second grid)
+    # build 1 has cam0 only (the one-camera map); build 2 loads both into the grid made when the
+    # monitor started; from then on one grid loads the new camera only, while two grids load both
+    # (the third build starts the second grid)
     n = len(shots)
     assert len(calls1) == 2 + (n - 2)
     assert len(calls2) == 2 + 2 * (n - 2)

@@ -92,6 +92,7 @@ class Monitor:
         self._static = rig.static_meshes()
         self._workers: dict[str, CameraWorker] = {}
         self.fusion = FusionWorker(self._workers, self._make_grid, self._fusion_settings, self.robot)
+        self.fusion.prepare(self._camera_ids)      # the grid made now, not by the first frames
         for cid in self._camera_ids:
             self._start_worker(cid)
         self._added_at: dict[str, float] = {}
@@ -234,6 +235,11 @@ class Monitor:
         with self._settings_lock:
             if camera_id in self._camera_ids:
                 return
+            ids = self._camera_ids + (camera_id,)
+        self.fusion.prepare(ids)                  # the new grid made here, not by the next frame
+        with self._settings_lock:
+            if camera_id in self._camera_ids:
+                return
             self._start_worker(camera_id)
             self._camera_ids = self._camera_ids + (camera_id,)
         self._added_at[camera_id] = -math.inf if t is None else float(t)
@@ -270,9 +276,11 @@ class Monitor:
                 raise ValueError("cannot remove the last monitored camera")
             self._camera_ids = tuple(c for c in self._camera_ids if c != camera_id)
             w = self._workers.pop(camera_id)
+            ids = self._camera_ids
         w.close()
         self._seen.pop(camera_id, None)
         self.fusion.notify()
+        self.fusion.prepare(ids)          # after: the camera is not awaited from the call on
 
     # ------------------------------------------------------------ the control cycle
     def step(self, t: float, q=None, qd=None) -> Reaction:
