@@ -216,6 +216,25 @@ def _point_terms(px, py, dp, fx, fy, cx, cy):
 
 
 @njit(cache=True, inline="always")
+def _surface_first(direct, gs, ncp, ga, gb, ax, ay, bx, by, dp, dmin, dd):
+    """The last slice of ``ga..gb`` (``gb`` clipped to the grid) that a query of the point
+    needs classified in this column: ``gs`` when the point lies in front of the column's
+    measured surface, else ``gb``. The surface cell ``r(df) = gs`` is an obstacle (R12 case
+    2: a measured return, ``direct``, outside the robot's capsules: ``ncp == 0``) and the
+    R10 distance along the column is unimodal with its minimum at ``r(dstar)``; with
+    ``r(dstar) + 1 < gs`` every cell before ``gs`` is free and every cell after it is
+    farther, so the column's nearest obstacle is ``gs`` whatever the cells behind it are
+    (:func:`_column_bits` reads it as the lowest obstacle bit from ``gs`` on). Those cells
+    need the other cameras' clearing: this leaves them to a point that can be nearer to
+    them."""
+    if direct and ncp == 0 and 0 <= gs and ga <= gs and gs <= gb:
+        dstar = (ax * bx + ay * by + dp) / (ax * ax + ay * ay + 1.0)
+        if math.floor((dstar - dmin) / dd) + 1 < gs:
+            return gs
+    return gb
+
+
+@njit(cache=True, inline="always")
 def _ensure_pixel(u, v, ga, gb, gs, direct, ncp, pint, dmin, dd, kfree, kpmin, kpmax, koff, kdims,
                   rays, origins, kint, nk, kmemo, caps, ncaps, cap_lo, cap_hi, band, frame, pmemo, obits, cbits):
     """Classify the not yet classified slices of ``ga..gb`` (inside the grid, ``>= gs``) of
@@ -371,8 +390,9 @@ def ensure_cells(pfree, pkind, tmin, pint, dmin, dd, nd, kfree, kpmin, kpmax, ko
                     if ga > gb or (ga >= 0 and clear[v, u] >= gb):
                         continue                                       # too far / known free
                     gs, ncp = _col_setup(u, v, pfree, dmin, dd, nd, cap_n, ncaps)
+                    gb = _surface_first(pkind[v, u] == KIND_SURFACE, gs, ncp, ga, min(gb, nd - 1),
+                                        _ray_x(px, u, cx, fx), ay, bx, by, dp, dmin, dd)
                     ga = max(ga, gs, 0)
-                    gb = min(gb, nd - 1)
                     if ga <= gb:
                         span[0, v, u] = min(span[0, v, u], ga)
                         span[1, v, u] = max(span[1, v, u], gb)
@@ -577,9 +597,13 @@ def grid_distances_lazy(pfree, tmin, obits, cap_n, caps, ncaps, cap_lo, cap_hi, 
                     if ga > gb or (ga >= 0 and clear[v, u] >= gb):
                         continue                                   # too far from the point / known free
                     gs, ncp = _col_setup(u, v, pfree, dmin, dd, nd, cap_n, ncaps)
-                    if (fill and max(ga, gs, 0) <= min(gb, nd - 1)
-                            and (stamp[v, u] != frame or not _all_set(cbits, v, u, max(ga, gs, 0), min(gb, nd - 1)))):
-                        _ensure_one(u, v, max(ga, gs, 0), min(gb, nd - 1), gs, pkind[v, u] == KIND_SURFACE,
+                    direct = pkind[v, u] == KIND_SURFACE
+                    gn = min(gb, nd - 1)
+                    if fill:
+                        gn = _surface_first(direct, gs, ncp, ga, gn, ax, ay, bx_, by_, dp, dmin, dd)
+                    if (fill and max(ga, gs, 0) <= gn
+                            and (stamp[v, u] != frame or not _all_set(cbits, v, u, max(ga, gs, 0), gn))):
+                        _ensure_one(u, v, max(ga, gs, 0), gn, gs, direct,
                                     ncp, pint, dmin, dd, kfree, kpmin, kpmax, koff, kdims, rays, origins, kint,
                                     nk, kmemo, caps, ncaps, cap_lo, cap_hi, band, frame, (stamp, clear, free_to),
                                     obits, cbits)
