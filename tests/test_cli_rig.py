@@ -316,3 +316,48 @@ def test_placement_rig_names_the_space_next_to_the_robot_that_no_camera_sees(tmp
     res = CliRunner().invoke(app, ["placement", "--cell", "ur3-cell", "--no-improve", "--voxel", "0.2"])
     assert res.exit_code == 0, res.output
     assert "some camera sees around every control point" in res.output, res.output
+
+
+def test_placement_along_a_recorded_path_checks_the_robot_where_the_path_puts_it(tmp_path):
+    """``placement --joints csv:FILE``: the blind spots next to the robot along a recorded path,
+    each at the pose the path interpolates for its time. Truth: the UR3's own kinematics at the
+    linearly interpolated joints (the reported unseen point is that far from the named control
+    point there, and within rho of it), not at the rig joints."""
+    import re
+
+    f = write_ur3_rig(tmp_path / "rig.yaml")
+    rig = Rig.load(f)
+    q1 = np.array(UR3_JOINTS)
+    q2 = q1 + np.array([-0.8, 0.3, -0.4, 0.2, 0.0, 0.5])     # the base turned back, the arm raised
+    path = tmp_path / "path.csv"
+    path.write_text("stamp," + ",".join(f"j{i}" for i in range(6)) + "\n"
+                    + "\n".join(f"{s}," + ",".join(repr(float(x)) for x in q) for s, q in ((2.0, q1), (3.0, q2))) + "\n")
+    res = CliRunner().invoke(app, ["placement", "--rig", str(f), "--no-improve", "--voxel", "0.2",
+                                   "--joints", f"csv:{path}", "--every", "0.4"])
+    assert res.exit_code == 0, res.output
+    assert f"along csv:{path} (4 poses, every 0.4 s from 2 to 3 s)" in res.output, res.output
+    lines = re.findall(r"t=([\d.]+) s (\w+): nothing seen at \(([-\d.]+), ([-\d.]+), ([-\d.]+)\) m, ([\d.]+) m away",
+                       res.output)
+    assert len(lines) >= 3, res.output
+    data = rig.robot.create_data()
+    names = [c.name for c in rig.robot.control_points]
+    times = set()
+    for t, name, x, y, z, d in lines:
+        t = float(t)
+        times.add(t)
+        u = (t - 2.0) / 1.0
+        rig.robot.forward((1 - u) * q1 + u * q2, data)
+        p = data.cp_positions[names.index(name)]
+        dist = float(np.linalg.norm(np.array([float(x), float(y), float(z)]) - p))
+        assert abs(dist - float(d)) < 0.006, (t, name, dist, d)          # the printed 2-decimal point
+        assert dist <= rig.monitor.rho + 0.006
+    assert times == {2.0, 2.4, 2.8, 3.0}, res.output                      # every pose of the path, each at its own
+    # the path's errors name what is wrong
+    runner = CliRunner()
+    res = runner.invoke(app, ["placement", "--rig", str(f), "--no-improve", "--joints", "zenoh:robot/q"])
+    assert res.exit_code != 0 and "recorded path" in res.output, res.output
+    res = runner.invoke(app, ["placement", "--rig", str(f), "--no-improve", "--joints", f"csv:{tmp_path / 'no.csv'}"])
+    assert "does not exist" in str(res.exception), res.output
+    res = runner.invoke(app, ["placement", "--rig", str(f), "--no-improve", "--joints", f"csv:{path}",
+                              "--every", "0"])
+    assert res.exit_code != 0 and "--every" in res.output, res.output

@@ -86,3 +86,20 @@ def test_built_in_layout_sees_around_the_robot(cells):
 def test_built_in_ur3_path_has_no_blind_spot():
     cell = load_cell("ur3-cell")
     assert blind_spots(cell, np.arange(0.0, 16.0, 0.5)) == []
+
+
+def test_recorded_path_times_and_interpolated_joints():
+    from depthguard.evaluation.coverage import recorded_path
+
+    states = [(1.0, np.array([0.0, 1.0])), (2.0, np.array([1.0, 3.0])), (2.5, np.array([1.0, 2.0]))]
+    times, q_at = recorded_path(states, 0.4)
+    np.testing.assert_allclose(times, [1.0, 1.4, 1.8, 2.2, 2.5])          # every 0.4 s, then the last state
+    np.testing.assert_allclose(q_at(1.4), [0.4, 1.8])                     # linear between the states around t
+    np.testing.assert_allclose(q_at(2.25), [1.0, 2.5])
+    np.testing.assert_allclose(q_at(2.0), [1.0, 3.0])
+    one, q1 = recorded_path(states[:1], 0.5)
+    assert list(one) == [1.0] and list(q1(1.0)) == [0.0, 1.0]
+    with pytest.raises(ValueError, match="every"):
+        recorded_path(states, 0.0)
+    with pytest.raises(ValueError, match="no states"):
+        recorded_path([], 0.5)

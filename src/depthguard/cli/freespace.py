@@ -2,6 +2,7 @@
 
 from __future__ import annotations
 
+import math
 from pathlib import Path
 from typing import Optional
 
@@ -51,13 +52,16 @@ def placement(
     min_separation: float = typer.Option(100.0, "--min-separation", help="Pairwise horizontal angle in degrees."),
     improve: bool = typer.Option(True, "--improve/--no-improve", help="Also run the greedy improver over wall and ceiling positions."),
     spacing: float = typer.Option(0.5, "--spacing", help="Spacing of the improver's candidate positions, metres."),
+    joints: Optional[str] = typer.Option(None, "--joints", help="A recorded joint path (csv:FILE with stamp,q1..qn, or bag:FILE): the space next to the robot is checked along it instead of at the rig joints."),
+    every: float = typer.Option(0.5, "--every", help="With --joints: check the path every this many seconds (and at its last state)."),
 ) -> None:
     """R23: share of the (empty) space of interest seen by >= 3 cameras pairwise >= 100° apart in
     the horizontal plane, by number of cameras, and how many cameras a greedy placement on the
     walls (two rings) and the ceiling needs. Works on a built-in cell or your rig file (R2); the
     static objects outside the workspace (walls) hide what lies behind them. With a robot in the
-    rig: the space next to it (within rho, at its rig joints) that no camera sees, and what hides
-    it from each camera — unknown is an obstacle, so the robot alone would read it (R12, R32)."""
+    rig: the space next to it (within rho, at its rig joints, or along a recorded path with
+    ``--joints``) that no camera sees, and what hides it from each camera — unknown is an
+    obstacle, so the robot alone would read it (R12, R32)."""
     import numpy as np
 
     from depthguard.cli.common import load_rig_or_cell
@@ -69,8 +73,13 @@ def placement(
         raise typer.BadParameter(f"voxel must lie in [0.02, 1.0] m, got {voxel}", param_hint="--voxel")
     if not (0 < min_separation <= 120):
         raise typer.BadParameter(f"must lie in (0, 120] degrees, got {min_separation}", param_hint="--min-separation")
+    if not (math.isfinite(every) and every > 0):
+        raise typer.BadParameter(f"must be a number of seconds > 0, got {every}", param_hint="--every")
     the_rig, c = load_rig_or_cell(rig, cell, default="c-arm-room", simulate=True)
     label = c.name if rig is None else f"{the_rig.name} ({rig})"
+    path = None
+    if joints is not None:
+        path = _recorded_path(joints, the_rig, every)
     if clearance is None:
         clearance = 0.0 if rig is not None else 0.8
     lo, hi = np.asarray(the_rig.workspace.lo, float), np.asarray(the_rig.workspace.hi, float)
@@ -99,17 +108,35 @@ def placement(
     robot = the_rig.robot
     if robot is not None and len(getattr(robot, "control_points", ())) > 0:
         from depthguard.evaluation.coverage import blind_spots
+        from depthguard.progress import track
 
-        spots = blind_spots(c, [0.0])              # the robot at its rig joints (R12, R32)
-        if spots:
-            typer.echo(f"next to the robot at its rig joints: {len(spots)} control point(s) have space that no "
-                       f"camera sees nearer than the fixed objects (unknown is an obstacle: the robot alone "
-                       f"reads it there):")
-            for b in spots[:5]:
-                typer.echo(f"  {b}")
+        if path is None:                           # the robot at its rig joints (R12, R32)
+            where, spots = "at its rig joints", blind_spots(c, [0.0])
         else:
-            typer.echo("next to the robot at its rig joints: some camera sees around every control point "
+            times, q_at = path
+            where = f"along {joints} ({len(times)} poses, every {every:g} s from {times[0]:g} to {times[-1]:g} s)"
+            spots = blind_spots(c, times, q_at=q_at, progress=lambda ts: track(ts, "placement: the path"))
+        if spots:
+            typer.echo(f"next to the robot {where}: {len(spots)} control point(s) have space that no "
+                       f"camera sees nearer than the fixed objects (unknown is an obstacle: the robot alone "
+                       f"reads it there){' at ' + str(len({b.t for b in spots})) + ' poses' if path else ''}:")
+            shown = spots[:5]
+            if path is not None:                   # along a path: the nearest at each pose, up to 10 poses
+                per_pose: dict = {}
+                for b in spots:
+                    if b.t not in per_pose or b.distance < per_pose[b.t].distance:
+                        per_pose[b.t] = b
+                shown = list(per_pose.values())[:10]
+            for b in shown:
+                typer.echo(f"  {b}")
+            if len(spots) > len(shown):
+                typer.echo(f"  ... and {len(spots) - len(shown)} more")
+        else:
+            typer.echo(f"next to the robot {where}: some camera sees around every control point "
                        "(within rho, outside the robot's padding)")
+    elif path is not None:
+        raise typer.BadParameter(f"the rig {the_rig.name!r} has no robot with control points to move along a "
+                                 f"path", param_hint="--joints")
     if improve:
         mid = (lo + hi) / 2
         h = hi[2] - lo[2]
@@ -130,3 +157,25 @@ def placement(
         for cam in r.cameras:
             p = cam.position
             typer.echo(f"  {cam.id} at ({p[0]:.2f}, {p[1]:.2f}, {p[2]:.2f})")
+
+
+def _recorded_path(spec: str, rig, every: float):
+    """``(times, q_at)`` of the recorded joint path ``spec`` (:func:`depthguard.evaluation.coverage.recorded_path`);
+    a live source (zenoh:, ros2:) or the simulator has no recording to walk along."""
+    from depthguard.evaluation.coverage import recorded_path
+    from depthguard.sources.base import open_joints, split_spec
+
+    scheme = split_spec(spec)[0]
+    if scheme not in ("csv", "bag"):
+        raise typer.BadParameter(f"{spec!r}: placement walks a recorded path (csv:FILE or bag:FILE), not "
+                                 f"{scheme}:", param_hint="--joints")
+    src = open_joints(spec, rig, {})
+    try:
+        states = src.states_until(math.inf)
+    finally:
+        close = getattr(src, "close", None)
+        if close is not None:
+            close()
+    if not states:
+        raise typer.BadParameter(f"{spec!r} holds no joint state", param_hint="--joints")
+    return recorded_path(states, every)

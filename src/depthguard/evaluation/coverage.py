@@ -21,11 +21,13 @@ a robot-alone run that gave false readings.
 
 from __future__ import annotations
 
+import math
 from dataclasses import dataclass
+from typing import Callable
 
 import numpy as np
 
-__all__ = ["BlindSpot", "blind_spots"]
+__all__ = ["BlindSpot", "blind_spots", "recorded_path"]
 
 
 @dataclass(frozen=True)
@@ -67,14 +69,20 @@ def _outside_capsules(points: np.ndarray, segments: np.ndarray, radii: np.ndarra
 
 
 def blind_spots(cell, times, rho: float | None = None, padding: float | None = None,
-                step: float = 0.02, tolerance: float = 0.05, margin: float = 0.01) -> list[BlindSpot]:
-    """Blind spots along the robot's scripted path (module docstring).
+                step: float = 0.02, tolerance: float = 0.05, margin: float = 0.01,
+                q_at: Callable[[float], np.ndarray] | None = None,
+                progress: Callable | None = None) -> list[BlindSpot]:
+    """Blind spots along the robot's path (module docstring).
 
     cell : a :class:`depthguard.sim.Cell` (its rig's cameras, fixed objects, robot and path).
-    times : scene times (s) to look at.
+    times : times (s) to look at.
     rho, padding : metres; default the rig's ``monitor:`` ``rho`` and ``robot_padding``.
     step : lattice spacing (m); ``tolerance`` (m) how much nearer than ``min(truth, rho)``
         counts; ``margin`` (m) how far behind a point the camera's surface must be.
+    q_at : ``t -> (dof,)`` joints of the path (default the cell's scripted path,
+        ``cell.scene.robot_q``; :func:`recorded_path` for a recording).
+    progress : ``progress(times) -> iterable`` around the loop over the times (e.g. a
+        progress bar: each time renders every camera).
     """
     from depthguard.render import Renderer
     from depthguard.runtime.ingest import robot_volume
@@ -91,9 +99,10 @@ def blind_spots(cell, times, rho: float | None = None, padding: float | None = N
     static = list(scene.static)
     renderers = {c.id: Renderer(c) for c in rig.cameras}
     names = [cp.name for cp in robot.control_points]
+    q_at = scene.robot_q if q_at is None else q_at
     found = []
-    for t in times:
-        q = scene.robot_q(float(t))
+    for t in (times if progress is None else progress(times)):
+        q = np.asarray(q_at(float(t)), dtype=np.float64)
         meshes = [p.mesh() for p in static] + list(robot.link_meshes(q))
         mesh_names = [p.name for p in static] + [f"robot/{n}" for n in robot.link_names]
         views = {}
@@ -138,3 +147,27 @@ def blind_spots(cell, times, rho: float | None = None, padding: float | None = N
             found.append(BlindSpot(float(t), names[i], float(dist[k]), float(truth[i]),
                                    tuple(float(x) for x in Y[k]), hidden))
     return found
+
+
+def recorded_path(states, every: float) -> tuple[np.ndarray, Callable[[float], np.ndarray]]:
+    """The times to check along a recorded joint path and the joints at any of them.
+
+    states : ``[(stamp s, q (dof,)), ...]`` in increasing stamp order (a joint source's,
+        e.g. ``csv:FILE``), at least one. every : s > 0 between two checked times.
+    Returns ``(times, q_at)``: every ``every`` s from the first stamp, and the last stamp;
+    ``q_at(t)`` the joints linearly interpolated between the two states around ``t``
+    (the robot moves between two recorded states; R30 interpolates the same way).
+    """
+    if not (isinstance(every, (int, float)) and math.isfinite(every) and every > 0):
+        raise ValueError(f"every must be a number of seconds > 0 (got {every!r})")
+    if not states:
+        raise ValueError("the joint path has no states")
+    stamps = np.array([float(s) for s, _ in states])
+    Q = np.array([np.asarray(q, dtype=np.float64) for _, q in states])
+    times = np.arange(stamps[0], stamps[-1], every)
+    times = np.append(times, stamps[-1]) if len(times) == 0 or times[-1] < stamps[-1] else times
+
+    def q_at(t: float) -> np.ndarray:
+        return np.array([np.interp(t, stamps, Q[:, j]) for j in range(Q.shape[1])])
+
+    return times, q_at
