@@ -6,7 +6,7 @@ import numpy as np
 import pytest
 
 import depthguard as dg
-from depthguard.transforms import look_at, quat_to_matrix, matrix_to_quat, pose, rot_z
+from depthguard.transforms import look_at, quat_to_matrix, matrix_to_quat, rot_z
 
 
 def random_camera(rng, w=640, h=480):

@@ -4,7 +4,6 @@ Ctrl-C stops it cleanly with the summary written, bad arguments give one line.""
 from __future__ import annotations
 
 import json
-import os
 import signal
 import subprocess
 import sys
@@ -13,7 +12,6 @@ from pathlib import Path
 
 import pytest
 
-from depthguard.runtime.result import Reaction
 
 DG = [sys.executable, "-m", "depthguard.cli"]
 

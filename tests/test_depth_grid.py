@@ -7,7 +7,7 @@ import numpy as np
 import pytest
 
 import depthguard as dg
-from depthguard.fusion import depth_grid_kernels as K
+from depthguard.fusion import depth_grid_capsules, depth_grid_kernels
 from depthguard.fusion import depth_grid_ref as ref
 from depthguard.fusion.depth_grid import DepthGridMap, MultiPrincipalDepthGrid
 from depthguard.geometry.primitives import Box, Capsule, Sphere, sdf_union
@@ -99,7 +99,7 @@ def test_frame_state_equals_twin(rng):
     for inv, rf in (("unknown", False), ("free", True)):
         free = np.empty(cam.shape)
         kind = np.empty(cam.shape, dtype=np.int8)
-        K.frame_state(depth, robot, True, cam.min_range, cam.max_range, 0.03, inv == "free", rf, free, kind)
+        depth_grid_kernels.frame_state(depth, robot, True, cam.min_range, cam.max_range, 0.03, inv == "free", rf, free, kind)
         f2, k2 = ref.frame_state_numpy(cam, depth, robot, 0.03, inv, rf)
         np.testing.assert_array_equal(free, f2)
         np.testing.assert_array_equal(kind, k2)
@@ -162,10 +162,10 @@ def test_capsule_intervals_match_centre_test(rng):
         a, b = cap.segment()
         caps = np.r_[a, b, cap.radius][None]
         cc = np.concatenate([caps[:, :3] @ cam.R.T + cam.t, caps[:, 3:6] @ cam.R.T + cam.t, caps[:, 6:]], 1)
-        lo = np.zeros((30, 40, K.MAX_CAPS_PER_PIXEL))
+        lo = np.zeros((30, 40, depth_grid_capsules.MAX_CAPS_PER_PIXEL))
         hi = np.zeros_like(lo)
         n = np.zeros((30, 40), dtype=np.int64)
-        K.capsule_intervals(cc, 1, np.array([[0, 39, 0, 29]]), cam.fx, cam.fy, cam.cx, cam.cy, 30, 40, lo, hi, n)
+        depth_grid_capsules.capsule_intervals(cc, 1, np.array([[0, 39, 0, 29]]), cam.fx, cam.fy, cam.cx, cam.cy, 30, 40, lo, hi, n)
         for v in range(0, 30, 2):
             for u in range(0, 40, 2):
                 d1 = g * dd
@@ -176,7 +176,7 @@ def test_capsule_intervals_match_centre_test(rng):
                 by_int = (n[v, u] >= 1) & (lo[v, u, 0] <= dm) & (dm <= hi[v, u, 0])
                 sure = np.abs(sd) > 1e-9                      # not on the surface to rounding
                 np.testing.assert_array_equal(inside[sure], by_int[sure])
-                by_cell = np.array([K.cell_in_capsules(cc, 1, cam.fx, cam.fy, cam.cx, cam.cy, u, v, x, x + dd)
+                by_cell = np.array([depth_grid_capsules.cell_in_capsules(cc, 1, cam.fx, cam.fy, cam.cx, cam.cy, u, v, x, x + dd)
                                     for x in d1])
                 np.testing.assert_array_equal(inside[sure], by_cell[sure])
                 corners = ref.cell_corners_world(cam, u, v, d1, d1 + dd)

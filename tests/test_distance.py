@@ -10,7 +10,6 @@ import pytest
 import depthguard as dg
 from depthguard.camera import Camera
 from depthguard.distance import DistanceWorkspace, depth_space_distance
-from depthguard.distance import kernels as K
 from depthguard.distance.reference import (depth_space_distance_numpy, obstacle_start_depth_numpy,
                                            surveillance_window_numpy)
 from depthguard.distance.window import surveillance_window

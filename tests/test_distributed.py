@@ -18,7 +18,7 @@ import pytest
 from hypothesis import HealthCheck, given, settings
 from hypothesis import strategies as st
 
-from depthguard.distributed import wire as W
+from depthguard.distributed import wire
 from depthguard.distributed.client import ServerClient, ServerRefused
 from depthguard.distributed.server import ERR_REFUSED, FusionServer
 from small_rigs import write_rig
@@ -33,7 +33,7 @@ from loopback import free_port, wait_until
 def server():
     port = free_port()
     logs = []
-    srv = FusionServer(["cam0", "cam1", "cam2", "cam3"], W.Settings(stale_s=0.5),
+    srv = FusionServer(["cam0", "cam1", "cam2", "cam3"], wire.Settings(stale_s=0.5),
                        listen=[f"tcp/127.0.0.1:{port}"], log=logs.append).start()
     srv.logs = logs
     srv.endpoint = f"tcp/127.0.0.1:{port}"
@@ -51,20 +51,20 @@ def client(server):
 
 def _update(client, uid, keys, seq=1, s=0.02):
     keys = np.asarray(keys)
-    return client.request("depthguard/update", W.update_request(uid, seq, time.time(), s, keys,
+    return client.request("depthguard/update", wire.update_request(uid, seq, time.time(), s, keys,
                                                                   np.full(len(keys), 9)))
 
 
 def test_protocol_in_process(server, client):
-    uid = client.request("depthguard/init", W.init_request("cam0", "a")).unit_id
-    uid1 = client.request("depthguard/init", W.init_request("cam1", "b")).unit_id
+    uid = client.request("depthguard/init", wire.init_request("cam0", "a")).unit_id
+    uid1 = client.request("depthguard/init", wire.init_request("cam1", "b")).unit_id
     assert uid != uid1
     # seen before → same id, no new storage
-    assert client.request("depthguard/init", W.init_request("cam0", "a2")).unit_id == uid
+    assert client.request("depthguard/init", wire.init_request("cam0", "a2")).unit_id == uid
     assert len(server.units) == 2 and server.units["cam0"].inits == 2
     # unknown camera refused, logged, counted
     with pytest.raises(ServerRefused) as e:
-        client.request("depthguard/init", W.init_request("intruder", "evil"))
+        client.request("depthguard/init", wire.init_request("intruder", "evil"))
     assert e.value.code == ERR_REFUSED and server.refused == 1
     assert any("intruder" in m for m in server.logs)
     # no liveliness token yet → the unit is "left" and the reply asks for the token
@@ -95,7 +95,7 @@ def test_protocol_in_process(server, client):
     assert wait_until(lambda: server.status()["nodes"][0]["state"] == "left", 2.0)
     # malformed / unexpected messages rejected and counted, the server answers on
     r0 = server.rejected
-    for bad in (b"", b"garbage", W.status_request()):
+    for bad in (b"", b"garbage", wire.status_request()):
         with pytest.raises(ServerRefused):
             client.request("depthguard/update", bad)
     with pytest.raises(ServerRefused):
@@ -120,7 +120,7 @@ def test_fuzzed_messages_crash_nothing(server, client, key, data):
         client.request(f"depthguard/{key}", data, timeout=2.0)
     except ServerRefused:
         assert server.rejected + server.refused == r0 + 1
-    except W.WireError:
+    except wire.WireError:
         pytest.fail("the server replied with something undecodable")
     assert "nodes" in client.status()
 
@@ -159,7 +159,7 @@ def any_server(request, pki):
     port = free_port()
     tls = request.param == "tls"
     ep = f"{request.param}/127.0.0.1:{port}"
-    srv = FusionServer(["cam0", "cam1", "cam2", "cam3"], W.Settings(stale_s=0.5), listen=[ep],
+    srv = FusionServer(["cam0", "cam1", "cam2", "cam3"], wire.Settings(stale_s=0.5), listen=[ep],
                        identity=load_identity(pki / "ca") if tls else None).start()
     srv.endpoint = ep
     c = ServerClient([ep], identity=load_identity(pki / "admin") if tls else None)
@@ -302,14 +302,14 @@ def test_node_reinitialises_after_server_restart(tmp_path):
     rig = _rig(tmp_path)
     port = free_port()
     ep = f"tcp/127.0.0.1:{port}"
-    srv = FusionServer(["cam0"], W.Settings(voxel_size=0.05), listen=[ep]).start()
+    srv = FusionServer(["cam0"], wire.Settings(voxel_size=0.05), listen=[ep]).start()
     node = build_node(str(rig), "cam0", "pattern", connect=[ep])
     try:
         node.declare_token()
         node.initialize(timeout=10)
         assert node.step() > 0 and node.filter.voxel_size == 0.05
         srv.close()
-        srv = FusionServer(["cam0"], W.Settings(voxel_size=0.03), listen=[ep]).start()
+        srv = FusionServer(["cam0"], wire.Settings(voxel_size=0.03), listen=[ep]).start()
         # the restarted server does not know unit 1: the node initialises again and adopts its settings
         assert wait_until(lambda: _try_step(node) and "cam0" in srv.units and srv.units["cam0"].updates > 0, 15.0)
         assert node.filter.voxel_size == 0.03 and srv.units["cam0"].inits == 1
@@ -330,13 +330,13 @@ def _try_step(node):
 def test_fit_to_wire_coarsens_conservatively(rng):
     from depthguard.distributed.node import fit_to_wire
 
-    keys = rng.integers(-400, 400, (W.MAX_VOXELS + 5000, 3))
+    keys = rng.integers(-400, 400, (wire.MAX_VOXELS + 5000, 3))
     k2, c2, s2 = fit_to_wire(keys, np.ones(len(keys), np.int32), 0.01)
-    assert len(k2) <= W.MAX_VOXELS and s2 > 0.01
+    assert len(k2) <= wire.MAX_VOXELS and s2 > 0.01
     covered = set(map(tuple, k2.tolist()))
     pts = (keys[:2000] + rng.uniform(0, 1, (2000, 3))) * 0.01
     assert all(tuple(np.floor(p / s2).astype(int)) in covered for p in pts)
-    W.update_request(1, 1, 0.0, s2, k2, c2)     # and it encodes
+    wire.update_request(1, 1, 0.0, s2, k2, c2)     # and it encodes
 
 
 def test_network_defaults_are_loopback_and_checked():

@@ -17,7 +17,7 @@ import time
 
 import pytest
 
-from depthguard.distributed import wire as W
+from depthguard.distributed import wire
 from depthguard.distributed.client import ServerClient, ServerRefused, ServerUnavailable
 from depthguard.distributed.keys import (ROLE_ADMIN, ROLE_NODE, ROLE_SERVER, init_authority, issue_admin,
                                          issue_node, load_identity)
@@ -169,21 +169,21 @@ def test_attacks_fail_and_are_logged(pki, tmp_path):
                 node_b.set_settings(offset_const=0.5)
             # a node's certificate sending an unsigned message (a raw zenoh query on the TLS link)
             raw = [r for r in node_b.session.get("depthguard/settings",
-                                                 payload=W.settings_request(offset_const=0.5), timeout=2.0)
+                                                 payload=wire.settings_request(offset_const=0.5), timeout=2.0)
                    if r.ok is not None]
             assert raw and b"not signed" in raw[0].ok.payload.to_bytes()
             st = admin.status()
             assert st["settings"]["epoch"] == offset0 and st["refused"] == r0 + 2
             # 2. updates to a unit id never joined, and to camA's id, with camB's certificate
-            upd = W.update_request(a_id + 1, 1, time.time(), 0.02, [[0, 0, 0]], [9])
+            upd = wire.update_request(a_id + 1, 1, time.time(), 0.02, [[0, 0, 0]], [9])
             with pytest.raises(ServerRefused, match="not initialised"):
                 node_b.request("depthguard/update", upd)
-            upd = W.update_request(a_id, 10 ** 6, time.time(), 0.02, [[0, 0, 0]], [9])
+            upd = wire.update_request(a_id, 10 ** 6, time.time(), 0.02, [[0, 0, 0]], [9])
             with pytest.raises(ServerRefused, match=f"unit id {a_id} is not camera 'camB'"):
                 node_b.request("depthguard/update", upd)
             # 3. joining as the running camA with camB's certificate
             with pytest.raises(ServerRefused, match="certificate of camera 'camB' cannot join as camera 'camA'"):
-                node_b.request("depthguard/init", W.init_request("camA", "evil"))
+                node_b.request("depthguard/init", wire.init_request("camA", "evil"))
             # camA's unit is untouched: same id, its own voxels, fresh
             st = admin.status()
             n = {x["camera"]: x for x in st["nodes"]}
@@ -191,7 +191,7 @@ def test_attacks_fail_and_are_logged(pki, tmp_path):
             assert abs(n["camA"]["voxels"] - a_vox) <= 2 and "camB" not in n and st["refused"] == r0 + 5
             # a replayed (recorded) signed request is refused
             from depthguard.distributed.auth import Signer
-            env, _ = Signer(load_identity(pki / "admin")).seal(W.status_request(), "depthguard/status")
+            env, _ = Signer(load_identity(pki / "admin")).seal(wire.status_request(), "depthguard/status")
             got = [r.ok.payload.to_bytes() for k in range(2)
                    for r in admin.session.get("depthguard/status", payload=env, timeout=2.0) if r.ok is not None]
             assert len(got) == 2 and b"replayed" in got[1] and b"replayed" not in got[0]
@@ -199,7 +199,7 @@ def test_attacks_fail_and_are_logged(pki, tmp_path):
             foreign = ServerClient([ep], identity=load_identity(pki / "mixedA"))
             procs_clients.append(foreign)
             with pytest.raises(ServerUnavailable):
-                foreign.request("depthguard/init", W.init_request("camA", "x"), timeout=1.5)
+                foreign.request("depthguard/init", wire.init_request("camA", "x"), timeout=1.5)
             assert _tls_probe(port, pki, pki / "camA") == "ok"             # control: a cell certificate is held
             assert _tls_probe(port, pki, pki / "mixedA") != "ok"
             assert _tls_probe(port, pki, None) != "ok"
@@ -287,10 +287,10 @@ def test_a_cell_member_answering_in_place_of_the_server_is_ignored(pki):
 
     port = free_port()
     ep = f"tls/127.0.0.1:{port}"
-    srv = FusionServer(["camA", "camB"], W.Settings(), listen=[ep], identity=load_identity(pki / "ca")).start()
+    srv = FusionServer(["camA", "camB"], wire.Settings(), listen=[ep], identity=load_identity(pki / "ca")).start()
     rogue = ServerClient([ep], identity=load_identity(pki / "camB"))
     node = ServerClient([ep], identity=load_identity(pki / "camA"))
-    forged = W.init_reply(99, W.Settings(threshold=1.0))
+    forged = wire.init_reply(99, wire.Settings(threshold=1.0))
     signer = Signer(load_identity(pki / "camB"))
     asked = {"rogue": 0, "local": 0}
 
@@ -314,7 +314,7 @@ def test_a_cell_member_answering_in_place_of_the_server_is_ignored(pki):
         srv.close()
         time.sleep(0.5)
         with pytest.raises(ServerUnavailable, match="a reply was refused: reply signed by depthguard-node/camB, not by the server"):
-            node.request("depthguard/init", W.init_request("camA", "x"), timeout=1.5)
+            node.request("depthguard/init", wire.init_request("camA", "x"), timeout=1.5)
         assert asked["local"] >= 2
     finally:
         for q in queryables:
@@ -326,7 +326,7 @@ def test_a_cell_member_answering_in_place_of_the_server_is_ignored(pki):
 
 def _init_or_none(client):
     try:
-        return client.request("depthguard/init", W.init_request("camA", "node"), timeout=1.0)
+        return client.request("depthguard/init", wire.init_request("camA", "node"), timeout=1.0)
     except ServerUnavailable:
         return None
 
@@ -345,7 +345,7 @@ def test_the_monitors_units_source_reads_a_tls_server_with_an_admin_certificate(
     rig_path = write_rig(tmp_path / "rig.yaml")
     rig = Rig.load(rig_path)
     ep = f"tls/127.0.0.1:{free_port()}"
-    srv = FusionServer(["camA", "camB", "camC"], W.Settings(stale_s=30.0), listen=[ep],
+    srv = FusionServer(["camA", "camB", "camC"], wire.Settings(stale_s=30.0), listen=[ep],
                        identity=load_identity(pki / "ca")).start()
     node = build_node(str(rig_path), "camA", "pattern", connect=[ep], identity=load_identity(pki / "camA"))
     src = None

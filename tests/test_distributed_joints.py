@@ -14,7 +14,7 @@ import time
 import numpy as np
 import pytest
 
-from depthguard.distributed import wire as W
+from depthguard.distributed import wire
 from depthguard.distributed.server import FusionServer
 
 from loopback import free_port, wait_until
@@ -61,7 +61,7 @@ def test_node_removes_robot_at_interpolated_capture_joints(cell):
     cam_id = rig.cameras[0].id
     logs = []
     # the server's settings hold the fixed starting pose (the fallback without a joint stream)
-    srv = FusionServer(rig.camera_ids, W.Settings(threshold=0.1, joints=tuple(q_of(0.0))), listen=[ep]).start()
+    srv = FusionServer(rig.camera_ids, wire.Settings(threshold=0.1, joints=tuple(q_of(0.0))), listen=[ep]).start()
     streamed = build_node(None, cam_id, "sim", "ur3-cell", resolution=(424, 240), connect=[ep],
                           joints=f"zenoh:{KEY}", log=logs.append)
     fixed = build_node(None, cam_id, "sim", "ur3-cell", resolution=(424, 240), connect=[ep])
@@ -160,7 +160,7 @@ def test_node_with_certificates_takes_its_joint_stream_over_tls(cell, tmp_path):
     issue_admin(tmp_path / "ca", tmp_path / "robot")              # the robot side's certificate
     port = free_port()
     ep = f"tls/127.0.0.1:{port}"
-    srv = FusionServer(rig.camera_ids, W.Settings(threshold=0.1, joints=tuple(q_of(0.0))), listen=[ep],
+    srv = FusionServer(rig.camera_ids, wire.Settings(threshold=0.1, joints=tuple(q_of(0.0))), listen=[ep],
                        identity=load_identity(tmp_path / "ca")).start()
     node = build_node(None, cam_id, "sim", "ur3-cell", resolution=(424, 240), connect=[ep],
                       joints=f"zenoh:{KEY}", identity=load_identity(tmp_path / "node"))

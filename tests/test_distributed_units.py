@@ -10,7 +10,7 @@ import time
 import numpy as np
 import pytest
 
-from depthguard.distributed import wire as W
+from depthguard.distributed import wire
 from depthguard.distributed.client import ServerClient
 from depthguard.distributed.server import FusionServer
 
@@ -25,7 +25,7 @@ def _rig(tmp_path):
 @pytest.fixture
 def server():
     ep = f"tcp/127.0.0.1:{free_port()}"
-    srv = FusionServer(["cam0", "cam1", "cam2", "cam3"], W.Settings(stale_s=0.5), listen=[ep]).start()
+    srv = FusionServer(["cam0", "cam1", "cam2", "cam3"], wire.Settings(stale_s=0.5), listen=[ep]).start()
     srv.endpoint = ep
     yield srv
     srv.close()
@@ -33,11 +33,11 @@ def server():
 
 def _ask(client, key, known=None):
     out = {}
-    for r in client.session.get(key, payload=W.units_request(known), timeout=2.0):
+    for r in client.session.get(key, payload=wire.units_request(known), timeout=2.0):
         if r.ok is None:
-            out[None] = W.decode(r.err.payload.to_bytes())
+            out[None] = wire.decode(r.err.payload.to_bytes())
             continue
-        m = W.decode(r.ok.payload.to_bytes(), expect=W.MsgType.UNITS_REP)
+        m = wire.decode(r.ok.payload.to_bytes(), expect=wire.MsgType.UNITS_REP)
         assert str(r.ok.key_expr) == f"depthguard/units/{m.camera}"
         out[m.camera] = m
     return out
@@ -76,7 +76,7 @@ def test_units_queryable(server):
         r0 = server.rejected
         errs = [r for r in c.session.get("depthguard/units/*", payload=b"junk", timeout=2.0)]
         assert len(errs) == 1 and errs[0].ok is None and server.rejected == r0 + 1
-        assert W.decode(errs[0].err.payload.to_bytes()).type == W.MsgType.ERROR_REP
+        assert wire.decode(errs[0].err.payload.to_bytes()).type == wire.MsgType.ERROR_REP
 
 
 @pytest.mark.multiprocess
@@ -103,7 +103,7 @@ def test_units_source_pulls_a_unit_from_a_real_server(tmp_path, link):
         ids = {"server": load_identity(tmp_path / "ca"), "node": load_identity(tmp_path / "cam0")}
         context.update(units_keys=tmp_path / "admin", units_timeout_s=20.0)
     # units stay fresh for 30 s here: the node steps by hand
-    server = FusionServer(["cam0", "cam1", "cam2", "cam3"], W.Settings(stale_s=30.0), listen=[ep],
+    server = FusionServer(["cam0", "cam1", "cam2", "cam3"], wire.Settings(stale_s=30.0), listen=[ep],
                           identity=ids["server"]).start()
     server.endpoint = ep
     node = build_node(str(rig_path), "cam0", "pattern", connect=[server.endpoint], identity=ids["node"])

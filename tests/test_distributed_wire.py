@@ -8,7 +8,7 @@ import pytest
 from hypothesis import HealthCheck, given, settings
 from hypothesis import strategies as st
 
-from depthguard.distributed import wire as W
+from depthguard.distributed import wire
 
 
 def _voxels(rng, n):
@@ -16,66 +16,66 @@ def _voxels(rng, n):
 
 
 def test_roundtrip_every_message(rng):
-    s = W.Settings(epoch=7, voxel_size=0.03, threshold=0.6, stale_s=0.4, offset_const=0.02, offset_k=0.004,
+    s = wire.Settings(epoch=7, voxel_size=0.03, threshold=0.6, stale_s=0.4, offset_const=0.02, offset_k=0.004,
                    joints=(0.1, -1.57, 0.0, -1.57, 0.3, 0.0))
-    m = W.decode(W.init_request("cam0", "host/pid12"))
-    assert (m.type, m.camera, m.address) == (W.MsgType.INIT_REQ, "cam0", "host/pid12")
-    m = W.decode(W.init_reply(42, s))
+    m = wire.decode(wire.init_request("cam0", "host/pid12"))
+    assert (m.type, m.camera, m.address) == (wire.MsgType.INIT_REQ, "cam0", "host/pid12")
+    m = wire.decode(wire.init_reply(42, s))
     assert m.unit_id == 42 and m.settings == s
     keys, counts = _voxels(rng, 500)
-    m = W.decode(W.update_request(3, 99, 1234.5678, 0.02, keys, counts, invalid_frac=0.125))
+    m = wire.decode(wire.update_request(3, 99, 1234.5678, 0.02, keys, counts, invalid_frac=0.125))
     assert (m.unit_id, m.seq, m.stamp, m.voxel_size, m.invalid_frac) == (3, 99, 1234.5678, 0.02, 0.125)
     np.testing.assert_array_equal(m.keys, keys)
     np.testing.assert_array_equal(m.counts, np.minimum(counts, 65535))
-    m = W.decode(W.update_reply(s, token_missing=True))
+    m = wire.decode(wire.update_reply(s, token_missing=True))
     assert m.settings == s and m.flags & 1
-    m = W.decode(W.error_reply(2, "camera 'x' is not in the rig"))
+    m = wire.decode(wire.error_reply(2, "camera 'x' is not in the rig"))
     assert m.code == 2 and "not in the rig" in m.text
-    assert W.decode(W.status_request()).type == W.MsgType.STATUS_REQ
-    assert '"voxel_size": 0.05' in W.decode(W.settings_request(voxel_size=0.05)).text
-    for raw in (W.init_request("c", "a"), W.update_request(1, 2, 3.0, 0.05, keys, counts), W.status_reply({"a": 1})):
-        assert W.encode(W.decode(raw)) == raw
+    assert wire.decode(wire.status_request()).type == wire.MsgType.STATUS_REQ
+    assert '"voxel_size": 0.05' in wire.decode(wire.settings_request(voxel_size=0.05)).text
+    for raw in (wire.init_request("c", "a"), wire.update_request(1, 2, 3.0, 0.05, keys, counts), wire.status_reply({"a": 1})):
+        assert wire.encode(wire.decode(raw)) == raw
 
 
 def test_update_size_is_8_bytes_per_voxel(rng):
     keys, counts = _voxels(rng, 100)
-    n0 = len(W.update_request(1, 1, 0.0, 0.02, keys[:0], counts[:0]))
-    assert len(W.update_request(1, 1, 0.0, 0.02, keys, counts)) == n0 + 100 * W.BYTES_PER_VOXEL
+    n0 = len(wire.update_request(1, 1, 0.0, 0.02, keys[:0], counts[:0]))
+    assert len(wire.update_request(1, 1, 0.0, 0.02, keys, counts)) == n0 + 100 * wire.BYTES_PER_VOXEL
     # the paper's 96 bit per voxel: we send 64
-    assert W.BYTES_PER_VOXEL * 8 < 96
+    assert wire.BYTES_PER_VOXEL * 8 < 96
 
 
 def test_limits_and_clear_errors(rng):
-    keys, counts = _voxels(rng, W.MAX_VOXELS + 1)
-    with pytest.raises(W.WireError, match="exceed the limit"):
-        W.update_request(1, 1, 0.0, 0.02, keys, counts)
-    with pytest.raises(W.WireError, match="int16"):
-        W.update_request(1, 1, 0.0, 0.02, np.array([[40000, 0, 0]]), np.array([1]))
-    with pytest.raises(W.WireError, match="voxel size"):
-        W.Settings(voxel_size=0.5).check()
-    with pytest.raises(W.WireError, match="invalid_frac"):
-        W.update_request(1, 1, 0.0, 0.02, keys[:1], counts[:1], invalid_frac=1.5)
-    with pytest.raises(W.WireError, match="exceeds the limit"):
-        W.decode(b"\0" * (W.MAX_MESSAGE_BYTES + 1))
-    good = W.init_request("cam0", "x")
-    with pytest.raises(W.WireError, match="CRC"):
-        W.decode(good[:-5] + bytes([good[-5] ^ 1]) + good[-4:])
-    with pytest.raises(W.WireError, match="magic"):
-        W.decode(b"XYZ" + good[3:])
+    keys, counts = _voxels(rng, wire.MAX_VOXELS + 1)
+    with pytest.raises(wire.WireError, match="exceed the limit"):
+        wire.update_request(1, 1, 0.0, 0.02, keys, counts)
+    with pytest.raises(wire.WireError, match="int16"):
+        wire.update_request(1, 1, 0.0, 0.02, np.array([[40000, 0, 0]]), np.array([1]))
+    with pytest.raises(wire.WireError, match="voxel size"):
+        wire.Settings(voxel_size=0.5).check()
+    with pytest.raises(wire.WireError, match="invalid_frac"):
+        wire.update_request(1, 1, 0.0, 0.02, keys[:1], counts[:1], invalid_frac=1.5)
+    with pytest.raises(wire.WireError, match="exceeds the limit"):
+        wire.decode(b"\0" * (wire.MAX_MESSAGE_BYTES + 1))
+    good = wire.init_request("cam0", "x")
+    with pytest.raises(wire.WireError, match="CRC"):
+        wire.decode(good[:-5] + bytes([good[-5] ^ 1]) + good[-4:])
+    with pytest.raises(wire.WireError, match="magic"):
+        wire.decode(b"XYZ" + good[3:])
     bad_ver = bytearray(good)
     bad_ver[3] = 9
-    with pytest.raises(W.WireError, match="version 9"):
-        W.decode(bytes(bad_ver))
-    with pytest.raises(W.WireError, match="unexpected message type"):
-        W.decode(good, expect=W.MsgType.UPDATE_REQ)
+    with pytest.raises(wire.WireError, match="version 9"):
+        wire.decode(bytes(bad_ver))
+    with pytest.raises(wire.WireError, match="unexpected message type"):
+        wire.decode(good, expect=wire.MsgType.UPDATE_REQ)
     # a well-framed update whose count field lies (CRC recomputed): truncated, named
     body = struct.pack("<IIdfIf", 1, 1, 0.0, 0.02, 5, 0.0) + b"\0" * 8
     head = struct.pack("<3sBBBHI", b"DGW", 1, 3, 0, 0, len(body))
     lie = head + body + struct.pack("<I", zlib.crc32(head + body))
-    with pytest.raises(W.WireError, match="truncated at keys"):
-        W.decode(lie)
-    with pytest.raises(W.WireError):
-        W.decode(b"")
+    with pytest.raises(wire.WireError, match="truncated at keys"):
+        wire.decode(lie)
+    with pytest.raises(wire.WireError):
+        wire.decode(b"")
 
 
 def _reframe(mtype: int, body: bytes) -> bytes:
@@ -87,10 +87,10 @@ def _reframe(mtype: int, body: bytes) -> bytes:
 @given(st.binary(max_size=400))
 def test_fuzz_random_bytes(data):
     try:
-        m = W.decode(data)
-    except W.WireError:
+        m = wire.decode(data)
+    except wire.WireError:
         return
-    assert isinstance(m, W.Message)
+    assert isinstance(m, wire.Message)
 
 
 @settings(max_examples=300, deadline=None, suppress_health_check=[HealthCheck.too_slow])
@@ -98,48 +98,48 @@ def test_fuzz_random_bytes(data):
 def test_fuzz_well_framed_bodies(mtype, body):
     """Valid frame and CRC around an arbitrary body: decoded or WireError, never another exception."""
     try:
-        m = W.decode(_reframe(mtype, body))
-    except W.WireError:
+        m = wire.decode(_reframe(mtype, body))
+    except wire.WireError:
         return
-    if m.type == W.MsgType.UPDATE_REQ:
+    if m.type == wire.MsgType.UPDATE_REQ:
         assert m.keys.shape == (len(m.counts), 3)
 
 
 @settings(max_examples=200, deadline=None)
 @given(st.integers(0, 10_000), st.integers(0, 255))
 def test_fuzz_single_byte_corruption(pos, val):
-    good = W.update_request(1, 2, 3.0, 0.02, np.arange(30).reshape(10, 3), np.arange(10))
+    good = wire.update_request(1, 2, 3.0, 0.02, np.arange(30).reshape(10, 3), np.arange(10))
     i = pos % len(good)
     if good[i] == val:
         return
     bad = good[:i] + bytes([val]) + good[i + 1:]
-    with pytest.raises(W.WireError):
-        W.decode(bad)
+    with pytest.raises(wire.WireError):
+        wire.decode(bad)
 
 
 def test_units_messages_roundtrip_and_limits(rng):
     keys = rng.integers(-2000, 2000, (300, 3))
-    raw = W.units_reply("cam2", 3, 17, 99, 1234.5, 0.02, keys, invalid_frac=0.5)
-    m = W.decode(raw, expect=W.MsgType.UNITS_REP)
+    raw = wire.units_reply("cam2", 3, 17, 99, 1234.5, 0.02, keys, invalid_frac=0.5)
+    m = wire.decode(raw, expect=wire.MsgType.UNITS_REP)
     assert (m.camera, m.unit_id, m.version, m.seq, m.stamp, m.voxel_size, m.invalid_frac, m.flags) == \
         ("cam2", 3, 17, 99, 1234.5, 0.02, 0.5, 0)
     np.testing.assert_array_equal(m.keys, keys)
-    assert W.encode(m) == raw
-    assert len(raw) == len(W.units_reply("cam2", 3, 17, 99, 1234.5, 0.02, keys[:0])) + 6 * 300
-    same = W.decode(W.units_reply("cam2", 3, 17, 99, 1234.5, 0.02, keys, unchanged=True))
+    assert wire.encode(m) == raw
+    assert len(raw) == len(wire.units_reply("cam2", 3, 17, 99, 1234.5, 0.02, keys[:0])) + 6 * 300
+    same = wire.decode(wire.units_reply("cam2", 3, 17, 99, 1234.5, 0.02, keys, unchanged=True))
     assert same.flags & 1 and len(same.keys) == 0
-    req = W.decode(W.units_request({"cam0": (4, 1.5), "cam1": (9, -2.0)}), expect=W.MsgType.UNITS_REQ)
+    req = wire.decode(wire.units_request({"cam0": (4, 1.5), "cam1": (9, -2.0)}), expect=wire.MsgType.UNITS_REQ)
     assert req.known == {"cam0": (4, 1.5), "cam1": (9, -2.0)}
-    assert W.decode(W.units_request()).known == {}
-    with pytest.raises(W.WireError, match="exceed the limit"):
-        W.units_reply("c", 1, 1, 1, 0.0, 0.02, np.zeros((W.MAX_UNIT_VOXELS + 1, 3), int))
-    assert len(W.units_reply("c", 1, 1, 1, 0.0, 0.02, np.zeros((W.MAX_UNIT_VOXELS, 3), int))) <= W.MAX_MESSAGE_BYTES
-    with pytest.raises(W.WireError, match="int16"):
-        W.units_reply("c", 1, 1, 1, 0.0, 0.02, np.array([[0, 0, 40000]]))
+    assert wire.decode(wire.units_request()).known == {}
+    with pytest.raises(wire.WireError, match="exceed the limit"):
+        wire.units_reply("c", 1, 1, 1, 0.0, 0.02, np.zeros((wire.MAX_UNIT_VOXELS + 1, 3), int))
+    assert len(wire.units_reply("c", 1, 1, 1, 0.0, 0.02, np.zeros((wire.MAX_UNIT_VOXELS, 3), int))) <= wire.MAX_MESSAGE_BYTES
+    with pytest.raises(wire.WireError, match="int16"):
+        wire.units_reply("c", 1, 1, 1, 0.0, 0.02, np.array([[0, 0, 40000]]))
     # "unchanged" with voxels is malformed
-    body = bytearray(W.units_reply("c", 1, 1, 1, 0.0, 0.02, keys[:2]))
+    body = bytearray(wire.units_reply("c", 1, 1, 1, 0.0, 0.02, keys[:2]))
     body[5] = 1
     import zlib
     body[-4:] = zlib.crc32(bytes(body[:-4])).to_bytes(4, "little")
-    with pytest.raises(W.WireError, match="unchanged"):
-        W.decode(bytes(body))
+    with pytest.raises(wire.WireError, match="unchanged"):
+        wire.decode(bytes(body))

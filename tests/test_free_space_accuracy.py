@@ -70,24 +70,24 @@ def test_calibration_disturbance_stays_within_bounds():
 def test_product_fuses_consecutive_frames_with_a_margin_of_two_fused_sigma():
     """The reproduction's product: 3 consecutive frames per camera (independent noise) fused by
     StillFusion; margin 2 sigma and shell tolerance 5 sigma of the fused depth of the ToF model."""
-    from depthguard.evaluation import hamersma2011 as H
+    from depthguard.evaluation import hamersma2011
     from depthguard.fusion.temporal import StillFusion
     from depthguard.sources.sensors import sensor_model
 
-    room = H.load_room()
+    room = hamersma2011.load_room()
     cams = room.cameras[:2]
     setup = room.setups[0]
     tof = sensor_model("tof")
-    margin, tol = H.product_margins(room, cams)
+    margin, tol = hamersma2011.product_margins(room, cams)
     c3 = StillFusion(3, tof.sigma_a).factor
     assert margin == pytest.approx(2 * c3 * tof.sigma_a) and tol == pytest.approx(5 * c3 * tof.sigma_a)
     assert 0.013 < margin < 0.014
-    ideal = H.ideal_frames(room, setup, cameras=cams)
-    frames = [H.measured_frames(room, setup, ideal, 0, cameras=cams, frame=k) for k in range(H.STILL_FRAMES)]
+    ideal = hamersma2011.ideal_frames(room, setup, cameras=cams)
+    frames = [hamersma2011.measured_frames(room, setup, ideal, 0, cameras=cams, frame=k) for k in range(hamersma2011.STILL_FRAMES)]
     c0 = cams[0].id
     assert not np.array_equal(frames[0][c0], frames[1][c0])          # each frame its own noise
-    fused = H.still_frames(room, setup, ideal, 0, cameras=cams)
-    f = H.still_fusion(room, cams)
+    fused = hamersma2011.still_frames(room, setup, ideal, 0, cameras=cams)
+    f = hamersma2011.still_fusion(room, cams)
     for c in cams:
         np.testing.assert_array_equal(fused[c.id], f.fuse([fr[c.id] for fr in frames]))
     # where all three agree the fused depth is nearer the truth than a single frame

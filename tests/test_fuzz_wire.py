@@ -14,7 +14,7 @@ import pytest
 from hypothesis import HealthCheck, given, settings
 from hypothesis import strategies as st
 
-from depthguard.distributed import wire as W
+from depthguard.distributed import wire
 from depthguard.distributed.auth import AuthError, Signer, Verifier
 from depthguard.distributed.keys import init_authority, issue_node, load_identity
 from depthguard.distributed.registry import Registry
@@ -31,7 +31,7 @@ def node_identity(tmp_path_factory):
 
 @pytest.fixture(scope="module")
 def envelope(node_identity):
-    msg = W.update_request(1, 5, 1.0, 0.02, np.array([[1, 2, 3]]), np.array([4]))
+    msg = wire.update_request(1, 5, 1.0, 0.02, np.array([[1, 2, 3]]), np.array([4]))
     env, _ = Signer(node_identity).seal(msg, "depthguard/update")
     return env
 
@@ -40,7 +40,7 @@ def test_envelope_roundtrip_and_binding(node_identity, envelope):
     v = Verifier(node_identity.ca_cert)
     got = v.open(envelope, "depthguard/update")
     assert (got.role, got.name) == ("depthguard-node", "cam0")
-    assert W.decode(got.message).unit_id == 1
+    assert wire.decode(got.message).unit_id == 1
     with pytest.raises(AuthError, match="replayed"):
         v.open(envelope, "depthguard/update")
     with pytest.raises(AuthError, match="bad signature"):
@@ -77,7 +77,7 @@ _names = st.sampled_from(["voxel_size", "threshold", "stale_s", "offset_const", 
 
 @pytest.fixture(scope="module")
 def offline_server():
-    return FusionServer(["cam0"], W.Settings())          # not started: its handlers only
+    return FusionServer(["cam0"], wire.Settings())          # not started: its handlers only
 
 
 @settings(max_examples=400, deadline=None, suppress_health_check=[HealthCheck.function_scoped_fixture])
@@ -87,11 +87,11 @@ def test_settings_json_is_applied_whole_or_refused_without_change(offline_server
     before = srv.settings
     text = json.dumps(obj)
     try:
-        rep = W.decode(srv._on_settings(W._frame(W.MsgType.SETTINGS_REQ, text.encode())))
-    except W.WireError as exc:            # not a JSON object: refused before any setting is read
+        rep = wire.decode(srv._on_settings(wire._frame(wire.MsgType.SETTINGS_REQ, text.encode())))
+    except wire.WireError as exc:            # not a JSON object: refused before any setting is read
         assert str(exc) and srv.settings == before and not isinstance(obj, dict)
         return
-    if rep.type == W.MsgType.ERROR_REP:
+    if rep.type == wire.MsgType.ERROR_REP:
         assert rep.text and srv.settings == before
     else:
         assert isinstance(obj, dict) and srv.settings.epoch == before.epoch + 1

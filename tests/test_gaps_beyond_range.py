@@ -21,7 +21,7 @@ from depthguard.distance.api import DistanceWorkspace
 from depthguard.distance.gaps import GapBuffers, check_gap_px, gap_depth, gap_depth_numpy
 from depthguard.distance.reference import obstacle_start_depth_numpy
 from depthguard.distance.silhouette import dilate_robot_depth_numpy
-from depthguard.fusion import depth_grid_kernels as K
+from depthguard.fusion import depth_grid_kernels
 from depthguard.fusion import depth_grid_ref as ref
 from depthguard.fusion.depth_grid import DepthGridMap
 from depthguard.geometry.primitives import Box
@@ -155,7 +155,7 @@ def test_frame_state_and_start_depth_equal_twins_with_beyond_range_and_gaps(rng)
                 for inv, rf in (("unknown", False), ("unknown", True), ("free", True), ("free", False)):
                     free = np.empty((H, W))
                     kind = np.empty((H, W), dtype=np.int8)
-                    K.frame_state(depth, robot, True, cam.min_range, cam.max_range, 0.03, inv == "free", rf,
+                    depth_grid_kernels.frame_state(depth, robot, True, cam.min_range, cam.max_range, 0.03, inv == "free", rf,
                                   free, kind, sil if inv == "unknown" else None,
                                   gaps if inv == "unknown" else None)
                     f2, k2 = ref.frame_state_numpy(cam, depth, robot, 0.03, inv, rf, silhouette_px=n_sil,
@@ -180,8 +180,8 @@ def test_frame_state_and_start_depth_equal_twins_with_beyond_range_and_gaps(rng)
     d = np.full((H, W), 6.0, np.float32)
     free = np.empty((H, W))
     kind = np.empty((H, W), np.int8)
-    K.frame_state(d, robot, False, cam.min_range, cam.max_range, 0.03, True, False, free, kind)
-    assert np.all(np.isinf(free)) and np.all(kind == K.KIND_UNKNOWN)
+    depth_grid_kernels.frame_state(d, robot, False, cam.min_range, cam.max_range, 0.03, True, False, free, kind)
+    assert np.all(np.isinf(free)) and np.all(kind == depth_grid_kernels.KIND_UNKNOWN)
     d0 = np.empty((H, W))
     DK.obstacle_start_depth(d, robot, False, cam.min_range, cam.max_range, DK.INVALID_FREE, DK.ROBOT_DROP,
                             0.03, d0)
@@ -339,7 +339,7 @@ def test_two_pixel_gap_in_a_flat_wall(gap_px):
     g_on = grid.distance({cam.id: depth}, P, rho=0.4, method="min", gap_px=gap_px)
     assert np.all(g_off.distance < 0.03) and np.all(np.isinf(g_on.distance))
     free, kind = ref.frame_state_numpy(cam, depth, gap_px=gap_px)
-    assert np.all(free[:, 80:82] == 2.0) and np.all(kind[:, 80:82] == K.KIND_UNKNOWN)
+    assert np.all(free[:, 80:82] == 2.0) and np.all(kind[:, 80:82] == depth_grid_kernels.KIND_UNKNOWN)
 
 
 def test_ten_pixel_gap_stays_unknown_from_min_range():

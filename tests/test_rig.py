@@ -1,7 +1,6 @@
 """Rig files (R2): a valid rig loads; each broken rig gets a message naming file, field and problem."""
 
 import copy
-import textwrap
 
 import numpy as np
 import pytest

@@ -16,7 +16,7 @@ from depthguard.distance.api import DistanceWorkspace
 from depthguard.distance.reference import obstacle_start_depth_numpy
 from depthguard.distance.silhouette import (SilhouetteBuffers, dilate_robot_depth,
                                             dilate_robot_depth_numpy)
-from depthguard.fusion import depth_grid_kernels as K
+from depthguard.fusion import depth_grid_kernels
 from depthguard.fusion import depth_grid_ref as ref
 from depthguard.fusion.depth_grid import DepthGridMap
 from depthguard.geometry.primitives import Box, Sphere
@@ -148,7 +148,7 @@ def test_frame_state_and_start_depth_equal_twins(rng):
         for inv, rf in (("unknown", False), ("unknown", True), ("free", True), ("free", False)):
             free = np.empty((H, W))
             kind = np.empty((H, W), dtype=np.int8)
-            K.frame_state(depth, robot, True, cam.min_range, cam.max_range, 0.03, inv == "free", rf,
+            depth_grid_kernels.frame_state(depth, robot, True, cam.min_range, cam.max_range, 0.03, inv == "free", rf,
                           free, kind, sil)
             f2, k2 = ref.frame_state_numpy(cam, depth, robot, 0.03, inv, rf, silhouette_px=n)
             np.testing.assert_array_equal(free, f2)

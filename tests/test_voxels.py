@@ -10,7 +10,7 @@ import numpy as np
 import pytest
 
 from depthguard.camera import Camera
-from depthguard.fusion import voxel_kernels as K
+from depthguard.fusion import voxel_kernels
 from depthguard.fusion.voxels import (FilterOffset, VoxelFilter, VoxelSet, pack_keys, regrid, union,
                                       unpack_keys, vote)
 from depthguard.transforms import look_at, pose
@@ -49,12 +49,12 @@ def test_kernel_matches_numpy_twin(rng, s, thr):
     for _ in range(3):
         depth, expected = _random_images(rng, cam)
         got = f.filter(depth, expected=expected)
-        ref_k, ref_c = K.filter_voxelize_numpy(cam, depth, expected, 0.02, 0.004, lo, hi, s, thr)
+        ref_k, ref_c = voxel_kernels.filter_voxelize_numpy(cam, depth, expected, 0.02, 0.004, lo, hi, s, thr)
         gk, gc = _sorted(got.keys, got.counts)
         assert len(ref_k) > 0 or thr > 0
         np.testing.assert_array_equal(gk, ref_k)
         np.testing.assert_array_equal(gc, ref_c)
-        keep = K.keep_mask_numpy(cam, depth, expected, 0.02, 0.004)
+        keep = voxel_kernels.keep_mask_numpy(cam, depth, expected, 0.02, 0.004)
         assert got.n_kept == int(keep.sum())
         valid = np.isfinite(depth) & (depth >= cam.min_range) & (depth <= cam.max_range)
         assert got.n_invalid == int((~valid).sum())
@@ -73,19 +73,19 @@ def test_fused_robot_depth_matches_combined_expected(rng):
     depth, static = _random_images(rng, cam)
     robot = (depth + rng.uniform(-0.3, 0.3, depth.shape)).astype(np.float32)
     robot[rng.random(depth.shape) < 0.5] = 0.0
-    n, n_kept, _ = K.filter_voxelize(
+    n, n_kept, _ = voxel_kernels.filter_voxelize(
         depth, static, robot, cam.fx, cam.fy, cam.cx, cam.cy, f._Rwc, f._twc, cam.min_range, cam.max_range,
         0.02, 0.004, f._key_lo, f._dims, 0.02, lo, hi, f._cam_pos, f._ang_u, f._ang_v, 0.2,
         f._grid, f._touched, f._out_keys, f._out_counts)
-    comb = K.combine_expected_numpy(static, robot)
-    ref_k, ref_c = K.filter_voxelize_numpy(cam, depth, comb, 0.02, 0.004, lo, hi, 0.02, 0.2)
+    comb = voxel_kernels.combine_expected_numpy(static, robot)
+    ref_k, ref_c = voxel_kernels.filter_voxelize_numpy(cam, depth, comb, 0.02, 0.004, lo, hi, 0.02, 0.2)
     gk, gc = _sorted(f._out_keys[:n], f._out_counts[:n])
     np.testing.assert_array_equal(gk, ref_k)
     np.testing.assert_array_equal(gc, ref_c)
-    assert n_kept == int(K.keep_mask_numpy(cam, depth, comb, 0.02, 0.004).sum())
+    assert n_kept == int(voxel_kernels.keep_mask_numpy(cam, depth, comb, 0.02, 0.004).sum())
     # the combination rule itself, pixel by pixel
     st, rb = np.float32([0, 2, 2, 0, 3]), np.float32([0, 0, 1, 1, 4])
-    np.testing.assert_array_equal(K.combine_expected_numpy(st, rb), [0, 2, 1, 1, 3])
+    np.testing.assert_array_equal(voxel_kernels.combine_expected_numpy(st, rb), [0, 2, 1, 1, 3])
 
 
 def test_keep_rule_offset_grows_with_depth():
@@ -95,7 +95,7 @@ def test_keep_rule_offset_grows_with_depth():
     e = np.array([[1.0, 1.0, 4.0, 4.0, 0.0, 2.0, 2.0, 0.0]], dtype=np.float32)
     # offsets: e=1 -> 0.03, e=4 -> 0.18, e=2 -> 0.06
     d = np.array([[0.96, 0.98, 3.80, 3.85, 3.0, 2.5, 0.0, np.nan]], dtype=np.float32)
-    keep = K.keep_mask_numpy(cam, d, e, off.const, off.k)
+    keep = voxel_kernels.keep_mask_numpy(cam, d, e, off.const, off.k)
     np.testing.assert_array_equal(keep[0], [True, False, True, False, True, False, False, False])
     f = VoxelFilter(cam, ([-10, -10, 0], [10, 10, 10]), voxel_size=0.1, threshold=0.0, offset=off)
     vs = f.filter(d, expected=e)
@@ -119,7 +119,7 @@ def test_plane_voxels_and_density_noise_filter():
     z = out.keys[:, 2]
     assert set(np.unique(z)) == {int(math.floor(1.5 / s))}         # only the wall's layer survives
     # interior wall voxels hold about n_max points: (s f / d)^2 = 100 at 1.5 m
-    nmax = K.density_max_count(cam, out.keys, s)
+    nmax = voxel_kernels.density_max_count(cam, out.keys, s)
     interior = out.counts >= 0.9 * nmax
     assert interior.sum() > 0.5 * len(out)
     # the wall's voxel footprint: x range covered by the image at 1.5 m
@@ -169,8 +169,8 @@ def test_vote_kernel_matches_twin(rng, footprint):
                        *c.R.reshape(-1), *c.t] for c in cams])
     stack = np.stack([np.nan_to_num(d, nan=0.0) for d in depths])
     out = np.zeros((500, 3), bool)
-    K.vote_free(lows, s, stack, table, margin, footprint, out)
-    ref = K.vote_free_numpy(cams, depths, lows, s, margin, footprint)
+    voxel_kernels.vote_free(lows, s, stack, table, margin, footprint, out)
+    ref = voxel_kernels.vote_free_numpy(cams, depths, lows, s, margin, footprint)
     np.testing.assert_array_equal(out, ref)
     assert 0 < out.sum() < out.size
 

@@ -69,7 +69,7 @@ def test_person_and_box_kept(cell, situation):
 def test_rendered_expected_depth_path(cell):
     """filter(depth, q) (robot rendered and fused in the kernel, cached per q) equals the
     numpy twin on the combined expected image."""
-    from depthguard.fusion import voxel_kernels as K
+    from depthguard.fusion import voxel_kernels
     from depthguard.fusion.voxels import VoxelFilter
 
     rig = cell.rig
@@ -83,7 +83,7 @@ def test_rendered_expected_depth_path(cell):
         got = f.filter(depth, q=q)
         exp = f.expected_depth(q)
         assert np.count_nonzero(exp) > 0.5 * exp.size
-        ref_k, ref_c = K.filter_voxelize_numpy(cam, depth, exp, f.offset.const, f.offset.k,
+        ref_k, ref_c = voxel_kernels.filter_voxelize_numpy(cam, depth, exp, f.offset.const, f.offset.k,
                                                rig.workspace.lo, rig.workspace.hi, 0.02, 0.3)
         o = np.lexsort(got.keys.T[::-1])
         np.testing.assert_array_equal(got.keys[o], ref_k)

@@ -49,7 +49,7 @@ from depthguard.camera import Camera, check_depth_image
 from depthguard.distance.api import DistanceResult, check_points, check_rho
 from depthguard.distance.gaps import GapBuffers, check_gap_px
 from depthguard.distance.silhouette import SilhouetteBuffers, check_silhouette_px
-from depthguard.fusion import depth_grid_kernels
+from depthguard.fusion import depth_grid_capsules, depth_grid_kernels
 from depthguard.fusion import depth_grid_lazy
 from depthguard.fusion.depth_grid_memo import new_memo
 
@@ -334,8 +334,8 @@ class DepthGridMap:
         self._silhouette_px = 0
         self._gaps = GapBuffers((max(P.height, Hk), max(P.width, Wk)))
         self._gap_px = 0
-        self._cap_lo = np.zeros(P.shape + (depth_grid_kernels.MAX_CAPS_PER_PIXEL,))
-        self._cap_hi = np.zeros(P.shape + (depth_grid_kernels.MAX_CAPS_PER_PIXEL,))
+        self._cap_lo = np.zeros(P.shape + (depth_grid_capsules.MAX_CAPS_PER_PIXEL,))
+        self._cap_hi = np.zeros(P.shape + (depth_grid_capsules.MAX_CAPS_PER_PIXEL,))
         self._cap_n = np.zeros(P.shape, dtype=np.int64)
         # lazy per-frame work: memoised cell classes per principal pixel (bits), frame stamps
         nw = (self.n_d + 63) // 64
@@ -568,7 +568,7 @@ class DepthGridMap:
             b = caps[:, 3:6] @ self._Rp.T + self._tp
             self._caps = np.ascontiguousarray(np.concatenate([a, b, caps[:, 6:7]], axis=1))
             P = self.principal
-            depth_grid_kernels.capsule_intervals(self._caps, len(caps), self._capsule_boxes(self._caps), P.fx, P.fy,
+            depth_grid_capsules.capsule_intervals(self._caps, len(caps), self._capsule_boxes(self._caps), P.fx, P.fy,
                                 P.cx, P.cy, P.height, P.width, self._cap_lo, self._cap_hi, self._cap_n)
         else:
             self._caps = np.zeros((1, 7))
@@ -584,11 +584,11 @@ class DepthGridMap:
         if len(caps) > len(self._boxes):
             self._boxes = np.zeros((len(caps), 4), dtype=np.int64)
         boxes = self._boxes[:len(caps)]
-        depth_grid_kernels.capsule_boxes(caps, len(caps), P.fx, P.fy, P.cx, P.cy, P.height, P.width, boxes)
+        depth_grid_capsules.capsule_boxes(caps, len(caps), P.fx, P.fy, P.cx, P.cy, P.height, P.width, boxes)
         return boxes
 
     def _capsule_boxes_numpy(self, caps: np.ndarray) -> np.ndarray:
-        """The plain-numpy twin of :func:`~depthguard.fusion.depth_grid_kernels.capsule_boxes`."""
+        """The plain-numpy twin of :func:`~depthguard.fusion.depth_grid_capsules.capsule_boxes`."""
         P = self.principal
         boxes = np.zeros((len(caps), 4), dtype=np.int64)
         sgn = np.array([[x, y, z] for x in (-1, 1) for y in (-1, 1) for z in (-1, 1)], float)

@@ -29,8 +29,8 @@ import numpy as np
 from numba import njit, prange
 
 from depthguard.distance.window import start_point, surveillance_window
-from depthguard.fusion.depth_grid_kernels import (KIND_SURFACE, MAX_CAPS_PER_PIXEL, METHOD_MIN, TILE, _f2,
-                                                  _finish_point, _fold_pixel, _in_caps)
+from depthguard.fusion.depth_grid_capsules import MAX_CAPS_PER_PIXEL, _in_caps
+from depthguard.fusion.depth_grid_kernels import KIND_SURFACE, METHOD_MIN, TILE, _f2, _finish_point, _fold_pixel
 from depthguard.fusion.depth_grid_memo import gray_stretch
 from depthguard.fusion.depth_grid_memo import mask_range as _mask_range
 from depthguard.fusion.depth_grid_memo import msb as _msb
