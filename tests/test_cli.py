@@ -50,3 +50,18 @@ def test_run_rejects_bad_camera_latency_and_records_the_latency(tmp_path):
     assert res.exit_code == 0, res.output
     s = json.loads((out / "summary.json").read_text())
     assert s["params"]["camera_latency_s"] == 0.05
+
+
+def test_numbas_openmp_threads_sleep_between_parallel_regions_unless_the_user_says_otherwise():
+    """``import depthguard`` sets OMP_WAIT_POLICY=PASSIVE before numba starts its OpenMP threads
+    (spinning after each parallel region took a core's half from the simulator and the camera
+    workers of a real-time run); a policy the user set is kept."""
+    import os
+
+    code = "import os, depthguard; print(os.environ['OMP_WAIT_POLICY'])"
+    env = {k: v for k, v in os.environ.items() if k != "OMP_WAIT_POLICY"}
+    out = subprocess.run([sys.executable, "-c", code], env=env, capture_output=True, text=True, check=True)
+    assert out.stdout.strip() == "PASSIVE"
+    out = subprocess.run([sys.executable, "-c", code], env={**env, "OMP_WAIT_POLICY": "ACTIVE"},
+                         capture_output=True, text=True, check=True)
+    assert out.stdout.strip() == "ACTIVE"
