@@ -492,6 +492,23 @@ def fast_sim_log(rig, path, spec, duration, cfg):
     return stats
 
 
+def test_only_real_time_runs_draw_the_simulated_noise_from_a_bank(rig):
+    """A real-time run asks the simulated cameras for the noise bank (they cannot spare the exact
+    draws on a small machine, sources/noise.py); a fast run keeps the exact draws, so its log
+    is a function of the seed."""
+    from depthguard.runtime import runner
+    from depthguard.sources.base import open_joints, open_source
+
+    for fast in (True, False):
+        ctx = {}
+        src = open_source("sim:flacco-cell:alone", rig, ctx)
+        js = open_joints("sim", rig, ctx)
+        with Monitor(rig, free_cfg(rig), sinks=[ctx["sim_world"].on_reaction]) as mon:
+            runner.run(mon, [src], js, duration=0.2, fast=fast)
+        banks = {cid: sim.bank for cid, sim in src._sims.items()}
+        assert all((b is None) == fast for b in banks.values()), (fast, banks)
+
+
 @pytest.mark.slow                  # about 8 s: 2.3 s of simulated cell rendered with noise
 def test_fast_runs_write_the_same_log_byte_for_byte(rig, tmp_path):
     # invalid="free": faster, and determinism does not depend on it

@@ -294,3 +294,34 @@ def test_parallel_kernels_bit_identical_to_numpy_twins_on_1_and_2_threads(rng, n
                     assert np.array_equal(got, ref)
     finally:
         numba.set_num_threads(prev)
+
+
+@pytest.mark.parametrize("z", [1.0, 3.0])
+def test_noise_from_a_bank_keeps_the_kinects_law_and_frames_differ(z):
+    """Real-time simulations take the normals from a pre-drawn bank (noise.NormalBank): each
+    frame still follows the quantised Gaussian disparity law (the same independent truth as
+    above), two frames are not the same noise, and the bank is not used unless given."""
+    from depthguard.sources.noise import NormalBank
+
+    m = dataclasses.replace(sensor_model("kinect_v1"), edge_dropout=0.0)
+    bank = NormalBank(seed=5, size=1 << 20)
+    a = measured(m, flat(z), seed=3, bank=bank).astype(np.float64)
+    b = measured(m, flat(z), seed=4, bank=bank).astype(np.float64)
+    fb = FX * m.baseline
+    sd = m.sigma_z2 * fb
+    d0 = fb / z
+    k = np.arange(np.floor((d0 - 8 * sd) * 8), np.ceil((d0 + 8 * sd) * 8) + 1)
+    p = norm.cdf((k + 0.5) / 8, d0, sd) - norm.cdf((k - 0.5) / 8, d0, sd)
+    depth = fb / (k / 8)
+    mean = (p * depth).sum() / p.sum()
+    std = np.sqrt((p * (depth - mean) ** 2).sum() / p.sum())
+    for out in (a, b):
+        assert out.std() == pytest.approx(std, rel=6 / np.sqrt(2 * out.size) + 0.01)
+        assert abs(out.mean() - mean) < 6 * std / np.sqrt(out.size)
+    assert abs(np.corrcoef(a.ravel(), b.ravel())[0, 1]) < 0.02           # not the same noise twice
+    exact = measured(m, flat(z), seed=3)
+    assert not np.array_equal(exact, a.astype(np.float32))                 # the bank changes the draws ...
+    assert np.array_equal(exact, measured(m, flat(z), seed=3))             # ... only when it is given
+    assert NormalBank(seed=1, size=10).take(np.random.default_rng(0), 11) is None   # too small: drawn instead
+    small = NormalBank(seed=1, size=100)
+    np.testing.assert_array_equal(measured(m, flat(z), seed=3, bank=small), exact)

@@ -221,6 +221,8 @@ def _run_paced(monitor, frame_sources, joint_source, duration, stop, emit, all_d
     for src in frame_sources:
         if hasattr(src, "skip_behind"):
             src.skip_behind = True          # a simulated camera drops what it cannot render in time
+        if hasattr(src, "use_noise_bank"):
+            src.use_noise_bank()            # and draws its noise from a pre-drawn bank (sources/noise.py)
     next_status = 0.0
     start = time.monotonic() - t0
     clock = lambda: time.monotonic() - start          # noqa: E731 - the run's clock, from t0

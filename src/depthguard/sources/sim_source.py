@@ -20,6 +20,12 @@ Options after the cell name, separated by ``:``:
 Cameras deliver at ``camera_hz`` (each with its own phase: not synchronised);
 each frame is rendered at its capture time with the robot where it was then,
 and stamped with that time. The scene loops over its scripted duration.
+
+In a real-time run (the runner says so) a camera that falls more than a period
+behind drops the frames it could not render, and the cameras take their noise's
+normals from a pre-drawn bank (:class:`~depthguard.sources.noise.NormalBank`: the
+same law per frame, 3 ms of a 640x480 frame's 10 ms saved). Fast runs keep the
+exact draws: their logs are a function of the seed.
 """
 
 from __future__ import annotations
@@ -203,6 +209,17 @@ class SimFrames:
         self.skipped = 0
         self.done = False
         self.lost = None
+
+    def use_noise_bank(self) -> None:
+        """Real time (set by the runner): the cameras take their noise's normals from one
+        pre-drawn :class:`~depthguard.sources.noise.NormalBank` (same law per frame, 30 % of a
+        frame's simulation saved); fast runs keep the exact draws, so their logs stay a
+        function of the seed alone."""
+        from depthguard.sources.noise import NormalBank
+
+        bank = NormalBank(self.world.seed)
+        for sim in self._sims.values():
+            sim.bank = bank
 
     def stop_camera(self, camera_id: str, after: float = -math.inf) -> None:
         """Fault injection: camera ``camera_id`` delivers nothing captured after ``after`` s."""

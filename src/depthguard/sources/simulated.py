@@ -72,6 +72,7 @@ class SimulatedCamera:
         self.noiseless = bool(noiseless)
         self.rng = np.random.default_rng(self.seed)
         self._ws = NoiseWorkspace(cam.shape)
+        self.bank = None                 # a NormalBank: the normals of real-time simulations (noise.py)
         self._renderer = None
 
     @property
@@ -85,7 +86,7 @@ class SimulatedCamera:
         """Measured depth (H, W) float32 (0 = invalid) from an ideal rendered depth image."""
         rng = self.rng if stamp is None else frame_rng(self.seed, self.cam.id, stamp)
         return apply_noise(ideal, self.model, self.cam.fx, rng, self.cam.min_range, self.cam.max_range,
-                           noiseless=self.noiseless, ws=self._ws)
+                           noiseless=self.noiseless, ws=self._ws, bank=self.bank)
 
     def capture_with_labels(self, meshes: Sequence, stamp: float | None = None) -> tuple[np.ndarray, np.ndarray]:
         """``(depth, labels)``: measured (H, W) float32 metres and the renderer's (H, W) int32
