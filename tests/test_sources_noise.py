@@ -57,12 +57,10 @@ def test_kinect_quantisation_steps_match_fb_over_z2():
     np.testing.assert_allclose(k, np.rint(k), atol=1e-6)
 
 
-@pytest.mark.parametrize("z", [1.0, 3.0])
-def test_kinect_std_matches_quantised_gaussian_disparity(z):
-    m = dataclasses.replace(sensor_model("kinect_v1"), edge_dropout=0.0)
-    out = measured(m, flat(z), seed=3).astype(np.float64)
-    # independent truth: disparity d0 = fb/z plus N(0, s_d), s_d = sigma_z2 * fb, rounded to 1/8 px;
-    # probability of each level from the normal CDF, depth fb / level
+def kinect_law(m, z):
+    """Independent truth of a Kinect pixel at depth ``z``: disparity ``d0 = fb / z`` plus
+    N(0, s_d), ``s_d = sigma_z2 * fb``, rounded to 1/8 px; each level's probability from the
+    normal CDF, its depth ``fb / level``. Returns the measured depth's (mean, std)."""
     fb = FX * m.baseline
     sd = m.sigma_z2 * fb
     d0 = fb / z
@@ -70,7 +68,14 @@ def test_kinect_std_matches_quantised_gaussian_disparity(z):
     p = norm.cdf((k + 0.5) / 8, d0, sd) - norm.cdf((k - 0.5) / 8, d0, sd)
     depth = fb / (k / 8)
     mean = (p * depth).sum() / p.sum()
-    std = np.sqrt((p * (depth - mean) ** 2).sum() / p.sum())
+    return mean, np.sqrt((p * (depth - mean) ** 2).sum() / p.sum())
+
+
+@pytest.mark.parametrize("z", [1.0, 3.0])
+def test_kinect_std_matches_quantised_gaussian_disparity(z):
+    m = dataclasses.replace(sensor_model("kinect_v1"), edge_dropout=0.0)
+    out = measured(m, flat(z), seed=3).astype(np.float64)
+    mean, std = kinect_law(m, z)
     n = out.size
     assert out.std() == pytest.approx(std, rel=6 / np.sqrt(2 * n) + 0.01)
     assert abs(out.mean() - mean) < 6 * std / np.sqrt(n)
@@ -307,14 +312,7 @@ def test_noise_from_a_bank_keeps_the_kinects_law_and_frames_differ(z):
     bank = NormalBank(seed=5, size=1 << 20)
     a = measured(m, flat(z), seed=3, bank=bank).astype(np.float64)
     b = measured(m, flat(z), seed=4, bank=bank).astype(np.float64)
-    fb = FX * m.baseline
-    sd = m.sigma_z2 * fb
-    d0 = fb / z
-    k = np.arange(np.floor((d0 - 8 * sd) * 8), np.ceil((d0 + 8 * sd) * 8) + 1)
-    p = norm.cdf((k + 0.5) / 8, d0, sd) - norm.cdf((k - 0.5) / 8, d0, sd)
-    depth = fb / (k / 8)
-    mean = (p * depth).sum() / p.sum()
-    std = np.sqrt((p * (depth - mean) ** 2).sum() / p.sum())
+    mean, std = kinect_law(m, z)
     for out in (a, b):
         assert out.std() == pytest.approx(std, rel=6 / np.sqrt(2 * out.size) + 0.01)
         assert abs(out.mean() - mean) < 6 * std / np.sqrt(out.size)
