@@ -90,7 +90,6 @@ def demo(
     every control point, repulsive velocity); OUT/summary.json holds both.
     """
     from rich.console import Console
-    from rich.table import Table
 
     from depthguard.evaluation.closed_loop.loop import LoopConfig
     from depthguard.evaluation.closed_loop.scenarios import run_scenario

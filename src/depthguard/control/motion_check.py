@@ -222,7 +222,6 @@ def cartesian_motion(robot, q0, direction, braking: float, padding: float = 0.0,
     if d.shape != (3,) or not np.linalg.norm(d) > 0:
         raise ValueError(f"direction must be a non-zero 3-vector, got {direction!r}")
     d = d / np.linalg.norm(d)
-    cache: dict[float, np.ndarray] = {}
     grid_u = [0.0]
     grid_q = [q0]
 

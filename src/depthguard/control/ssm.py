@@ -40,7 +40,7 @@ from dataclasses import dataclass
 
 import numpy as np
 
-from depthguard.control.ssm_config import SSMConfig, intrusion_distance
+from depthguard.control.ssm_config import SSMConfig
 
 __all__ = ["SSMCameras", "stopping", "z_d", "protective_distance", "largest_scale",
            "ssm_numpy", "derived_detection_capability", "TERMS"]

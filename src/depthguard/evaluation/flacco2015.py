@@ -107,7 +107,7 @@ def table(results: dict[str, SituationResult], rho: float = 0.4) -> str:
     """Markdown table: per situation and control point, truth and the three estimates."""
     def f(x):
         return "—" if not np.isfinite(x) else f"{x:.3f}"
-    lines = [f"| situation | point | truth (m) | 1 camera | 2 cameras (R9) | 2 cameras (paper) |",
+    lines = ["| situation | point | truth (m) | 1 camera | 2 cameras (R9) | 2 cameras (paper) |",
              "|---|---|---|---|---|---|"]
     for r in results.values():
         for i, n in enumerate(r.names):

@@ -54,7 +54,7 @@ from pathlib import Path
 import numpy as np
 
 from depthguard.camera import Camera
-from depthguard.control.motion_check import (LEVELS, Motion, braking_distance, check_motion,
+from depthguard.control.motion_check import (Motion, braking_distance, check_motion,
                                              compare_verdicts)
 from depthguard.evaluation.accuracy import Confusion, cases, confusion, plot_case_slices
 from depthguard.fusion.free_space import FreeSpaceMap
@@ -255,7 +255,7 @@ def _product(room: Room, cams, vs) -> FreeSpaceProduct:
 def _reconstruct(fs, depths, machine, self_padding):
     """``fs``: a FreeSpaceMap (``depths`` one dict id -> image) or a FreeSpaceProduct
     (``depths`` its list of still frames)."""
-    occ = fs.update(depths).copy()
+    fs.update(depths)
     fs.add_free_volume(machine, padding=self_padding)
     return fs.occupied.copy(), fs.machine.copy()
 
