@@ -121,3 +121,36 @@ def test_presets_have_square_pixels_and_their_nominal_field_of_view(name):
         vfov = 2 * math.degrees(math.atan(h / 2 / k["fy"]))
         errors.append(max(abs(hfov - m.hfov_deg), abs(vfov - m.vfov_deg)))
     assert min(errors) <= 4.0, errors
+
+
+def test_a_simulator_behind_real_time_skips_frames_and_counts_them():
+    """``sim:`` in a real-time run (``skip_behind``): a camera more than a period behind the
+    run's clock renders only the newest frame due and counts the others
+    (``counters()["skipped_behind_real_time"]``, in the monitor's summary); without it every
+    frame due is rendered, in order."""
+    from depthguard.sources.base import open_joints, open_source
+
+    rendered = {}
+    for behind in (False, True):
+        ctx = {}
+        rig = load_cell("flacco-cell").rig
+        src = open_source("sim:flacco-cell:alone:noiseless", rig, ctx)
+        joints = open_joints("sim", rig, ctx)
+        src.skip_behind = behind
+        joints.states_until(0.0)
+        first = src.frames_until(0.0)
+        joints.states_until(0.25)
+        late = src.frames_until(0.25)                 # 0.25 s late: 7 or 8 periods per camera
+        period = 1.0 / ctx["sim_world"].camera_hz
+        assert [f.stamp for f in first] == [0.0, 0.0]
+        per_camera = {c: [f.stamp for f in late if f.camera_id == c] for c in src.camera_ids}
+        if behind:
+            assert all(len(s) == 1 for s in per_camera.values()), per_camera       # the newest due only
+            assert all(s[0] == rendered[c][-1] for c, s in per_camera.items())
+            assert all(0.25 - period < s[0] <= 0.25 for s in per_camera.values())
+            # every frame due but the newest was skipped, and counted
+            assert src.counters()["skipped_behind_real_time"] == sum(len(s) - 1 for s in rendered.values())
+        else:
+            assert all(len(s) >= 7 and s == sorted(s) for s in per_camera.values()), per_camera
+            assert src.counters()["skipped_behind_real_time"] == 0
+            rendered = per_camera

@@ -202,6 +202,11 @@ def monitor(
                f"stopped {summary['stopped_s']:.2f} s; nearest {near_text}; "
                f"step p99 {summary['step_ms']['p99']} ms; frame to reaction p99 {summary['frame_to_reaction_ms']['p99']} ms"
                + f"; wrote {out}/log.jsonl, summary.json and results.mcap")
+    behind = sum(c.get("skipped_behind_real_time", 0) for c in summary["source_counts"].values())
+    if behind:
+        typer.echo(f"monitor: the simulated cameras fell behind real time and skipped {behind} frames: this machine "
+                   f"cannot render them and run the monitor at once at full rate; the stale-camera stops are the "
+                   f"monitor's answer to late frames (R27), --fast runs the same cell without the clock")
 
 
 @app.command("safe-defaults")

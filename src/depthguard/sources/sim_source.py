@@ -221,6 +221,12 @@ class SimFrames:
         for sim in self._sims.values():
             sim.bank = bank
 
+    def counters(self) -> dict:
+        """``skipped_behind_real_time``: frames not rendered because the simulator was more than a
+        camera period behind the run's clock (a real-time run on a busy or small machine; the
+        monitor then sees late frames and stops the robot for them, as it must, R27)."""
+        return {"skipped_behind_real_time": int(self.skipped)}
+
     def stop_camera(self, camera_id: str, after: float = -math.inf) -> None:
         """Fault injection: camera ``camera_id`` delivers nothing captured after ``after`` s."""
         self._stopped[camera_id] = after
@@ -252,8 +258,9 @@ class SimFrames:
                 # behind by more than a period (real time, a slow machine): a camera drops the
                 # frames it could not deliver rather than queue them; the latest due is captured
                 ph = self._phase[cid]
-                self._next[cid] = ph + math.floor((t - ph) / self._period + 1e-9) * self._period
-                self.skipped += 1
+                newest = ph + math.floor((t - ph) / self._period + 1e-9) * self._period
+                self.skipped += int(round((newest - self._next[cid]) / self._period))   # frames not rendered
+                self._next[cid] = newest
             while self._next[cid] <= t + 1e-12:
                 tc = self._next[cid]
                 ph = self._phase[cid]
