@@ -316,8 +316,11 @@ class FusionWorker:
         the build that first has a frame of each of them does not pay for them: a new grid for
         two 640x480 cameras took 140 ms to build instead of 10 ms, its first frames 40-140 ms
         late (measured in ``depthguard bench --only monitor``). The monitor calls it when it
-        starts and when its cameras change; a build whose cameras with a frame are others (the
-        principal alone at the start) makes its own grid and leaves this one waiting."""
+        starts and before a camera is added (the set is then not in use yet). Not on removal:
+        the remaining cameras' frames keep coming, so a build makes that grid before a prepared
+        one could be ready, and the prepared one would only hold memory. A build whose cameras
+        with a frame are others (the principal alone at the start) makes its own grid and
+        leaves this one waiting."""
         ids = tuple(camera_ids)
         buf = GridBuffer(self.make_grid(ids), ids)
         touch = getattr(buf.grid, "touch", None)

@@ -276,11 +276,9 @@ class Monitor:
                 raise ValueError("cannot remove the last monitored camera")
             self._camera_ids = tuple(c for c in self._camera_ids if c != camera_id)
             w = self._workers.pop(camera_id)
-            ids = self._camera_ids
         w.close()
         self._seen.pop(camera_id, None)
         self.fusion.notify()
-        self.fusion.prepare(ids)          # after: the camera is not awaited from the call on
 
     # ------------------------------------------------------------ the control cycle
     def step(self, t: float, q=None, qd=None) -> Reaction:
