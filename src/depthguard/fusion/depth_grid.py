@@ -49,8 +49,7 @@ from depthguard.camera import Camera, check_depth_image
 from depthguard.distance.api import DistanceResult, check_points, check_rho
 from depthguard.distance.gaps import GapBuffers, check_gap_px
 from depthguard.distance.silhouette import SilhouetteBuffers, check_silhouette_px
-from depthguard.fusion import depth_grid_capsules, depth_grid_kernels
-from depthguard.fusion import depth_grid_lazy
+from depthguard.fusion import depth_grid_capsules, depth_grid_kernels, depth_grid_lazy, depth_grid_lookup, depth_grid_reach
 from depthguard.fusion.depth_grid_memo import new_memo
 
 __all__ = ["DepthGridMap", "MultiPrincipalDepthGrid", "default_cache_dir"]
@@ -516,7 +515,7 @@ class DepthGridMap:
                       self._kfree, self._kpmin, self._kpmax, self._koff, self._kdims, self._rays_arg,
                       self._orig_arg, self._kint_arg, len(self.others), self._caps, self._ncaps,
                       self._cap_lo, self._cap_hi, self._cap_n, self._band, self._runs, self._nruns)
-        depth_grid_kernels.tile_first_cells(self._runs, self._nruns, self._tile_first)
+        depth_grid_lookup.tile_first_cells(self._runs, self._nruns, self._tile_first)
         self.has_frames = True
 
     def _set_band(self, reach) -> None:
@@ -538,14 +537,14 @@ class DepthGridMap:
             a = caps[:, 0:3] @ self._Rp.T + self._tp
             b = caps[:, 3:6] @ self._Rp.T + self._tp
             cc = np.ascontiguousarray(np.concatenate([a, b, caps[:, 6:7] + grow], axis=1))
-            depth_grid_kernels.reach_band_capsules(cc, len(cc), self._capsule_boxes(cc), P.fx, P.fy, P.cx, P.cy,
+            depth_grid_reach.reach_band_capsules(cc, len(cc), self._capsule_boxes(cc), P.fx, P.fy, P.cx, P.cy,
                                   self.d_min, self.delta_d, self._band)
             return
         lo, hi = (np.asarray(x, dtype=np.float64).reshape(3) for x in reach)
         if not (np.all(np.isfinite(lo)) and np.all(np.isfinite(hi)) and np.all(lo <= hi)):
             raise ValueError(f"reach must be a finite box with lo <= hi (got {lo}, {hi})")
         pad = 2.0 * float(np.hypot(1 / P.fx, 1 / P.fy))
-        depth_grid_kernels.reach_band(lo, hi, np.ascontiguousarray(P.world_from_camera[:3, :3]),
+        depth_grid_reach.reach_band(lo, hi, np.ascontiguousarray(P.world_from_camera[:3, :3]),
                      np.ascontiguousarray(P.position), P.fx, P.fy, P.cx, P.cy, self.d_min, self.delta_d,
                      pad, self._band)
 
@@ -725,7 +724,7 @@ class DepthGridMap:
                                   len(self.others), self._kmemo, self._band, self._frame, self._stamp, self._cbits,
                                   self._clear, self._free_to, self._axbuf, r if rc is None else rc)
             return
-        depth_grid_kernels.grid_distances(self._pfree, self._runs, self._nruns, self._tile_first, self._Rp, self._tp, self._pint,
+        depth_grid_lookup.grid_distances(self._pfree, self._runs, self._nruns, self._tile_first, self._Rp, self._tp, self._pint,
                          self.d_min, self.delta_d, p, n, r, m,
                          self._dist, self._dir, self._count, self._obs)
 

@@ -30,7 +30,8 @@ from numba import njit, prange
 
 from depthguard.distance.window import start_point, surveillance_window
 from depthguard.fusion.depth_grid_capsules import MAX_CAPS_PER_PIXEL, _in_caps
-from depthguard.fusion.depth_grid_kernels import KIND_SURFACE, METHOD_MIN, TILE, _f2, _finish_point, _fold_pixel
+from depthguard.fusion.depth_grid_kernels import KIND_SURFACE, METHOD_MIN, TILE
+from depthguard.fusion.depth_grid_lookup import _f2, _finish_point, _fold_pixel
 from depthguard.fusion.depth_grid_memo import gray_stretch
 from depthguard.fusion.depth_grid_memo import mask_range as _mask_range
 from depthguard.fusion.depth_grid_memo import msb as _msb
@@ -476,7 +477,7 @@ def _scan_up(u, v, lo, hi, gs, ncp, nd, obits, caps, ncaps, cap_lo, cap_hi, fx, 
 @njit(cache=True, inline="always")
 def _column_bits(u, v, gs, ncp, nd, obits, caps, ncaps, cap_lo, cap_hi, ax, ay, bx, by, dp, lim2,
                  fx, fy, cx, cy, dmin, dd, ga, gb):
-    """:func:`~depthguard.fusion.depth_grid_kernels._column` over the memoised bits: the
+    """:func:`~depthguard.fusion.depth_grid_lookup._column` over the memoised bits: the
     nearest obstacle cell of column ``(u, v)`` (ray terms ``ax, ay`` of :func:`_ray_x`,
     point terms ``bx, by`` of :func:`_point_terms`) among slices ``ga..gb`` by the R10
     distance. ``f`` is unimodal in the slice with its minimum at one of
@@ -536,7 +537,7 @@ def grid_distances_lazy(pfree, tmin, obits, cap_n, caps, ncaps, cap_lo, cap_hi, 
                         out_distance, out_direction, out_count, out_observed,
                         fill, pkind, kfree, kpmin, kpmax, koff, kdims, rays, origins, kint, nk, kmemo, band,
                         frame, stamp, cbits, clear, free_to, axbuf, rho_core):
-    """:func:`~depthguard.fusion.depth_grid_kernels.grid_distances` over the memoised cells: same cases, same R10 distance, same
+    """:func:`~depthguard.fusion.depth_grid_lookup.grid_distances` over the memoised cells: same cases, same R10 distance, same
     R7 reduction. ``fill`` False: :func:`ensure_cells` was called first with the same
     points. ``fill`` True: the cells are classified here as they are met (one pass; only
     on one thread — the points' windows overlap). axbuf : (>= n_points, W) float64

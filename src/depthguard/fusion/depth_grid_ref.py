@@ -158,7 +158,7 @@ def cleared_numpy(principal: Camera, others: list[Camera], kfree: list[np.ndarra
 def grid_distances_numpy(principal: Camera, others: list[Camera], pfree, pkind, kfree,
                          d_min: float, delta_d: float, n_d: int, points, rho: float,
                          method: str = "hybrid", capsules=None):
-    """Twin of :func:`~depthguard.fusion.depth_grid_kernels.grid_distances` (R10–R12).
+    """Twin of :func:`~depthguard.fusion.depth_grid_lookup.grid_distances` (R10–R12).
 
     Every cell ``(u, v, gd)`` of the region of surveillance with
     ``gd`` in ``r(dp - rho) .. r(dp + rho)`` is classified at once:
