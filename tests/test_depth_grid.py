@@ -9,7 +9,8 @@ import pytest
 import depthguard as dg
 from depthguard.fusion import depth_grid_capsules, depth_grid_kernels
 from depthguard.fusion import depth_grid_ref as ref
-from depthguard.fusion.depth_grid import DepthGridMap, MultiPrincipalDepthGrid
+from depthguard.fusion.depth_grid import DepthGridMap
+from depthguard.fusion.depth_grid_multi import MultiPrincipalDepthGrid
 from depthguard.geometry.primitives import Box, Capsule, Sphere, sdf_union
 from depthguard.render import render_depth
 from depthguard.transforms import look_at

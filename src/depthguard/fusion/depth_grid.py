@@ -13,7 +13,8 @@ and :meth:`DepthGridMap.query` once per control cycle (no allocation).
 The off-line map (R11) is kept compact: the principal pixels' corner rays in
 every other camera's frame, ``(H+1) (W+1) 3`` float64 per camera (7.4 MB for
 640x480), from which each cell's pixels and ``dstart`` / ``dend`` follow on
-the fly (:mod:`~depthguard.fusion.depth_grid_kernels` states the rule);
+the fly (:mod:`~depthguard.fusion.depth_grid_offline` builds and caches it,
+:mod:`~depthguard.fusion.depth_grid_kernels` states the rule);
 :func:`~depthguard.fusion.depth_grid_ref.explicit_map_numpy` builds the
 paper's explicit table for small grids and the tests check they agree.
 
@@ -30,16 +31,14 @@ queries reuse them. ``set_frames(..., lazy=False)`` is the eager form (every
 column's obstacle runs at once, optionally limited by ``reach``); the tests
 check both give the same answers.
 
-When no camera sees the whole workspace, :class:`MultiPrincipalDepthGrid`
-keeps a map per camera and evaluates each control point with a principal
+When no camera sees the whole workspace,
+:class:`~depthguard.fusion.depth_grid_multi.MultiPrincipalDepthGrid` keeps a map per camera and evaluates each control point with a principal
 that sees it (the paper's future work).
 """
 
 from __future__ import annotations
 
-import hashlib
 import math
-import os
 import time
 from pathlib import Path
 
@@ -51,19 +50,14 @@ from depthguard.distance.gaps import GapBuffers, check_gap_px
 from depthguard.distance.silhouette import SilhouetteBuffers, check_silhouette_px
 from depthguard.fusion import depth_grid_capsules, depth_grid_kernels, depth_grid_lazy, depth_grid_lookup, depth_grid_reach
 from depthguard.fusion.depth_grid_memo import new_memo
+from depthguard.fusion.depth_grid_offline import corner_rays, default_cache_dir, load_map, map_key, save_map
 
-__all__ = ["DepthGridMap", "MultiPrincipalDepthGrid", "default_cache_dir"]
+__all__ = ["DepthGridMap", "default_cache_dir"]
 
-_FORMAT = 1
 PARALLEL_MIN_POINTS = 16     # below this many points a query runs on one thread (steadier)
 ENSURE_CHUNK_ROWS = 4        # image rows per parallel work item of the per-frame classification
 RUNS_PER_COLUMN = 8          # obstacle runs kept per principal column; more are merged (safe side)
 _METHODS = {"min": depth_grid_kernels.METHOD_MIN, "mean": depth_grid_kernels.METHOD_MEAN, "hybrid": depth_grid_kernels.METHOD_HYBRID}
-
-
-def default_cache_dir() -> Path:
-    """``$DEPTHGUARD_CACHE`` or ``~/.cache/depthguard``."""
-    return Path(os.environ.get("DEPTHGUARD_CACHE", Path.home() / ".cache" / "depthguard"))
 
 
 def _intrinsics_row(cam: Camera) -> list[float]:
@@ -184,21 +178,21 @@ class DepthGridMap:
         self._tp = np.ascontiguousarray(P.t)
         self._pint = np.asarray(_intrinsics_row(P), dtype=np.float64)
         self._kint = np.asarray([_intrinsics_row(c) for c in self.others], dtype=np.float64).reshape(-1, 8)
-        self.key = self._key()
+        self.key = map_key(self.principal, self.others, self.d_min, self.delta_d, self.n_d)
         self.cache_path = None
         if cache:
             self.cache_path = Path(cache_dir if cache_dir is not None else default_cache_dir()) / \
                 f"depthgrid-{self.key}.npz"
         t0 = time.perf_counter()
         self.from_cache = False
-        loaded = self._load() if self.cache_path is not None else None
+        loaded = load_map(self.cache_path, self.key, (P.height, P.width), len(self.others))
         if loaded is not None:
             self.rays, self.origins = loaded
             self.from_cache = True
         else:
-            self.rays, self.origins = self._build(quiet)
+            self.rays, self.origins = corner_rays(self.principal, self.others, quiet)
             if self.cache_path is not None:
-                self._save()
+                save_map(self.cache_path, self.key, self.rays, self.origins)
         self.build_seconds = time.perf_counter() - t0
         self._alloc_frames()
         self._caps = np.zeros((0, 7))
@@ -207,70 +201,6 @@ class DepthGridMap:
         self.has_frames = False
         self._loaded_options = None           # (robot_offset, invalid, robot_in_others, silhouette_px, gap_px) of the last frames
         self._loaded_with_frame: set = set()  # cameras that had a frame in the last set_frames
-
-    # ------------------------------------------------------------ off-line map (R11)
-    def _key(self) -> str:
-        h = hashlib.sha256()
-        h.update(repr((_FORMAT, self.principal.key(), [c.key() for c in self.others],
-                       self.d_min, self.delta_d, self.n_d)).encode())
-        return h.hexdigest()[:24]
-
-    def _build(self, quiet: bool):
-        """Corner rays of the principal pixels in each other camera's frame (R11)."""
-        from depthguard.progress import track
-
-        P = self.principal
-        H, W = P.height, P.width
-        nk = len(self.others)
-        rays = np.empty((max(nk, 1), H + 1, W + 1, 3))
-        origins = np.zeros((max(nk, 1), 3))
-        uc = (np.arange(W + 1) - 0.5 - P.cx) / P.fx
-        vc = (np.arange(H + 1) - 0.5 - P.cy) / P.fy
-        chunk = max(1, (H + 1) // 8)
-        steps = [(k, r0) for k in range(nk) for r0 in range(0, H + 1, chunk)]
-        Rpw = P.world_from_camera[:3, :3]
-        tpw = P.world_from_camera[:3, 3]
-        for k, r0 in track(steps, "depth grid map", quiet=quiet or not steps):
-            cam = self.others[k]
-            M = cam.R @ Rpw                        # principal frame -> k frame
-            origins[k] = cam.R @ tpw + cam.t       # principal optical centre in k
-            r1 = min(r0 + chunk, H + 1)
-            c = np.empty((r1 - r0, W + 1, 3))
-            c[..., 0] = uc[None, :]
-            c[..., 1] = vc[r0:r1, None]
-            c[..., 2] = 1.0
-            rays[k, r0:r1] = c @ M.T
-        if nk == 0:
-            rays = rays[:0]
-            origins = origins[:0]
-        return np.ascontiguousarray(rays), np.ascontiguousarray(origins)
-
-    def _save(self) -> None:
-        try:
-            self.cache_path.parent.mkdir(parents=True, exist_ok=True)
-            tmp = self.cache_path.with_name(self.cache_path.name + f".{os.getpid()}.tmp.npz")
-            np.savez(tmp, key=np.array(self.key), rays=self.rays, origins=self.origins)
-            os.replace(tmp, self.cache_path)
-        except OSError:
-            pass  # a cache that cannot be written only costs a rebuild next time
-
-    def _load(self):
-        p = self.cache_path
-        if p is None or not p.exists():
-            return None
-        try:
-            with np.load(p, allow_pickle=False) as z:
-                key = str(z["key"])
-                rays = np.ascontiguousarray(z["rays"], dtype=np.float64)
-                origins = np.ascontiguousarray(z["origins"], dtype=np.float64)
-        except Exception:
-            return None
-        H, W, _ = self.shape
-        nk = len(self.others)
-        if (key != self.key or rays.shape != (nk, H + 1, W + 1, 3) or origins.shape != (nk, 3)
-                or not np.all(np.isfinite(rays)) or not np.all(np.isfinite(origins))):
-            return None
-        return rays, origins
 
     @property
     def nbytes(self) -> int:
@@ -758,69 +688,3 @@ class DepthGridMap:
         return (f"DepthGridMap(principal={self.principal.id!r}, others={[c.id for c in self.others]}, "
                 f"{W}x{H}x{nd} cells, d=[{self.d_min:.4f}, {self.d_max:.4f}] m, "
                 f"delta_d={self.delta_d} m, {self.nbytes / 1e6:.1f} MB)")
-
-
-class MultiPrincipalDepthGrid:
-    """A depth grid map per camera; each control point is evaluated with a
-    principal that sees it (Flacco & De Luca 2015, §IX future work).
-
-    For a point the principal is, among the cameras whose image and range hold
-    it, one whose view holds the whole cube of side ``2 rho`` around it (so no
-    obstacle within ``rho`` lies outside the principal's image), preferring
-    the nearest such camera (finest cells); if none holds the whole cube, the
-    camera holding most of the cube's 8 corners (ties: nearest). A point no
-    camera sees is ``observed = False`` with ``distance = inf`` (cannot judge).
-    """
-
-    def __init__(self, cameras, d_min: float, d_max: float, delta_d: float, cache_dir=None,
-                 *, cache: bool = True, quiet: bool = True):
-        cams = list(cameras)
-        self.cameras = cams
-        self.maps = {c.id: DepthGridMap(cams, c.id, d_min, d_max, delta_d, cache_dir,
-                                        cache=cache, quiet=quiet) for c in cams}
-
-    @property
-    def nbytes(self) -> int:
-        return sum(m.nbytes for m in self.maps.values())
-
-    def principal_for(self, points, rho: float = 0.4) -> np.ndarray:
-        """(N,) index into ``cameras`` of each point's principal, -1 where no camera sees it."""
-        p = check_points(points)
-        r = check_rho(rho)
-        corners = (p[:, None, :] + r * np.array([[sx, sy, sz] for sx in (-1, 1) for sy in (-1, 1)
-                                                  for sz in (-1, 1)], float)[None]).reshape(-1, 3)
-        best = np.full(len(p), -1)
-        score = np.full(len(p), -np.inf)
-        for k, cam in enumerate(self.cameras):
-            sees = cam.in_view(p)
-            n_in = cam.in_view(corners).reshape(-1, 8).sum(1)
-            dp = cam.world_to_camera(p)[:, 2]
-            s = n_in * 1e3 - dp
-            take = sees & (s > score)
-            best[take] = k
-            score[take] = s[take]
-        return best
-
-    def distance(self, depths: dict, points, rho: float = 0.4, method: str = "hybrid",
-                 robot_depths: dict | None = None, *, robot_capsules=None,
-                 robot_offset: float = 0.03, invalid: str = "unknown",
-                 robot_in_others: str = "unknown", silhouette_px: int = 0,
-                 gap_px: int = 0) -> DistanceResult:
-        """As :meth:`DepthGridMap.distance`, each point through its own principal."""
-        p = check_points(points)
-        n = len(p)
-        dist = np.full(n, np.inf)
-        direc = np.zeros((n, 3))
-        obs = np.zeros(n, dtype=bool)
-        count = np.zeros(n, dtype=np.int64)
-        who = self.principal_for(p, rho)
-        for k, cam in enumerate(self.cameras):
-            sel = who == k
-            if not sel.any():
-                continue
-            res = self.maps[cam.id].distance(depths, p[sel], rho, method, robot_depths,
-                                             robot_capsules=robot_capsules, robot_offset=robot_offset,
-                                             invalid=invalid, robot_in_others=robot_in_others,
-                                             silhouette_px=silhouette_px, gap_px=gap_px)
-            dist[sel], direc[sel], obs[sel], count[sel] = res.distance, res.direction, res.observed, res.count
-        return DistanceResult(dist, direc, obs, count)
