@@ -65,3 +65,36 @@ def test_numbas_openmp_threads_sleep_between_parallel_regions_unless_the_user_sa
     out = subprocess.run([sys.executable, "-c", code], env={**env, "OMP_WAIT_POLICY": "ACTIVE"},
                          capture_output=True, text=True, check=True)
     assert out.stdout.strip() == "ACTIVE"
+
+
+def test_the_overview_lists_every_command_once_by_panel_on_one_line():
+    """``depthguard --help`` groups the commands by what they are for, each with one line of
+    at most 56 characters (one row at 80 columns); a command added without a place in
+    ``OVERVIEW`` fails here."""
+    import typer.main
+
+    from depthguard.cli.app import OVERVIEW
+
+    names = set(typer.main.get_command(app).commands)
+    assert names == set(OVERVIEW), names ^ set(OVERVIEW)
+    assert all(len(line) <= 56 for _, line in OVERVIEW.values())
+    out = CliRunner().invoke(app, ["--help"], env={"COLUMNS": "80"}).output
+    panels = list(dict.fromkeys(panel for panel, _ in OVERVIEW.values()))
+    at = [out.index(f"─ {p} ") for p in panels]
+    assert at == sorted(at)
+    for name, (panel, line) in OVERVIEW.items():
+        row = next(r for r in out.splitlines() if r.startswith(f"│ {name} "))
+        assert line in row, (name, row)
+        start = out.index(f"─ {panel} ")
+        assert start < out.index(row) < start + out[start:].index("╰")
+
+
+def test_a_commands_text_reads_as_paragraphs_not_as_its_docstrings_lines():
+    """typer keeps the docstring's line breaks; the help reflows each paragraph, and leaves a
+    paragraph with a list or an indented example as written."""
+    from depthguard.cli.app import _reflow
+
+    text = "First line\n    goes on.\n\n    Second paragraph\n    over two lines.\n\n    - one\n    - two\n"
+    assert _reflow(text) == "First line goes on.\n\nSecond paragraph over two lines.\n\n- one\n- two"
+    out = CliRunner().invoke(app, ["view", "--help"], env={"COLUMNS": "200"}).output
+    assert "so that the view shows its decisions and reasons, not only the depth." in out
