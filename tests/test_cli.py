@@ -28,9 +28,11 @@ def test_every_command_has_help():
     cmds = _commands(app)
     assert len(cmds) > 3
     for path in cmds:
-        res = runner.invoke(app, list(path) + ["--help"])
+        res = runner.invoke(app, list(path) + ["--help"], env={"COLUMNS": "80"})
         assert res.exit_code == 0, (path, res.output)
         assert "Usage" in res.output
+        # nothing cut short at 80 columns (rich ends a word wider than its column with "…")
+        assert "…" not in res.output, (path, [ln for ln in res.output.splitlines() if "…" in ln])
 
 
 def test_bench_rejects_unknown_group():
@@ -98,3 +100,12 @@ def test_a_commands_text_reads_as_paragraphs_not_as_its_docstrings_lines():
     assert _reflow(text) == "First line goes on.\n\nSecond paragraph over two lines.\n\n- one\n- two"
     out = CliRunner().invoke(app, ["view", "--help"], env={"COLUMNS": "200"}).output
     assert "so that the view shows its decisions and reasons, not only the depth." in out
+
+
+def test_ports_and_the_ros2_domain_outside_their_range_are_usage_errors_naming_the_option():
+    runner = CliRunner()
+    for args, opt, rng in ((["monitor", "--ros2-domain", "233"], "--ros2-domain", "0 to 232"),
+                           (["monitor", "--view-port", "-1"], "--view-port", "0 to 65535"),
+                           (["view", "--port", "65536"], "--port", "0 to 65535")):
+        res = runner.invoke(app, args, env={"COLUMNS": "200"})
+        assert res.exit_code == 2 and opt in res.output and rng in res.output, (args, res.output)

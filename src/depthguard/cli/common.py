@@ -16,7 +16,9 @@ from __future__ import annotations
 from pathlib import Path
 from typing import Optional
 
-__all__ = ["load_rig_or_cell", "parse_vector3", "check_output_dir"]
+import typer
+
+__all__ = ["load_rig_or_cell", "parse_vector3", "check_output_dir", "in_range"]
 
 
 def load_rig_or_cell(rig: Optional[Path], cell: Optional[str], default: Optional[str] = "flacco-cell",
@@ -87,3 +89,17 @@ def check_output_dir(out: Path, option: str = "--out") -> Path:
         reason = exc.strerror or str(exc)
         raise ValueError(f"{option} {p}: cannot write results there ({reason})") from None
     return p
+
+
+def in_range(lo: int, hi: int):
+    """A typer callback: the option's integer within ``lo..hi`` (None passes), else a usage
+    error naming the option. The option's help says the range: typer's own ``min=`` /
+    ``max=`` print it beside the type (``<int range> [0<=x<=65535]``), which widened the
+    type column of a whole ``--help`` and cut the other options' texts short at 80 columns."""
+
+    def check(param: typer.CallbackParam, value: Optional[int]) -> Optional[int]:
+        if value is not None and not lo <= value <= hi:
+            raise typer.BadParameter(f"must be {lo} to {hi}, got {value}", param_hint=param.opts[0])
+        return value
+
+    return check

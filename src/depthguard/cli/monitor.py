@@ -16,7 +16,7 @@ from typing import List, Optional
 import typer
 
 from depthguard.cli.app import app
-from depthguard.cli.common import load_rig_or_cell
+from depthguard.cli.common import in_range, load_rig_or_cell
 
 
 def check_out_dir(out: Path, files=("log.jsonl", "summary.json")) -> None:
@@ -54,7 +54,7 @@ def _status_line(r) -> str:
 def monitor(
     rig: Optional[Path] = typer.Option(None, "--rig", help="Rig file (YAML) of your cell; its monitor: section sets the runtime."),
     cell: Optional[str] = typer.Option(None, "--cell", help="A built-in cell (default flacco-cell when no --rig)."),
-    source: List[str] = typer.Option([], "--source", help="Frame source SCHEME:ARG, repeatable: sim[:CELL[:SITUATION][:alone][:dark][:noiseless]], images:DIR, bag:PATH (a ROS 2 bag, docs/BAGS.md), realsense[:CAM=SERIAL,...] and realsense-file:PATH (docs/REALSENSE.md), ros2: (live ROS 2 topics through rmw_zenoh, docs/ROS2.md), units:ENDPOINT (the camera units of a fusion server; list their cameras in the rig's monitor: remote_cameras). Default: the simulator of the cell (or of the rig's own scene)."),
+    source: List[str] = typer.Option([], "--source", help="Frame source SCHEME:ARG, repeatable: sim[:CELL[:SITUATION]] (then any of :alone :dark :noiseless), images:DIR, bag:PATH (a ROS 2 bag, docs/BAGS.md), realsense[:CAM=SERIAL,...] and realsense-file:PATH (docs/REALSENSE.md), ros2: (live ROS 2 topics through rmw_zenoh, docs/ROS2.md), units:ENDPOINT (the camera units of a fusion server; list their cameras in the rig's monitor: remote_cameras). Default: the simulator of the cell (or of the rig's own scene)."),
     joints: Optional[str] = typer.Option(None, "--joints", help="Joint source: sim (the simulated robot, which obeys the reaction), csv:FILE, zenoh:KEY, bag:PATH, ros2:[TOPIC] (default /joint_states). Default: sim with a sim source, the bag with a bag: source, ros2: with a ros2: source."),
     out: Optional[Path] = typer.Option(None, "--out", "-o", help="Folder for log.jsonl (one line per control cycle) and summary.json (default: out/monitor/<UTC time>)."),
     duration: Optional[float] = typer.Option(None, "--duration", help="Seconds of run time (default: until Ctrl-C or the end of the sources)."),
@@ -63,14 +63,14 @@ def monitor(
     zenoh_listen: Optional[str] = typer.Option(None, "--zenoh-listen", help="Zenoh endpoint the monitor listens on (default: the rig's monitor: zenoh_listen, loopback)."),
     zenoh_connect: List[str] = typer.Option([], "--zenoh-connect", help="Zenoh endpoints to connect to (repeatable)."),
     ros2: bool = typer.Option(False, "--ros2", help="Publish the reaction as ROS 2 topics through rmw_zenoh: <ns>/override (std_msgs/Float64), <ns>/reaction, <ns>/markers (docs/ROS2.md)."),
-    ros2_domain: Optional[int] = typer.Option(None, "--ros2-domain", min=0, max=232, help="ROS 2 domain id of ros2: sources and --ros2 (default: ROS_DOMAIN_ID, else 0)."),
+    ros2_domain: Optional[int] = typer.Option(None, "--ros2-domain", callback=in_range(0, 232), help="ROS 2 domain id (0 to 232) of ros2: sources and --ros2 (default: ROS_DOMAIN_ID, else 0)."),
     ros2_router: Optional[str] = typer.Option(None, "--ros2-router", help="Zenoh router of the ROS 2 cell (default tcp/127.0.0.1:7447, where rmw_zenohd listens)."),
     ros2_namespace: str = typer.Option("/depthguard", "--ros2-namespace", help="Namespace of the topics --ros2 publishes."),
     quiet: bool = typer.Option(False, "--quiet", "-q", help="No status line."),
     units_keys: Optional[Path] = typer.Option(None, "--units-keys", help="Certificate directory (depthguard keys admin) for a units:tls/HOST:PORT source of a server started with --keys (docs/THREAT_MODEL.md)."),
     view: bool = typer.Option(False, "--view", help="A live 3-D view in the browser (docs/VIEW.md)."),
     view_host: str = typer.Option("127.0.0.1", "--view-host", help="Address the view listens on (anyone who reaches it can change rho)."),
-    view_port: int = typer.Option(8080, "--view-port", min=0, max=65535, help="Port of the view (a busy one: the next free)."),
+    view_port: int = typer.Option(8080, "--view-port", callback=in_range(0, 65535), help="Port of the view, 0 to 65535 (a busy one: the next free)."),
 ) -> None:
     """Run the monitor: frames and joint states in, the robot's reaction out (R29).
 

@@ -25,6 +25,7 @@ from typing import Optional
 import typer
 
 from depthguard.cli.app import app
+from depthguard.cli.common import in_range
 
 
 def _size(text: str) -> tuple[int, int]:
@@ -66,7 +67,7 @@ def view(
     out: Optional[Path] = typer.Option(None, "--out", "-o", help="A bag: keep the monitor's replay in this new folder (default: a temporary one, removed at the end)."),
     source: Optional[str] = typer.Option(None, "--source", help="sim: source of a live screenshot (default sim:CELL)."),
     host: str = typer.Option("127.0.0.1", "--host", help="Address the view's web server listens on (anyone who reaches it can change rho)."),
-    port: int = typer.Option(8080, "--port", min=0, max=65535, help="Port of the view (a busy one: the next free)."),
+    port: int = typer.Option(8080, "--port", callback=in_range(0, 65535), help="Port of the view, 0 to 65535 (a busy one: the next free)."),
     screenshot: Optional[Path] = typer.Option(None, "--screenshot", help="Write a PNG of the view taken by a headless Chromium, then exit."),
     at: Optional[float] = typer.Option(None, "--at", help="A folder or bag's screenshot: the time shown (s, the log's clock t; default its first record)."),
     seconds: float = typer.Option(4.0, "--seconds", help="Live screenshot: seconds the monitor runs before the photograph."),
