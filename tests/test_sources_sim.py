@@ -150,6 +150,9 @@ def test_a_simulator_behind_real_time_skips_frames_and_counts_them():
             assert all(0.25 - period < s[0] <= 0.25 for s in per_camera.values())
             # every frame due but the newest was skipped, and counted
             assert src.counters()["skipped_behind_real_time"] == sum(len(s) - 1 for s in rendered.values())
+            # what depthguard monitor's live line and last line say (sources without the count add 0)
+            from depthguard.cli.monitor import _skipped_behind
+            assert _skipped_behind([src, joints]) == src.counters()["skipped_behind_real_time"] > 0
         else:
             assert all(len(s) >= 7 and s == sorted(s) for s in per_camera.values()), per_camera
             assert src.counters()["skipped_behind_real_time"] == 0

@@ -34,6 +34,11 @@ def check_out_dir(out: Path, files=("log.jsonl", "summary.json")) -> None:
             raise ValueError(f"--out {out}: {f} exists already (a run never overwrites one); choose a new folder")
 
 
+def _skipped_behind(sources) -> int:
+    """Frames the simulated sources did not render because they were behind real time."""
+    return sum(s.counters().get("skipped_behind_real_time", 0) for s in sources if hasattr(s, "counters"))
+
+
 def _status_line(r) -> str:
     name, d = r.nearest()
     unobs = [n for n, o, w in zip(r.names, r.observed, r.is_watch) if not o and not w]
@@ -151,6 +156,9 @@ def monitor(
 
     def status(r):
         line = _status_line(r)
+        behind = _skipped_behind(sources)
+        if behind:                      # so that stale-camera stops are not read as the monitor's fault
+            line += f"  (simulator behind real time: {behind} frames skipped)"
         if tty:
             typer.echo("\r" + line[:200].ljust(200), nl=False, err=True)
         elif not quiet:
@@ -202,7 +210,7 @@ def monitor(
                f"stopped {summary['stopped_s']:.2f} s; nearest {near_text}; "
                f"step p99 {summary['step_ms']['p99']} ms; frame to reaction p99 {summary['frame_to_reaction_ms']['p99']} ms"
                + f"; wrote {out}/log.jsonl, summary.json and results.mcap")
-    behind = sum(c.get("skipped_behind_real_time", 0) for c in summary["source_counts"].values())
+    behind = _skipped_behind(sources)
     if behind:
         typer.echo(f"monitor: the simulated cameras fell behind real time and skipped {behind} frames: this machine "
                    f"cannot render them and run the monitor at once at full rate; the stale-camera stops are the "
