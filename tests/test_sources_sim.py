@@ -157,3 +157,29 @@ def test_a_simulator_behind_real_time_skips_frames_and_counts_them():
             assert all(len(s) >= 7 and s == sorted(s) for s in per_camera.values()), per_camera
             assert src.counters()["skipped_behind_real_time"] == 0
             rendered = per_camera
+
+
+def test_sim_joint_states_come_once_each_in_order_whoever_moves_the_robot():
+    """``sim`` joints: every tick ``k / joint_hz`` up to the asked time, once, in order, whether
+    the joint source or the frame source moved the robot there first, and over more than the
+    world's 5 s of kept history (the source looks back only to the last state it returned)."""
+    from depthguard.sources.base import open_joints, open_source
+
+    ctx = {}
+    rig = load_cell("ur3-cell").rig
+    frames = open_source("sim:ur3-cell:alone:noiseless", rig, ctx)
+    joints = open_joints("sim", rig, ctx)
+    world = ctx["sim_world"]
+    hz = world.joint_hz
+    rng = np.random.default_rng(3)
+    got, t = [], 0.0
+    while t < 7.0:
+        t += float(rng.uniform(0.0, 0.05))
+        if rng.random() < 0.3:
+            world.advance(t + float(rng.uniform(0.0, 0.01)))   # as the frame source does before rendering
+        got += joints.states_until(t)
+    stamps = np.array([s for s, _ in got])
+    assert np.allclose(stamps, np.arange(len(stamps)) / hz, atol=1e-9)
+    assert stamps[-1] <= t + 1e-9 and stamps[-1] > t - 1.0 / hz - 1e-9
+    assert all(q.shape == (rig.robot.dof,) and np.all(np.isfinite(q)) for _, q in got)
+    frames.close()

@@ -173,8 +173,14 @@ class SimJoints:
         """The robot's states up to ``t`` not returned yet (the frame source may have moved the
         robot first: the states are the world's, whoever advanced it)."""
         self.world.advance(t)
-        with self.world._lock:
-            out = [(ts, q) for ts, q in self.world.states if self._last < ts <= t + 1e-12]
+        out = []
+        with self.world._lock:          # newest first, back to the last state returned: the work is
+            for ts, q in reversed(self.world.states):    # the new states, not the 5 s of history
+                if ts <= self._last:
+                    break
+                if ts <= t + 1e-12:
+                    out.append((ts, q))
+        out.reverse()
         if out:
             self._last = out[-1][0]
         return out
