@@ -245,6 +245,8 @@ def parallel_test_images(rng):
     img[10:14] = 0.0                      # whole rows without a valid pixel
     img[:, 60] = 0.0                      # a column of nothing: silhouettes on both sides
     img[40:50, 70:90] = np.inf
+    img[20:23, 5:9] = -1.0                # negative: nothing hit, like 0, NaN and inf
+    img[24, 5:9] = -np.inf
     img[-1, :] = 0.5                      # a near strip along the bottom border
     imgs.append(img)
     imgs.append(np.zeros((97, 131), np.float32))   # nothing valid: no draws at all

@@ -62,7 +62,7 @@ import numpy as np
 
 from depthguard.sources.sensors import SensorModel
 
-__all__ = ["NoiseWorkspace", "NormalBank", "apply_noise", "depth_edges", "depth_edges_kernel", "measure_kernel",
+__all__ = ["NoiseWorkspace", "NormalBank", "apply_noise", "ideal_depth_kernel", "depth_edges", "depth_edges_kernel", "measure_kernel",
            "measure_numpy", "kinect_quantise", "depth_sigma", "EDGE_JUMP_ABS", "EDGE_JUMP_REL"]
 
 EDGE_JUMP_ABS = 0.03   # metres
@@ -179,6 +179,17 @@ def depth_edges(depth: np.ndarray, jump_abs: float = EDGE_JUMP_ABS,
         other[sp] = np.where(larger, zq, other[sp])
         edge[sp] |= is_edge
     return edge, other
+
+
+@numba.njit(cache=True, parallel=True, nogil=True)
+def ideal_depth_kernel(d, z):
+    """``z`` (H, W) float64 = ``d`` where it is finite and > 0, else 0 (nothing hit): one pass,
+    no temporaries (the numpy form, three boolean images and a masked write, took 0.5 ms of a
+    640x480 frame's simulation)."""
+    for v in numba.prange(d.shape[0]):
+        for u in range(d.shape[1]):
+            x = d[v, u]
+            z[v, u] = x if (np.isfinite(x) and x > 0) else 0.0
 
 
 @numba.njit(cache=True, parallel=True, nogil=True)
@@ -420,8 +431,11 @@ def apply_noise(ideal: np.ndarray, model: SensorModel, fx: float, rng: np.random
     elif out.shape != d.shape or out.dtype != np.float32:
         raise ValueError(f"out must be float32 of shape {d.shape}, got {out.dtype} {out.shape}")
     z = ws.z
-    np.copyto(z, d)
-    z[~(np.isfinite(z) & (z > 0))] = 0.0
+    if use_numpy:
+        np.copyto(z, d)
+        z[~(np.isfinite(z) & (z > 0))] = 0.0
+    else:
+        ideal_depth_kernel(d, z)
     if noiseless or model.kind == "ideal":
         np.copyto(out, z, casting="same_kind")
         out[(z < lo) | (z > hi)] = 0.0

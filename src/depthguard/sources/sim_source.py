@@ -227,6 +227,17 @@ class SimFrames:
         for sim in self._sims.values():
             sim.bank = bank
 
+    def warm_up(self) -> None:
+        """Render one frame per camera and throw it away (set by a real-time run before its clock
+        starts): the first render of a process loads the renderer's and the noise's compiled
+        kernels and touches their buffers, which put the simulator 0.1 s behind the clock at
+        the start of every ``depthguard monitor`` run (4 frames skipped, each camera stale for
+        a moment). Each frame's noise comes from its own stamp's generator, so the frames that
+        follow are the same with or without it."""
+        q = self.world._path_q(self.world._tau)
+        for cid in self.camera_ids:
+            self.render(cid, 0.0, q)
+
     def counters(self) -> dict:
         """``skipped_behind_real_time``: frames not rendered because the simulator was more than a
         camera period behind the run's clock (a real-time run on a busy or small machine; the
@@ -243,11 +254,11 @@ class SimFrames:
     def render(self, camera_id: str, t: float, q: np.ndarray) -> np.ndarray:
         """The measured (H, W) float32 depth of camera ``camera_id`` at run time ``t``, robot at ``q``."""
         ex = self._expected[camera_id]
-        ideal = np.array(ex.known(q), copy=True)
+        ideal = ex.known(q)             # the expected depth's own buffer, reused: made anew per call
         dyn = self.world.dynamic(t)
         person = None
         if dyn:
-            person = np.array(self._dyn[camera_id].render([p.mesh() for p in dyn])[0], copy=True)
+            person = self._dyn[camera_id].render([p.mesh() for p in dyn])[0]   # the renderer's buffer
             nearest_depth(ideal, person)
         d = self._sims[camera_id].measure(ideal, stamp=t)
         returns_beyond_the_model(d, ideal, self._sims[camera_id].cam)       # a rig without walls (R28)
