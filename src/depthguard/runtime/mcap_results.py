@@ -101,6 +101,24 @@ class McapResults:
                      "override": self._writer.add_connection(TOPICS["override"], rosmsg.MSG["Float64"], typestore=ts),
                      "markers": self._writer.add_connection(TOPICS["markers"], rosmsg.MSG["MarkerArray"], typestore=ts)}
         self.written = 0
+        self._warm_up()
+
+    def _warm_up(self) -> None:
+        """Serialise (and drop) one message of each topic's type: the CDR serialiser of a type is
+        generated on its first use, 37 ms under the GIL that held up every thread of a real-time
+        run in its first cycles (the simulated cameras fell behind the clock there)."""
+        from types import SimpleNamespace
+
+        q = np.asarray(self.robot.q_home, dtype=np.float64)
+        m = len(self.robot.control_points)
+        r = SimpleNamespace(t=0.0, override=0.0, repulsion=np.zeros(3), qd_min=np.zeros(len(q)),
+                            qd_max=np.zeros(len(q)), names=[cp.name for cp in self.robot.control_points],
+                            is_watch=np.zeros(m, dtype=bool), observed=np.ones(m, dtype=bool),
+                            distance=np.full(m, 0.1), direction=np.tile([0.0, 0.0, 1.0], (m, 1)),
+                            reasons={"warm-up": "not written"}, cameras={}, joints_age_s=0.0, q=q)
+        T = rosmsg.TYPESTORE.types
+        for msg in (self.reaction_msg(r), T[rosmsg.MSG["Float64"]](data=0.0), self.markers_msg(r)):
+            rosmsg.serialize(msg)
 
     # ------------------------------------------------------------ messages
     def reaction_msg(self, r):

@@ -223,6 +223,8 @@ def _run_paced(monitor, frame_sources, joint_source, duration, stop, emit, all_d
             src.skip_behind = True          # a simulated camera drops what it cannot render in time
         if hasattr(src, "use_noise_bank"):
             src.use_noise_bank()            # and draws its noise from a pre-drawn bank (sources/noise.py)
+        if hasattr(src, "warm_up"):
+            src.warm_up()                   # its first frame's one-off costs paid before the clock starts
     next_status = 0.0
     start = time.monotonic() - t0
     clock = lambda: time.monotonic() - start          # noqa: E731 - the run's clock, from t0
