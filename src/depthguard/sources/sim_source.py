@@ -230,10 +230,12 @@ class SimFrames:
     def warm_up(self) -> None:
         """Render one frame per camera and throw it away (set by a real-time run before its clock
         starts): the first render of a process loads the renderer's and the noise's compiled
-        kernels and touches their buffers, which put the simulator 0.1 s behind the clock at
-        the start of every ``depthguard monitor`` run (4 frames skipped, each camera stale for
-        a moment). Each frame's noise comes from its own stamp's generator, so the frames that
-        follow are the same with or without it."""
+        kernels and touches their buffers. With the results sink's first write
+        (:class:`~depthguard.runtime.mcap_results.McapResults` warms up too), those one-off
+        costs put the simulator 0.1 s behind the clock at the start of every ``depthguard
+        monitor`` run (2-4 frames skipped, a camera stale for a moment). Each frame's noise
+        comes from its own stamp's generator, so the frames that follow are the same with or
+        without it."""
         q = self.world._path_q(self.world._tau)
         for cid in self.camera_ids:
             self.render(cid, 0.0, q)
