@@ -110,18 +110,23 @@ def test_a_log_record_and_the_live_reaction_give_the_same_snapshot(reactions):
         scene.snapshot_of_record({**rec, "points": [{"name": "ee"}]} | {"points": 7}, "log line 4")
 
 
-def test_the_sink_costs_the_control_thread_one_assignment_and_the_view_draws_at_10_hz(rig, reactions):
+def test_the_sink_only_hands_over_and_the_view_draws_each_period_not_each_reaction(rig, reactions):
+    """The control thread's sink call keeps the newest reaction; the view's own thread draws it
+    at ``rate_hz``. Counted, not timed (the speed of the call is in ``depthguard bench``): a
+    burst of 20000 calls and 1.5 s of calls at the control rate draw at most one frame per
+    period, and the view does draw meanwhile, the newest reaction's joints last."""
     from depthguard.viz.live import LiveView
 
-    with LiveView(rig, port=0, rate_hz=15.0) as view:
+    rate_hz = 15.0
+    with LiveView(rig, port=0, rate_hz=rate_hz) as view:
         assert view.url.startswith("http://127.0.0.1:")           # loopback unless told otherwise
         n = 20000
-        t0 = time.perf_counter()
+        u0, t0 = view.updates, time.perf_counter()
         for i in range(n):
             view(reactions[i % len(reactions)])
-        per_call = (time.perf_counter() - t0) / n
+        burst = time.perf_counter() - t0
         assert view.received == n
-        assert per_call < 20e-6, f"sink call {per_call * 1e6:.1f} us"
+        assert view.updates - u0 <= burst * rate_hz + 2           # not a draw per call
         # reactions at the control rate for 1.5 s: the view draws each period, not each reaction
         u0 = view.updates
         t_end = time.perf_counter() + 1.5
@@ -130,9 +135,8 @@ def test_the_sink_costs_the_control_thread_one_assignment_and_the_view_draws_at_
             view(reactions[k % len(reactions)])
             k += 1
             time.sleep(0.002)
-        rate = (view.updates - u0) / 1.5
-        assert rate >= 10.0, f"the view drew {rate:.1f} times a second"
-        assert rate <= 16.5
+        drawn = view.updates - u0
+        assert 3 <= drawn <= 1.5 * rate_hz + 2, f"the view drew {drawn} times in 1.5 s ({k} reactions)"
         assert view.errors == []
         assert view.shown_q is not None
         np.testing.assert_array_equal(view.shown_q, reactions[-1].q)
