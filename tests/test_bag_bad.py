@@ -212,8 +212,9 @@ def test_a_bag_with_wall_clock_stamps_plays_in_real_time_on_its_own_clock(rig, t
     finally:
         mon.close()
     assert records[0].t == pytest.approx(epoch, abs=0.01)                  # the first stamp (a joint state at +0)
-    # the last joint state is at +0.39 s: the run reaches it, and ends soon after the bag does
-    # (how soon depends on the machine's load: the sources' threads see the end of the bag)
-    assert 0.34 <= records[-1].t - records[0].t <= 0.39 + 0.25
-    assert wall == pytest.approx(0.39, abs=0.25)                          # real time, not as fast as possible
+    # the last joint state is at +0.39 s: the run reaches it, and ends after the bag does (how
+    # soon depends on the machine's load: the sources' threads see the end of the bag; the upper
+    # bounds only say that it ends, a loaded machine must not fail them)
+    assert 0.34 <= records[-1].t - records[0].t <= 0.39 + 1.0
+    assert 0.34 <= wall <= 0.39 + 1.5                                     # real time, not as fast as possible
     assert max(r.cameras["cam0"].frames for r in records[-5:]) >= 1       # frames reached the monitor
