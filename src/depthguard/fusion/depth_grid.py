@@ -51,6 +51,7 @@ from depthguard.distance.silhouette import SilhouetteBuffers, check_silhouette_p
 from depthguard.fusion import depth_grid_capsules, depth_grid_kernels, depth_grid_lazy, depth_grid_lookup, depth_grid_reach
 from depthguard.fusion.depth_grid_memo import new_memo
 from depthguard.fusion.depth_grid_offline import corner_rays, default_cache_dir, load_map, map_key, save_map
+from depthguard.fusion.depth_grid_state import StateOptions, state_into
 
 __all__ = ["DepthGridMap", "default_cache_dir"]
 
@@ -258,11 +259,10 @@ class DepthGridMap:
             size = max(size, n)
         self._kpmin = np.zeros((max(nk, 1), size))
         self._kpmax = np.zeros((max(nk, 1), size))
-        self._no_robot = np.zeros((1, 1), dtype=np.float32)
         self._silhouette = SilhouetteBuffers((max(P.height, Hk), max(P.width, Wk)))
-        self._silhouette_px = 0
         self._gaps = GapBuffers((max(P.height, Hk), max(P.width, Wk)))
-        self._gap_px = 0
+        self._loaded_options_pending = None
+        self.states_used = 0       # camera states copied in (set_frames(states=...))
         self._cap_lo = np.zeros(P.shape + (depth_grid_capsules.MAX_CAPS_PER_PIXEL,))
         self._cap_hi = np.zeros(P.shape + (depth_grid_capsules.MAX_CAPS_PER_PIXEL,))
         self._cap_n = np.zeros(P.shape, dtype=np.int64)
@@ -307,7 +307,7 @@ class DepthGridMap:
     def set_frames(self, depths: dict, robot_depths: dict | None = None,
                    robot_offset: float = 0.03, robot_capsules=None, invalid: str = "unknown",
                    robot_in_others: str = "unknown", reach=None, lazy: bool = True,
-                   changed=None, silhouette_px: int = 0, gap_px: int = 0) -> None:
+                   changed=None, silhouette_px: int = 0, gap_px: int = 0, states=None) -> None:
         """Load one frame per camera (R9, R28, R32); call once per camera frame.
 
         depths : dict camera id -> (H, W) float metres (0 / NaN / inf / below
@@ -368,6 +368,11 @@ class DepthGridMap:
             pixel is only presumed to be the robot, so it clears only the space in
             front of it). Invalid pixels farther away stay unknown from
             ``min_range`` (R28); valid pixels are unchanged. The product runs with 4.
+        states : optional dict camera id -> :class:`~depthguard.fusion.depth_grid_state.CameraState`,
+            the frame's per-pixel state made off the build (the camera's share, e.g. on its
+            worker thread, :class:`~depthguard.fusion.depth_grid_state.StateMaker`) from the same
+            ``depths`` / ``robot_depths``; copied in where it was made with these options and
+            role, worked out here otherwise. ``states_used`` counts the states copied in.
         gap_px : int >= 0 pixels (default 0: off, today's answers). With
             ``invalid="unknown"``, an invalid pixel (outside the silhouette rule) in a
             run of at most ``gap_px`` invalid pixels along its row or column, bounded
@@ -391,7 +396,6 @@ class DepthGridMap:
             raise ValueError(f"robot_offset must be finite and >= 0 metres (got {robot_offset!r})")
         if invalid not in ("unknown", "free"):
             raise ValueError(f"invalid must be 'unknown' or 'free' (got {invalid!r})")
-        self._invalid_free = invalid == "free"
         if robot_in_others not in ("unknown", "free"):
             raise ValueError(f"robot_in_others must be 'unknown' or 'free' (got {robot_in_others!r})")
         n_sil = check_silhouette_px(silhouette_px)
@@ -399,7 +403,9 @@ class DepthGridMap:
         P = self.principal
         if P.id not in depths:
             raise ValueError(f"depths has no frame of the principal camera {P.id!r}")
-        options = (off, invalid, robot_in_others, n_sil, n_gap)
+        options = StateOptions(off, invalid, robot_in_others, n_sil, n_gap)
+        if states is not None and not isinstance(states, dict):
+            raise ValueError("states must be a dict camera id -> CameraState")
         if changed is None or options != self._loaded_options:
             fresh = set(known)
         else:
@@ -412,24 +418,26 @@ class DepthGridMap:
         # a failure half-way leaves a mix of old and new states: no frames until the next call
         self.has_frames = False
         self._loaded_options = None
-        self._silhouette_px = n_sil
-        self._gap_px = n_gap
-        self._load_frames(fresh, depths, robot_depths, off, robot_in_others, reach, lazy, robot_capsules)
+        self._loaded_options_pending = options
+        self._load_frames(fresh, depths, robot_depths, off, robot_in_others, reach, lazy, robot_capsules,
+                          states or {})
         self._loaded_options = options
         self._loaded_with_frame = {cid for cid in known if cid in depths}
 
-    def _load_frames(self, fresh, depths, robot_depths, off, robot_in_others, reach, lazy, robot_capsules) -> None:
+    def _load_frames(self, fresh, depths, robot_depths, off, robot_in_others, reach, lazy, robot_capsules,
+                     states) -> None:
         """The loading part of :meth:`set_frames` (arguments checked there)."""
         P = self.principal
         if P.id in fresh:
-            self._state(P, depths[P.id], robot_depths.get(P.id), off, self._pfree, self._pkind, False)
+            self._state(P, depths[P.id], robot_depths.get(P.id), off, self._pfree, self._pkind, False,
+                        states.get(P.id))
         for k, cam in enumerate(self.others):
             if cam.id not in fresh:
                 continue
             self._kmemo[0][k] += 1                # its memoised clearings belong to the old frame
             if cam.id in depths:
                 self._state(cam, depths[cam.id], robot_depths.get(cam.id), off,
-                            self._kfree[k], self._kkind, robot_in_others == "free")
+                            self._kfree[k], self._kkind, robot_in_others == "free", states.get(cam.id))
             else:
                 self._kfree[k].fill(0.0)          # nothing seen: clears nothing
             depth_grid_kernels.build_pyramids(self._kfree[k], cam.height, cam.width, self._kpmin[k], self._kpmax[k],
@@ -534,20 +542,19 @@ class DepthGridMap:
                         max(int(np.floor(pv.min() + 0.5)) - 1, 0), min(int(np.floor(pv.max() + 0.5)) + 1, P.height - 1))
         return boxes
 
-    def _state(self, cam, depth, robot_depth, off, out_free, out_kind, robot_free) -> None:
-        d = check_depth_image(cam, depth)
-        if robot_depth is None:
-            rd, use = self._no_robot, False
-        else:
-            rd, use = check_depth_image(cam, robot_depth, name="robot_depth"), True
-        sil = None
-        if use and self._silhouette_px > 0 and not self._invalid_free:
-            sil = self._silhouette.dilate(rd, self._silhouette_px)
-        gaps = None
-        if self._gap_px > 0 and not self._invalid_free:
-            gaps = self._gaps.gaps(d, cam.min_range, cam.max_range, self._gap_px)
-        depth_grid_kernels.frame_state(d, rd, use, cam.min_range, cam.max_range, off, self._invalid_free,
-                      robot_free, out_free, out_kind, sil, gaps)
+    def _state(self, cam, depth, robot_depth, off, out_free, out_kind, robot_free, state=None) -> None:
+        """Camera ``cam``'s per-pixel state into ``out_free`` / ``out_kind``: copied from ``state``
+        (a :class:`~depthguard.fusion.depth_grid_state.CameraState` made off the build, e.g. by the
+        camera's worker) when it was made with this build's options and role, else worked out here."""
+        options = self._loaded_options_pending
+        if (state is not None and state.options == options and state.robot_free == bool(robot_free)
+                and state.free.shape == cam.shape):
+            H, W = cam.shape
+            np.copyto(out_free[:H, :W], state.free)
+            np.copyto(out_kind[:H, :W], state.kind)
+            self.states_used += 1
+            return
+        state_into(cam, depth, robot_depth, options, robot_free, self._silhouette, self._gaps, out_free, out_kind)
 
     def query(self, points, rho: float = 0.4, method: str = "hybrid",
               threads: int | None = None, rho_core: float | None = None) -> DistanceResult:

@@ -74,13 +74,16 @@ def background_thread(numba_threads: int = 1) -> None:
 @dataclass
 class CameraProduct:
     """One camera frame ready for fusion: depth and robot depth (H, W) float32 m, the capture
-    stamp (s), the joints at capture (dof,), and the wall time (``perf_counter``) of its push."""
+    stamp (s), the joints at capture (dof,), the wall time (``perf_counter``) of its push, and
+    the camera's share of the depth grid build made on its worker
+    (:class:`~depthguard.fusion.depth_grid_state.CameraState`; None: the build works it out)."""
     depth: np.ndarray
     robot_depth: np.ndarray
     stamp: float
     q: np.ndarray
     pushed_at: float
     version: int
+    state: object = None
 
 
 class CameraWorker:
@@ -93,8 +96,12 @@ class CameraWorker:
     """
 
     def __init__(self, cam, robot, static_meshes, joints: JointHistory, joint_wait_s: float,
-                 on_product, name: str | None = None, drift: dict | None = None):
+                 on_product, name: str | None = None, drift: dict | None = None, state_options=None):
         self.camera = cam
+        # the camera's share of the grid build (R36): state_options() -> (StateOptions, robot_free)
+        # or None (no state made here; the build works it out)
+        self.state_options = state_options
+        self._state_maker = None
         self.id = cam.id
         self.expected = ExpectedDepth(cam, robot, static_meshes)
         # R34: the drift watch on the static scene (settings: DriftWatch's keywords), None = off
@@ -201,11 +208,27 @@ class CameraWorker:
             return
         rd = np.array(self.expected.robot(q), copy=True)
         d = np.array(depth, dtype=np.float32, copy=True)
+        state = self._state(d, rd)
         with self.lock:
             self._version += 1
-            self.product = CameraProduct(d, rd, stamp, q, pushed_at, self._version)
+            self.product = CameraProduct(d, rd, stamp, q, pushed_at, self._version, state)
             self.frames += 1
         self.on_product(self.id)
+
+
+    def _state(self, depth, robot_depth):
+        """The frame's per-pixel state for the depth grid, made here on the camera's thread rather
+        than in the fusion's build (R36: the camera's share, in parallel with the other cameras'
+        fusion); None where the monitor asks for none."""
+        wanted = self.state_options() if self.state_options is not None else None
+        if wanted is None:
+            return None
+        from depthguard.fusion.depth_grid_state import StateMaker
+
+        if self._state_maker is None:
+            self._state_maker = StateMaker(self.camera)
+        options, robot_free = wanted
+        return self._state_maker.make(depth, robot_depth, options, robot_free)
 
 
 @dataclass
@@ -358,10 +381,14 @@ class FusionWorker:
             rdepths = {c: products[c].robot_depth for c in cams}
             caps = robot_volume(self.robot, [p.q for p in products.values()], cfg.robot_padding)
             back.loaded = False
+            kw = {}
+            states = {c: products[c].state for c in cams if products[c].state is not None}
+            if states and hasattr(back.grid, "states_used"):
+                kw["states"] = states              # each camera's share, made on its worker
             back.grid.set_frames(depths, rdepths, robot_offset=cfg.robot_offset, robot_capsules=caps,
                                  invalid=cfg.invalid, robot_in_others=cfg.robot_in_others,
                                  changed=changed, silhouette_px=cfg.silhouette_px,
-                                 gap_px=cfg.gap_px)
+                                 gap_px=cfg.gap_px, **kw)
             answer, res = self.answer, None
             if points is not None and len(points):
                 # classify ahead; with a distance worker the query is its own (the band beyond

@@ -149,7 +149,19 @@ class Monitor:
         drift = (dict(k_sigma=cfg.drift_sigma, share=cfg.drift_share, frames=cfg.drift_frames)
                  if cfg.drift_watch else None)                       # R34
         self._workers[cid] = CameraWorker(self._cameras[cid], self.robot, self._static, self.joints,
-                                          cfg.joint_wait_s, self.fusion.notify, drift=drift)
+                                          cfg.joint_wait_s, self.fusion.notify, drift=drift,
+                                          state_options=lambda: self._state_options(cid))
+
+    def _state_options(self, cid: str):
+        """``(StateOptions, robot_free)`` for camera ``cid``'s frames as the depth grid will load them
+        (its role: principal or other camera), or None with one camera (no grid, R36)."""
+        from depthguard.fusion.depth_grid_state import StateOptions
+
+        with self._settings_lock:
+            cfg, ids = self.config, self._camera_ids
+        if len(ids) < 2 or cid not in ids:
+            return None
+        return StateOptions.of(cfg), cfg.robot_in_others == "free" and cid != ids[0]
 
     def _make_grid(self, cams: tuple[str, ...]):
         from depthguard.fusion.depth_grid import DepthGridMap
