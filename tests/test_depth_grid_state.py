@@ -87,3 +87,27 @@ def test_states_made_off_the_build_give_the_same_answers():
     old = {cid: makers[cid].make(depths[cid], rdepths[cid], opts) for cid in depths}
     shared.set_frames(frames, rdepths, robot_capsules=caps, states=old, **kw)
     assert not np.array_equal(shared.query(P, 0.4, "hybrid").distance, own.query(P, 0.4, "hybrid").distance)
+
+
+def test_pyramids_made_with_the_state_are_the_grids():
+    """The other cameras' min / max pyramids made with their state (``pyramids=True``) are the ones
+    the grid builds itself, level for level, and are copied in instead of built."""
+    rng = np.random.default_rng(3)
+    prims, cams, depths = _scene(rng, 3)
+    _a, _b, _c, depths, rdepths, caps = _with_robot(prims, cams)
+    depths = _noisy(rng, depths)
+    opts = StateOptions(0.03, "unknown", "unknown", 4, 3)
+    kw = dict(robot_offset=0.03, invalid="unknown", robot_in_others="unknown", silhouette_px=4, gap_px=3)
+    own = DepthGridMap(cams, "c0", 1.0, 4.6, 0.03, cache=False)
+    shared = DepthGridMap(cams, "c0", 1.0, 4.6, 0.03, cache=False)
+    states = {c.id: StateMaker(c).make(depths[c.id], rdepths[c.id], opts, pyramids=c.id != "c0") for c in cams}
+    own.set_frames(depths, rdepths, robot_capsules=caps, **kw)
+    shared.set_frames(depths, rdepths, robot_capsules=caps, states=states, **kw)
+    assert shared.pyramids_used == 2 and own.pyramids_used == 0
+    np.testing.assert_array_equal(own._kpmin, shared._kpmin)
+    np.testing.assert_array_equal(own._kpmax, shared._kpmax)
+    # level 1 is the 2x2 block minimum of the state's free depth (an independent check of the layout)
+    free = states["c1"].free
+    h, w = free.shape
+    lv1 = states["c1"].pmin[h * w: h * w + (h // 2) * (w // 2)].reshape(h // 2, w // 2)
+    np.testing.assert_array_equal(lv1, free.reshape(h // 2, 2, w // 2, 2).min(axis=(1, 3)))

@@ -51,7 +51,7 @@ from depthguard.distance.silhouette import SilhouetteBuffers, check_silhouette_p
 from depthguard.fusion import depth_grid_capsules, depth_grid_kernels, depth_grid_lazy, depth_grid_lookup, depth_grid_reach
 from depthguard.fusion.depth_grid_memo import new_memo
 from depthguard.fusion.depth_grid_offline import corner_rays, default_cache_dir, load_map, map_key, save_map
-from depthguard.fusion.depth_grid_state import StateOptions, state_into
+from depthguard.fusion.depth_grid_state import StateOptions, pyramid_layout, pyramid_levels, state_into
 
 __all__ = ["DepthGridMap", "default_cache_dir"]
 
@@ -64,18 +64,6 @@ _METHODS = {"min": depth_grid_kernels.METHOD_MIN, "mean": depth_grid_kernels.MET
 def _intrinsics_row(cam: Camera) -> list[float]:
     return [cam.fx, cam.fy, cam.cx, cam.cy, float(cam.width), float(cam.height),
             cam.min_range, cam.max_range]
-
-
-def _pyramid_layout(H: int, W: int, levels: int) -> tuple[np.ndarray, np.ndarray, int]:
-    dims = np.zeros((levels, 2), dtype=np.int64)
-    offs = np.zeros(levels, dtype=np.int64)
-    h, w, o = H, W, 0
-    for lv in range(levels):
-        dims[lv] = (h, w)
-        offs[lv] = o
-        o += h * w
-        h, w = (h + 1) // 2, (w + 1) // 2
-    return offs, dims, o
 
 
 def _capsule_array(capsules) -> np.ndarray:
@@ -243,7 +231,7 @@ class DepthGridMap:
         Wk = max([c.width for c in self.others], default=1)
         self._kfree = np.zeros((max(nk, 1), Hk, Wk))
         self._kkind = np.empty((Hk, Wk), dtype=np.int8)
-        levels = max(1, int(math.ceil(math.log2(max(Hk, Wk)))) + 1)
+        levels = pyramid_levels(Hk, Wk)
         self._runs = np.zeros(P.shape + (RUNS_PER_COLUMN, 2), dtype=np.int32)
         self._nruns = np.zeros(P.shape, dtype=np.int32)
         self._band = np.zeros(P.shape + (2,), dtype=np.int32)
@@ -254,7 +242,7 @@ class DepthGridMap:
         self._kdims = np.ones((max(nk, 1), levels, 2), dtype=np.int64)
         size = 1
         for k, c in enumerate(self.others):
-            offs, dims, n = _pyramid_layout(c.height, c.width, levels)
+            offs, dims, n = pyramid_layout(c.height, c.width, levels)
             self._koff[k], self._kdims[k] = offs, dims
             size = max(size, n)
         self._kpmin = np.zeros((max(nk, 1), size))
@@ -263,6 +251,7 @@ class DepthGridMap:
         self._gaps = GapBuffers((max(P.height, Hk), max(P.width, Wk)))
         self._loaded_options_pending = None
         self.states_used = 0       # camera states copied in (set_frames(states=...))
+        self.pyramids_used = 0     # ... and the other cameras' pyramids made with them
         self._cap_lo = np.zeros(P.shape + (depth_grid_capsules.MAX_CAPS_PER_PIXEL,))
         self._cap_hi = np.zeros(P.shape + (depth_grid_capsules.MAX_CAPS_PER_PIXEL,))
         self._cap_n = np.zeros(P.shape, dtype=np.int64)
@@ -435,11 +424,18 @@ class DepthGridMap:
             if cam.id not in fresh:
                 continue
             self._kmemo[0][k] += 1                # its memoised clearings belong to the old frame
+            used = None
             if cam.id in depths:
-                self._state(cam, depths[cam.id], robot_depths.get(cam.id), off,
-                            self._kfree[k], self._kkind, robot_in_others == "free", states.get(cam.id))
+                used = self._state(cam, depths[cam.id], robot_depths.get(cam.id), off,
+                                   self._kfree[k], self._kkind, robot_in_others == "free", states.get(cam.id))
             else:
                 self._kfree[k].fill(0.0)          # nothing seen: clears nothing
+            if used is not None and used.pmin is not None and used.levels == self._koff.shape[1]:
+                n = len(used.pmin)                # the camera's pyramids, made with its state
+                np.copyto(self._kpmin[k][:n], used.pmin)
+                np.copyto(self._kpmax[k][:n], used.pmax)
+                self.pyramids_used += 1
+                continue
             depth_grid_kernels.build_pyramids(self._kfree[k], cam.height, cam.width, self._kpmin[k], self._kpmax[k],
                              self._koff[k], self._kdims[k])
         self._set_band(reach)
@@ -542,10 +538,11 @@ class DepthGridMap:
                         max(int(np.floor(pv.min() + 0.5)) - 1, 0), min(int(np.floor(pv.max() + 0.5)) + 1, P.height - 1))
         return boxes
 
-    def _state(self, cam, depth, robot_depth, off, out_free, out_kind, robot_free, state=None) -> None:
+    def _state(self, cam, depth, robot_depth, off, out_free, out_kind, robot_free, state=None):
         """Camera ``cam``'s per-pixel state into ``out_free`` / ``out_kind``: copied from ``state``
         (a :class:`~depthguard.fusion.depth_grid_state.CameraState` made off the build, e.g. by the
-        camera's worker) when it was made with this build's options and role, else worked out here."""
+        camera's worker) when it was made with this build's options and role (returned), else
+        worked out here (None returned)."""
         options = self._loaded_options_pending
         if (state is not None and state.options == options and state.robot_free == bool(robot_free)
                 and state.free.shape == cam.shape):
@@ -553,8 +550,9 @@ class DepthGridMap:
             np.copyto(out_free[:H, :W], state.free)
             np.copyto(out_kind[:H, :W], state.kind)
             self.states_used += 1
-            return
+            return state
         state_into(cam, depth, robot_depth, options, robot_free, self._silhouette, self._gaps, out_free, out_kind)
+        return None
 
     def query(self, points, rho: float = 0.4, method: str = "hybrid",
               threads: int | None = None, rho_core: float | None = None) -> DistanceResult:

@@ -19,6 +19,7 @@ Use::
 
 from __future__ import annotations
 
+import math
 from typing import NamedTuple
 
 import numpy as np
@@ -26,9 +27,29 @@ import numpy as np
 from depthguard.camera import check_depth_image
 from depthguard.distance.gaps import GapBuffers, check_gap_px
 from depthguard.distance.silhouette import SilhouetteBuffers, check_silhouette_px
-from depthguard.fusion.depth_grid_kernels import frame_state
+from depthguard.fusion.depth_grid_kernels import build_pyramids, frame_state
 
-__all__ = ["StateOptions", "CameraState", "StateMaker", "state_into"]
+__all__ = ["StateOptions", "CameraState", "StateMaker", "state_into", "pyramid_levels", "pyramid_layout"]
+
+
+def pyramid_levels(height: int, width: int) -> int:
+    """Levels of the min / max pyramids of an (H, W) image: down to one pixel."""
+    return max(1, int(math.ceil(math.log2(max(int(height), int(width), 1)))) + 1)
+
+
+def pyramid_layout(height: int, width: int, levels: int) -> tuple[np.ndarray, np.ndarray, int]:
+    """``(offsets (levels,), dims (levels, 2), size)``: where level ``l`` of a flat pyramid of an
+    (H, W) image starts, its ``(h_l, w_l)``, and the flat length
+    (:func:`~depthguard.fusion.depth_grid_kernels.build_pyramids`)."""
+    dims = np.zeros((levels, 2), dtype=np.int64)
+    offs = np.zeros(levels, dtype=np.int64)
+    h, w, o = int(height), int(width), 0
+    for lv in range(levels):
+        dims[lv] = (h, w)
+        offs[lv] = o
+        o += h * w
+        h, w = (h + 1) // 2, (w + 1) // 2
+    return offs, dims, o
 
 
 class StateOptions(NamedTuple):
@@ -53,11 +74,15 @@ class CameraState(NamedTuple):
     ``free`` (H, W) float64 m, the depth up to which each ray is free; ``kind`` (H, W) int8,
     ``KIND_SURFACE`` / ``KIND_ROBOT`` / ``KIND_UNKNOWN``; ``options`` and ``robot_free`` (a
     robot pixel confirms nothing: a non-principal camera with ``robot_in_others="free"``) as
-    it was made with."""
+    it was made with; for a camera that confirms the principal's cells, the min / max pyramids
+    of ``free`` (flat float64, :func:`pyramid_layout` with ``levels``), else None."""
     free: np.ndarray
     kind: np.ndarray
     options: StateOptions
     robot_free: bool
+    pmin: np.ndarray | None = None
+    pmax: np.ndarray | None = None
+    levels: int = 0
 
 
 def state_into(cam, depth, robot_depth, options: StateOptions, robot_free: bool, silhouette: SilhouetteBuffers,
@@ -88,11 +113,20 @@ class StateMaker:
         self._silhouette = SilhouetteBuffers(cam.shape)
         self._gaps = GapBuffers(cam.shape)
 
-    def make(self, depth, robot_depth, options: StateOptions, robot_free: bool = False) -> CameraState:
+    def make(self, depth, robot_depth, options: StateOptions, robot_free: bool = False,
+             pyramids: bool = False) -> CameraState:
         """The state of one frame, in new arrays (the grid copies them in; the frame's product
-        holds them)."""
+        holds them); with ``pyramids`` (a camera other than the principal) its min / max
+        pyramids too."""
         cam = self.camera
         free = np.empty(cam.shape, dtype=np.float64)
         kind = np.empty(cam.shape, dtype=np.int8)
         state_into(cam, depth, robot_depth, options, robot_free, self._silhouette, self._gaps, free, kind)
-        return CameraState(free, kind, options, bool(robot_free))
+        if not pyramids:
+            return CameraState(free, kind, options, bool(robot_free))
+        levels = pyramid_levels(cam.height, cam.width)
+        offs, dims, size = pyramid_layout(cam.height, cam.width, levels)
+        pmin = np.empty(size)
+        pmax = np.empty(size)
+        build_pyramids(free, cam.height, cam.width, pmin, pmax, offs, dims)
+        return CameraState(free, kind, options, bool(robot_free), pmin, pmax, levels)

@@ -98,8 +98,8 @@ class CameraWorker:
     def __init__(self, cam, robot, static_meshes, joints: JointHistory, joint_wait_s: float,
                  on_product, name: str | None = None, drift: dict | None = None, state_options=None):
         self.camera = cam
-        # the camera's share of the grid build (R36): state_options() -> (StateOptions, robot_free)
-        # or None (no state made here; the build works it out)
+        # the camera's share of the grid build (R36): state_options() -> (StateOptions, robot_free,
+        # pyramids) or None (no state made here; the build works it out)
         self.state_options = state_options
         self._state_maker = None
         self.id = cam.id
@@ -227,8 +227,8 @@ class CameraWorker:
 
         if self._state_maker is None:
             self._state_maker = StateMaker(self.camera)
-        options, robot_free = wanted
-        return self._state_maker.make(depth, robot_depth, options, robot_free)
+        options, robot_free, pyramids = wanted
+        return self._state_maker.make(depth, robot_depth, options, robot_free, pyramids)
 
 
 @dataclass

@@ -153,15 +153,17 @@ class Monitor:
                                           state_options=lambda: self._state_options(cid))
 
     def _state_options(self, cid: str):
-        """``(StateOptions, robot_free)`` for camera ``cid``'s frames as the depth grid will load them
-        (its role: principal or other camera), or None with one camera (no grid, R36)."""
+        """``(StateOptions, robot_free, pyramids)`` for camera ``cid``'s frames as the depth grid will
+        load them (its role: the principal, or another camera whose pyramids the grid reads), or
+        None with one camera (no grid, R36)."""
         from depthguard.fusion.depth_grid_state import StateOptions
 
         with self._settings_lock:
             cfg, ids = self.config, self._camera_ids
         if len(ids) < 2 or cid not in ids:
             return None
-        return StateOptions.of(cfg), cfg.robot_in_others == "free" and cid != ids[0]
+        other = cid != ids[0]
+        return StateOptions.of(cfg), cfg.robot_in_others == "free" and other, other
 
     def _make_grid(self, cams: tuple[str, ...]):
         from depthguard.fusion.depth_grid import DepthGridMap
