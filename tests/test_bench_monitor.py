@@ -14,7 +14,7 @@ def test_monitor_bench_quick_rows():
     rows = GROUPS["monitor"](BenchContext(quick=True))
     by = {r.name: r for r in rows}
     assert list(by) == ["monitor.step_p99_ms", "monitor.frame_to_reaction_p99_ms",
-                        "monitor.fusion_build_p50_ms", "monitor.cameras_at_30hz"]
+                        "monitor.fusion_build_p50_ms", "monitor.cameras_at_30hz", "monitor.cpu_per_camera"]
     for name in ("monitor.step_p99_ms", "monitor.fusion_build_p50_ms"):
         r = by[name]
         assert r.unit == "ms" and math.isfinite(r.value) and r.value > 0, r
@@ -26,3 +26,6 @@ def test_monitor_bench_quick_rows():
     assert cams.unit == "cameras" and cams.value in (0.0, 2.0, 4.0) and cams.peer_value in (0.0, 2.0, 4.0)
     assert "2:" in cams.note and "33.3 ms" in cams.note     # 4 is tried only when 2 held
     assert ("4:" in cams.note) == (cams.value >= 2.0)
+    cpu = by["monitor.cpu_per_camera"]                  # cores per camera: measured, never judged here
+    assert cpu.unit == "cores" and math.isfinite(cpu.value) and cpu.value > 0, cpu
+    assert math.isfinite(cpu.peer_value) and cpu.peer_value > 0, cpu

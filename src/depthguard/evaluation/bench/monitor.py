@@ -44,6 +44,20 @@ Rows:
   count tried held too). Peer: the same count for today's code, tried until its
   own first failure (0 = not even 2 cameras).
 
+* ``monitor.cpu_per_camera`` — the cores the monitor's own threads use per
+  640x480 camera at 30 Hz, robot removal included: CPU time (user + system,
+  Linux ``/proc/self/task/<tid>/stat``) over the 2-camera session of the
+  threads named ``depthguard-*`` (camera workers: checks and the robot's
+  rendering; fusion; distances) and of the process's native threads that
+  Python does not know (numba's worker pool, which the fusion's parallel
+  kernels run on), divided by the session's wall time and by the cameras. Not
+  counted: the bench's feeder threads (they stand for the camera drivers and
+  the robot's controller) and the control thread (the caller's; the note gives
+  its cores, the step and the bench's pacing). The note also gives the figure
+  at each count of ``cameras_at_30hz``. Peer: today's control thread (its CPU
+  time, the robot depths rendered before the clock and not counted) per
+  camera. Goal <= 0.1. NaN where ``/proc`` is missing.
+
 The grid options are the rig's ``monitor:`` section: the product's defaults
 (invalid pixels unknown, R28, with the silhouette and small-gap rules, R32).
 """
@@ -140,6 +154,48 @@ def _rig_with(rig, n: int):
     return dataclasses.replace(rig, cameras=cams), feeds
 
 
+def _thread_cpu() -> dict[int, tuple[str | None, float]]:
+    """Per thread of this process (Linux ``/proc/self/task``): its id -> (its Python thread name,
+    None for a native thread Python does not know, such as numba's pool; CPU seconds user +
+    system). Empty where ``/proc`` is missing."""
+    import os
+
+    names = {t.native_id: t.name for t in threading.enumerate()}
+    tick = os.sysconf("SC_CLK_TCK") if hasattr(os, "sysconf") else 100
+    out = {}
+    try:
+        tids = os.listdir("/proc/self/task")
+    except OSError:
+        return out
+    for tid in tids:
+        try:
+            with open(f"/proc/self/task/{tid}/stat") as fh:
+                fields = fh.read().rsplit(")", 1)[1].split()
+        except (OSError, IndexError):
+            continue                               # the thread ended meanwhile
+        # after the name: state, ppid, ... utime and stime are the 14th and 15th fields (index 11, 12 here)
+        out[int(tid)] = (names.get(int(tid)), (int(fields[11]) + int(fields[12])) / tick)
+    return out
+
+
+def _cpu_shares(before: dict, after: dict, wall: float, control_tid: int) -> dict:
+    """Cores used over ``wall`` s between two :func:`_thread_cpu` snapshots: ``monitor`` (threads
+    named ``depthguard-*`` and native threads), ``control`` (the control thread), ``bench`` (the
+    other Python threads: feeders). NaN each when ``/proc`` was missing."""
+    if not after or wall <= 0:
+        return {"monitor": math.nan, "control": math.nan, "bench": math.nan}
+    used = {"monitor": 0.0, "control": 0.0, "bench": 0.0}
+    for tid, (name, cpu) in after.items():
+        d = cpu - before.get(tid, (None, 0.0))[1]
+        if tid == control_tid:
+            used["control"] += d
+        elif name is None or name.startswith("depthguard-"):
+            used["monitor"] += d
+        else:
+            used["bench"] += d
+    return {k: v / wall for k, v in used.items()}
+
+
 def _sleep_until(t_wall: float, stop: threading.Event | None = None) -> None:
     while True:
         dt = t_wall - time.perf_counter()
@@ -197,12 +253,14 @@ def _run_monitor(script: _Script, rig, feeds, cfg, duration: float, attach=None)
         late, n_cycles = 0, int(duration * CONTROL_HZ)
         try:
             with realtime_control(cfg.control_priority) as rt, mon.real_time():
+                cpu0, w0 = _thread_cpu(), time.perf_counter()
                 for i in range(n_cycles):
                     t = i * dt
                     _sleep_until(t0 + t)
                     if time.perf_counter() - (t0 + t) > dt:
                         late += 1
                     mon.step(t)
+                cpu = _cpu_shares(cpu0, _thread_cpu(), time.perf_counter() - w0, threading.get_native_id())
         finally:
             stop.set()
             for th in threads:
@@ -220,7 +278,7 @@ def _run_monitor(script: _Script, rig, feeds, cfg, duration: float, attach=None)
                 "fusion_errors": st["fusion_errors"], "last_error": st["fusion_last_error"],
                 "distance_fallbacks": mon.distance_fallbacks, "distance_queries": mon.distance_queries,
                 "distance_offers": mon.distance_answers_from_builds,
-                "override_min": None}
+                "override_min": None, "cpu": cpu, "cameras": len(feeds)}
 
 
 # ---------------------------------------------------------------- today's code: the grid on the control path
@@ -262,6 +320,7 @@ def _run_today(script: _Script, rig, feeds, cfg, duration: float) -> dict:
     t0 = time.perf_counter() + 0.05
     rt = realtime_control(cfg.control_priority)
     with rt:
+        cpu0, w0 = time.thread_time(), time.perf_counter()
         for i in range(n_cycles):
             t = i * dt
             _sleep_until(t0 + t)
@@ -303,8 +362,9 @@ def _run_today(script: _Script, rig, feeds, cfg, duration: float) -> dict:
                 for cid in pending:
                     f2r_s.append(c1 - pushed[cid])
                 pending = set()
+        cores = (time.thread_time() - cpu0) / (time.perf_counter() - w0)
     return {"step_s": cycle_s, "f2r_s": f2r_s, "build_s": load_s, "dropped": 0, "refused": 0,
-            "late_s": time.perf_counter() - (t0 + n_cycles * dt)}
+            "late_s": time.perf_counter() - (t0 + n_cycles * dt), "cores": cores, "cameras": len(feeds)}
 
 
 # ---------------------------------------------------------------- the group
@@ -397,7 +457,7 @@ def _bench_monitor(ctx: BenchContext) -> list[BenchRow]:
     counts = COUNTS_QUICK if ctx.quick else COUNTS_FULL
     best = best_today = 0             # the largest count held with every smaller count tried held too
     trying = trying_today = True      # stop at the first count that fails (more cameras only cost more)
-    seen = []
+    seen, per_cam = [], []
     for n in counts:
         if not (trying or trying_today):
             break
@@ -411,6 +471,7 @@ def _bench_monitor(ctx: BenchContext) -> list[BenchRow]:
                         f"dropped {m['dropped']}, refused {m['refused']}, used {len(m['f2r_s'])}/{m['frames']}"
                         f"{'' if ok else ' (failed)'}")
             best, trying = (n, True) if ok else (best, False)
+            per_cam.append(f"{n}: {_per_camera(m):.3g}")
         if p is not None:
             ok_today = _held(p)
             best_today, trying_today = (n, True) if ok_today else (best_today, False)
@@ -420,4 +481,19 @@ def _bench_monitor(ctx: BenchContext) -> list[BenchRow]:
                                f"{STEP_GOAL_MS:g} ms and frame-to-reaction p99 <= {LAG_LIMIT_MS:.1f} ms (one camera "
                                f"period); tried {', '.join(map(str, counts))} up to the first failure (extra "
                                f"cameras = copies of cam1); {'; '.join(seen)}; {cfg_note}; goal >= 10")))
+    cpu = mon["cpu"]
+    rows.append(BenchRow("monitor.cpu_per_camera", _per_camera(mon), "cores",
+                         peer="today: its control thread's CPU per camera (robot depths rendered before the clock)",
+                         peer_value=peer["cores"] / peer["cameras"],
+                         note=(f"CPU time of the monitor's threads (depthguard-*: camera workers with the robot's "
+                               f"rendering, fusion, distances; and numba's pool) / wall / cameras, "
+                               f"{duration:g} s with 2 cameras at 30 Hz: {cpu['monitor']:.3g} cores in all; not "
+                               f"counted: the control thread (step at {CONTROL_HZ:g} Hz and the bench's pacing) "
+                               f"{cpu['control']:.3g} cores, the bench's feeder threads {cpu['bench']:.3g}; per "
+                               f"camera at each count tried: {', '.join(per_cam)}; goal <= 0.1")))
     return rows
+
+
+def _per_camera(r: dict) -> float:
+    """Cores of the monitor's threads per camera in the run ``r`` (module docstring)."""
+    return r["cpu"]["monitor"] / r["cameras"]
