@@ -2,12 +2,13 @@
 
 import math
 
+import depthguard.evaluation.bench.fusion_cells  # noqa: F401  (registers the group)
 import depthguard.evaluation.bench.monitor  # noqa: F401  (registers the group)
 from depthguard.evaluation.bench import GROUPS, BenchContext, load_groups
 
 
 def test_monitor_group_is_listed():
-    assert "monitor" in load_groups()
+    assert "monitor" in load_groups() and "monitor.build" in load_groups()
 
 
 def test_monitor_bench_quick_rows():
@@ -29,3 +30,15 @@ def test_monitor_bench_quick_rows():
     cpu = by["monitor.cpu_per_camera"]                  # cores per camera: measured, never judged here
     assert cpu.unit == "cores" and math.isfinite(cpu.value) and cpu.value > 0, cpu
     assert math.isfinite(cpu.peer_value) and cpu.peer_value > 0, cpu
+
+
+def test_build_per_cell_quick_rows():
+    """A p50 and a p99 row per cell with a robot, without and with a person; each measured, with its peer."""
+    rows = GROUPS["monitor.build"](BenchContext(quick=True))
+    cases = ("flacco-cell", "ur3-cell", "ur5-urdf-posts")
+    names = [f"monitor.build_p{q}_ms.{c}{p}" for c in cases for p in ("", "+person") for q in (50, 99)]
+    assert [r.name for r in rows] == names
+    for r in rows:
+        assert r.unit == "ms" and math.isfinite(r.value) and r.value > 0, r
+        assert r.peer and math.isfinite(r.peer_value) and r.peer_value > 0, r
+        assert "flacco-walls" in r.note and "c-arm-room" in r.note, r      # the cells without a robot are named
