@@ -53,6 +53,7 @@ before the clock.
 from __future__ import annotations
 
 import math
+import sys
 import tempfile
 import time
 from pathlib import Path
@@ -226,8 +227,8 @@ def _eager_builds(frames: _Frames, cfg, n_timed: int) -> np.ndarray:
         segs, radii = zip(*(robot.collision_segments(qc, cfg.robot_padding) for qc in q_caps.values()))
         caps = (np.concatenate(segs), np.concatenate(radii))
         grid.set_frames(depths, rdepths, robot_offset=cfg.robot_offset, robot_capsules=caps, invalid=cfg.invalid,
-                        robot_in_others=cfg.robot_in_others, changed={cid} if loads else None, silhouette_px=cfg.silhouette_px,
-                        gap_px=cfg.gap_px, lazy=False, reach=DepthGridMap.robot_reach(caps, cfg.query_rho))
+                        robot_in_others=cfg.robot_in_others, changed={cid} if loads else None,
+                        silhouette_px=cfg.silhouette_px, gap_px=cfg.gap_px, lazy=False, reach=DepthGridMap.robot_reach(caps, cfg.query_rho))
         grid.query(data.cp_positions, rho=cfg.query_rho, method=cfg.method)
         if loads:
             out.append(time.perf_counter() - t0)
@@ -253,6 +254,19 @@ def _ms(xs, q) -> float:
 
 @group("monitor.build")
 def bench_builds(ctx: BenchContext) -> list[BenchRow]:
+    """The group, with the thread switch interval of a real-time run (``runtime.runner``), in which
+    the fusion worker builds."""
+    from depthguard.runtime.runner import REAL_TIME_SWITCH_INTERVAL_S
+
+    old = sys.getswitchinterval()
+    sys.setswitchinterval(REAL_TIME_SWITCH_INTERVAL_S)
+    try:
+        return _bench_builds(ctx)
+    finally:
+        sys.setswitchinterval(old)
+
+
+def _bench_builds(ctx: BenchContext) -> list[BenchRow]:
     from depthguard.sim.cells import list_cells, load_cell
 
     n_frames = FRAMES_QUICK if ctx.quick else FRAMES_FULL
@@ -273,19 +287,23 @@ def bench_builds(ctx: BenchContext) -> list[BenchRow]:
                 except Exception as exc:     # the peer's interface may change under a rewrite
                     peer_note = f"; the peer failed: {type(exc).__name__}: {exc}"
                 cams = ", ".join(f"{c.id} {c.width}x{c.height}" for c in frames.rig.cameras)
-                note = (f"{frames.n_cams} cameras ({cams}), {len(mon)} builds counted (peer {len(peer)}) of {len(frames.frames)} "
-                        f"frames over {frames.span:.2f} s of robot motion, in view: {who}; rig monitor: settings "
+                note = (f"{frames.n_cams} cameras ({cams}), {len(mon)} builds counted (peer {len(peer)}) of "
+                        f"{len(frames.frames)} frames over {frames.span:.2f} s of robot motion, in view: {who}; "
+                        f"rig monitor: settings "
                         f"(rho {cfg.rho:g} m, invalid={cfg.invalid!r}); ")
         except Exception as exc:
             note = f"failed: {type(exc).__name__}: {exc}; "
         ctx.log(f"  build {case}: p50 {_ms(mon, 50):.2f} p99 {_ms(mon, 99):.2f} ms; eager reach-limited "
                 f"p50 {_ms(peer, 50):.2f} p99 {_ms(peer, 99):.2f} ms{peer_note}")
-        tail = (f"not measured (no robot in the rig, the monitor needs one): {', '.join(no_robot)}"
-                f"{peer_note}")
-        for q, goal in ((50, 2.5), (99, 6.0)):
-            rows.append(BenchRow(f"monitor.build_p{q}_ms.{case}", _ms(mon, q), "ms",
-                                 peer="eager reach-limited grid (lazy=False, reach=robot_reach), same frames",
-                                 peer_value=_ms(peer, q),
-                                 note=(f"fusion build per frame (Monitor.fusion.build_seconds, real-time settings, "
-                                       f"one camera changed), p{q}; {note}goal <= {goal:g} ms; {tail}")))
+        if not rows:
+            note += (f"not measured (no robot in the rig; the monitor needs one): {', '.join(no_robot)}; "
+                     f"switch interval {sys.getswitchinterval() * 1e3:g} ms (a real-time run's); ")
+        peer_name = "eager reach-limited grid (lazy=False, reach=robot_reach), same frames"
+        rows.append(BenchRow(f"monitor.build_p50_ms.{case}", _ms(mon, 50), "ms", peer=peer_name,
+                             peer_value=_ms(peer, 50),
+                             note=(f"fusion build per frame (Monitor.fusion.build_seconds, real-time settings, "
+                                   f"one camera changed), median; {note}goal <= 2.5 ms{peer_note}")))
+        rows.append(BenchRow(f"monitor.build_p99_ms.{case}", _ms(mon, 99), "ms", peer=peer_name,
+                             peer_value=_ms(peer, 99),
+                             note="99th percentile of the builds of the row above; goal <= 6 ms"))
     return rows
