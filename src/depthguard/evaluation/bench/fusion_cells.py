@@ -226,9 +226,10 @@ def _eager_builds(frames: _Frames, cfg, n_timed: int) -> np.ndarray:
         t0 = time.perf_counter()
         segs, radii = zip(*(robot.collision_segments(qc, cfg.robot_padding) for qc in q_caps.values()))
         caps = (np.concatenate(segs), np.concatenate(radii))
+        reach = DepthGridMap.robot_reach(caps, cfg.query_rho)
         grid.set_frames(depths, rdepths, robot_offset=cfg.robot_offset, robot_capsules=caps, invalid=cfg.invalid,
                         robot_in_others=cfg.robot_in_others, changed={cid} if loads else None,
-                        silhouette_px=cfg.silhouette_px, gap_px=cfg.gap_px, lazy=False, reach=DepthGridMap.robot_reach(caps, cfg.query_rho))
+                        silhouette_px=cfg.silhouette_px, gap_px=cfg.gap_px, lazy=False, reach=reach)
         grid.query(data.cp_positions, rho=cfg.query_rho, method=cfg.method)
         if loads:
             out.append(time.perf_counter() - t0)
