@@ -2,19 +2,20 @@
 
 import math
 
+import depthguard.evaluation.bench.fusion_cells  # noqa: F401  (registers the group)
 import depthguard.evaluation.bench.monitor  # noqa: F401  (registers the group)
 from depthguard.evaluation.bench import GROUPS, BenchContext, load_groups
 
 
 def test_monitor_group_is_listed():
-    assert "monitor" in load_groups()
+    assert "monitor" in load_groups() and "monitor.build" in load_groups()
 
 
 def test_monitor_bench_quick_rows():
     rows = GROUPS["monitor"](BenchContext(quick=True))
     by = {r.name: r for r in rows}
     assert list(by) == ["monitor.step_p99_ms", "monitor.frame_to_reaction_p99_ms",
-                        "monitor.fusion_build_p50_ms", "monitor.cameras_at_30hz"]
+                        "monitor.fusion_build_p50_ms", "monitor.cameras_at_30hz", "monitor.cpu_per_camera"]
     for name in ("monitor.step_p99_ms", "monitor.fusion_build_p50_ms"):
         r = by[name]
         assert r.unit == "ms" and math.isfinite(r.value) and r.value > 0, r
@@ -24,4 +25,20 @@ def test_monitor_bench_quick_rows():
     assert by["monitor.step_p99_ms"].paper == 3.3
     cams = by["monitor.cameras_at_30hz"]
     assert cams.unit == "cameras" and cams.value in (0.0, 2.0, 4.0) and cams.peer_value in (0.0, 2.0, 4.0)
-    assert "2:" in cams.note and "4:" in cams.note
+    assert "2:" in cams.note and "33.3 ms" in cams.note     # 4 is tried only when 2 held
+    assert ("4:" in cams.note) == (cams.value >= 2.0)
+    cpu = by["monitor.cpu_per_camera"]                  # cores per camera: measured, never judged here
+    assert cpu.unit == "cores" and math.isfinite(cpu.value) and cpu.value > 0, cpu
+    assert math.isfinite(cpu.peer_value) and cpu.peer_value > 0, cpu
+
+
+def test_build_per_cell_quick_rows():
+    """A p50 and a p99 row per cell with a robot, without and with a person; each measured, with its peer."""
+    rows = GROUPS["monitor.build"](BenchContext(quick=True))
+    cases = ("flacco-cell", "ur3-cell", "ur5-urdf-posts")
+    names = [f"monitor.build_p{q}_ms.{c}{p}" for c in cases for p in ("", "+person") for q in (50, 99)]
+    assert [r.name for r in rows] == names
+    for r in rows:
+        assert r.unit == "ms" and math.isfinite(r.value) and r.value > 0, r
+        assert r.peer and math.isfinite(r.peer_value) and r.peer_value > 0, r
+    assert "flacco-walls" in rows[0].note and "c-arm-room" in rows[0].note     # the cells without a robot, named
