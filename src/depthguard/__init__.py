@@ -9,6 +9,7 @@ The public surface (SPEC §9)::
     grid = dg.DepthGridMap(rig.cameras, principal="cam0", d_min=0.3, d_max=3.7, delta_d=0.01)
     fs = dg.FreeSpaceMap(rig.cameras, bounds=(lo, hi), voxel_size=0.05)
     monitor = dg.Monitor(rig)   # push_frame(dg.Frame(...)), push_joints(stamp, q), step(t) -> Reaction
+    dg.warm_up(rig)             # compile the monitor's kernels before any clock (README's live loop)
 
 Names are imported lazily so that ``import depthguard`` stays fast and the
 numba kernels compile only when they are used.
@@ -48,6 +49,7 @@ _EXPORTS = {
     "FreeSpaceMap": "depthguard.fusion.free_space",
     "VoxelFilter": "depthguard.fusion.voxels",
     "Monitor": "depthguard.runtime.monitor",
+    "warm_up": "depthguard.runtime.monitor",
     "MonitorConfig": "depthguard.config",
     "Reaction": "depthguard.runtime.result",
     "Frame": "depthguard.sources.frame",
