@@ -215,13 +215,14 @@ def test_compact_map_equals_explicit_table():
 
 
 def test_paper_setup_size_and_build(tmp_path):
-    """640x480x343 with one extra camera: bytes <= 1 GB, build <= 30 s, cached."""
+    """640x480x343 with one extra camera: bytes <= 1 GB, cached (its build time is the bench's
+    ``depthgrid.build_s``)."""
     cams = [dg.Camera(id=f"k{i}", width=640, height=480, fx=525, fy=525, cx=319.5, cy=239.5,
                       world_from_camera=look_at(np.array(e, float), np.zeros(3)))
             for i, e in enumerate([(2.0, -2.0, 1.3), (2.0, 2.0, 1.3)])]
     g = DepthGridMap(cams, "k0", 0.2882, 0.2882 + 3.43, 0.01, cache_dir=tmp_path)
     assert g.shape == (480, 640, 343)
-    assert g.nbytes <= 1e9 and g.build_seconds <= 30
+    assert g.nbytes <= 1e9
     g2 = DepthGridMap(cams, "k0", 0.2882, 0.2882 + 3.43, 0.01, cache_dir=tmp_path)
     assert g2.from_cache and np.array_equal(g2.rays, g.rays)
 

@@ -95,11 +95,11 @@ def test_fanout_never_blocks_on_a_slow_sink_and_reports_dropped():
 
     items = [reaction(t=float(i)) for i in range(1000)]
     fan = SinkFanout([slow], maxsize=100)
-    t0 = time.perf_counter()
     for r in items:
         fan(r)
-    elapsed = time.perf_counter() - t0
-    assert elapsed < 0.02, f"1000 enqueues took {elapsed * 1e3:.1f} ms"
+    # every call returned while the sink was still held (it waits for `release`): had one call
+    # waited for the sink, the sink would have timed out and appended before the loop ended
+    assert seen == []
     release.set()
     fan.close()
     # the sink held at most one reaction while the queue kept the newest 100: the oldest went

@@ -117,22 +117,6 @@ def test_silhouette_buffers_and_errors():
         grid.set_frames({"c0": np.ones(cam.shape, np.float32)}, silhouette_px=-2)
 
 
-def test_dilate_is_fast():
-    rng = np.random.default_rng(1)
-    rd = np.zeros((480, 640), np.float32)
-    rd[100:400, 150:500] = rng.uniform(1, 2, (300, 350))
-    buf = SilhouetteBuffers(rd.shape)
-    buf.dilate(rd, 4)
-    import time
-
-    best = np.inf
-    for _ in range(20):
-        t0 = time.perf_counter()
-        buf.dilate(rd, 4)
-        best = min(best, time.perf_counter() - t0)
-    assert best < 0.005          # ~0.3 ms measured; generous for loaded machines
-
-
 # ------------------------------------------------------------------ per-pixel states vs twins
 def test_frame_state_and_start_depth_equal_twins(rng):
     cam = _cam()

@@ -24,6 +24,11 @@ points, ``rho = 0.4``, hybrid, robot removed in both cameras, padded capsules:
 * ``depthgrid.cycle_ms.{1,2,3,4}cam`` — scaling with the number of cameras
   (extra Kinects around the cell), default threads; the per-frame work grows with
   the cameras, the per-cycle lookup does not.
+* ``depthgrid.camera_state_ms`` — one camera's share of a build, made on its worker
+  (:class:`~depthguard.fusion.depth_grid_state.StateMaker`, R36): the frame's state with the
+  product's rules (silhouette dilation 4 px, small gaps 3 px, robot removal; 5 % of the pixels
+  dropped out) and its min / max pyramids. Peer: the plain-numpy twin of the state alone
+  (``depth_grid_ref.frame_state_numpy``).
 * ``depthgrid.build_s`` / ``depthgrid.bytes`` — the off-line map of the paper's
   set-up (one extra camera), built without cache.
 """
@@ -135,7 +140,26 @@ def bench_depthgrid(ctx: BenchContext) -> list[BenchRow]:
         rows.append(BenchRow(f"depthgrid.cycle_ms.{n}cam", float(np.median(tn)), "ms",
                              peer="cartesian k-d tree", peer_value=float(np.median(tcn)),
                              note="default threads (one for 9 points)"))
+    rows.append(_camera_state_row(ctx, cams[1], depths["cam1"], rds["cam1"]))
     rows.append(BenchRow("depthgrid.build_s", build, "s", note="640x480x343, 1 extra camera; goal <= 30 s"))
     rows.append(BenchRow("depthgrid.bytes", float(g2.nbytes), "B",
                          note="compact map (corner rays per extra camera); goal <= 1e9"))
     return rows
+
+
+def _camera_state_row(ctx: BenchContext, cam, depth, robot_depth) -> BenchRow:
+    """``depthgrid.camera_state_ms`` (module docstring)."""
+    from depthguard.fusion import depth_grid_ref
+    from depthguard.fusion.depth_grid_state import StateMaker, StateOptions
+
+    d = depth.copy()
+    d[np.random.default_rng(0).random(d.shape) < 0.05] = 0.0          # dropout, as a sensor gives it
+    maker = StateMaker(cam)
+    opts = StateOptions(0.08, "unknown", "unknown", 4, 3)
+    ts = time_call(lambda: maker.make(d, robot_depth, opts, pyramids=True), 3 if ctx.quick else 20, warmup=1) * 1e3
+    tn = time_call(lambda: depth_grid_ref.frame_state_numpy(cam, d, robot_depth, 0.08, "unknown"),
+                   1 if ctx.quick else 3, warmup=0) * 1e3
+    return BenchRow("depthgrid.camera_state_ms", float(np.median(ts)), "ms",
+                    peer="numpy twin of the state alone", peer_value=float(np.median(tn)),
+                    note="640x480 Kinect frame, 5 % dropout, silhouette 4 px + gaps 3 px + pyramids; "
+                         "default numba threads (a camera worker runs it on one)")
