@@ -355,6 +355,14 @@ def test_multi_principal_covers_what_no_single_camera_sees():
     eps = np.array([_eps([a, b][w], P[i:i + 1], 0.4, 0.03)[0] for i, w in enumerate(who)])
     assert np.all(res.distance <= truth + eps)
     assert np.all(np.isfinite(res.distance))
+    # both sides: each point's answer is exactly the plain-numpy twin's with the principal chosen
+    # for it (a grid answering 0 or inf everywhere fails here)
+    for w, cam in enumerate((a, b)):
+        mine = who == w
+        d, _v, o, _c = _twin(multi.maps[cam.id], depths, P[mine], 0.4, "min")
+        np.testing.assert_allclose(res.distance[mine], d, rtol=1e-9, atol=1e-12)
+        assert np.all(o)
+    assert np.all(res.distance > 0.05)          # the points are 0.15 m or more from everything
 
 
 # ------------------------------------------------------------------ property on random scenes

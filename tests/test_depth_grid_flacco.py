@@ -52,6 +52,21 @@ def test_robot_alone_no_self_distance(res):
 
 
 @pytest.mark.slow
+def test_robot_alone_sees_the_room_within_a_wider_rho(tmp_path):
+    """The other side of the robot-alone test: nothing lies within 0.4 m of its control points
+    (the test above holds for a grid that answers inf everywhere), so with rho = 0.65 m the room
+    around the robot (floor, walls) is within reach of most points and must be found within the
+    discretisation, while the robot still never reads itself nearer than what is there."""
+    a = run_flacco2015(rho=0.65, padding=PADDING, cache_dir=tmp_path)["robot_alone"]
+    near = a.truth + a.eps < 0.65
+    assert near.sum() >= 5, a.truth
+    for two in (a.two, a.two_paper):
+        rep = np.where(np.isfinite(two), two, np.inf)
+        assert np.all(rep >= np.minimum(a.truth, 0.65) - a.eps), (rep, a.truth)
+        assert np.all(rep[near] <= a.truth[near] + a.eps[near]), (rep, a.truth)
+
+
+@pytest.mark.slow
 def test_reproduce_cli_writes_plots_and_table(tmp_path):
     from typer.testing import CliRunner
 
