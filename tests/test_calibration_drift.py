@@ -132,13 +132,12 @@ def test_a_camera_turned_by_a_fifth_of_a_degree_is_not_flagged(cell):
 @pytest.mark.parametrize("cell_name", ["flacco-cell", "ur3-cell"])
 def test_drift_statistic_two_degrees_flagged_a_fifth_not_about_each_axis(cell_name):
     """The statistic alone (no monitor), every camera, three axes: 2 deg exceeds the threshold
-    (2 %) in every frame of the scene's people moving — except where the scene itself cannot
-    show it (listed: a pan about the vertical leaves floor and walls unchanged; only the furniture's
-    edges show it, and a person can hide them); 0.2 deg never does."""
+    (2 %) in every frame of the scene's people moving, a pan about the vertical included (the
+    cells' rooms have walls: measured 4-25 % of the pixels for a pan, where an earlier form of
+    this test exempted every pan); 0.2 deg never does."""
     c = load_cell(cell_name)
     rig = c.rig
     times = np.linspace(0.0, c.scene.duration, 5, endpoint=False)
-    weak = []
     for cam in rig.cameras[:2]:
         dw = DriftWatch(cam, ExpectedDepth(cam, rig.robot, rig.static_meshes()).static)
         for axis in ("pan", "tilt", "roll"):
@@ -148,9 +147,8 @@ def test_drift_statistic_two_degrees_flagged_a_fifth_not_about_each_axis(cell_na
                                                             stamp=float(t)))[0] for t in times])
                 if deg == 0.2:
                     assert np.all(shares < dw.share_limit / 2), (cam.id, axis, shares)
-                elif not np.all(shares > dw.share_limit):
-                    weak.append((cam.id, axis, shares.round(3).tolist()))
-    assert all(axis == "pan" for _, axis, _ in weak), weak
+                else:
+                    assert np.all(shares > dw.share_limit), (cam.id, axis, shares)
 
 
 @pytest.mark.slow          # 60 s of the simulated cell through the monitor (about 3 min on a shared 2-core machine)
