@@ -98,13 +98,7 @@ def placement(
     kw = dict(min_separation_deg=min_separation)
     seen, az = visibility(the_rig.cameras, pts, shell), azimuths(the_rig.cameras, pts)
     ok = passes_criterion(seen, az, **kw)
-    typer.echo(f"{label}: {len(the_rig.cameras)} cameras, {len(pts)} voxels of {voxel * 100:.0f} cm in "
-               f"{ilo.round(2).tolist()}..{ihi.round(2).tolist()}: {100 * ok.mean():.1f} % pass "
-               f"(>= 3 views pairwise >= {min_separation:g} deg apart)")
-    g = greedy_placement(seen, az, the_rig.cameras, target_share=1.0, max_cameras=len(the_rig.cameras), prune=False,
-                         **kw)
-    curve = share_vs_cameras(seen, az, g.chosen, **kw)
-    typer.echo("share vs cameras (best first): " + ", ".join(f"{i + 1}:{100 * v:.1f}" for i, v in enumerate(curve)))
+    typer.echo(f"{label}: {len(the_rig.cameras)} cameras")
     robot = the_rig.robot
     if robot is not None and len(getattr(robot, "control_points", ())) > 0:
         from depthguard.evaluation.coverage import blind_spots
@@ -137,6 +131,14 @@ def placement(
     elif path is not None:
         raise typer.BadParameter(f"the rig {the_rig.name!r} has no robot with control points to move along a "
                                  f"path", param_hint="--joints")
+    # the free-space criterion second: what a free-space map needs (R21-R23), far more than distances
+    typer.echo(f"free-space criterion (Hamersma 2011, R23: >= 3 views pairwise >= {min_separation:g} deg apart, "
+               f"what a free-space map needs): {len(pts)} voxels of {voxel * 100:.0f} cm in "
+               f"{ilo.round(2).tolist()}..{ihi.round(2).tolist()}: {100 * ok.mean():.1f} % pass")
+    g = greedy_placement(seen, az, the_rig.cameras, target_share=1.0, max_cameras=len(the_rig.cameras), prune=False,
+                         **kw)
+    curve = share_vs_cameras(seen, az, g.chosen, **kw)
+    typer.echo("  share vs cameras (best first): " + ", ".join(f"{i + 1}:{100 * v:.1f}" for i, v in enumerate(curve)))
     if improve:
         mid = (lo + hi) / 2
         h = hi[2] - lo[2]
@@ -152,11 +154,14 @@ def placement(
         reach = float(passes_criterion(sc, ac, **kw).mean())
         r = greedy_placement(sc, ac, cands, target_share=0.995 * reach, max_cameras=60, **kw)
         paper = "; paper: 21 cameras" if rig is None and c.name == "c-arm-room" else ""
-        typer.echo(f"greedy improver: {len(r.chosen)} cameras reach {100 * r.final_share:.1f} % "
-                   f"(all {len(cands)} candidates: {100 * reach:.1f} %{paper})")
-        for cam in r.cameras:
+        typer.echo(f"  greedy improver: {len(r.chosen)} cameras on the walls and ceiling reach "
+                   f"{100 * r.final_share:.1f} % (all {len(cands)} candidates: {100 * reach:.1f} %{paper}); "
+                   f"--no-improve leaves this out")
+        for cam in r.cameras[:5]:
             p = cam.position
-            typer.echo(f"  {cam.id} at ({p[0]:.2f}, {p[1]:.2f}, {p[2]:.2f})")
+            typer.echo(f"    {cam.id} at ({p[0]:.2f}, {p[1]:.2f}, {p[2]:.2f})")
+        if len(r.cameras) > 5:
+            typer.echo(f"    ... and {len(r.cameras) - 5} more")
 
 
 def _recorded_path(spec: str, rig, every: float):
