@@ -16,6 +16,7 @@ result, summary)`` writes ``summary.json`` and the figures:
 from __future__ import annotations
 
 import json
+import textwrap
 from pathlib import Path
 
 import numpy as np
@@ -116,7 +117,8 @@ def write_report(out: Path, res, summary: dict, hexagon, rho: float, snapshots=N
     p.write_text(json.dumps(summary, indent=2))
     written.append(p)
     t = res.t
-    title = f"{summary['scenario']}: {summary['description']}"
+    # wrapped to the figures' 8-inch width at 9 pt (a long scenario description was cut at the edge)
+    title = textwrap.fill(f"{summary['scenario']}: {summary['description']}", width=110)
 
     # EE path in the hexagon plane
     fig, ax = plt.subplots(figsize=(5.5, 5))
@@ -180,13 +182,20 @@ def write_report(out: Path, res, summary: dict, hexagon, rho: float, snapshots=N
     written.append(p)
 
     if snapshots:
-        fig, axs = plt.subplots(1, len(snapshots), figsize=(3.2 * len(snapshots), 2.8))
-        axs = np.atleast_1d(axs)
+        # one colour scale for every snapshot, with its bar in metres; no return: white
+        valid = [d[d > 0] for _, _, d in snapshots]
+        lo = min((float(v.min()) for v in valid if v.size), default=0.0)
+        hi = max((float(v.max()) for v in valid if v.size), default=1.0)
+        cmap = matplotlib.colormaps["viridis"].with_extremes(bad="white")
+        fig, axs = plt.subplots(1, len(snapshots), figsize=(3.2 * len(snapshots) + 0.8, 2.8), squeeze=False,
+                                layout="constrained")
+        axs = axs[0]
+        im = None
         for ax, (ts, cid, depth) in zip(axs, snapshots):
-            ax.imshow(np.where(depth > 0, depth, np.nan), cmap="viridis")
+            im = ax.imshow(np.where(depth > 0, depth, np.nan), cmap=cmap, vmin=lo, vmax=max(hi, lo + 1e-3))
             ax.set_title(f"{cid}, t = {ts:.1f} s", fontsize=8)
             ax.axis("off")
-        fig.tight_layout()
+        fig.colorbar(im, ax=list(axs), label="depth [m] (white: no return)", shrink=0.9)
         p = out / "snapshots.png"
         fig.savefig(p, dpi=100)
         plt.close(fig)
