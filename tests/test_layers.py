@@ -152,3 +152,11 @@ def test_each_exception_is_still_needed_and_documented():
     for module, target in ALLOWED:
         assert (module, target) in found, f"{module} no longer imports {target}: drop it from ALLOWED"
         assert module.replace("depthguard.", "").replace(".", "/") in architecture
+
+
+def test_architecture_states_the_same_order():
+    """docs/ARCHITECTURE.md ("Import graph") lists the rooms in the order of LAYERS."""
+    text = (PACKAGE.parent.parent / "docs" / "ARCHITECTURE.md").read_text(encoding="utf-8")
+    block = text[text.index("\nImport graph"):].split("\n\n")[1]
+    stated = [room.strip() for room in block.replace("\n", " ").split("→")]
+    assert stated == list(LAYERS)
