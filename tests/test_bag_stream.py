@@ -209,7 +209,7 @@ def test_joint_states_read_directly_equal_rosbags_decoding():
     frame ids and arrays of every length, so every alignment)."""
     import random
 
-    from depthguard.sources import ros_messages as rosmsg
+    from depthguard.transport import ros_messages as rosmsg
 
     make = rosmsg.TYPESTORE.types["sensor_msgs/msg/JointState"]
     rng = random.Random(5)

@@ -41,7 +41,7 @@ def check_claims(res):
     # the wall's edge between 0 and the switch: sqrt(x^2 + 0.03^2), nearer by at most the
     # Kinect's error on the wall's x = 0 face (3 sigma + half a disparity step, at the face's
     # depth, about the point's) plus a pixel, farther by at most a pixel + 5 mm
-    from depthguard.sources import sensor_model
+    from depthguard.sensors import sensor_model
 
     km = sensor_model("kinect_v1")
     mid = (x > 0.01) & (x < X_SWITCH - 0.01)

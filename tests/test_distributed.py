@@ -18,9 +18,9 @@ import pytest
 from hypothesis import HealthCheck, given, settings
 from hypothesis import strategies as st
 
-from depthguard.distributed import wire
-from depthguard.distributed.client import ServerClient, ServerRefused
 from depthguard.distributed.server import ERR_REFUSED, FusionServer
+from depthguard.transport import wire
+from depthguard.transport.client import ServerClient, ServerRefused
 from small_rigs import write_rig
 from loopback import free_port, wait_until
 
@@ -141,7 +141,7 @@ def _spawn(rig, cam, endpoint, fps=20, keys=None):
 @pytest.fixture(scope="module")
 def pki(tmp_path_factory):
     """The cell's authority, a certificate per camera node and an administrator's (R35)."""
-    from depthguard.distributed.keys import init_authority, issue_admin, issue_node
+    from depthguard.transport.keys import init_authority, issue_admin, issue_node
 
     d = tmp_path_factory.mktemp("pki")
     init_authority(d / "ca")
@@ -154,7 +154,7 @@ def pki(tmp_path_factory):
 @pytest.fixture(params=["tcp", "tls"])
 def any_server(request, pki):
     """``(server, admin client, key dir or None)``: plain loopback, and mutual TLS + signed messages."""
-    from depthguard.distributed.keys import load_identity
+    from depthguard.transport.keys import load_identity
 
     port = free_port()
     tls = request.param == "tls"
@@ -319,7 +319,7 @@ def test_node_reinitialises_after_server_restart(tmp_path):
 
 
 def _try_step(node):
-    from depthguard.distributed.client import ServerUnavailable
+    from depthguard.transport.client import ServerUnavailable
     try:
         node.step()
         return True
@@ -342,8 +342,8 @@ def test_fit_to_wire_coarsens_conservatively(rng):
 def test_network_defaults_are_loopback_and_checked():
     import inspect
 
-    from depthguard.distributed import settings as NS
     from depthguard.distributed.node import CameraNode
+    from depthguard.transport import settings as NS
 
     assert NS.DEFAULT_ENDPOINT.startswith("tcp/127.0.0.1:")
     assert inspect.signature(FusionServer).parameters["listen"].default == (NS.DEFAULT_ENDPOINT,)

@@ -17,9 +17,9 @@ import time
 
 import pytest
 
-from depthguard.distributed import wire
-from depthguard.distributed.client import ServerClient, ServerRefused, ServerUnavailable
-from depthguard.distributed.keys import (ROLE_ADMIN, ROLE_NODE, ROLE_SERVER, init_authority, issue_admin,
+from depthguard.transport import wire
+from depthguard.transport.client import ServerClient, ServerRefused, ServerUnavailable
+from depthguard.transport.keys import (ROLE_ADMIN, ROLE_NODE, ROLE_SERVER, init_authority, issue_admin,
                                          issue_node, load_identity)
 from loopback import free_port, wait_until
 from small_rigs import write_abc_rig as write_rig
@@ -190,7 +190,7 @@ def test_attacks_fail_and_are_logged(pki, tmp_path):
             assert n["camA"]["id"] == a_id and n["camA"]["state"] == "fresh"
             assert abs(n["camA"]["voxels"] - a_vox) <= 2 and "camB" not in n and st["refused"] == r0 + 5
             # a replayed (recorded) signed request is refused
-            from depthguard.distributed.auth import Signer
+            from depthguard.transport.auth import Signer
             env, _ = Signer(load_identity(pki / "admin")).seal(wire.status_request(), "depthguard/status")
             got = [r.ok.payload.to_bytes() for k in range(2)
                    for r in admin.session.get("depthguard/status", payload=env, timeout=2.0) if r.ok is not None]
@@ -282,8 +282,8 @@ def test_a_cell_member_answering_in_place_of_the_server_is_ignored(pki):
     broker) the rogue is never even asked. Where some topology does deliver such replies (a
     Zenoh router, brokering peers; here: the rogue's queryable on camA's own session), camA
     still takes only the server's signed reply for its own request."""
-    from depthguard.distributed.auth import Signer
     from depthguard.distributed.server import FusionServer
+    from depthguard.transport.auth import Signer
 
     port = free_port()
     ep = f"tls/127.0.0.1:{port}"

@@ -14,8 +14,8 @@ import time
 import numpy as np
 import pytest
 
-from depthguard.distributed import wire
 from depthguard.distributed.server import FusionServer
+from depthguard.transport import wire
 
 from loopback import free_port, wait_until
 
@@ -52,8 +52,8 @@ def test_node_removes_robot_at_interpolated_capture_joints(cell):
     import zenoh
 
     from depthguard.distributed.node import build_node
-    from depthguard.distributed.settings import zenoh_config
     from depthguard.filtering.expected import ExpectedDepth
+    from depthguard.transport.settings import zenoh_config
 
     rig = cell.rig
     q_of = _trajectory(cell)
@@ -147,10 +147,10 @@ def test_node_with_certificates_takes_its_joint_stream_over_tls(cell, tmp_path):
     cannot reach the node's session: its states never arrive."""
     import zenoh
 
-    from depthguard.distributed.keys import init_authority, issue_admin, issue_node, load_identity
     from depthguard.distributed.node import build_node
-    from depthguard.distributed.settings import zenoh_config
     from depthguard.filtering.expected import ExpectedDepth
+    from depthguard.transport.keys import init_authority, issue_admin, issue_node, load_identity
+    from depthguard.transport.settings import zenoh_config
 
     rig = cell.rig
     q_of = _trajectory(cell)

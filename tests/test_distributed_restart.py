@@ -12,9 +12,9 @@ import time
 
 import pytest
 
-from depthguard.distributed.client import ServerClient, ServerUnavailable
-from depthguard.distributed.keys import init_authority, issue_admin, issue_node, load_identity
 from depthguard.distributed.registry import Registry
+from depthguard.transport.client import ServerClient, ServerUnavailable
+from depthguard.transport.keys import init_authority, issue_admin, issue_node, load_identity
 from loopback import free_port, wait_until
 from small_rigs import write_abc_rig as write_rig
 

@@ -10,9 +10,9 @@ import time
 import numpy as np
 import pytest
 
-from depthguard.distributed import wire
-from depthguard.distributed.client import ServerClient
 from depthguard.distributed.server import FusionServer
+from depthguard.transport import wire
+from depthguard.transport.client import ServerClient
 
 from loopback import free_port, wait_until
 from small_rigs import write_rig
@@ -84,11 +84,11 @@ def test_units_queryable(server):
 @pytest.mark.parametrize("link", ["tcp", "tls"])
 def test_units_source_pulls_a_unit_from_a_real_server(tmp_path, link):
     """Also with the cell's certificates (R35): server, node and the monitor's source on mutual TLS."""
-    from depthguard.distributed.keys import init_authority, issue_admin, issue_node, load_identity
     from depthguard.distributed.node import build_node
     from depthguard.rig import Rig
     from depthguard.runtime.voxel_input import VoxelObstacles
     from depthguard.sources.base import open_source, source_schemes
+    from depthguard.transport.keys import init_authority, issue_admin, issue_node, load_identity
 
     assert "units" in source_schemes()
     rig_path = _rig(tmp_path)

@@ -8,7 +8,7 @@ import pytest
 from hypothesis import HealthCheck, given, settings
 from hypothesis import strategies as st
 
-from depthguard.distributed import wire
+from depthguard.transport import wire
 
 
 def _voxels(rng, n):

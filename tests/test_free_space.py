@@ -13,9 +13,10 @@ from trimesh.ray.ray_pyembree import RayMeshIntersector
 
 import depthguard as dg
 from depthguard.camera import Camera
-from depthguard.fusion.free_space import FreeSpaceMap, VoxelGrid
+from depthguard.fusion.free_space import FreeSpaceMap
 from depthguard.fusion.free_space_kernels import free_space_update_numpy, voxel_counts_numpy
 from depthguard.geometry import Box, Capsule
+from depthguard.geometry.voxel_grid import VoxelGrid
 from depthguard.transforms import look_at
 
 LO = np.array([-1.0, -1.0, 0.0])

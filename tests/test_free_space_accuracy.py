@@ -72,7 +72,7 @@ def test_product_fuses_consecutive_frames_with_a_margin_of_two_fused_sigma():
     StillFusion; margin 2 sigma and shell tolerance 5 sigma of the fused depth of the ToF model."""
     from depthguard.evaluation import hamersma2011
     from depthguard.fusion.temporal import StillFusion
-    from depthguard.sources.sensors import sensor_model
+    from depthguard.sensors import sensor_model
 
     room = hamersma2011.load_room()
     cams = room.cameras[:2]

@@ -14,7 +14,7 @@ from depthguard.fusion.free_space_product import (MARGIN_SIGMAS, STILL_FRAMES, T
 from depthguard.fusion.temporal import StillFusion
 from depthguard.geometry import Box
 from depthguard.render import render_depth
-from depthguard.sources.sensors import SENSOR_MODELS, sensor_model
+from depthguard.sensors import SENSOR_MODELS, sensor_model
 from depthguard.transforms import look_at
 
 LO = np.array([-1.0, -1.0, 0.0])

@@ -14,11 +14,11 @@ import pytest
 from hypothesis import HealthCheck, given, settings
 from hypothesis import strategies as st
 
-from depthguard.distributed import wire
-from depthguard.distributed.auth import AuthError, Signer, Verifier
-from depthguard.distributed.keys import init_authority, issue_node, load_identity
 from depthguard.distributed.registry import Registry
 from depthguard.distributed.server import FusionServer
+from depthguard.transport import wire
+from depthguard.transport.auth import AuthError, Signer, Verifier
+from depthguard.transport.keys import init_authority, issue_node, load_identity
 
 
 @pytest.fixture(scope="module")

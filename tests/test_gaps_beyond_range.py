@@ -26,7 +26,8 @@ from depthguard.fusion import depth_grid_ref as ref
 from depthguard.fusion.depth_grid import DepthGridMap
 from depthguard.geometry.primitives import Box
 from depthguard.render import render_depth
-from depthguard.sources import SimulatedCamera, intrinsics_for
+from depthguard.sensors import intrinsics_for
+from depthguard.sources import SimulatedCamera
 from depthguard.transforms import look_at
 
 

@@ -469,7 +469,7 @@ def test_capture_time_self_removal_no_phantom_at_the_moving_robot(rig, cell, q0)
 
 
 # unsynchronised cameras (cam1 captured 21 ms before cam0, robot at 1 m/s): without the robot's
-# motion between the two captures in its own volume (runtime.ingest.robot_volume), the two
+# motion between the two captures in its own volume (robot.volume.robot_volume), the two
 # cameras' robot shadows left ee..forearm_2 at 0.10-0.15 m where the truth is >= 0.55 m
 def test_capture_time_self_removal_unsynchronised_cameras(rig, cell, q0):
     rs, under = run_r30(rig, cell, q0, "capture", phases=None)

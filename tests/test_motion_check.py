@@ -9,8 +9,8 @@ import pytest
 
 from depthguard.control.motion_check import (Motion, check_motion, compare_verdicts, level_of,
                                              braking_distance)
-from depthguard.fusion.free_space import VoxelGrid
 from depthguard.geometry import Box, Capsule
+from depthguard.geometry.voxel_grid import VoxelGrid
 from depthguard.transforms import pose, rot_z
 
 S_VOX = 0.05

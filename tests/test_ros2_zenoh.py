@@ -26,7 +26,7 @@ from ros_defs import _stamp  # noqa: E402
 from ros2_peer import (FLOAT64_DEF, MARKERS_DEF, REACTION_DEF, ForeignNode, client, decoder, free_port,  # noqa: E402,F401
                        router, tokens, wait_for)  # router: a pytest fixture
 
-from depthguard.sources import ros2_zenoh as rz  # noqa: E402
+from depthguard.transport import ros2_zenoh as rz  # noqa: E402
 
 # --- from rmw_zenoh docs/design.md (Jazzy), "Graph Cache" / "Topic" examples, verbatim
 DESIGN_STRING_HASH = "RIHS01_df668c740482bbd48fb39d76a70dfd4bd59db1288021743503259e948f6b1a18"
@@ -49,7 +49,7 @@ def test_keys_tokens_and_hash_are_the_design_docs_examples():
         with pytest.raises(rz.Ros2Error):
             rz.check_topic(bad)
     # the definitions depthguard sends are Humble's and Jazzy's alike (equal hashes = equal definitions)
-    from depthguard.sources import ros_messages as rosmsg
+    from depthguard.transport import ros_messages as rosmsg
     for t in ("sensor_msgs/msg/Image", "sensor_msgs/msg/CameraInfo", "sensor_msgs/msg/JointState",
               "std_msgs/msg/Float64", "visualization_msgs/msg/MarkerArray"):
         assert rosmsg.TYPESTORE.hash_rihs01(t) == rz.type_hash(t)

@@ -26,7 +26,7 @@ from depthguard.runtime.runner import run
 from depthguard.sim import load_cell
 from depthguard.sources.base import open_joints, open_source
 from depthguard.sources.frame import Frame
-from depthguard.sources.ros2_zenoh import type_hash
+from depthguard.transport.ros2_zenoh import type_hash
 
 DURATION = 0.5
 
@@ -79,7 +79,7 @@ def _log(rig, frame_sources, joint_source, extra_sinks=()) -> list[dict]:
 
 def test_monitor_through_ros2_gives_the_reactions_of_the_frames_pushed_directly(recorded, router):
     from depthguard.runtime.ros2_sink import Ros2Sink
-    from depthguard.sources.ros2_zenoh import node_for
+    from depthguard.transport.ros2_zenoh import node_for
 
     rig, frames, states = recorded
     mm = np.float32(1000.0)

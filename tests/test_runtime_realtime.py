@@ -73,3 +73,27 @@ def test_not_permitted_says_why(monkeypatch):
     with realtime_control(50) as rt:
         assert not rt.active
         assert "not permitted" in rt.status and "rtprio" in rt.status
+
+
+def test_background_priority_gives_another_thread_the_workers_niceness():
+    """The kernel's own view: after the call, the other thread's niceness is the workers'
+    (the live view does this to its web server's thread); the caller's is unchanged."""
+    from depthguard.runtime.ingest import WORKER_NICENESS
+    from depthguard.runtime.realtime import background_priority
+
+    if not hasattr(os, "setpriority"):
+        pytest.skip("no per-thread priority here")
+    mine = os.getpriority(os.PRIO_PROCESS, threading.get_native_id())
+    if mine > WORKER_NICENESS:
+        pytest.skip(f"this process already runs at niceness {mine}: it may not lower it to {WORKER_NICENESS}")
+    release = threading.Event()
+    t = threading.Thread(target=release.wait, args=(30,))
+    t.start()
+    try:
+        assert background_priority(t.native_id)
+        assert os.getpriority(os.PRIO_PROCESS, t.native_id) == WORKER_NICENESS
+        assert os.getpriority(os.PRIO_PROCESS, threading.get_native_id()) == mine
+    finally:
+        release.set()
+        t.join()
+    assert not background_priority(None)

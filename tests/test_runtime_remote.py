@@ -8,7 +8,7 @@ import threading
 
 import pytest
 
-from depthguard.distributed.settings import zenoh_config
+from depthguard.transport.settings import zenoh_config
 from loopback import free_port, wait_until
 
 

@@ -13,9 +13,9 @@ import time
 import numpy as np
 import pytest
 
-from depthguard.distributed.settings import zenoh_config
 from depthguard.runtime.result import CameraStatus, Reaction
 from depthguard.runtime.sinks import CallbackSink, JsonlLog, SinkError, SinkFanout, ZenohPublisher
+from depthguard.transport.settings import zenoh_config
 from loopback import free_port, wait_until
 
 

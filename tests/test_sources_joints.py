@@ -12,9 +12,9 @@ import numpy as np
 import pytest
 
 import depthguard
-from depthguard.distributed.settings import zenoh_config
 from depthguard.rig import Rig
 from depthguard.sources.base import JointSource
+from depthguard.transport.settings import zenoh_config
 from depthguard.sources.joints import (CsvJointSource, JointSourceError, ZenohJointSource, open_csv_joints,
                                        open_zenoh_joints)
 from loopback import free_port, wait_until

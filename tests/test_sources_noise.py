@@ -7,9 +7,9 @@ import numpy as np
 import pytest
 from scipy.stats import norm
 
+from depthguard.sensors import sensor_model
 from depthguard.sources import noise
 from depthguard.sources.noise import NoiseWorkspace, apply_noise, depth_edges, depth_edges_kernel, kinect_quantise
-from depthguard.sources.sensors import sensor_model
 
 H, W = 240, 320
 FX = 300.0

@@ -8,8 +8,9 @@ import pytest
 from depthguard.camera import Camera
 from depthguard.geometry.primitives import Box, Sphere
 from depthguard.render import render_depth
+from depthguard.sensors import SENSOR_MODELS, intrinsics_for
 from depthguard.sim import Scene, load_cell
-from depthguard.sources import SENSOR_MODELS, Frame, SimSource, SimulatedCamera, intrinsics_for
+from depthguard.sources import Frame, SimSource, SimulatedCamera
 from depthguard.transforms import look_at, pose
 
 

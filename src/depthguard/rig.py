@@ -122,7 +122,7 @@ class CameraSpec(_Strict):
     @classmethod
     def _known_sensor(cls, v: Optional[str]) -> Optional[str]:
         if v is not None:
-            from depthguard.sources.sensors import sensor_model
+            from depthguard.sensors import sensor_model
             sensor_model(v)  # raises with the list of known models
         return v
 
@@ -175,7 +175,7 @@ class CameraSpec(_Strict):
         return self
 
     def to_camera(self) -> Camera:
-        from depthguard.sources.sensors import intrinsics_for
+        from depthguard.sensors import intrinsics_for
 
         if self.fx is not None:
             intr = dict(width=self.width, height=self.height, fx=self.fx, fy=self.fy, cx=self.cx, cy=self.cy)
@@ -194,7 +194,7 @@ class CameraSpec(_Strict):
                       max_range=rng[1], sensor=self.sensor, **intr)
 
     def _has_mode(self) -> bool:
-        from depthguard.sources.sensors import sensor_model
+        from depthguard.sensors import sensor_model
         m = sensor_model(self.sensor)
         return m.kind == "ideal" or (self.width, self.height) in m.resolutions
 

@@ -22,7 +22,7 @@ sigma sees through where the known scene should be: only a moved camera
 pixels.
 
 Noise ``sigma(z)`` (metres) is the camera's sensor model
-(:mod:`depthguard.sources.sensors`): ``sigma_a + sigma_z2 z^2``, with the
+(:mod:`depthguard.sensors`): ``sigma_a + sigma_z2 z^2``, with the
 Kinect's disparity quantisation step ``z^2 / (f b 2^bits)`` added as a
 uniform error (``step / sqrt(12)``), never below :data:`SIGMA_FLOOR` (the
 CAD's own accuracy). A camera without a sensor model gets
@@ -63,7 +63,7 @@ def depth_sigma_of(cam, z) -> np.ndarray:
     z = np.asarray(z, dtype=np.float64)
     model = None
     if getattr(cam, "sensor", None):
-        from depthguard.sources.sensors import sensor_model
+        from depthguard.sensors import sensor_model
         try:
             model = sensor_model(cam.sensor)
         except ValueError:

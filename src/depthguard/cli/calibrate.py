@@ -39,7 +39,7 @@ def _collect(spec: str, rig, frames: int, joints: Optional[str], timeout_s: floa
     """``({camera: [depth, ...]}, {camera: [q, ...]})``: ``frames`` frames of each camera of the rig
     that the source serves. A ``sim:CELL`` source is the cell as it truly is (its own rig): the
     rig given is what is checked against it."""
-    from depthguard.runtime.joints import JointHistory, OutsideHistory
+    from depthguard.robot.joint_history import JointHistory, OutsideHistory
     from depthguard.sources.base import open_joints, open_source, split_spec
 
     scheme, arg = split_spec(spec)

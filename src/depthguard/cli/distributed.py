@@ -29,7 +29,7 @@ _KEYS_HELP = ("Key directory (R35): the CA dir of `depthguard keys init` for the
 def _identity(keys: Optional[Path]):
     if keys is None:
         return None
-    from depthguard.distributed.keys import load_identity
+    from depthguard.transport.keys import load_identity
     return load_identity(keys)
 
 
@@ -80,13 +80,13 @@ def server_cmd(
 
     With --centralised the same pipeline runs for every camera in this one process
     (all images into one place), and the status reports it the same way."""
-    from depthguard.distributed import wire
     from depthguard.distributed.server import FusionServer
     from depthguard.progress import log
+    from depthguard.transport import wire
 
     identity = _identity(keys)
     listen = _endpoints(listen, identity)
-    from depthguard.distributed.settings import check_exposure
+    from depthguard.transport.settings import check_exposure
 
     check_exposure(listen, connect, identity, insecure)
     r, c = _load_rig(rig, cell)
@@ -183,9 +183,9 @@ def node_cmd(
 
     With --joints the robot is removed at the joints of each frame's capture (R30); without it, at the fixed pose
     of the server's settings (a moving robot then leaves voxels)."""
-    from depthguard.distributed.client import ServerRefused, ServerUnavailable
     from depthguard.distributed.node import _resolution, build_node
     from depthguard.progress import log
+    from depthguard.transport.client import ServerRefused, ServerUnavailable
 
     if source not in ("sim", "pattern"):
         raise typer.BadParameter(f"unknown source {source!r}; use 'sim' or 'pattern'", param_hint="--source")
@@ -232,11 +232,11 @@ def status_cmd(
 ) -> None:
     """Print the server's view: every camera of the rig (fresh / stale / left, or missing: never
     joined), voxels, bytes per second."""
-    from depthguard.distributed.client import ServerClient, ServerRefused, ServerUnavailable
+    from depthguard.transport.client import ServerClient, ServerRefused, ServerUnavailable
 
     identity = _identity(keys)
     connect = _endpoints(connect, identity)
-    from depthguard.distributed.settings import check_exposure
+    from depthguard.transport.settings import check_exposure
 
     check_exposure([], connect, identity)
     with ServerClient(connect, prefix=prefix, identity=identity) as c:

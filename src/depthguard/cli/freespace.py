@@ -67,7 +67,7 @@ def placement(
     from depthguard.cli.common import load_rig_or_cell
     from depthguard.evaluation.placement import (azimuths, candidate_cameras, greedy_placement,
                                                  passes_criterion, share_vs_cameras, visibility)
-    from depthguard.fusion.free_space import VoxelGrid
+    from depthguard.geometry.voxel_grid import VoxelGrid
 
     if not (0.02 <= voxel <= 1.0):
         raise typer.BadParameter(f"voxel must lie in [0.02, 1.0] m, got {voxel}", param_hint="--voxel")

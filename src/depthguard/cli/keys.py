@@ -1,6 +1,6 @@
 """``depthguard keys init|node|admin``: the cell's certificate authority and certificates (R35).
 
-See :mod:`depthguard.distributed.keys` for the files and ``docs/THREAT_MODEL.md`` for what
+See :mod:`depthguard.transport.keys` for the files and ``docs/THREAT_MODEL.md`` for what
 they protect. Private keys are written with mode 0600 and nothing existing is overwritten.
 """
 
@@ -25,7 +25,7 @@ def init_cmd(
                                    "at (localhost and 127.0.0.1 are always included)."),
 ) -> None:
     """Create the cell's certificate authority and the fusion server's certificate."""
-    from depthguard.distributed.keys import init_authority
+    from depthguard.transport.keys import init_authority
 
     out = init_authority(directory, hosts=host)
     typer.echo(f"authority and server certificate in {out} (private keys 0600); "
@@ -39,7 +39,7 @@ def node_cmd(
     out: Path = typer.Option(..., "--out", help="New directory for ca.pem, node.pem, node.key."),
 ) -> None:
     """Issue one camera node's certificate, naming its camera."""
-    from depthguard.distributed.keys import issue_node
+    from depthguard.transport.keys import issue_node
 
     d = issue_node(camera, ca, out)
     typer.echo(f"certificate of camera {camera} in {d}; run the node with --keys {d}")
@@ -52,7 +52,7 @@ def admin_cmd(
     name: str = typer.Option("admin", "--name", help="Name in the certificate (shown in the server's log)."),
 ) -> None:
     """Issue an administrator's certificate (`depthguard status`, settings changes)."""
-    from depthguard.distributed.keys import issue_admin
+    from depthguard.transport.keys import issue_admin
 
     d = issue_admin(ca, out, name)
     typer.echo(f"administrator certificate {name!r} in {d}; use it with `depthguard status --keys {d}`")

@@ -132,7 +132,7 @@ def monitor(
     if zenoh:
         import zenoh as zenoh_lib
 
-        from depthguard.distributed.settings import zenoh_config
+        from depthguard.transport.settings import zenoh_config
         session = zenoh_lib.open(zenoh_config([zenoh_listen], list(zenoh_connect)))
         sinks.append(ZenohPublisher(cell_key, session=session))
     if ros2:

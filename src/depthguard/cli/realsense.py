@@ -26,8 +26,8 @@ __all__ = ["camera_blocks", "blocks_yaml"]
 
 
 def _device_block(rs, device, where: str, width: int, height: int, fps: float, camera_id: str) -> dict:
+    from depthguard.sensors import sensor_model
     from depthguard.sources.realsense_device import depth_profiles, intrinsics_of
-    from depthguard.sources.sensors import sensor_model
 
     try:
         sensor = device.first_depth_sensor()

@@ -33,7 +33,7 @@ from typing import Callable, Sequence
 
 import numpy as np
 
-from depthguard.fusion.free_space import VoxelGrid
+from depthguard.geometry.voxel_grid import VoxelGrid
 
 __all__ = ["Motion", "MotionVerdict", "check_motion", "compare_verdicts", "LEVELS", "level_of",
            "braking_distance", "carm_motion", "joint_motion", "cartesian_motion"]
@@ -116,7 +116,7 @@ def check_motion(occupied: np.ndarray, grid: VoxelGrid, motion: Motion,
     Parameters
     ----------
     occupied : (nx, ny, nz) bool — the map (True = occupied or unknown).
-    grid : the map's :class:`~depthguard.fusion.free_space.VoxelGrid`.
+    grid : the map's :class:`~depthguard.geometry.voxel_grid.VoxelGrid`.
     motion : the intended :class:`Motion`.
     exclude : optional (nx, ny, nz) bool — the machine's own current volume (never a
         contact), normally ``FreeSpaceMap.machine``; default: the voxels within one

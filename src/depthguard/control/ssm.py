@@ -65,8 +65,8 @@ class SSMCameras:
     @classmethod
     def of(cls, cameras, cfg: SSMConfig) -> "SSMCameras":
         """From :class:`~depthguard.camera.Camera` objects: the noise of their ``sensor`` model
-        (:mod:`depthguard.sources.sensors`), ``cfg.default_sigma_*`` for a camera without one."""
-        from depthguard.sources.sensors import SENSOR_MODELS
+        (:mod:`depthguard.sensors`), ``cfg.default_sigma_*`` for a camera without one."""
+        from depthguard.sensors import SENSOR_MODELS
 
         R, t, f, sa, sz, q = [], [], [], [], [], []
         for cam in cameras:

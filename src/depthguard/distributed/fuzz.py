@@ -13,8 +13,8 @@ reached rather than only the frame checks. Per case the property is:
 * an accepted mutated envelope is impossible (a signature must not verify on bytes
   that differ from what was signed) — such a case is also counted as a crash.
 
-Targets: ``wire`` (:func:`depthguard.distributed.wire.decode`), ``envelope``
-(:class:`depthguard.distributed.auth.Verifier`), ``settings`` (the server's
+Targets: ``wire`` (:func:`depthguard.transport.wire.decode`), ``envelope``
+(:class:`depthguard.transport.auth.Verifier`), ``settings`` (the server's
 SETTINGS_REQ JSON), ``registry`` (the registry file), ``rig`` (rig YAML files,
 :meth:`depthguard.rig.Rig.load`), ``depth`` (``.npy`` / ``.png`` depth files,
 :func:`depthguard.depth_io.read_depth`), ``ros`` and ``bag`` (ROS 2 messages and bag files as the
@@ -94,7 +94,7 @@ def _kind(exc: BaseException, work: str) -> str:
 
 # ------------------------------------------------------------------ targets
 def _wire_target(work: Path):
-    from depthguard.distributed import wire
+    from depthguard.transport import wire
 
     rng = np.random.default_rng(0)
     keys = rng.integers(-300, 300, (40, 3))
@@ -124,9 +124,9 @@ def _wire_target(work: Path):
 
 
 def _envelope_target(work: Path):
-    from depthguard.distributed import wire
-    from depthguard.distributed.auth import Signer, Verifier
-    from depthguard.distributed.keys import init_authority, issue_node, load_identity
+    from depthguard.transport import wire
+    from depthguard.transport.auth import Signer, Verifier
+    from depthguard.transport.keys import init_authority, issue_node, load_identity
 
     init_authority(work / "ca")
     issue_node("cam0", work / "ca", work / "cam0")
@@ -175,8 +175,8 @@ def _envelope_target(work: Path):
 
 
 def _settings_target(work: Path):
-    from depthguard.distributed import wire
     from depthguard.distributed.server import FusionServer
+    from depthguard.transport import wire
 
     srv = FusionServer(["cam0"], wire.Settings())
     seeds = [json.dumps(x).encode() for x in (

@@ -7,9 +7,9 @@ code that reads a user's recordings (:mod:`depthguard.fuzz` runs them like the o
   16UC1, ``F`` Image 32FC1, ``C`` ``CameraInfo``, ``J`` ``JointState``). A message that
   rosbags cannot deserialise is refused, as the bag source counts it (``undecodable``);
   one that deserialises goes through depthguard's converter
-  (:func:`~depthguard.sources.ros_messages.depth_from_image`,
-  :func:`~depthguard.sources.ros_messages.intrinsics_from_camera_info`,
-  :func:`~depthguard.sources.ros_messages.joint_state_values`), which must return a valid
+  (:func:`~depthguard.transport.ros_messages.depth_from_image`,
+  :func:`~depthguard.transport.ros_messages.intrinsics_from_camera_info`,
+  :func:`~depthguard.transport.ros_messages.joint_state_values`), which must return a valid
   value — a depth image (H, W) float32, finite, >= 0; finite intrinsics — or raise
   ``ValueError`` with a sentence.
 * ``bag`` — a whole MCAP bag file (two cameras, a robot's joint states, CameraInfo, TF;
@@ -76,7 +76,7 @@ def _check_depth(out, shape=None) -> None:
 
 
 def ros_target(work: Path):
-    from depthguard.sources import ros_messages as rosmsg
+    from depthguard.transport import ros_messages as rosmsg
 
     rig = _rig(work)
     cam = rig.cameras[0]

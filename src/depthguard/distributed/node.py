@@ -9,12 +9,14 @@ settings (voxel size, threshold, robot joints), applied from the next frame on.
 Robot joints (R30). With a joint stream (``joint_source``, e.g. ``zenoh:KEY`` — the
 payload of ``docs/MONITOR.md`` "Joint states over Zenoh", the same stream the monitor
 reads) every frame is filtered with the robot at the joints interpolated at the
-frame's **capture stamp** (:class:`depthguard.runtime.joints.JointHistory`, never
+frame's **capture stamp** (:class:`depthguard.robot.joint_history.JointHistory`, never
 extrapolated). A frame whose stamp lies outside the joint history (before the
 oldest state kept, in a gap of the stream, or after the newest state once
 ``joint_wait_s`` has passed) is **skipped**: nothing is sent for it (the unit goes
 stale at the server and at the monitor if that lasts, R27), it is counted in
-``skipped`` by reason and the first skip of each reason is logged. The frame stamps
+``skipped`` by reason (the monitor's names for refused frames: ``too_old``, ``future``,
+``joint_gap``, ``no_joints``; :meth:`~depthguard.robot.joint_history.JointHistory.wait_at`
+is the wait both use) and the first skip of each reason is logged. The frame stamps
 and the joint stamps must then be on one clock (the monitor's). The joints in the
 server's settings are ignored in that case.
 
@@ -54,10 +56,10 @@ from typing import Callable, Sequence
 import numpy as np
 
 from depthguard.camera import Camera
-from depthguard.distributed import wire
-from depthguard.distributed.client import ServerClient, ServerRefused, ServerUnavailable
-from depthguard.distributed.settings import DEFAULT_ENDPOINT, DEFAULT_LEASE_MS
 from depthguard.fusion.voxels import FilterOffset, VoxelFilter, regrid
+from depthguard.transport import wire
+from depthguard.transport.client import ServerClient, ServerRefused, ServerUnavailable
+from depthguard.transport.settings import DEFAULT_ENDPOINT, DEFAULT_LEASE_MS
 
 __all__ = ["CameraNode", "pattern_source", "sim_source", "with_resolution", "build_node", "fit_to_wire", "main"]
 
@@ -102,7 +104,7 @@ def sim_source(cell, camera: Camera, t: float = 0.0, seed: int = 0) -> FrameSour
 
 def with_resolution(cam: Camera, width: int, height: int) -> Camera:
     """The camera at another resolution mode of its sensor (same pose)."""
-    from depthguard.sources.sensors import intrinsics_for
+    from depthguard.sensors import intrinsics_for
 
     if cam.sensor is None:
         raise ValueError(f"camera {cam.id} has no sensor preset; cannot change its resolution")
@@ -149,8 +151,8 @@ class CameraNode:
                  joint_source=None, joint_span_s: float = 1.0, joint_gap_s: float = math.inf,
                  joint_wait_s: float = 0.05, identity=None, insecure: bool = False,
                  init_timeout_s: float = 30.0):
-        from depthguard.distributed.keys import ROLE_NODE
-        from depthguard.distributed.settings import check_exposure
+        from depthguard.transport.keys import ROLE_NODE
+        from depthguard.transport.settings import check_exposure
 
         if identity is not None and (identity.role != ROLE_NODE or identity.name != cam.id):
             raise ValueError(f"--keys {identity.directory}: a certificate of {identity.role}/{identity.name}, "
@@ -189,7 +191,7 @@ class CameraNode:
     # -------------------------------------------------------------- joints
     def attach_joints(self, source, span_s: float = 1.0, max_gap_s: float = math.inf) -> None:
         """Use the joint stream ``source`` from now on (module docstring; R30)."""
-        from depthguard.runtime.joints import JointHistory
+        from depthguard.robot.joint_history import JointHistory
 
         if self.robot is None:
             raise ValueError(f"camera {self.cam.id}: a joint stream needs the rig's robot (the rig has none)")
@@ -205,24 +207,18 @@ class CameraNode:
     def joints_at(self, stamp: float) -> np.ndarray | None:
         """The joints at capture ``stamp`` from the joint stream (waiting up to ``joint_wait_s``
         for states that lag the frame), or None — the frame is then skipped and counted."""
-        from depthguard.runtime.joints import OutsideHistory
+        from depthguard.robot.joint_history import OutsideHistory
 
-        deadline = time.monotonic() + self.joint_wait_s
-        while True:
-            self._drain_joints()
-            try:
-                return self.history.at(stamp)
-            except OutsideHistory as exc:
-                if exc.kind in ("future", "empty") and time.monotonic() < deadline:
-                    time.sleep(0.001)
-                    continue
-                first = exc.kind not in self.skipped
-                self.skipped[exc.kind] = self.skipped.get(exc.kind, 0) + 1
-                self.last_skip = f"frame at {stamp:.6f} s skipped: {exc} (R30)"
-                if first:
-                    self._log(f"camera {self.cam.id}: {self.last_skip}; nothing is sent for such frames "
-                              f"(counted in skipped, logged once)")
-                return None
+        try:
+            return self.history.wait_at(stamp, self.joint_wait_s, feed=self._drain_joints, poll_s=0.001)
+        except OutsideHistory as exc:
+            first = exc.kind not in self.skipped
+            self.skipped[exc.kind] = self.skipped.get(exc.kind, 0) + 1
+            self.last_skip = f"frame at {stamp:.6f} s skipped: {exc} (R30)"
+            if first:
+                self._log(f"camera {self.cam.id}: {self.last_skip}; nothing is sent for such frames "
+                          f"(counted in skipped, logged once)")
+            return None
 
     @property
     def address(self) -> str:
@@ -452,7 +448,7 @@ def main(argv: list[str] | None = None) -> int:
     from depthguard.progress import log
 
     try:
-        from depthguard.distributed.keys import load_identity
+        from depthguard.transport.keys import load_identity
 
         identity = None if a.keys is None else load_identity(a.keys)
         node = build_node(a.rig, a.camera, a.source, a.cell, a.sim_time, resolution=_resolution(a.resolution),

@@ -29,7 +29,7 @@ Malformed, oversized or unexpected messages are answered with ERROR_REP and coun
 
 Trust (R35, ``docs/THREAT_MODEL.md``). With an ``identity`` (``--keys``) the server
 listens only on ``tls/`` endpoints with mutual certificates of the cell's authority,
-and every request must be signed (:mod:`depthguard.distributed.auth`): INIT and
+and every request must be signed (:mod:`depthguard.transport.auth`): INIT and
 UPDATE by a node certificate naming the camera they are for, STATUS and SETTINGS by
 an administrator certificate. Anything else is refused (ERROR_REP ``ERR_AUTH``),
 counted in ``refused`` and logged with the reason; replies are signed by the server.
@@ -52,9 +52,9 @@ from typing import Callable, Sequence
 
 import numpy as np
 
-from depthguard.distributed import wire
-from depthguard.distributed.settings import DEFAULT_ENDPOINT, DEFAULT_LEASE_MS, Keys, check_exposure, zenoh_config
 from depthguard.fusion.voxels import VoxelSet, regrid, union
+from depthguard.transport import wire
+from depthguard.transport.settings import DEFAULT_ENDPOINT, DEFAULT_LEASE_MS, Keys, check_exposure, zenoh_config
 
 __all__ = ["FusionServer", "Unit", "ERR_REFUSED", "ERR_MALFORMED", "ERR_UNKNOWN_UNIT", "ERR_BAD_SETTINGS",
            "ERR_AUTH"]
@@ -92,11 +92,11 @@ class FusionServer:
     Parameters
     ----------
     cameras : camera ids allowed to join (the rig's cameras).
-    settings : initial :class:`~depthguard.distributed.wire.Settings`.
+    settings : initial :class:`~depthguard.transport.wire.Settings`.
     listen / connect : zenoh endpoints (default ``tcp/127.0.0.1:7447``).
     multicast : enable zenoh multicast scouting (off by default).
     log : ``str -> None`` for refused / rejected messages and joins / leaves.
-    identity : the server's :class:`~depthguard.distributed.keys.Identity` (mutual TLS +
+    identity : the server's :class:`~depthguard.transport.keys.Identity` (mutual TLS +
         signed messages, module docstring) or None (loopback only unless ``insecure``).
     registry : path of the camera → unit id file (kept across restarts) or None.
     """
@@ -116,8 +116,8 @@ class FusionServer:
         self.identity = identity
         self._signer = self._verifier = None
         if identity is not None:
-            from depthguard.distributed.auth import Signer, Verifier
-            from depthguard.distributed.keys import ROLE_SERVER
+            from depthguard.transport.auth import Signer, Verifier
+            from depthguard.transport.keys import ROLE_SERVER
 
             if identity.role != ROLE_SERVER:
                 raise ValueError(f"--keys {identity.directory}: the server needs the server's certificate "
@@ -227,7 +227,7 @@ class FusionServer:
     def _guard(self, fn):
         """Wrap a queryable callback: check the envelope (with an identity), then ``fn(data, who)``;
         bad input → ERROR_REP + counted; never raises."""
-        from depthguard.distributed.auth import NO_NONCE, AuthError
+        from depthguard.transport.auth import NO_NONCE, AuthError
 
         def cb(query):
             payload = query.payload
@@ -272,7 +272,7 @@ class FusionServer:
         return None
 
     def _on_init(self, data: bytes, who=None) -> bytes:
-        from depthguard.distributed.keys import ROLE_NODE
+        from depthguard.transport.keys import ROLE_NODE
 
         m = wire.decode(data, expect=wire.MsgType.INIT_REQ)
         bad = self._role_check(who, ROLE_NODE, f"joining as camera {m.camera!r}")
@@ -305,7 +305,7 @@ class FusionServer:
         return None
 
     def _on_update(self, data: bytes, who=None) -> bytes:
-        from depthguard.distributed.keys import ROLE_NODE
+        from depthguard.transport.keys import ROLE_NODE
 
         now = time.monotonic()
         m = wire.decode(data, expect=wire.MsgType.UPDATE_REQ)
@@ -361,7 +361,7 @@ class FusionServer:
         return u
 
     def _on_status(self, data: bytes, who=None) -> bytes:
-        from depthguard.distributed.keys import ROLE_ADMIN
+        from depthguard.transport.keys import ROLE_ADMIN
 
         wire.decode(data, expect=wire.MsgType.STATUS_REQ)
         bad = self._role_check(who, ROLE_ADMIN, "the status")
@@ -370,7 +370,7 @@ class FusionServer:
         return wire.status_reply(self.status())
 
     def _on_settings(self, data: bytes, who=None) -> bytes:
-        from depthguard.distributed.keys import ROLE_ADMIN
+        from depthguard.transport.keys import ROLE_ADMIN
 
         m = wire.decode(data, expect=wire.MsgType.SETTINGS_REQ)
         bad = self._role_check(who, ROLE_ADMIN, "changing settings")

@@ -65,8 +65,8 @@ def _rss_mb(pid: int) -> float:
 def serve_main(argv: list[str]) -> int:
     """``serve --units N --port P --out FILE``: a server for ``unit0..unitN-1`` until SIGTERM;
     then the refresh histogram and per-unit counts go to FILE (JSON)."""
-    from depthguard.distributed import wire
     from depthguard.distributed.server import FusionServer
+    from depthguard.transport import wire
 
     ap = argparse.ArgumentParser(prog="depthguard-soak-serve")
     ap.add_argument("--units", type=int, required=True)
@@ -122,8 +122,8 @@ class _Unit(threading.Thread):
         self.ready = threading.Event()
 
     def run(self) -> None:
-        from depthguard.distributed import wire
-        from depthguard.distributed.client import ServerClient, ServerUnavailable
+        from depthguard.transport import wire
+        from depthguard.transport.client import ServerClient, ServerUnavailable
 
         try:
             with ServerClient([self.endpoint]) as c:
@@ -161,7 +161,7 @@ class _Unit(threading.Thread):
 def run_soak(units: int = 16, minutes: float = 10.0, hz: float = 30.0, voxels: int = 500,
              sample_s: float = 5.0, log=None) -> dict:
     """Run the soak (module docstring); the figures as a dict."""
-    from depthguard.distributed.settings import DEFAULT_PORT
+    from depthguard.transport.settings import DEFAULT_PORT
 
     if not (1 <= units <= 255):
         raise ValueError(f"--units must be within 1-255 (got {units})")

@@ -85,7 +85,7 @@ def blind_spots(cell, times, rho: float | None = None, padding: float | None = N
         progress bar: each time renders every camera).
     """
     from depthguard.render import Renderer
-    from depthguard.runtime.ingest import robot_volume
+    from depthguard.robot.volume import robot_volume
     from depthguard.sim.ground_truth import true_distance
 
     rig, scene = cell.rig, cell.scene

@@ -567,7 +567,7 @@ def _placement(room: Room, vs: float, out: Path, log=print) -> dict:
     wall rings + ceiling, aiming at 99.5 % of what all candidates together reach."""
     from depthguard.evaluation.placement import (azimuths, candidate_cameras, greedy_placement,
                                                  passes_criterion, share_vs_cameras, visibility)
-    from depthguard.fusion.free_space import VoxelGrid
+    from depthguard.geometry.voxel_grid import VoxelGrid
 
     shell = shell_primitives(room)
     meshes = [p.mesh() for p in shell]

@@ -46,8 +46,9 @@ from typing import Mapping, Sequence
 
 import numpy as np
 
-from depthguard.fusion.free_space import FreeSpaceMap, VoxelGrid
+from depthguard.fusion.free_space import FreeSpaceMap
 from depthguard.fusion.temporal import StillFusion
+from depthguard.geometry.voxel_grid import VoxelGrid
 
 __all__ = ["FreeSpaceProduct", "STILL_FRAMES", "MARGIN_SIGMAS", "TOLERANCE_SIGMAS", "product_margins",
            "shell_backgrounds", "fuse_still"]
@@ -113,7 +114,7 @@ class FreeSpaceProduct:
     bounds : ``(lo, hi)`` two 3-vectors, metres: the box, rounded up to whole voxels.
     voxel_size : float, metres.
     sensor : the cameras' one sensor model (a
-        :class:`~depthguard.sources.sensors.SensorModel`; its Gaussian depth noise
+        :class:`~depthguard.sensors.SensorModel`; its Gaussian depth noise
         ``sigma_a + sigma_z2 z²``) or a ready :class:`~depthguard.fusion.temporal.StillFusion`.
         Depth-dependent noise (``sigma_z2 != 0``) is refused (``ValueError``).
     shell_meshes : world :class:`~depthguard.geometry.Mesh` es of the room's fixed shell (floor,

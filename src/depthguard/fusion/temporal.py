@@ -95,7 +95,7 @@ class StillFusion:
     """Fusion of ``n`` frames of a camera on a still scene (module docstring).
 
     ``sigma_a`` (m) and ``sigma_z2`` (1/m): the sensor's depth noise ``sigma_a + sigma_z2 z²``
-    (:class:`~depthguard.sources.sensors.SensorModel`); ``p``: how often a still surface's
+    (:class:`~depthguard.sensors.SensorModel`); ``p``: how often a still surface's
     samples must count as agreeing.
     """
     n: int
@@ -116,7 +116,7 @@ class StillFusion:
 
     @classmethod
     def for_sensor(cls, model, n: int, p: float = 0.999) -> "StillFusion":
-        """From a :class:`~depthguard.sources.sensors.SensorModel` (its Gaussian depth noise)."""
+        """From a :class:`~depthguard.sensors.SensorModel` (its Gaussian depth noise)."""
         return cls(n, float(model.sigma_a), float(model.sigma_z2), p)
 
     def sigma(self, z: float) -> float:

@@ -79,7 +79,7 @@ def offset_for_camera(cam: Camera) -> FilterOffset:
 
     Without a known sensor model: 0.02 m + 0.005·e².
     """
-    from depthguard.sources.sensors import SENSOR_MODELS
+    from depthguard.sensors import SENSOR_MODELS
 
     m = SENSOR_MODELS.get(cam.sensor or "")
     if m is None:

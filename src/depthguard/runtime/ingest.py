@@ -43,7 +43,8 @@ import numpy as np
 from depthguard.camera import check_depth_image
 from depthguard.filtering.expected import ExpectedDepth
 from depthguard.runtime.drift import DriftWatch
-from depthguard.runtime.joints import JointHistory, OutsideHistory
+from depthguard.robot.joint_history import JointHistory, OutsideHistory
+from depthguard.robot.volume import robot_volume
 
 __all__ = ["CameraProduct", "CameraWorker", "GridBuffer", "FusionWorker", "background_thread"]
 
@@ -184,22 +185,16 @@ class CameraWorker:
             return
         if self.drift is not None:
             self.drift.update(depth, stamp)       # R34: a cheap statistic on a subsample
-        deadline = time.perf_counter() + self.joint_wait_s
-        while True:
-            try:
-                q = self.joints.at(stamp)
-                break
-            except OutsideHistory as exc:
-                # joints may lag the frame by a little: wait for them, never extrapolate (R30)
-                if exc.kind in ("future", "empty") and time.perf_counter() < deadline and not self._stop:
-                    with self.lock:
-                        newer = self._inbox is not None
-                    if not newer:
-                        time.sleep(0.0005)
-                        continue
-                key = {"future": "future", "too_old": "too_old", "empty": "no_joints", "gap": "joint_gap"}[exc.kind]
-                self._refuse(key, f"frame at {stamp:.6f} s refused: {exc} (R30)")
-                return
+
+        def newer_or_closing() -> bool:
+            with self.lock:
+                return self._stop or self._inbox is not None
+
+        try:     # joints may lag the frame by a little: wait for them, never extrapolate (R30)
+            q = self.joints.wait_at(stamp, self.joint_wait_s, newer_or_closing)
+        except OutsideHistory as exc:
+            self._refuse(exc.kind, f"frame at {stamp:.6f} s refused: {exc} (R30)")
+            return
         with self.lock:
             newest = self.product.stamp if self.product is not None else -math.inf
         if stamp <= newest:
@@ -426,32 +421,6 @@ class FusionWorker:
         with self.swap_lock:
             self.single = bool(single)
             self._back = self.front if self.single else None
-
-def robot_volume(robot, poses, padding: float) -> tuple[np.ndarray, np.ndarray]:
-    """The robot's own volume for frames captured at several joint poses (R9, R12): its padded
-    capsules at the first pose, each grown by how far that capsule's end points move to any
-    other pose — ``(segments (C, 2, 3), radii (C,))`` metres, world.
-
-    The cameras are not synchronised: each frame shows the robot where it was at that frame's
-    capture, and a cell behind the robot in one camera is confirmed by another that saw the
-    robot a moment earlier or later. The robot swept the space between those poses in that
-    time, so that space is its own, not an obstacle (without the growth, at 1 m/s and 21 ms
-    between two captures the end effector read a phantom 0.10-0.15 m away). One pose's grown
-    capsules hold every pose's padded capsules and every sweep between two poses: a point
-    between ``p_j(t)`` and ``p_k(t)`` on the segments of poses ``j`` and ``k`` lies within
-    ``max(|p_j(t) - p_i(t)|, |p_k(t) - p_i(t)|)`` of pose ``i``'s segment (the distance is
-    convex), at most the growth. So the other poses' grown capsules add nothing the robot
-    occupied, only more exclusion (and twice the capsules per build). An excluded cell lies
-    within ``padding`` plus the robot's motion between the captures in use (R25).
-    """
-    uniq = list({id(q): q for q in poses}.values())
-    segs = [robot.collision_segments(q, padding) for q in uniq]
-    ab, r = segs[0]
-    grow = np.zeros(len(r))
-    for ab2, _ in segs[1:]:
-        grow = np.maximum(grow, np.linalg.norm(ab2 - ab, axis=2).max(axis=1))
-    return ab, r + grow
-
 
 def _wrong_units(depth: np.ndarray, cam) -> str | None:
     """A sentence when most measured pixels of ``depth`` lie outside what any sensor returns

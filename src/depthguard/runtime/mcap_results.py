@@ -30,7 +30,7 @@ from pathlib import Path
 
 import numpy as np
 
-from depthguard.sources import ros_messages as rosmsg
+from depthguard.transport import ros_messages as rosmsg
 
 __all__ = ["McapResults", "REACTION_MSG", "REACTION_TYPE", "TOPICS"]
 

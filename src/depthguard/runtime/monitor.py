@@ -45,7 +45,7 @@ from depthguard.control.reaction import reaction as reaction_of
 from depthguard.control.supervisor import SafetySupervisor, stop_reasons
 from depthguard.runtime.distances import DistanceWorker, bound_distances
 from depthguard.runtime.ingest import CameraWorker, FusionWorker
-from depthguard.runtime.joints import JointHistory
+from depthguard.robot.joint_history import JointHistory
 from depthguard.runtime.result import CameraStatus, Reaction
 
 __all__ = ["Monitor"]

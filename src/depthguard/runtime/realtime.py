@@ -14,6 +14,9 @@ is less regular; the run's summary records which.
 
 Linux keeps 5 % of each second for normal threads (``sched_rt_runtime_us``),
 so a control thread that never sleeps cannot lock the machine up.
+
+The other way round, :func:`background_priority` gives a thread that is not the
+monitor's own (the live view's web server) the workers' lower priority.
 """
 
 from __future__ import annotations
@@ -21,7 +24,7 @@ from __future__ import annotations
 import os
 import threading
 
-__all__ = ["RealtimeControl", "realtime_control", "normal_scheduling"]
+__all__ = ["RealtimeControl", "realtime_control", "normal_scheduling", "background_priority"]
 
 
 class RealtimeControl:
@@ -84,3 +87,21 @@ def normal_scheduling() -> None:
             os.sched_setscheduler(tid, os.SCHED_OTHER, os.sched_param(0))
     except OSError:
         pass
+
+
+def background_priority(native_id: int | None) -> bool:
+    """Give the thread ``native_id`` (``threading.Thread.native_id``) the lower scheduling priority
+    of the monitor's workers (Linux, :data:`depthguard.runtime.ingest.WORKER_NICENESS`), so that
+    the control thread runs first when the cores are short (R29). For threads the caller does
+    not run code in (a library's event loop); a worker of its own calls
+    :func:`depthguard.runtime.ingest.background_thread`. True when set; False where that is not
+    possible (no native id, not Linux, not permitted)."""
+    from depthguard.runtime.ingest import WORKER_NICENESS
+
+    if not native_id:
+        return False
+    try:
+        os.setpriority(os.PRIO_PROCESS, int(native_id), WORKER_NICENESS)
+    except (AttributeError, OSError):
+        return False
+    return True

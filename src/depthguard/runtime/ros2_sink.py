@@ -1,7 +1,7 @@
 """The monitor's reactions as live ROS 2 topics, through Zenoh (``monitor --ros2``) (R29, R31).
 
 A sink (``sink(reaction)``, ``close()``) that publishes, as the node ``/depthguard`` on
-the cell's rmw_zenoh network (wire contract: :mod:`depthguard.sources.ros2_zenoh`), under a
+the cell's rmw_zenoh network (wire contract: :mod:`depthguard.transport.ros2_zenoh`), under a
 namespace (default ``/depthguard``):
 
 - ``<ns>/override`` — ``std_msgs/msg/Float64``, every control cycle: the speed override in
@@ -24,7 +24,7 @@ from __future__ import annotations
 
 import math
 
-from depthguard.sources.ros2_zenoh import WIRE, Ros2Error, check_topic
+from depthguard.transport.ros2_zenoh import WIRE, Ros2Error, check_topic
 
 __all__ = ["Ros2Sink", "open_ros2_sink", "DEFAULT_NAMESPACE"]
 
@@ -59,7 +59,7 @@ def _register_wire() -> None:
 class Ros2Sink:
     """Publishes reactions on ``<namespace>/{override,reaction,markers}`` (module docstring).
 
-    ``node``: an acquired :class:`~depthguard.sources.ros2_zenoh.Ros2Node` (released at
+    ``node``: an acquired :class:`~depthguard.transport.ros2_zenoh.Ros2Node` (released at
     :meth:`close`); ``robot`` places the control points; ``watch_points``: ``(name, (3,) m)``.
     ``published``: reactions sent.
     """
@@ -69,7 +69,7 @@ class Ros2Sink:
     def __init__(self, node, robot, watch_points=(), namespace: str = DEFAULT_NAMESPACE, marker_hz: float = 30.0,
                  frame_id: str = "world"):
         from depthguard.runtime.mcap_results import REACTION_TYPE
-        from depthguard.sources import ros_messages as rosmsg
+        from depthguard.transport import ros_messages as rosmsg
 
         self.node = node
         try:
@@ -112,6 +112,6 @@ class Ros2Sink:
 
 def open_ros2_sink(context: dict, robot, watch_points=(), namespace: str = DEFAULT_NAMESPACE) -> Ros2Sink:
     """The sink on the run's node (shared with ``ros2:`` sources through ``context``)."""
-    from depthguard.sources.ros2_zenoh import node_for
+    from depthguard.transport.ros2_zenoh import node_for
 
     return Ros2Sink(node_for(context), robot, watch_points, namespace)

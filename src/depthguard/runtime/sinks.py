@@ -109,7 +109,7 @@ class ZenohPublisher:
         if session is None:
             import zenoh
 
-            from depthguard.distributed.settings import zenoh_config
+            from depthguard.transport.settings import zenoh_config
             session = zenoh.open(zenoh_config([listen], list(connect)))
         self.session = session
         self._pubs = {n: session.declare_publisher(k) for n, k in self.keys.items()}

@@ -22,7 +22,7 @@ rig's static objects and its robot at the rig's joints, nobody else.
 
 The two robot cells have a floor and walls, as real cells do: every camera ray
 returns (the far walls may lie beyond a sensor's rated range, within the range
-it returns, :mod:`depthguard.sources.sensors`), so "no return" means something
+it returns, :mod:`depthguard.sensors`), so "no return" means something
 dark or a dropout, never "the ray left the scene" (R28, R32).
 """
 

@@ -1,8 +1,7 @@
-"""Depth sources: sensor presets, noise models, simulated cameras (later recordings, RealSense)."""
+"""Depth sources: frames, noise models, simulated cameras, recordings, devices and live topics
+(the sensor presets they use are :mod:`depthguard.sensors`)."""
 
 from depthguard.sources.frame import Frame
-from depthguard.sources.sensors import SENSOR_MODELS, SensorModel, intrinsics_for, sensor_model
 from depthguard.sources.simulated import SimSource, SimulatedCamera
 
-__all__ = ["Frame", "SENSOR_MODELS", "SensorModel", "intrinsics_for", "sensor_model",
-           "SimSource", "SimulatedCamera"]
+__all__ = ["Frame", "SimSource", "SimulatedCamera"]

@@ -8,7 +8,7 @@
 ``sensor_msgs/msg/CameraInfo`` on the sibling ``camera_info`` topic
 (``/ID/depth/camera_info``). Joint states are ``sensor_msgs/msg/JointState`` on
 ``/joint_states`` (or the bag's only JointState topic), matched to the rig robot's
-joints **by name** (extra joints are ignored). Depth decoding: :mod:`depthguard.sources.ros_messages`;
+joints **by name** (extra joints are ignored). Depth decoding: :mod:`depthguard.transport.ros_messages`;
 16-bit depth is ``value x depth_scale`` metres, the camera's ``depth_scale:`` in the rig
 (default 0.001: millimetres; a RealSense D405 records 0.0001).
 
@@ -48,7 +48,7 @@ from pathlib import Path
 
 import numpy as np
 
-from depthguard.sources import ros_messages as rosmsg
+from depthguard.transport import ros_messages as rosmsg
 from depthguard.sources.bag_replay import INTRINSICS_TOL_PX, _ImageEntry  # noqa: F401 (for the live ROS 2 source)
 from depthguard.sources.bag_replay import (BagConsumer, BagError, BagReplay, camera_depth_scale, check_camera_info,
                                            default_topic, info_topic, open_bag)

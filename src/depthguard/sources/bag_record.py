@@ -23,8 +23,8 @@ from pathlib import Path
 
 import numpy as np
 
-from depthguard.sources import ros_messages as rosmsg
 from depthguard.sources.bag import BagError, camera_depth_scale, default_topic, info_topic
+from depthguard.transport import ros_messages as rosmsg
 
 __all__ = ["BagRecorder", "optical_frame", "WORLD_FRAME"]
 

@@ -13,8 +13,8 @@ from collections import defaultdict
 from dataclasses import dataclass
 from pathlib import Path
 
-from depthguard.sources import ros_messages as rosmsg
 from depthguard.sources.bag_stream import BagPass
+from depthguard.transport import ros_messages as rosmsg
 
 __all__ = ["BagError", "BagReplay", "BagConsumer", "default_topic", "info_topic", "open_bag", "camera_depth_scale",
            "check_camera_info"]

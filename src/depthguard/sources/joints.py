@@ -13,7 +13,7 @@ JSON ``{"stamp": <float s>, "q": [<dof floats>]}`` (other fields are ignored).
 A bad payload is never used: it is counted in ``rejected`` and described in
 ``last_error``; a state whose stamp is not after the previous one is dropped and
 counted in ``out_of_order``. The session is a zenoh peer on loopback
-(:func:`depthguard.distributed.settings.zenoh_config`); the run's ``context``
+(:func:`depthguard.transport.settings.zenoh_config`); the run's ``context``
 may hold ``zenoh_session`` (a shared session), or ``zenoh_listen`` /
 ``zenoh_connect`` (lists of endpoints, default listen ``tcp/127.0.0.1:0``).
 """
@@ -167,7 +167,7 @@ class ZenohJointSource:
                  connect: Sequence[str] = ()):
         import zenoh
 
-        from depthguard.distributed.settings import zenoh_config
+        from depthguard.transport.settings import zenoh_config
 
         self._robot = _robot(rig)
         try:

@@ -60,7 +60,7 @@ from __future__ import annotations
 import numba
 import numpy as np
 
-from depthguard.sources.sensors import SensorModel
+from depthguard.sensors import SensorModel
 
 __all__ = ["NoiseWorkspace", "NormalBank", "apply_noise", "ideal_depth_kernel", "depth_edges", "depth_edges_kernel", "measure_kernel",
            "measure_numpy", "kinect_quantise", "depth_sigma", "EDGE_JUMP_ABS", "EDGE_JUMP_REL"]
@@ -397,7 +397,7 @@ def apply_noise(ideal: np.ndarray, model: SensorModel, fx: float, rng: np.random
     Parameters
     ----------
     ideal : (H, W) float, metres; 0 / non-finite = nothing hit.
-    model : the sensor model (``sources/sensors.py``).
+    model : the sensor model (``sensors.py``).
     fx : focal length in pixels (the Kinect disparity depends on it).
     rng : the generator all random draws come from.
     min_range, max_range : rated range in metres (default: the model's).

@@ -28,8 +28,8 @@ from pathlib import Path
 
 import numpy as np
 
-from depthguard.sources import ros_messages as rosmsg
 from depthguard.sources.bag import BagError, BagReplay, info_topic
+from depthguard.transport import ros_messages as rosmsg
 
 __all__ = ["draft_rig", "tf_tree", "chain"]
 

@@ -2,14 +2,14 @@
 
 The cell's ROS 2 nodes run with ``RMW_IMPLEMENTATION=rmw_zenoh_cpp`` and a Zenoh router;
 depthguard joins as a node ``/depthguard`` (a Zenoh client of that router, wire contract in
-:mod:`depthguard.sources.ros2_zenoh`; router and domain from ``monitor --ros2-router``,
+:mod:`depthguard.transport.ros2_zenoh`; router and domain from ``monitor --ros2-router``,
 ``--ros2-domain``). Topics are the bag source's (``docs/BAGS.md``): camera ``ID`` reads its
 ``topic:`` of the rig (default ``/ID/depth/image_rect_raw``, ``sensor_msgs/msg/Image`` in
 ``16UC1`` / ``mono16`` mm or ``32FC1`` m) and the sibling ``camera_info``; joint states are
 ``sensor_msgs/msg/JointState`` on ``/joint_states`` (or ``ros2:TOPIC``), matched to the
 robot's joints by name. Decoding and checks are the bag source's own
-(:func:`~depthguard.sources.ros_messages.depth_from_image`, :func:`~depthguard.sources.bag.image_problem`,
-:func:`~depthguard.sources.ros_messages.intrinsics_from_camera_info`,
+(:func:`~depthguard.transport.ros_messages.depth_from_image`, :func:`~depthguard.sources.bag.image_problem`,
+:func:`~depthguard.transport.ros_messages.intrinsics_from_camera_info`,
 :func:`~depthguard.sources.joints.check_joint_state`).
 
 **Time.** The header stamp is the capture time, on the wall clock of the cell (ROS time;
@@ -28,7 +28,7 @@ summary) by ``reason:camera`` or ``reason:topic``:
 - ``overflow`` — the oldest frames or joint states dropped because nobody took them;
 - ``joints_partial``, ``joints_invalid`` — JointStates lacking a robot joint / outside limits;
 - ``wrong_type``, ``bad_attachment``, ``undecodable``, ``rejected`` — samples (topics),
-  from :class:`~depthguard.sources.ros2_zenoh.Ros2Subscription`.
+  from :class:`~depthguard.transport.ros2_zenoh.Ros2Subscription`.
 """
 
 from __future__ import annotations
@@ -37,13 +37,13 @@ import threading
 
 import numpy as np
 
-from depthguard.sources import ros_messages as rosmsg
 from depthguard.sources.bag import INTRINSICS_TOL_PX, camera_depth_scale, default_topic, image_problem, info_topic
 from depthguard.sources.base import register_joints, register_source
 from depthguard.sources.frame import Frame
 from depthguard.sources.joints import JointSourceError, _robot, check_joint_state
-from depthguard.sources.ros2_zenoh import Ros2Error, check_topic, node_for
 from depthguard.sources.stamped_queue import StampedQueue
+from depthguard.transport import ros_messages as rosmsg
+from depthguard.transport.ros2_zenoh import Ros2Error, check_topic, node_for
 
 __all__ = ["Ros2Frames", "Ros2Joints", "MAX_PENDING_FRAMES", "MAX_PENDING_STATES"]
 

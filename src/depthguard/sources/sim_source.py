@@ -39,10 +39,10 @@ import numpy as np
 from depthguard.filtering.expected import ExpectedDepth
 from depthguard.render import Renderer
 from depthguard.render.composite import nearest_depth
-from depthguard.runtime.joints import JointHistory
+from depthguard.robot.joint_history import JointHistory
 from depthguard.sources.base import register_joints, register_source
-from depthguard.sources.simulated import returns_beyond_the_model
 from depthguard.sources.frame import Frame
+from depthguard.sources.simulated import returns_beyond_the_model
 
 __all__ = ["SimWorld", "SimFrames", "SimJoints", "parse_sim_spec"]
 

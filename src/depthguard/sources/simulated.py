@@ -19,9 +19,9 @@ from typing import Sequence
 import numpy as np
 
 from depthguard.camera import Camera
+from depthguard.sensors import SensorModel, sensor_model
 from depthguard.sources.frame import Frame
 from depthguard.sources.noise import NoiseWorkspace, apply_noise
-from depthguard.sources.sensors import SensorModel, sensor_model
 
 __all__ = ["SimulatedCamera", "SimSource", "frame_rng", "returns_beyond_the_model", "BEYOND_RANGE"]
 

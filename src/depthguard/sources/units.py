@@ -34,8 +34,8 @@ certificate directory of the cell, ``depthguard keys admin``: the link is Zenoh'
 TLS and the status request is signed, for a server started with ``--keys``; the
 endpoint is then ``tls/HOST:PORT``, R35).
 
-Imports :mod:`depthguard.distributed` lazily, at open (the import graph puts
-``distributed`` to the right of ``sources``).
+Talks to the server through :mod:`depthguard.transport` (the client, wire format and
+keys the camera units use too), imported at open.
 """
 
 from __future__ import annotations
@@ -61,9 +61,9 @@ class UnitsSource:
     def __init__(self, endpoint: str, rig=None, *, prefix: str = "depthguard", poll_hz: float = 100.0,
                  timeout_s: float = 5.0, listen: Sequence[str] | None = ("tcp/127.0.0.1:0",), session=None,
                  identity=None):
-        from depthguard.distributed import wire
-        from depthguard.distributed.client import ServerClient, ServerUnavailable
-        from depthguard.distributed.settings import check_endpoint
+        from depthguard.transport import wire
+        from depthguard.transport.client import ServerClient, ServerUnavailable
+        from depthguard.transport.settings import check_endpoint
 
         if not (math.isfinite(poll_hz) and poll_hz > 0):
             raise ValueError(f"units: poll_hz must be > 0 (got {poll_hz!r})")
@@ -180,11 +180,11 @@ class UnitsSource:
 @register_source("units")
 def open_units(argument: str, rig, context: dict) -> UnitsSource:
     """Factory of ``units:ENDPOINT`` (module docstring; ``ENDPOINT`` default ``tcp/127.0.0.1:7447``)."""
-    from depthguard.distributed.settings import DEFAULT_ENDPOINT
+    from depthguard.transport.settings import DEFAULT_ENDPOINT
 
     identity = None
     if context.get("units_keys"):
-        from depthguard.distributed.keys import load_identity
+        from depthguard.transport.keys import load_identity
 
         identity = load_identity(context["units_keys"])
     return UnitsSource(argument or DEFAULT_ENDPOINT, rig, prefix=context.get("units_prefix", "depthguard"),

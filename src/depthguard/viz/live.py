@@ -47,6 +47,7 @@ from collections import deque
 
 import numpy as np
 
+from depthguard.runtime.realtime import background_priority
 from depthguard.viz import live_scene as scene
 from depthguard.viz.live_layers import LAYERS, build_gui, build_scene, ensure_spheres, wxyz as _wxyz
 
@@ -76,21 +77,6 @@ def _quiet_handshakes() -> None:
     logger = logging.getLogger("websockets.server")
     if not any(isinstance(f, _ClosedBeforeRequest) for f in logger.filters):
         logger.addFilter(_ClosedBeforeRequest())
-
-
-def _lower_priority(thread) -> None:
-    """Give viser's event-loop thread (it encodes and sends the scene) the monitor's workers'
-    lower priority (Linux); silently nothing where that is not possible."""
-    import os
-
-    from depthguard.runtime.ingest import WORKER_NICENESS
-
-    native = getattr(thread, "native_id", None)
-    if native:
-        try:
-            os.setpriority(os.PRIO_PROCESS, native, WORKER_NICENESS)
-        except (AttributeError, OSError):
-            pass
 
 
 class LiveView:
@@ -144,7 +130,9 @@ class LiveView:
         with contextlib.redirect_stdout(sys.stderr):     # viser's banner: not on the command's output
             self.server = viser.ViserServer(host=host, port=int(port), label=title or f"depthguard - {rig.name}",
                                             verbose=False)
-        _lower_priority(getattr(getattr(self.server, "_websock_server", None), "_server_thread", None))
+        # viser's event-loop thread (it encodes and sends the scene): the workers' lower priority
+        web_thread = getattr(getattr(self.server, "_websock_server", None), "_server_thread", None)
+        background_priority(getattr(web_thread, "native_id", None))
         # no share button: it would open a tunnel through viser's public relay (nothing leaves the machine)
         self.server.gui.configure_theme(show_share_button=False, control_width="medium")
         self.server.scene.set_up_direction("+z")

@@ -39,8 +39,8 @@ from pathlib import Path
 import numpy as np
 
 from depthguard.sources import bag as bag_source
-from depthguard.sources import ros_messages as rosmsg
 from depthguard.sources.bag import BagError, default_topic, info_topic, open_bag
+from depthguard.transport import ros_messages as rosmsg
 
 __all__ = ["BagDepth", "STAMP_TOL_S", "header_stamp"]
 
@@ -63,7 +63,7 @@ class BagDepth:
     """The depth of ``bag`` for ``rig``'s cameras, indexed by time (module docstring).
 
     ``stamps[id]`` (n,) float64 s ascending, ``log_ns[id]`` (n,) int64 ns; ``joints``: a
-    :class:`~depthguard.runtime.joints.JointHistory` of every joint state of the bag;
+    :class:`~depthguard.robot.joint_history.JointHistory` of every joint state of the bag;
     ``first_stamp`` / ``last_stamp`` s; ``decoded``: images decoded so far; ``cache``:
     frames kept decoded at most.
     """
@@ -114,7 +114,7 @@ class BagDepth:
                 [c for c in joints if c.topic == joint_topic and self.rig.robot is not None])
 
     def _index(self) -> None:
-        from depthguard.runtime.joints import JointHistory
+        from depthguard.robot.joint_history import JointHistory
         from depthguard.sources.joints import JointSourceError, check_joint_state
 
         images, infos, joints = self._connections()
@@ -220,7 +220,7 @@ class BagDepth:
 
     def capture_q(self, stamp: float) -> np.ndarray | None:
         """(dof,) rad: the joints at ``stamp`` interpolated from the bag (R30), None outside them."""
-        from depthguard.runtime.joints import OutsideHistory
+        from depthguard.robot.joint_history import OutsideHistory
 
         if self.joints is None:
             return None

@@ -38,11 +38,11 @@ CAMERA_HZ, JOINT_HZ = 30.0, 500.0
 def make_bench_bag(path: Path, seconds: float, seed: int = 0) -> tuple[float, float]:
     """Write the bench bag (module docstring); returns ``(raw image bytes, wall seconds)``."""
     from depthguard.filtering.expected import ExpectedDepth
+    from depthguard.sensors import sensor_model
     from depthguard.sim import load_cell
     from depthguard.sources.bag_record import BagRecorder
     from depthguard.sources.frame import Frame
     from depthguard.sources.noise import apply_noise
-    from depthguard.sources.sensors import sensor_model
 
     rig = load_cell("flacco-cell").rig
     q0 = np.asarray(rig.robot_q0, dtype=np.float64)

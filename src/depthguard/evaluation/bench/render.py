@@ -28,8 +28,8 @@ from depthguard.evaluation.bench import BenchContext, BenchRow, group, time_call
 
 def _ur3_frame(width: int, height: int):
     from depthguard.camera import Camera
+    from depthguard.sensors import intrinsics_for
     from depthguard.sim import load_cell
-    from depthguard.sources.sensors import intrinsics_for
 
     cell = load_cell("ur3-cell")
     meshes, _ = cell.scene.meshes_at(0.0, robot=True)

@@ -28,9 +28,10 @@ from depthguard.evaluation.bench import BenchContext, BenchRow, group, time_call
 @group("sim")
 def sim_group(ctx: BenchContext) -> list[BenchRow]:
     from depthguard.render import Renderer
+    from depthguard.sensors import sensor_model
     from depthguard.sim import load_cell
     from depthguard.sim.ground_truth import grid_shape, voxel_centres
-    from depthguard.sources import SimSource, sensor_model
+    from depthguard.sources import SimSource
     from depthguard.sources.noise import NoiseWorkspace, apply_noise
 
     rows: list[BenchRow] = []

@@ -133,8 +133,8 @@ class _Refresh:
     """Server in this process + node processes in trigger mode; times trigger → last update."""
 
     def __init__(self, cam_ids, w, h, t, qs=None, cell_name=CELL):
-        from depthguard.distributed import wire
         from depthguard.distributed.server import FusionServer
+        from depthguard.transport import wire
 
         import socket
         with socket.socket() as so:
@@ -227,12 +227,12 @@ def distributed_refresh(cam_ids, w, h, t, repeats: int, qs=None, cpu: dict | Non
 def bench_voxels(ctx: BenchContext) -> list[BenchRow]:
     import pyoctomap
 
-    from depthguard.distributed import wire
     from depthguard.distributed.central import CentralisedPipeline
     from depthguard.fusion import voxel_kernels
     from depthguard.fusion.voxels import VoxelFilter, vote
     from depthguard.sim import load_cell
     from depthguard.sources import SimSource
+    from depthguard.transport import wire
 
     rows: list[BenchRow] = []
     cell = load_cell(CELL)

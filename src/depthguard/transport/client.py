@@ -1,7 +1,7 @@
 """Request-reply to the fusion server over zenoh (used by nodes and ``depthguard status``).
 
-With an ``identity`` (:mod:`depthguard.distributed.keys`, R35) the session uses Zenoh's
-mutual TLS, every request is signed (:mod:`depthguard.distributed.auth`) and only replies
+With an ``identity`` (:mod:`depthguard.transport.keys`, R35) the session uses Zenoh's
+mutual TLS, every request is signed (:mod:`depthguard.transport.auth`) and only replies
 signed by the cell's server for that very request are accepted; others are skipped and
 remembered in :attr:`ServerClient.last_refused_reply`.
 """
@@ -11,8 +11,8 @@ from __future__ import annotations
 import time
 from typing import Sequence
 
-from depthguard.distributed import wire
-from depthguard.distributed.settings import DEFAULT_ENDPOINT, DEFAULT_LEASE_MS, Keys, zenoh_config
+from depthguard.transport import wire
+from depthguard.transport.settings import DEFAULT_ENDPOINT, DEFAULT_LEASE_MS, Keys, zenoh_config
 
 __all__ = ["ServerClient", "ServerUnavailable", "ServerRefused"]
 
@@ -43,7 +43,7 @@ class ServerClient:
         self.identity = identity
         self._signer = self._verifier = None
         if identity is not None:
-            from depthguard.distributed.auth import Signer, Verifier
+            from depthguard.transport.auth import Signer, Verifier
 
             self._signer, self._verifier = Signer(identity), Verifier(identity.ca_cert)
         if listen is None:                 # with certificates: no listener of our own (nothing to attack)
@@ -83,8 +83,8 @@ class ServerClient:
                 continue
             data = r.ok.payload.to_bytes()
             if self._verifier is not None:
-                from depthguard.distributed.auth import AuthError
-                from depthguard.distributed.keys import ROLE_SERVER
+                from depthguard.transport.auth import AuthError
+                from depthguard.transport.keys import ROLE_SERVER
 
                 try:
                     signed = self._verifier.open(data, key, reply_to=nonce)

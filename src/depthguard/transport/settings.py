@@ -1,4 +1,5 @@
-"""Network settings of the distributed camera subsystem: zenoh configuration and key names.
+"""Network settings of the cell's Zenoh sessions (camera units, fusion server, ``units:`` and
+``zenoh:`` sources, Zenoh sinks): zenoh configuration and key names.
 
 Every session is a zenoh *peer* with explicit endpoints; multicast scouting is off
 unless asked for, and the default endpoints are on 127.0.0.1 (a service binds
@@ -123,7 +124,7 @@ def zenoh_config(listen=("tcp/127.0.0.1:0",), connect=(), multicast: bool = Fals
                  lease_ms: int = DEFAULT_LEASE_MS, identity=None):
     """A ``zenoh.Config``: peer mode, explicit listen / connect endpoints, scouting off by default.
 
-    ``identity`` (:class:`~depthguard.distributed.keys.Identity`): Zenoh's TLS with mutual
+    ``identity`` (:class:`~depthguard.transport.keys.Identity`): Zenoh's TLS with mutual
     certificates — the cell's CA as the only root, this party's certificate and key for both
     directions, the server's name checked on connect (R35)."""
     import zenoh

@@ -10,7 +10,7 @@ fusion server, and every reply of the server, is wrapped in a signed envelope::
 The signature covers a domain string, the Zenoh key the envelope was sent on, the
 request nonce a reply answers (16 zero bytes for a request), ``t_sign``, the nonce,
 SHA-256 of the certificate and the message. :meth:`Verifier.open` accepts an envelope
-only when the certificate was issued by the cell's CA (:mod:`depthguard.distributed.keys`),
+only when the certificate was issued by the cell's CA (:mod:`depthguard.transport.keys`),
 is within its validity, the signature verifies with its key, ``t_sign`` is within
 ``window_s`` of the verifier's clock and (for requests) the nonce was not seen before
 within that window — a recorded message cannot be replayed, moved to another key,
@@ -64,7 +64,7 @@ def _to_sign(key: str, reply_to: bytes, t_sign: float, nonce: bytes, cert_der: b
 
 
 class Signer:
-    """Seals messages with an :class:`~depthguard.distributed.keys.Identity`'s key."""
+    """Seals messages with an :class:`~depthguard.transport.keys.Identity`'s key."""
 
     def __init__(self, identity):
         self.identity = identity
@@ -101,7 +101,7 @@ class Verifier:
     def _check_cert(self, der: bytes):
         from cryptography import x509
 
-        from depthguard.distributed.keys import cert_role_and_name
+        from depthguard.transport.keys import cert_role_and_name
 
         h = hashlib.sha256(der).digest()
         with self._lock:

@@ -1,4 +1,4 @@
-"""The robot's own volume over several capture poses (runtime.ingest.robot_volume, R9, R12):
+"""The robot's own volume over several capture poses (robot.volume.robot_volume, R9, R12):
 every pose's padded capsules and every sweep between two poses lie inside it — checked by
 sampling points, against the capsule distance computed here from scratch."""
 
@@ -7,7 +7,7 @@ from __future__ import annotations
 import numpy as np
 import pytest
 
-from depthguard.runtime.ingest import robot_volume
+from depthguard.robot.volume import robot_volume
 from depthguard.sim import load_cell
 
 

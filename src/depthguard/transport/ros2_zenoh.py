@@ -277,7 +277,7 @@ def _open_client(router: str, timeout_s: float):
     """A Zenoh client session connected to ``router`` (:class:`Ros2Error` when none answers)."""
     import zenoh
 
-    from depthguard.distributed.settings import zenoh_config
+    from depthguard.transport.settings import zenoh_config
 
     try:
         cfg = zenoh_config(listen=(), connect=(router,))
@@ -335,7 +335,7 @@ class Ros2Subscription:
     """
 
     def __init__(self, node: Ros2Node, topic: str, msgtype: str, fn: Callable, depth: int = 10):
-        from depthguard.sources import ros_messages as rosmsg
+        from depthguard.transport import ros_messages as rosmsg
 
         self.node, self.topic, self.msgtype, self.fn = node, check_topic(topic), msgtype, fn
         self.dds, self.hash = dds_type_name(msgtype), type_hash(msgtype)

@@ -1,5 +1,10 @@
 """A short history of timestamped joint states, for capture-time self removal (R30).
 
+Used wherever a frame meets the joints it was captured at: the monitor's camera
+workers (:mod:`depthguard.runtime.ingest`), the camera units
+(:mod:`depthguard.distributed.node`), the simulator as a source and the bag index of
+the replay view; it sits with the robot, below all of them.
+
 A camera frame shows the robot where it was when the frame was exposed, not
 where it is when the frame reaches the computer. :class:`JointHistory` keeps
 the last ``span_s`` seconds of joint states and answers ``at(stamp)``: the
@@ -7,6 +12,11 @@ joints linearly interpolated at ``stamp``, or the reason why it cannot —
 before the oldest state kept ("too old") or after the newest ("in the
 future"). Nothing is ever extrapolated: a frame outside the history is
 refused by the monitor and counted, never used with the wrong joints.
+:meth:`JointHistory.wait_at` waits a bounded time for states that lag the frame.
+
+The reasons (``OutsideHistory.kind``) are the names under which the monitor and the
+camera units count refused frames: ``"too_old"``, ``"future"``, ``"joint_gap"``,
+``"no_joints"``.
 
 Thread-safe: ``push`` from the joint thread, ``at`` / ``latest`` from any
 other. Storage is a preallocated ring (no allocation per state).
@@ -16,6 +26,8 @@ from __future__ import annotations
 
 import math
 import threading
+import time
+from typing import Callable
 
 import numpy as np
 
@@ -23,7 +35,8 @@ __all__ = ["JointHistory", "OutsideHistory"]
 
 
 class OutsideHistory(LookupError):
-    """A stamp outside the joint history; ``kind`` is ``"too_old"``, ``"future"``, ``"gap"`` or ``"empty"``."""
+    """A stamp outside the joint history; ``kind`` (the refusal's name) is ``"too_old"``, ``"future"``,
+    ``"joint_gap"`` or ``"no_joints"``."""
 
     def __init__(self, kind: str, message: str):
         super().__init__(message)
@@ -120,7 +133,7 @@ class JointHistory:
         newest) or after the newest."""
         with self._lock:
             if not self._n:
-                raise OutsideHistory("empty", "no joint state received yet")
+                raise OutsideHistory("no_joints", "no joint state received yet")
             lo, hi = self._window()
             if stamp > hi:
                 raise OutsideHistory("future", f"stamp {stamp:.6f} s is after the newest joint state "
@@ -141,7 +154,7 @@ class JointHistory:
             ia, ib = (base + a) % cap, (base + b) % cap
             ta, tb = self._t[ia], self._t[ib]
             if ta < stamp < tb and tb - ta > self.max_gap_s:
-                raise OutsideHistory("gap", f"stamp {stamp:.6f} s falls in a gap of {tb - ta:.3f} s between joint "
+                raise OutsideHistory("joint_gap", f"stamp {stamp:.6f} s falls in a gap of {tb - ta:.3f} s between joint "
                                             f"states (more than {self.max_gap_s:.3f} s)")
             res = out if out is not None else np.empty(self.dof)
             if self._n == 1 or tb <= ta or stamp <= ta:
@@ -153,3 +166,27 @@ class JointHistory:
                 np.multiply(self._q[ia], 1.0 - w, out=res)
                 res += w * self._q[ib]
             return res
+
+    def wait_at(self, stamp: float, timeout: float, stop: Callable[[], bool] | None = None, *,
+                feed: Callable[[], None] | None = None, poll_s: float = 0.0005) -> np.ndarray:
+        """(dof,) joints at capture ``stamp`` (R30), waiting up to ``timeout`` s for states that
+        lag the frame: while the stamp is after the newest state (``"future"``) or no state came
+        yet (``"no_joints"``), look again every ``poll_s`` s. Never extrapolates.
+
+        ``stop()`` (optional) is asked before each wait; True ends the wait at once (the caller
+        has a newer frame, or is closing). ``feed()`` (optional) is called before each look-up,
+        for a caller that pulls its joint stream on the same thread. Raises
+        :class:`OutsideHistory` (its ``kind`` the refusal's name) when the stamp is too old, in
+        a gap, or still outside the history when the wait ends.
+        """
+        deadline = time.perf_counter() + float(timeout)
+        while True:
+            if feed is not None:
+                feed()
+            try:
+                return self.at(stamp)
+            except OutsideHistory as exc:
+                lagging = exc.kind in ("future", "no_joints")
+                if not lagging or time.perf_counter() >= deadline or (stop is not None and stop()):
+                    raise
+            time.sleep(poll_s)

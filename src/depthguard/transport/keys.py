@@ -10,7 +10,7 @@ The server's certificate (OU ``depthguard-server``) names the hosts it may be re
 at (``localhost``, ``127.0.0.1`` and ``--host`` values) so a node checks the name it
 connects to. All keys are ECDSA P-256 (accepted by Zenoh's TLS, rustls). The same
 files serve two layers: Zenoh's mutual TLS (who may connect at all) and the
-signatures of :mod:`depthguard.distributed.auth` (which camera a message speaks for).
+signatures of :mod:`depthguard.transport.auth` (which camera a message speaks for).
 
 :func:`load_identity` reads one such directory into an :class:`Identity`.
 """

@@ -1,0 +1,38 @@
+"""The robot's own volume while the cameras' frames were captured (R9, R12, R25).
+
+Used by the fusion worker of the monitor (:mod:`depthguard.runtime.ingest`: the volume
+the depth grid excludes) and by the layout's blind-spot check
+(:mod:`depthguard.evaluation.coverage`); it sits with the robot, below both.
+"""
+
+from __future__ import annotations
+
+import numpy as np
+
+__all__ = ["robot_volume"]
+
+
+def robot_volume(robot, poses, padding: float) -> tuple[np.ndarray, np.ndarray]:
+    """The robot's own volume for frames captured at several joint poses (R9, R12): its padded
+    capsules at the first pose, each grown by how far that capsule's end points move to any
+    other pose — ``(segments (C, 2, 3), radii (C,))`` metres, world.
+
+    The cameras are not synchronised: each frame shows the robot where it was at that frame's
+    capture, and a cell behind the robot in one camera is confirmed by another that saw the
+    robot a moment earlier or later. The robot swept the space between those poses in that
+    time, so that space is its own, not an obstacle (without the growth, at 1 m/s and 21 ms
+    between two captures the end effector read a phantom 0.10-0.15 m away). One pose's grown
+    capsules hold every pose's padded capsules and every sweep between two poses: a point
+    between ``p_j(t)`` and ``p_k(t)`` on the segments of poses ``j`` and ``k`` lies within
+    ``max(|p_j(t) - p_i(t)|, |p_k(t) - p_i(t)|)`` of pose ``i``'s segment (the distance is
+    convex), at most the growth. So the other poses' grown capsules add nothing the robot
+    occupied, only more exclusion (and twice the capsules per build). An excluded cell lies
+    within ``padding`` plus the robot's motion between the captures in use (R25).
+    """
+    uniq = list({id(q): q for q in poses}.values())
+    segs = [robot.collision_segments(q, padding) for q in uniq]
+    ab, r = segs[0]
+    grow = np.zeros(len(r))
+    for ab2, _ in segs[1:]:
+        grow = np.maximum(grow, np.linalg.norm(ab2 - ab, axis=2).max(axis=1))
+    return ab, r + grow
