@@ -8,7 +8,8 @@ peer ``tests/rtde_server.py``. In a child, a wait or an abort costs only the chi
 sees a lost connection and says so. The child never runs destructors (it ends with
 ``os._exit``).
 
-Modes (``python -m depthguard.runtime.ur_rtde_worker MODE HOST [FREQUENCY]``):
+Modes (``python .../ur_rtde_worker.py MODE HOST [FREQUENCY]``, run by its path so that the child
+imports the standard library and ur-rtde only, not depthguard):
 
 - ``io``: ``rtde_io.RTDEIOInterface(HOST)``; each line read is a slider fraction, passed to
   ``setSpeedSlider``; answers ``ok <value>`` per line, ``lost <reason>`` (then ends) on failure;
@@ -77,11 +78,11 @@ class Worker:
     it writes after that to ``on_line(line)`` (from a reader thread) and ``on_end(reason)`` once
     when it ends. :class:`UrError` when it does not get ready."""
 
-    def __init__(self, mode: str, host: str, on_line, on_end, frequency: float = 125.0, timeout_s: float = 10.0):
+    def __init__(self, mode: str, host: str, on_line, on_end, frequency: float = 125.0, timeout_s: float = 15.0):
         self._on_line, self._on_end = on_line, on_end
         self._lock = threading.Lock()
-        self.proc = subprocess.Popen([sys.executable, "-m", "depthguard.runtime.ur_rtde_worker", mode, host,
-                                      repr(float(frequency))],
+        # run as a script by its path: the child imports only the standard library and ur-rtde
+        self.proc = subprocess.Popen([sys.executable, os.path.abspath(__file__), mode, host, repr(float(frequency))],
                                      stdin=subprocess.PIPE, stdout=subprocess.PIPE, stderr=subprocess.DEVNULL,
                                      text=True, bufsize=1)
         first: list[str] = []

@@ -90,7 +90,7 @@ class UrSpeedSlider:
     # --- connection ---------------------------------------------------------------------------
     def _connect(self) -> Worker:
         return Worker("io", self.host, on_line=self._on_line, on_end=self._on_end,
-                      timeout_s=max(5.0, self.connect_timeout_s))
+                      timeout_s=max(15.0, self.connect_timeout_s))
 
     def _on_line(self, line: str) -> None:
         if line.startswith("ok"):
@@ -125,9 +125,8 @@ class UrSpeedSlider:
 
     # --- the sink -------------------------------------------------------------------------------
     def __call__(self, reaction) -> None:
-        with self._cond:
+        with self._cond:                     # the sender wakes every 1 / rate_hz s by itself
             self._newest = (float(reaction.speed_scale), time.monotonic())
-            self._cond.notify_all()
 
     def target(self, scale: float) -> float:
         """The slider for a speed scale: 0 below the floor (rounded down, never up), else min(scale, 1)."""
