@@ -125,6 +125,17 @@ def test_bad_addresses_are_one_sentence():
         open_sink(f"ur-rtde:{free_loopback_host()}")        # nothing listens there
 
 
+def test_a_joint_address_that_does_not_answer_is_one_sentence():
+    from depthguard.sim import load_cell
+    from depthguard.sources.base import open_joints
+
+    rig = load_cell("ur3-cell").rig
+    with pytest.raises(ValueError, match="cannot reach the robot at 127.*:30004"):
+        open_joints(f"ur-rtde:{free_loopback_host()}", rig)
+    with pytest.raises(ValueError, match="port 30004 only"):
+        open_joints("ur-rtde:127.0.0.1:9", rig)
+
+
 @pytest.mark.slow
 def test_joints_of_the_robot_are_stamped_on_arrival_and_equal_the_servers(server):
     from depthguard.sim import load_cell
@@ -240,7 +251,7 @@ def test_the_monitor_runs_on_the_robots_joints_and_a_lost_robot_stops_it_with_a_
 @pytest.mark.parametrize("args, words", [
     (["--sink", "franka:1.2.3.4"], "the scheme must be one of ur-rtde"),
     (["--sink", "ur-rtde:{host}"], "cannot reach the robot at"),
-    (["--joints", "ur-rtde:{host}"], "cannot reach the robot at"),
+    (["--joints", "ur-rtde:{host}"], "cannot drive the simulated cameras"),
     (["--sink", "ur-rtde:{host}", "--fast"], "run in real time"),
 ])
 def test_monitor_refuses_a_bad_robot_in_one_line(tmp_path, args, words):

@@ -13,7 +13,8 @@ not the rig's is never guessed at). A later state outside the limits is not used
 ``last_error``): the joints then go stale and the monitor stops the robot (R27). An address
 that does not answer on port 30004 within 2 s is refused at open. A lost connection is said
 (``lost``), retried every second; meanwhile no state comes, the joints go stale, the robot
-stops (R27).
+stops (R27). It cannot be combined with ``sim:`` frames (their clock starts at 0, a live
+source's is the wall clock): refused in one sentence.
 """
 
 from __future__ import annotations
@@ -144,4 +145,10 @@ def open_ur_rtde_joints(argument: str, rig, context: dict) -> UrRtdeJoints:
         host = parse_address(argument, "--joints ur-rtde")
     except UrError as exc:
         raise JointSourceError(str(exc)) from None
+    if "sim_world" in context:
+        # a live source puts the run on the wall clock; the simulator's frames count from 0 and
+        # would be simulated up to the wall clock's time (the run never starts)
+        raise JointSourceError(f"--joints ur-rtde:{host} is live (stamped on the wall clock) and cannot drive "
+                               f"the simulated cameras (their clock starts at 0): use it with live cameras "
+                               f"(realsense:, ros2:, units:)")
     return UrRtdeJoints(host, rig)
