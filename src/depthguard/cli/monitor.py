@@ -76,6 +76,7 @@ def monitor(
     view: bool = typer.Option(False, "--view", help="A live 3-D view in the browser (docs/VIEW.md)."),
     view_host: str = typer.Option("127.0.0.1", "--view-host", help="Address the view listens on (anyone who reaches it can change rho)."),
     view_port: int = typer.Option(8080, "--view-port", callback=in_range(0, 65535), help="Port of the view, 0 to 65535 (a busy one: the next free)."),
+    sink: List[str] = typer.Option([], "--sink", help="Send the reaction to a robot, SCHEME:ARG, repeatable: ur-rtde:HOST (a Universal Robots arm's speed slider through RTDE; needs depthguard[ur]; docs/ROBOTS.md)."),
 ) -> None:
     """Run the monitor: frames and joint states in, the robot's reaction out (R29).
 
@@ -114,9 +115,13 @@ def monitor(
     joint_spec = joints or ("sim" if "sim_world" in context else None) \
         or next((s for s in specs if s.startswith("bag:")), None) \
         or ("ros2:" if any(s.startswith("ros2:") for s in specs) else None)   # a bag / a ROS cell has joints too
+    if sink and fast:
+        raise typer.BadParameter("a robot sink is live: run in real time, without --fast", param_hint="--sink")
     if joint_spec is None:
         raise typer.BadParameter("a non-simulated source needs --joints (csv:FILE or zenoh:KEY)", param_hint="--joints")
     joint_source = open_joints(joint_spec, the_rig, context)
+    from depthguard.runtime.sink_specs import open_sink
+    robot_sinks = [open_sink(s) for s in sink]          # --sink ur-rtde:HOST (docs/ROBOTS.md)
     cfg = the_rig.monitor
     log("monitor: compiling kernels (once; cached on disk) ...")
     seconds = warm_up(the_rig, cfg)
@@ -142,6 +147,7 @@ def monitor(
         log(f"monitor: publishing {ros2_namespace}/override, reaction and markers as ROS 2 topics (rmw_zenoh)")
     fanout = SinkFanout(sinks, block=fast)
     direct = [context["sim_world"].on_reaction] if "sim_world" in context else []
+    direct += robot_sinks               # called by the control thread: they only keep the newest reaction
     mon = Monitor(the_rig, cfg, sinks=direct + [fanout])
     if view:                            # a sink that keeps the newest reaction; drawn on its own thread
         from depthguard.viz.live import LiveView
