@@ -15,8 +15,11 @@ a missing SDK or libusb is one sentence saying what to install):
   ``CAMERA=PATH``. Played through the SDK as fast as the monitor takes the
   frames (no frame dropped; each recording is read past ``t`` before the
   frames due by ``t`` are given, so several recordings come out in stamp
-  order), stamps as recorded: the runner paces them in real time from the
-  first stamp, or runs them ``--fast``.
+  order), at the mode recorded, other streams beside depth left unread. Stamps
+  on the host clock: as recorded, or, for a recording in the device's
+  ``hardware_clock``, derived from its metadata
+  (:class:`~depthguard.sources.realsense_clock.RecordingClock`); the runner
+  paces them in real time from the first stamp, or runs them ``--fast``.
 
 Options after either spec, as ``:WORD``: the SDK's own post-processing
 filters (:func:`~depthguard.sources.realsense_device.make_filters`, not
@@ -97,6 +100,7 @@ class _Camera:
         self.received = self.dropped = self.overflow = 0
         self.reconnects = 0
         self.problem: str | None = None
+        self.clock = None                   # a recording's RecordingClock (None: live, the host clock)
 
     def close_stream(self) -> None:
         if self.stream is not None:
@@ -111,7 +115,8 @@ class _Camera:
         s = self.stream
         extra = (s.received, s.dropped, s.overflow) if s is not None else (0, 0, 0)
         return {"device": self.key, "received": self.received + extra[0], "dropped": self.dropped + extra[1],
-                "overflow": self.overflow + extra[2], "reconnects": self.reconnects, "problem": self.problem}
+                "overflow": self.overflow + extra[2], "reconnects": self.reconnects, "problem": self.problem,
+                **({"clock": self.clock.describe()} if self.clock is not None else {})}
 
 
 class _Frames:
@@ -131,7 +136,7 @@ class _Frames:
     def camera_ids(self) -> list[str]:
         return [c.camera.id for c in self._cams]
 
-    def _open_stream(self, cam: _Camera, device, *, blocking: bool, capacity: int, where: str):
+    def _open_stream(self, cam: _Camera, device, *, blocking: bool, capacity: int, where: str, clock=None):
         from depthguard.sources.realsense_device import (DepthStream, check_intrinsics, choose_profile,
                                                           intrinsics_of, make_filters)
 
@@ -147,7 +152,7 @@ class _Frames:
         profile = choose_profile(rs, sensor, c.width, c.height, self.rig.monitor.camera_hz, where)
         check_intrinsics(c, intrinsics_of(profile), where)
         cam.stream = DepthStream(rs, sensor, profile, capacity=capacity, blocking=blocking, name=where,
-                                 filters=make_filters(rs, self.filter_names))      # a filter's state is per camera
+                                 filters=make_filters(rs, self.filter_names), clock=clock)   # filters: per camera
 
     def frames_until(self, t: float) -> list[Frame]:
         """The frames captured at or before ``t`` (s) not returned yet, in stamp order."""
@@ -186,6 +191,7 @@ class RealSenseFileSource(_Frames):
 
     def __init__(self, paths: list[tuple[str, str]], rig, *, buffer: int = 4, first_frame_timeout_s: float = 10.0,
                  filters=()):
+        from depthguard.sources.realsense_clock import RecordingClock
         from depthguard.sources.realsense_device import import_sdk
 
         super().__init__(import_sdk(), rig, filters)
@@ -207,11 +213,14 @@ class RealSenseFileSource(_Frames):
                 playback.set_real_time(False)         # as fast as taken: the callback waits for room
                 self._devices.append(playback)
                 cam = _Camera(rig.camera(cid), str(path))
+                cam.clock = RecordingClock(rs)
                 self._cams.append(cam)
-                self._open_stream(cam, device, blocking=True, capacity=buffer, where=where)
+                self._open_stream(cam, device, blocking=True, capacity=buffer, where=where, clock=cam.clock)
             firsts = []
             for cam in self._cams:
                 s = cam.stream.peek_stamp(first_frame_timeout_s)
+                if s is None and cam.stream.error is not None:
+                    raise ValueError(cam.stream.error)     # e.g. a clock that cannot be related (realsense_clock)
                 if s is None:
                     raise ValueError(f"realsense-file {cam.key}: no depth frame within {first_frame_timeout_s:g} s "
                                      f"(an empty recording?)")
