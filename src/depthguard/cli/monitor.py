@@ -117,6 +117,13 @@ def monitor(
     if joint_spec is None:
         raise typer.BadParameter("a non-simulated source needs --joints (csv:FILE or zenoh:KEY)", param_hint="--joints")
     joint_source = open_joints(joint_spec, the_rig, context)
+    from depthguard.sources.realsense_clock import check_joint_clock      # one clock for frames and joints (R30)
+    try:
+        check_joint_clock(sources, joint_source, joint_spec)
+    except ValueError:
+        for s in [*sources, joint_source]:
+            s.close()                   # a recording's SDK threads stopped before the error ends the process
+        raise
     cfg = the_rig.monitor
     log("monitor: compiling kernels (once; cached on disk) ...")
     seconds = warm_up(the_rig, cfg)

@@ -24,7 +24,10 @@ a missing SDK or libusb is one sentence saying what to install):
 Options after either spec, as ``:WORD``: the SDK's own post-processing
 filters (:func:`~depthguard.sources.realsense_device.make_filters`, not
 rewritten), ``:spatial`` and ``:temporal``, set so that "no measurement" stays
-so; ``:hole_filling`` and ``:decimation`` are refused with the reason.
+so; ``:hole_filling`` and ``:decimation`` are refused with the reason. After
+``realsense-file:`` only, ``:device_clock``: the recording's own clock
+(:mod:`~depthguard.sources.realsense_clock`); :meth:`RealSenseFileSource.stamp_span`
+lets the monitor refuse joints on another clock.
 
 Frames (:class:`~depthguard.sources.Frame`): depth (H, W) float32 metres =
 z16 × the device's depth units (0 = no measurement); stamp = the SDK's
@@ -190,7 +193,7 @@ class RealSenseFileSource(_Frames):
     live = False
 
     def __init__(self, paths: list[tuple[str, str]], rig, *, buffer: int = 4, first_frame_timeout_s: float = 10.0,
-                 filters=()):
+                 filters=(), device_clock: bool = False):
         from depthguard.sources.realsense_clock import RecordingClock
         from depthguard.sources.realsense_device import import_sdk
 
@@ -213,7 +216,7 @@ class RealSenseFileSource(_Frames):
                 playback.set_real_time(False)         # as fast as taken: the callback waits for room
                 self._devices.append(playback)
                 cam = _Camera(rig.camera(cid), str(path))
-                cam.clock = RecordingClock(rs)
+                cam.clock = RecordingClock(rs, device_clock=device_clock)
                 self._cams.append(cam)
                 self._open_stream(cam, device, blocking=True, capacity=buffer, where=where, clock=cam.clock)
             firsts = []
@@ -229,6 +232,16 @@ class RealSenseFileSource(_Frames):
             self.close()
             raise
         self.first_stamp = min(firsts)
+        self._firsts = firsts
+        self._durations = [p.get_duration().total_seconds() for p in self._devices]
+
+    def stamp_span(self) -> list[tuple[str, float, float, str]]:
+        """Per recording ``(what, first stamp s, last stamp s (first + the recording's duration), its
+        clock)``: what :func:`~depthguard.sources.realsense_clock.check_joint_clock` compares."""
+        out = []
+        for cam, first, duration in zip(self._cams, self._firsts, self._durations):
+            out.append((f"realsense-file {cam.key} (camera {cam.camera.id})", first, first + duration, cam.clock))
+        return out
 
     def frames_until(self, t: float) -> list[Frame]:
         """The frames stamped at or before ``t`` (s) not returned yet, in stamp order across the
@@ -365,7 +378,7 @@ class RealSenseSource(_Frames):
         return "; ".join(problems) if problems else None
 
 
-_OPTIONS = ("spatial", "temporal", "hole_filling", "decimation")
+_OPTIONS = ("spatial", "temporal", "hole_filling", "decimation", "device_clock")
 
 
 def split_options(argument: str) -> tuple[str, list[str]]:
@@ -387,13 +400,18 @@ def open_realsense_file(argument: str, rig, context: dict) -> RealSenseFileSourc
     if not arg.strip():
         raise ValueError("realsense-file needs a recording: realsense-file:PATH (.db3 or .bag)")
     paths = parse_device_list(arg, rig, "recordings")
-    return RealSenseFileSource(paths, rig, buffer=int(context.get("realsense_buffer", 4)), filters=opts)
+    device_clock = "device_clock" in opts           # the recording's own clock (realsense_clock)
+    return RealSenseFileSource(paths, rig, buffer=int(context.get("realsense_buffer", 4)),
+                               filters=[o for o in opts if o != "device_clock"], device_clock=device_clock)
 
 
 @register_source("realsense")
 def open_realsense(argument: str, rig, context: dict) -> RealSenseSource:
     """``realsense[:SERIAL[,SERIAL]][:FILTER...]`` or ``CAMERA=SERIAL,...`` (module docstring)."""
     argument, opts = split_options(argument)
+    if "device_clock" in opts:
+        raise ValueError("the option :device_clock is for recordings (realsense-file:); a live camera is stamped "
+                         "on the host clock (the SDK's global time)")
     serials = parse_device_list(argument, rig, "serials") if argument.strip() else None
     recheck = float(context.get("realsense_recheck_s", 0.5))
     if not (math.isfinite(recheck) and recheck > 0):

@@ -87,3 +87,30 @@ class RecordingClock:
             return f"the camera's clock + {self.offset_ms:.1f} ms (from the first frame's arrival)"
         return {"host": "the host clock (global or system time)", "device": "the recording's own clock",
                 None: "not known yet"}[self.mode]
+
+
+def check_joint_clock(sources, joint_source, joint_spec: str, slack_s: float = 1.0) -> None:
+    """``ValueError`` (one sentence) when a recording's frames and the joint states are on clocks that
+    cannot be the same one: their stamp spans (s) are more than ``slack_s`` apart. Looks at the
+    sources with ``stamp_span()`` (``realsense-file:``) and a joint source with ``first_stamp`` and
+    ``last_stamp`` (a recording: ``csv:``); a live one is not judged. Without it, such a run would
+    remove the robot at joints of another moment, or at none (R30)."""
+    j0, j1 = getattr(joint_source, "first_stamp", None), getattr(joint_source, "last_stamp", None)
+    if j0 is None or j1 is None:
+        return
+    for src in sources:
+        for what, f0, f1, clock in getattr(src, "stamp_span", lambda: [])():
+            gap = max(f0 - j1, j0 - f1)
+            if gap <= slack_s:
+                continue
+            on = clock.describe() if clock is not None else "the host clock"
+            if clock is not None and clock.mode == "device":
+                hint = "stamp the joints on the camera's clock, or leave out :device_clock if they are on the host's"
+            elif clock is not None and clock.mode == "derived":
+                hint = ("its hardware clock was related to the host clock through its metadata; if the joints "
+                        "are on the camera's clock add :device_clock")
+            else:
+                hint = "stamp the joints on the host clock the recording was made on (NTP or PTP)"
+            raise ValueError(f"{what}: its frames are stamped {f0:.3f} to {f1:.3f} s ({on}) but the joints "
+                             f"{joint_spec} {j0:.3f} to {j1:.3f} s: the two clocks are {gap:.3f} s apart, so the "
+                             f"robot could not be removed at each frame's joints (R30); {hint}")
