@@ -7,12 +7,16 @@ and with the metadata a D400 attaches to each frame (``time_of_arrival``: the
 host's clock in ms when the frame arrived, ``frame_timestamp``: the device's clock
 in us). :func:`count_depth_messages` counts the depth images in a ``.db3`` with
 ``sqlite3`` alone: the written truth the playback is compared with, read without
-the SDK.
+the SDK. :func:`run_monitor` runs ``depthguard monitor`` on one in a subprocess, as a user
+does; :func:`error_line` is the one line a user error must print.
 """
 
 from __future__ import annotations
 
+import os
 import sqlite3
+import subprocess
+import sys
 import time
 from pathlib import Path
 
@@ -111,3 +115,26 @@ def count_depth_messages(path) -> int:
     finally:
         con.close()
     return int(n)
+
+
+SRC = Path(__file__).resolve().parents[1] / "src"
+
+
+def run_monitor(tmp_path, source: str, joints: Path, cell: str = "flacco-cell"):
+    """``depthguard monitor --cell CELL --source SOURCE --joints csv:JOINTS --fast`` in a subprocess:
+    ``(CompletedProcess, its --out folder)``."""
+    env = dict(os.environ, PYTHONPATH=str(SRC) + os.pathsep + os.environ.get("PYTHONPATH", ""))
+    out = tmp_path / f"run{time.monotonic_ns()}"
+    r = subprocess.run([sys.executable, "-m", "depthguard.cli", "monitor", "--cell", cell, "--source", source,
+                        "--joints", f"csv:{joints}", "--fast", "--out", str(out), "--quiet"],
+                       capture_output=True, text=True, env=env, timeout=600)
+    return r, out
+
+
+def error_line(r) -> str:
+    """The one line a user error prints, exit status 2 (and nothing else: no traceback, no SDK
+    abort); progress lines (``[hh:mm:ss] ...``) aside."""
+    lines = [x for x in r.stderr.splitlines() if x.strip() and not x.startswith("[")]
+    assert r.returncode == 2, (r.returncode, r.stderr[-2000:])
+    assert len(lines) == 1 and lines[0].startswith("depthguard: error: "), r.stderr[-2000:]
+    return lines[0]

@@ -11,9 +11,6 @@ Run in a subprocess, as a user runs it. Skipped, with the reason, when
 """
 
 import json
-import os
-import subprocess
-import sys
 import time
 from pathlib import Path
 
@@ -26,14 +23,13 @@ try:
 except RealSenseUnavailable as _exc:
     pytest.skip(f"RealSense SDK not importable here: {_exc}", allow_module_level=True)
 
-from realsense_recordings import count_depth_messages, write_recording  # noqa: E402
+from realsense_recordings import count_depth_messages, error_line, run_monitor, write_recording  # noqa: E402
 
 from depthguard.sim.cells import load_cell  # noqa: E402
 from depthguard.sources.base import open_source  # noqa: E402
 
 RIG = load_cell("flacco-cell").rig
 CAM = RIG.camera("cam0")
-SRC = Path(__file__).resolve().parents[1] / "src"
 
 
 def d435(path, *, arrival=True, frames=6, fps=30):
@@ -48,23 +44,6 @@ def joints_csv(path, t0: float, t1: float) -> Path:
     rows = [f"{t0 + k * 0.01!r}," + ",".join(map(repr, q0)) for k in range(int((t1 - t0) / 0.01) + 1)]
     path.write_text("stamp," + ",".join(f"j{i}" for i in range(len(q0))) + "\n" + "\n".join(rows) + "\n")
     return path
-
-
-def monitor(tmp_path, source: str, joints: Path):
-    env = dict(os.environ, PYTHONPATH=str(SRC) + os.pathsep + os.environ.get("PYTHONPATH", ""))
-    out = tmp_path / f"run{time.monotonic_ns()}"
-    r = subprocess.run([sys.executable, "-m", "depthguard.cli", "monitor", "--cell", "flacco-cell", "--source", source,
-                        "--joints", f"csv:{joints}", "--fast", "--out", str(out), "--quiet"],
-                       capture_output=True, text=True, env=env, timeout=600)
-    return r, out
-
-
-def error_line(r) -> str:
-    """The one line a user error prints (and nothing else: no traceback, no SDK crash)."""
-    lines = [x for x in r.stderr.splitlines() if x.strip() and not x.startswith("[")]   # progress lines: [hh:mm:ss]
-    assert r.returncode == 2, (r.returncode, r.stderr[-2000:])
-    assert len(lines) == 1 and lines[0].startswith("depthguard: error: "), r.stderr[-2000:]
-    return lines[0]
 
 
 def test_device_clock_gives_the_recordings_own_stamps(tmp_path):
@@ -84,7 +63,7 @@ def test_a_clock_without_arrival_times_is_one_line_naming_the_option(tmp_path):
     path = tmp_path / "bare.db3"
     d435(path, arrival=False)
     joints = joints_csv(tmp_path / "j.csv", time.time() - 5, time.time() + 5)
-    r, _ = monitor(tmp_path, f"realsense-file:cam0={path}", joints)
+    r, _ = run_monitor(tmp_path, f"realsense-file:cam0={path}", joints)
     line = error_line(r)
     assert "hardware_clock" in line and "no host arrival time" in line and ":device_clock" in line
 
@@ -94,7 +73,7 @@ def test_joints_on_another_clock_are_one_line_naming_the_option(tmp_path):
     path = tmp_path / "rec.db3"
     written = d435(path)
     joints = joints_csv(tmp_path / "j.csv", written[0]["stamp_ms"] * 1e-3 - 1, written[-1]["stamp_ms"] * 1e-3 + 1)
-    r, out = monitor(tmp_path, f"realsense-file:cam0={path}", joints)
+    r, out = run_monitor(tmp_path, f"realsense-file:cam0={path}", joints)
     line = error_line(r)
     assert "clocks are" in line and ":device_clock" in line and str(path) in line
     assert not (out / "summary.json").exists()
@@ -105,7 +84,7 @@ def test_device_clock_runs_with_joints_on_that_clock(tmp_path):
     path = tmp_path / "rec.db3"
     written = d435(path)
     joints = joints_csv(tmp_path / "j.csv", written[0]["stamp_ms"] * 1e-3 - 1, written[-1]["stamp_ms"] * 1e-3 + 1)
-    r, out = monitor(tmp_path, f"realsense-file:cam0={path}:device_clock", joints)
+    r, out = run_monitor(tmp_path, f"realsense-file:cam0={path}:device_clock", joints)
     assert r.returncode == 0, r.stderr[-2000:]
     summary = json.loads((out / "summary.json").read_text())
     st = summary["stats"]["cameras"]["cam0"]

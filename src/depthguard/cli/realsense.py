@@ -26,13 +26,15 @@ __all__ = ["camera_blocks", "blocks_yaml"]
 
 
 def _device_block(rs, device, where: str, width: int, height: int, fps: float, camera_id: str) -> dict:
+    from depthguard.sources.realsense import describe_streams
     from depthguard.sources.realsense_device import depth_profiles, intrinsics_of
     from depthguard.sources.sensors import sensor_model
 
     try:
         sensor = device.first_depth_sensor()
     except RuntimeError:
-        raise ValueError(f"{where}: the device has no depth sensor") from None
+        raise ValueError(f"{where}: the device holds no depth stream; it holds {describe_streams(rs, device)}") \
+            from None
     profiles = depth_profiles(rs, sensor)
     if not profiles:
         raise ValueError(f"{where}: the device has no z16 depth stream")

@@ -122,6 +122,26 @@ class _Camera:
                 **({"clock": self.clock.describe()} if self.clock is not None else {})}
 
 
+def describe_streams(rs, device) -> str:
+    """What a device or recording streams, for messages: ``"color 640x480 rgb8 30 Hz (RGB Camera), ..."``
+    (``"no stream at all"`` when it has none)."""
+    items = []
+    for sensor in device.query_sensors():
+        try:
+            name = sensor.get_info(rs.camera_info.name)
+        except RuntimeError:
+            name = "a sensor"
+        for p in sensor.get_stream_profiles():
+            kind = str(p.stream_type()).split(".")[-1]
+            fmt = str(p.format()).split(".")[-1]
+            size = ""
+            if p.is_video_stream_profile():
+                v = p.as_video_stream_profile()
+                size = f" {v.width()}x{v.height()}"
+            items.append(f"{kind}{size} {fmt} {p.fps()} Hz ({name})")
+    return ", ".join(dict.fromkeys(items)) or "no stream at all"
+
+
 class _Frames:
     """What both sources share: per camera a started stream, frames converted to :class:`Frame`."""
 
@@ -147,7 +167,9 @@ class _Frames:
         try:
             sensor = device.first_depth_sensor()
         except RuntimeError:
-            raise ValueError(f"{where}: the device has no depth sensor") from None
+            what = "the recording" if device.is_playback() else "the device"
+            raise ValueError(f"{where}: {what} holds no depth stream; it holds {describe_streams(rs, device)}") \
+                from None
         if not device.is_playback() and sensor.supports(rs.option.global_time_enabled) and \
                 not sensor.is_option_read_only(rs.option.global_time_enabled):
             sensor.set_option(rs.option.global_time_enabled, 1)       # stamps on the host clock
@@ -205,6 +227,9 @@ class RealSenseFileSource(_Frames):
         try:
             for cid, p in paths:
                 path = Path(p)
+                if path.is_dir():
+                    raise ValueError(f"realsense-file: {path} is a folder, not a recording (give its .db3 or .bag "
+                                     "file)")
                 if not path.is_file():
                     raise FileNotFoundError(f"realsense-file: recording {path} not found")
                 where = f"realsense-file {path} (camera {cid})"
