@@ -35,8 +35,11 @@ class DepthFileError(ValueError):
     """A depth file is missing, of an unknown kind, or does not hold a depth image."""
 
 
-def read_depth(path: str | Path) -> np.ndarray:
-    """Read a depth image as ``(H, W) float32`` metres, 0 where there is no measurement."""
+def read_depth(path: str | Path, png_units_m: float = 0.001) -> np.ndarray:
+    """Read a depth image as ``(H, W) float32`` metres, 0 where there is no measurement.
+
+    ``png_units_m``: metres per unit of a 16-bit PNG (default millimetres; a TUM RGB-D
+    PNG counts 1/5000 m: 0.0002)."""
     p = Path(path)
     if not p.is_file():
         raise DepthFileError(f"{p}: no such depth file")
@@ -60,6 +63,8 @@ def read_depth(path: str | Path) -> np.ndarray:
             raise DepthFileError(f"{p}: values outside the 16-bit range")
         if arr.size == 0:
             raise DepthFileError(f"{p}: an empty image (shape {arr.shape})")
+        if png_units_m != 0.001:
+            return (arr.astype(np.float64) * float(png_units_m)).astype(np.float32)
         return (arr.astype(np.float32) / np.float32(1000.0)).astype(np.float32)
     if suffix == ".npy":
         try:

@@ -109,7 +109,7 @@ class CameraSpec(_Strict):
     cy: Optional[float] = None
     range: Optional[tuple[float, float]] = None
     topic: Optional[str] = None          # its depth Image topic in a ROS 2 bag (R31, docs/BAGS.md)
-    depth_scale: Optional[float] = None  # metres per unit of its 16-bit depth in a bag (default 0.001; D405: 0.0001)
+    depth_scale: Optional[float] = None  # m per 16-bit unit, bag / images: PNG (0.001; D405 0.0001; TUM 0.0002)
     pose: PoseSpec
 
     @field_validator("id")

@@ -120,6 +120,13 @@ def monitor(
     if joint_spec is None:
         raise typer.BadParameter("a non-simulated source needs --joints (csv:FILE or zenoh:KEY)", param_hint="--joints")
     joint_source = open_joints(joint_spec, the_rig, context)
+    from depthguard.sources.realsense_clock import check_joint_clock      # one clock for frames and joints (R30)
+    try:
+        check_joint_clock(sources, joint_source, joint_spec)
+    except ValueError:
+        for s in [*sources, joint_source]:
+            s.close()                   # a recording's SDK threads stopped before the error ends the process
+        raise
     from depthguard.runtime.sink_specs import open_sink
     robot_sinks = [open_sink(s) for s in sink]          # --sink ur-rtde:HOST (docs/ROBOTS.md)
     cfg = the_rig.monitor

@@ -27,12 +27,14 @@ __all__ = ["camera_blocks", "blocks_yaml"]
 
 def _device_block(rs, device, where: str, width: int, height: int, fps: float, camera_id: str) -> dict:
     from depthguard.sensors import sensor_model
+    from depthguard.sources.realsense import describe_streams
     from depthguard.sources.realsense_device import depth_profiles, intrinsics_of
 
     try:
         sensor = device.first_depth_sensor()
     except RuntimeError:
-        raise ValueError(f"{where}: the device has no depth sensor") from None
+        raise ValueError(f"{where}: the device holds no depth stream; it holds {describe_streams(rs, device)}") \
+            from None
     profiles = depth_profiles(rs, sensor)
     if not profiles:
         raise ValueError(f"{where}: the device has no z16 depth stream")

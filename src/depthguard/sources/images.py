@@ -1,12 +1,21 @@
 """Recorded depth images as a frame source: the scheme ``images:DIR`` (R31, SPEC §1).
 
-``DIR/index.csv`` lists the frames, one a line, under the header ``stamp,camera,file``:
+``DIR/index.csv`` lists the frames, one a line, under the header ``stamp,camera,file``
+(without it, a TUM RGB-D ``DIR/depth.txt``: below):
 
 - ``stamp``: capture time, seconds (float, finite), used as it is: the monitor's
   clock in ``--fast`` replay starts at the first stamp (:attr:`ImageSource.first_stamp`);
 - ``camera``: a camera id of the rig; per camera the stamps never decrease;
 - ``file``: the image, relative to DIR: ``.png`` 16-bit millimetres or ``.npy``
   float32 metres (read with :func:`depthguard.depth_io.read_depth`).
+
+A 16-bit PNG counts the rig camera's ``depth_scale`` metres per unit (default
+0.001, millimetres; a TUM RGB-D sequence: 0.0002, 5000 per metre).
+
+``DIR/depth.txt`` (TUM RGB-D): ``timestamp filename`` lines (seconds, a path
+relative to DIR), ``#`` comments and blank lines skipped, for one camera: the
+rig's only camera, or the one named as ``images:CAMERA=DIR``. Used only when
+there is no ``index.csv``.
 
 The index is checked whole when the source opens (every problem names the
 line), and each listed file must exist then. Images are read only when due; a
@@ -35,6 +44,7 @@ from depthguard.sources.frame import Frame
 __all__ = ["ImageSource", "ImageSourceError", "write_image_dir", "INDEX_NAME", "INDEX_HEADER"]
 
 INDEX_NAME = "index.csv"
+TUM_INDEX_NAME = "depth.txt"
 INDEX_HEADER = ["stamp", "camera", "file"]
 _SAFE_ID = re.compile(r"^[A-Za-z0-9_\-.]+$")
 
@@ -78,18 +88,47 @@ def _parse_index(index: Path, rig) -> list[_Entry]:
             if cam not in known:
                 raise ImageSourceError(f"{where}: camera {cam!r} is not in rig {rig.name!r} "
                                        f"(cameras: {', '.join(rig.camera_ids)})")
-            if cam in last and stamp < last[cam]:
-                raise ImageSourceError(f"{where}: stamp {stamp!r} of camera {cam!r} is before its previous "
-                                       f"stamp {last[cam]!r} (stamps per camera must not decrease)")
-            last[cam] = stamp
-            if not name or Path(name).is_absolute():
-                raise ImageSourceError(f"{where}: file {name!r} must be a path relative to {index.parent}")
-            path = index.parent / name
-            if path.suffix.lower() not in (".png", ".npy"):
-                raise ImageSourceError(f"{where}: file {name!r} is neither .png nor .npy")
-            if not path.is_file():
-                raise ImageSourceError(f"{where}: file {name!r} does not exist ({path})")
-            entries.append(_Entry(stamp, cam, path, line))
+            entries.append(_entry(index, line, stamp, cam, name, last))
+    return entries
+
+
+def _entry(index: Path, line: int, stamp: float, cam: str, name: str, last: dict) -> _Entry:
+    """One checked line of an index (either format); :class:`ImageSourceError` names the line."""
+    where = f"{index}:{line}"
+    if cam in last and stamp < last[cam]:
+        raise ImageSourceError(f"{where}: stamp {stamp!r} of camera {cam!r} is before its previous "
+                               f"stamp {last[cam]!r} (stamps per camera must not decrease)")
+    last[cam] = stamp
+    if not name or Path(name).is_absolute():
+        raise ImageSourceError(f"{where}: file {name!r} must be a path relative to {index.parent}")
+    path = index.parent / name
+    if path.suffix.lower() not in (".png", ".npy"):
+        raise ImageSourceError(f"{where}: file {name!r} is neither .png nor .npy")
+    if not path.is_file():
+        raise ImageSourceError(f"{where}: file {name!r} does not exist ({path})")
+    return _Entry(stamp, cam, path, line)
+
+
+def _parse_tum(index: Path, camera: str) -> list[_Entry]:
+    """A TUM RGB-D ``depth.txt`` (module docstring) as entries of ``camera``; :class:`ImageSourceError`
+    names the first bad line."""
+    entries: list[_Entry] = []
+    last: dict[str, float] = {}
+    with open(index, encoding="utf-8") as fh:
+        for line, text in enumerate(fh, start=1):
+            text = text.strip()
+            if not text or text.startswith("#"):
+                continue
+            fields = text.split()
+            if len(fields) != 2:
+                raise ImageSourceError(f"{index}:{line}: expected 'timestamp filename' (got {text!r})")
+            try:
+                stamp = float(fields[0])
+            except ValueError:
+                raise ImageSourceError(f"{index}:{line}: timestamp {fields[0]!r} is not a number") from None
+            if not math.isfinite(stamp):
+                raise ImageSourceError(f"{index}:{line}: timestamp {fields[0]!r} is not finite")
+            entries.append(_entry(index, line, stamp, camera, fields[1], last))
     return entries
 
 
@@ -101,15 +140,30 @@ class ImageSource:
     served because their image was unreadable or of the wrong shape.
     """
 
-    def __init__(self, directory: str | Path, rig):
+    def __init__(self, directory: str | Path, rig, camera: str | None = None):
         self.directory = Path(directory)
         if not self.directory.is_dir():
             raise ImageSourceError(f"images source: {self.directory} is not a directory")
-        index = self.directory / INDEX_NAME
-        if not index.is_file():
-            raise ImageSourceError(f"images source: {index} does not exist (header {','.join(INDEX_HEADER)})")
+        index, tum = self.directory / INDEX_NAME, self.directory / TUM_INDEX_NAME
+        if camera is not None and camera not in rig.camera_ids:
+            raise ImageSourceError(f"images source: the rig {rig.name!r} has no camera {camera!r} "
+                                   f"(cameras: {', '.join(rig.camera_ids)})")
+        if not index.is_file() and not tum.is_file():
+            raise ImageSourceError(f"images source: {index} does not exist (header {','.join(INDEX_HEADER)}), "
+                                   f"nor a TUM {tum}")
         self._rig = rig
-        entries = _parse_index(index, rig)
+        self.index = index if index.is_file() else tum
+        if index.is_file():
+            if camera is not None:
+                raise ImageSourceError(f"images source: {index} names the camera of each frame; give images:DIR "
+                                       f"(CAMERA=DIR is for a TUM {TUM_INDEX_NAME})")
+            entries = _parse_index(index, rig)
+        else:
+            if camera is None and len(rig.camera_ids) != 1:
+                raise ImageSourceError(f"images source: {tum} is one camera's and the rig {rig.name!r} has "
+                                       f"{len(rig.camera_ids)} ({', '.join(rig.camera_ids)}): name it, "
+                                       f"images:CAMERA={self.directory}")
+            entries = _parse_tum(tum, camera or rig.camera_ids[0])
         # stable sort: frames with equal stamps keep the order of the index
         self._entries = sorted(entries, key=lambda e: e.stamp)
         named = {e.camera for e in entries}
@@ -142,9 +196,11 @@ class ImageSource:
         return out
 
     def _read(self, e: _Entry) -> Frame | None:
-        where = f"{self.directory / INDEX_NAME}:{e.line}"
+        where = f"{self.index}:{e.line}"
+        units = self._rig.depth_scales.get(e.camera, 0.001)
         try:
-            depth = check_depth_image(self._rig.camera(e.camera), read_depth(e.path), name=str(e.path.name))
+            depth = check_depth_image(self._rig.camera(e.camera), read_depth(e.path, png_units_m=units),
+                                      name=str(e.path.name))
         except ValueError as exc:
             self.skipped += 1
             if self._lost is None:
@@ -158,9 +214,12 @@ class ImageSource:
 
 @register_source("images")
 def open_images(argument: str, rig, context: dict) -> ImageSource:
-    """Factory of ``images:DIR``."""
+    """Factory of ``images:DIR`` or ``images:CAMERA=DIR`` (a TUM ``depth.txt``, module docstring)."""
     if not argument:
         raise ImageSourceError("the images source needs a directory: images:DIR")
+    camera, sep, directory = argument.partition("=")
+    if sep and camera.strip() in rig.camera_ids and not Path(argument).is_dir():
+        return ImageSource(directory.strip(), rig, camera=camera.strip())
     return ImageSource(argument, rig)
 
 

@@ -101,8 +101,9 @@ class _Served:
 
 
 class CsvJointSource(_Served):
-    """Joint states of a CSV recording (module docstring); ``first_stamp`` = its first stamp
-    (``None`` when it has no state); ``lost`` is always ``None`` (the file is checked at open)."""
+    """Joint states of a CSV recording (module docstring); ``first_stamp``, ``last_stamp`` = its first
+    and last stamps (``None`` when it has no state); ``lost`` is always ``None`` (the file is checked
+    at open)."""
 
     def __init__(self, path: str | Path, rig):
         robot = _robot(rig)
@@ -136,6 +137,7 @@ class CsvJointSource(_Served):
                 states.append((stamp, q))
         self._init_served(states)
         self.first_stamp = states[0][0] if states else None
+        self.last_stamp = states[-1][0] if states else None
 
     @property
     def done(self) -> bool:

@@ -15,13 +15,19 @@ a missing SDK or libusb is one sentence saying what to install):
   ``CAMERA=PATH``. Played through the SDK as fast as the monitor takes the
   frames (no frame dropped; each recording is read past ``t`` before the
   frames due by ``t`` are given, so several recordings come out in stamp
-  order), stamps as recorded: the runner paces them in real time from the
-  first stamp, or runs them ``--fast``.
+  order), at the mode recorded, other streams beside depth left unread. Stamps
+  on the host clock: as recorded, or, for a recording in the device's
+  ``hardware_clock``, derived from its metadata
+  (:class:`~depthguard.sources.realsense_clock.RecordingClock`); the runner
+  paces them in real time from the first stamp, or runs them ``--fast``.
 
 Options after either spec, as ``:WORD``: the SDK's own post-processing
 filters (:func:`~depthguard.sources.realsense_device.make_filters`, not
 rewritten), ``:spatial`` and ``:temporal``, set so that "no measurement" stays
-so; ``:hole_filling`` and ``:decimation`` are refused with the reason.
+so; ``:hole_filling`` and ``:decimation`` are refused with the reason. After
+``realsense-file:`` only, ``:device_clock``: the recording's own clock
+(:mod:`~depthguard.sources.realsense_clock`); :meth:`RealSenseFileSource.stamp_span`
+lets the monitor refuse joints on another clock.
 
 Frames (:class:`~depthguard.sources.Frame`): depth (H, W) float32 metres =
 z16 × the device's depth units (0 = no measurement); stamp = the SDK's
@@ -97,6 +103,7 @@ class _Camera:
         self.received = self.dropped = self.overflow = 0
         self.reconnects = 0
         self.problem: str | None = None
+        self.clock = None                   # a recording's RecordingClock (None: live, the host clock)
 
     def close_stream(self) -> None:
         if self.stream is not None:
@@ -111,7 +118,28 @@ class _Camera:
         s = self.stream
         extra = (s.received, s.dropped, s.overflow) if s is not None else (0, 0, 0)
         return {"device": self.key, "received": self.received + extra[0], "dropped": self.dropped + extra[1],
-                "overflow": self.overflow + extra[2], "reconnects": self.reconnects, "problem": self.problem}
+                "overflow": self.overflow + extra[2], "reconnects": self.reconnects, "problem": self.problem,
+                **({"clock": self.clock.describe()} if self.clock is not None else {})}
+
+
+def describe_streams(rs, device) -> str:
+    """What a device or recording streams, for messages: ``"color 640x480 rgb8 30 Hz (RGB Camera), ..."``
+    (``"no stream at all"`` when it has none)."""
+    items = []
+    for sensor in device.query_sensors():
+        try:
+            name = sensor.get_info(rs.camera_info.name)
+        except RuntimeError:
+            name = "a sensor"
+        for p in sensor.get_stream_profiles():
+            kind = str(p.stream_type()).split(".")[-1]
+            fmt = str(p.format()).split(".")[-1]
+            size = ""
+            if p.is_video_stream_profile():
+                v = p.as_video_stream_profile()
+                size = f" {v.width()}x{v.height()}"
+            items.append(f"{kind}{size} {fmt} {p.fps()} Hz ({name})")
+    return ", ".join(dict.fromkeys(items)) or "no stream at all"
 
 
 class _Frames:
@@ -131,7 +159,7 @@ class _Frames:
     def camera_ids(self) -> list[str]:
         return [c.camera.id for c in self._cams]
 
-    def _open_stream(self, cam: _Camera, device, *, blocking: bool, capacity: int, where: str):
+    def _open_stream(self, cam: _Camera, device, *, blocking: bool, capacity: int, where: str, clock=None):
         from depthguard.sources.realsense_device import (DepthStream, check_intrinsics, choose_profile,
                                                           intrinsics_of, make_filters)
 
@@ -139,7 +167,9 @@ class _Frames:
         try:
             sensor = device.first_depth_sensor()
         except RuntimeError:
-            raise ValueError(f"{where}: the device has no depth sensor") from None
+            what = "the recording" if device.is_playback() else "the device"
+            raise ValueError(f"{where}: {what} holds no depth stream; it holds {describe_streams(rs, device)}") \
+                from None
         if not device.is_playback() and sensor.supports(rs.option.global_time_enabled) and \
                 not sensor.is_option_read_only(rs.option.global_time_enabled):
             sensor.set_option(rs.option.global_time_enabled, 1)       # stamps on the host clock
@@ -147,7 +177,7 @@ class _Frames:
         profile = choose_profile(rs, sensor, c.width, c.height, self.rig.monitor.camera_hz, where)
         check_intrinsics(c, intrinsics_of(profile), where)
         cam.stream = DepthStream(rs, sensor, profile, capacity=capacity, blocking=blocking, name=where,
-                                 filters=make_filters(rs, self.filter_names))      # a filter's state is per camera
+                                 filters=make_filters(rs, self.filter_names), clock=clock)   # filters: per camera
 
     def frames_until(self, t: float) -> list[Frame]:
         """The frames captured at or before ``t`` (s) not returned yet, in stamp order."""
@@ -185,7 +215,8 @@ class RealSenseFileSource(_Frames):
     live = False
 
     def __init__(self, paths: list[tuple[str, str]], rig, *, buffer: int = 4, first_frame_timeout_s: float = 10.0,
-                 filters=()):
+                 filters=(), device_clock: bool = False):
+        from depthguard.sources.realsense_clock import RecordingClock
         from depthguard.sources.realsense_device import import_sdk
 
         super().__init__(import_sdk(), rig, filters)
@@ -196,6 +227,9 @@ class RealSenseFileSource(_Frames):
         try:
             for cid, p in paths:
                 path = Path(p)
+                if path.is_dir():
+                    raise ValueError(f"realsense-file: {path} is a folder, not a recording (give its .db3 or .bag "
+                                     "file)")
                 if not path.is_file():
                     raise FileNotFoundError(f"realsense-file: recording {path} not found")
                 where = f"realsense-file {path} (camera {cid})"
@@ -207,11 +241,14 @@ class RealSenseFileSource(_Frames):
                 playback.set_real_time(False)         # as fast as taken: the callback waits for room
                 self._devices.append(playback)
                 cam = _Camera(rig.camera(cid), str(path))
+                cam.clock = RecordingClock(rs, device_clock=device_clock)
                 self._cams.append(cam)
-                self._open_stream(cam, device, blocking=True, capacity=buffer, where=where)
+                self._open_stream(cam, device, blocking=True, capacity=buffer, where=where, clock=cam.clock)
             firsts = []
             for cam in self._cams:
                 s = cam.stream.peek_stamp(first_frame_timeout_s)
+                if s is None and cam.stream.error is not None:
+                    raise ValueError(cam.stream.error)     # e.g. a clock that cannot be related (realsense_clock)
                 if s is None:
                     raise ValueError(f"realsense-file {cam.key}: no depth frame within {first_frame_timeout_s:g} s "
                                      f"(an empty recording?)")
@@ -220,6 +257,16 @@ class RealSenseFileSource(_Frames):
             self.close()
             raise
         self.first_stamp = min(firsts)
+        self._firsts = firsts
+        self._durations = [p.get_duration().total_seconds() for p in self._devices]
+
+    def stamp_span(self) -> list[tuple[str, float, float, str]]:
+        """Per recording ``(what, first stamp s, last stamp s (first + the recording's duration), its
+        clock)``: what :func:`~depthguard.sources.realsense_clock.check_joint_clock` compares."""
+        out = []
+        for cam, first, duration in zip(self._cams, self._firsts, self._durations):
+            out.append((f"realsense-file {cam.key} (camera {cam.camera.id})", first, first + duration, cam.clock))
+        return out
 
     def frames_until(self, t: float) -> list[Frame]:
         """The frames stamped at or before ``t`` (s) not returned yet, in stamp order across the
@@ -356,7 +403,7 @@ class RealSenseSource(_Frames):
         return "; ".join(problems) if problems else None
 
 
-_OPTIONS = ("spatial", "temporal", "hole_filling", "decimation")
+_OPTIONS = ("spatial", "temporal", "hole_filling", "decimation", "device_clock")
 
 
 def split_options(argument: str) -> tuple[str, list[str]]:
@@ -378,13 +425,18 @@ def open_realsense_file(argument: str, rig, context: dict) -> RealSenseFileSourc
     if not arg.strip():
         raise ValueError("realsense-file needs a recording: realsense-file:PATH (.db3 or .bag)")
     paths = parse_device_list(arg, rig, "recordings")
-    return RealSenseFileSource(paths, rig, buffer=int(context.get("realsense_buffer", 4)), filters=opts)
+    device_clock = "device_clock" in opts           # the recording's own clock (realsense_clock)
+    return RealSenseFileSource(paths, rig, buffer=int(context.get("realsense_buffer", 4)),
+                               filters=[o for o in opts if o != "device_clock"], device_clock=device_clock)
 
 
 @register_source("realsense")
 def open_realsense(argument: str, rig, context: dict) -> RealSenseSource:
     """``realsense[:SERIAL[,SERIAL]][:FILTER...]`` or ``CAMERA=SERIAL,...`` (module docstring)."""
     argument, opts = split_options(argument)
+    if "device_clock" in opts:
+        raise ValueError("the option :device_clock is for recordings (realsense-file:); a live camera is stamped "
+                         "on the host clock (the SDK's global time)")
     serials = parse_device_list(argument, rig, "serials") if argument.strip() else None
     recheck = float(context.get("realsense_recheck_s", 0.5))
     if not (math.isfinite(recheck) and recheck > 0):

@@ -67,7 +67,7 @@ def import_sdk():
 
 
 # ------------------------------------------------------------------ frames
-def convert_frame(rs, frame, units: float | None = None, out=None) -> tuple[np.ndarray, float, int]:
+def convert_frame(rs, frame, units: float | None = None, out=None, clock=None) -> tuple[np.ndarray, float, int]:
     """``(depth (H, W) float32 m, stamp s, frame number)`` of an SDK depth frame.
 
     ``depth = z16 × units`` (``units``: the frame's own depth units when None),
@@ -75,11 +75,16 @@ def convert_frame(rs, frame, units: float | None = None, out=None) -> tuple[np.n
     the stamp is the frame's timestamp, ms of the host clock (``global_time``
     or ``system_time`` domain) / 1000. ``ValueError`` for a frame stamped by
     the device's own clock (``hardware_clock``): it is not on the host's clock.
+    ``clock``: a callable ``frame -> stamp s`` used instead (a recording's
+    :class:`~depthguard.sources.realsense_clock.RecordingClock`).
     """
-    domain = frame.get_frame_timestamp_domain()
-    if domain == rs.timestamp_domain.hardware_clock:
+    if clock is not None:
+        stamp = clock(frame)
+    elif frame.get_frame_timestamp_domain() == rs.timestamp_domain.hardware_clock:
         raise ValueError("frames are stamped by the camera's own clock, not the host's: turn the sensor "
                          "option global_time_enabled on (the SDK's global time)")
+    else:
+        stamp = frame.get_timestamp() * 1e-3
     if units is None:
         units = frame.as_depth_frame().get_units()
     z16 = np.asanyarray(frame.get_data())
@@ -87,7 +92,7 @@ def convert_frame(rs, frame, units: float | None = None, out=None) -> tuple[np.n
         depth = np.multiply(z16, np.float32(units), out=out)
     else:
         depth = np.multiply(z16, np.float32(units), dtype=np.float32)
-    return depth, frame.get_timestamp() * 1e-3, int(frame.get_frame_number())
+    return depth, stamp, int(frame.get_frame_number())
 
 
 def intrinsics_of(profile) -> dict:
@@ -206,12 +211,14 @@ class DepthStream:
     ``overflow``; ``error`` holds a sentence when a frame could not be used;
     ``ingest_s`` the wall seconds of the newest conversions. A new frame is written
     into the image of an earlier one only when nothing references that image any
-    more (:func:`_unreferenced`): a frame a consumer keeps never changes.
+    more (:func:`_unreferenced`): a frame a consumer keeps never changes. ``clock``: the
+    stamps' callable for :func:`convert_frame` (None: the host clock, R30).
     """
 
     def __init__(self, rs, sensor, profile, *, capacity: int = 8, blocking: bool = False, name: str = "camera",
-                 filters=()):
+                 filters=(), clock=None):
         self.rs = rs
+        self.clock = clock
         self.filters = list(filters)        # SDK processing blocks applied to each frame, in order
         self.sensor = sensor
         self.profile = profile
@@ -244,10 +251,12 @@ class DepthStream:
             for f in self.filters:
                 frame = f.process(frame)
             t0 = time.perf_counter()
-            depth, stamp, number = convert_frame(self.rs, frame, out=self._free_buffer(frame))
+            depth, stamp, number = convert_frame(self.rs, frame, out=self._free_buffer(frame), clock=self.clock)
             self.ingest_s.append(time.perf_counter() - t0)
         except Exception as exc:  # noqa: BLE001 - an SDK thread must not raise; reported in error
-            self.error = f"{self.name}: {exc}"
+            with self._cv:
+                self.error = f"{self.name}: {exc}"
+                self._cv.notify_all()                  # a wait for the first frame ends with the reason
             return
         with self._cv:
             if self.last_number is not None and number > self.last_number + 1:
@@ -286,10 +295,11 @@ class DepthStream:
         return time.monotonic() - last
 
     def peek_stamp(self, timeout: float = 0.0) -> float | None:
-        """The stamp (s) of the oldest buffered frame, waiting up to ``timeout`` s for one."""
+        """The stamp (s) of the oldest buffered frame, waiting up to ``timeout`` s for one (None at
+        once when a frame could not be used: ``error`` says why)."""
         with self._cv:
             if not self._buf and timeout > 0:
-                self._cv.wait_for(lambda: bool(self._buf), timeout)
+                self._cv.wait_for(lambda: bool(self._buf) or self.error is not None, timeout)
             return self._buf[0][1] if self._buf else None
 
     def wait_beyond(self, t: float, finished, timeout: float) -> bool:

@@ -1,0 +1,140 @@
+"""SDK recordings as a D400 and the SDK's own recorder write them, for the ``realsense-file:`` tests (issue 31).
+
+:func:`write_recording` streams a depth sensor ("Stereo Module") and, beside it, a
+colour sensor ("RGB Camera") of a ``software_device`` into ``rs.recorder``, at the
+mode and in the timestamp domain given — not the ones depthguard would choose —
+and with the metadata a D400 attaches to each frame (``time_of_arrival``: the
+host's clock in ms when the frame arrived, ``frame_timestamp``: the device's clock
+in us). :func:`count_depth_messages` counts the depth images in a ``.db3`` with
+``sqlite3`` alone: the written truth the playback is compared with, read without
+the SDK. :func:`run_monitor` runs ``depthguard monitor`` on one in a subprocess, as a user
+does; :func:`error_line` is the one line a user error must print.
+"""
+
+from __future__ import annotations
+
+import os
+import sqlite3
+import subprocess
+import sys
+import time
+from pathlib import Path
+
+import numpy as np
+
+DEPTH_TOPIC = "/device_0/sensor_0/Depth_0/image/data"
+
+
+def write_recording(rs, path, *, width: int, height: int, fps: int, frames: int, domain: str = "hardware_clock",
+                    colour: bool = True, arrival: bool = True, depth: bool = True, hw0_ms: float = 81234.567,
+                    fx: float | None = None, cx: float | None = None, cy: float | None = None) -> list[dict]:
+    """Write ``frames`` depth frames (and as many colour ones when ``colour``) at ``path`` (must
+    end in what the SDK's recorder accepts). Depth frame ``i`` holds ``1000 + i`` mm everywhere,
+    is numbered ``i + 1`` and stamped ``hw0_ms + i * 1000 / fps`` ms in ``domain``
+    (``hardware_clock``, ``global_time`` or ``system_time``); with ``arrival`` it carries the
+    metadata ``time_of_arrival`` = the host clock (ms) when it was handed to the SDK.
+    ``depth=False``: the colour stream only. Returns per depth frame ``{number, stamp_ms,
+    arrival_ms}``. Frames are injected one period apart (the recorder drops frames injected
+    back to back)."""
+    path = Path(path)
+    dev = rs.software_device()
+    intr = rs.intrinsics()
+    intr.width, intr.height = width, height
+    intr.fx = intr.fy = float(fx if fx is not None else 0.9 * width)
+    intr.ppx = float(cx if cx is not None else (width - 1) / 2)
+    intr.ppy = float(cy if cy is not None else (height - 1) / 2)
+    intr.model, intr.coeffs = rs.distortion.brown_conrady, [0.0] * 5
+    sensors = []
+    if depth:
+        ds = dev.add_sensor("Stereo Module")
+        vs = rs.video_stream()
+        vs.type, vs.index, vs.uid = rs.stream.depth, 0, 0
+        vs.width, vs.height, vs.fps, vs.bpp, vs.fmt, vs.intrinsics = width, height, fps, 2, rs.format.z16, intr
+        sensors.append(("depth", ds, ds.add_video_stream(vs), 2))
+        ds.add_read_only_option(rs.option.depth_units, 0.001)
+    if colour:
+        cs = dev.add_sensor("RGB Camera")
+        vs = rs.video_stream()
+        vs.type, vs.index, vs.uid = rs.stream.color, 0, 1
+        vs.width, vs.height, vs.fps, vs.bpp, vs.fmt, vs.intrinsics = width, height, fps, 3, rs.format.rgb8, intr
+        sensors.append(("colour", cs, cs.add_video_stream(vs), 3))
+    dev.register_info(rs.camera_info.serial_number, "843112070001")
+    dev.register_info(rs.camera_info.name, "Intel RealSense D435")
+    recorder = rs.recorder(str(path), dev, False)
+    queues = []
+    for _, sensor, profile, _ in sensors:
+        q = rs.frame_queue(4)
+        sensor.open(profile)
+        sensor.start(q)
+        queues.append(q)
+    kept, written = [], []
+    dom = getattr(rs.timestamp_domain, domain)
+    period = 1.0 / fps
+    try:
+        for i in range(frames):
+            t0 = time.perf_counter()
+            stamp = hw0_ms + i * 1000.0 / fps
+            for kind, sensor, profile, bpp in sensors:
+                if kind == "depth":
+                    pixels = np.full((height, width), 1000 + i, dtype=np.uint16)
+                else:
+                    pixels = np.full((height, width, 3), i % 256, dtype=np.uint8)
+                kept.append(pixels)                          # the SDK reads the buffer later
+                f = rs.software_video_frame()
+                f.pixels, f.bpp, f.stride = pixels, bpp, width * bpp
+                f.timestamp, f.domain, f.frame_number = stamp + (0.3 if kind == "colour" else 0.0), dom, i + 1
+                f.profile = profile.as_video_stream_profile()
+                if kind == "depth":
+                    f.depth_units = 0.001
+                arrival_ms = int(time.time() * 1000)
+                if arrival:
+                    sensor.set_metadata(rs.frame_metadata_value.time_of_arrival, arrival_ms)
+                    sensor.set_metadata(rs.frame_metadata_value.frame_timestamp, int(stamp * 1000))
+                sensor.on_video_frame(f)
+                if kind == "depth":
+                    written.append({"number": i + 1, "stamp_ms": stamp, "arrival_ms": arrival_ms})
+            for q in queues:
+                while q.poll_for_frame():
+                    pass
+            time.sleep(max(0.0, period - (time.perf_counter() - t0)))
+        time.sleep(0.1)
+    finally:
+        for _, sensor, _, _ in sensors:
+            sensor.stop()
+            sensor.close()
+        del recorder                                         # closes the file
+    return written
+
+
+def count_depth_messages(path) -> int:
+    """The depth images in a ``.db3`` recording, counted with sqlite3 (not the SDK)."""
+    con = sqlite3.connect(f"file:{path}?mode=ro", uri=True)
+    try:
+        (n,) = con.execute("SELECT COUNT(*) FROM messages m JOIN topics t ON m.topic_id = t.id WHERE t.name = ?",
+                           (DEPTH_TOPIC,)).fetchone()
+    finally:
+        con.close()
+    return int(n)
+
+
+SRC = Path(__file__).resolve().parents[1] / "src"
+
+
+def run_monitor(tmp_path, source: str, joints: Path, cell: str = "flacco-cell"):
+    """``depthguard monitor --cell CELL --source SOURCE --joints csv:JOINTS --fast`` in a subprocess:
+    ``(CompletedProcess, its --out folder)``."""
+    env = dict(os.environ, PYTHONPATH=str(SRC) + os.pathsep + os.environ.get("PYTHONPATH", ""))
+    out = tmp_path / f"run{time.monotonic_ns()}"
+    r = subprocess.run([sys.executable, "-m", "depthguard.cli", "monitor", "--cell", cell, "--source", source,
+                        "--joints", f"csv:{joints}", "--fast", "--out", str(out), "--quiet"],
+                       capture_output=True, text=True, env=env, timeout=600)
+    return r, out
+
+
+def error_line(r) -> str:
+    """The one line a user error prints, exit status 2 (and nothing else: no traceback, no SDK
+    abort); progress lines (``[hh:mm:ss] ...``) aside."""
+    lines = [x for x in r.stderr.splitlines() if x.strip() and not x.startswith("[")]
+    assert r.returncode == 2, (r.returncode, r.stderr[-2000:])
+    assert len(lines) == 1 and lines[0].startswith("depthguard: error: "), r.stderr[-2000:]
+    return lines[0]
