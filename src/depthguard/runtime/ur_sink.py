@@ -5,7 +5,7 @@ slider (RTDE input ``speed_slider_fraction``, the teach pendant's speed slider: 
 motion of the running program) from the reaction's ``speed_scale`` — the override, times the
 SSM scale in ``ssm``/``both`` modes, equal to the override in repulsion mode
 (``docs/MONITOR.md``) — through ``rtde_io.RTDEIOInterface.setSpeedSlider`` of the ``ur-rtde``
-package (run in a child process, :mod:`depthguard.runtime.ur_rtde_worker`).
+package (run in a child process, :mod:`depthguard.transport.ur_rtde_worker`).
 
 Rate: the monitor reacts at 500 Hz; the sink keeps only the newest reaction and a thread of its
 own sends a value when it differs from the last one sent (by more than 0.001), at most
@@ -43,7 +43,7 @@ import threading
 import time
 
 from depthguard.progress import log
-from depthguard.runtime.ur_rtde_worker import UrError, Worker, check_reachable, missing_package, parse_address
+from depthguard.transport.ur_rtde_worker import UrError, Worker, check_reachable, missing_package, parse_address
 
 __all__ = ["UrSpeedSlider", "open_ur_sink"]
 

@@ -2,7 +2,7 @@
 
 Reads ``actual_q`` (and the robot's ``timestamp``) with ``rtde_receive.RTDEReceiveInterface``
 of the ``ur-rtde`` package (extra ``depthguard[ur]``), in a child process
-(:mod:`depthguard.runtime.ur_rtde_worker`). Each state is stamped on this host's wall clock
+(:mod:`depthguard.transport.ur_rtde_worker`). Each state is stamped on this host's wall clock
 (``time.time()``, s) when it arrives — a live source, like ``zenoh:`` — and the robot's own
 ``timestamp`` (s since the controller started) is kept beside it for the record
 (``robot_stamps``: the newest 10000 ``(host stamp, robot timestamp)`` pairs).
@@ -27,7 +27,7 @@ from collections import deque
 import numpy as np
 
 from depthguard.progress import log
-from depthguard.runtime.ur_rtde_worker import UrError, Worker, check_reachable, missing_package, parse_address
+from depthguard.transport.ur_rtde_worker import UrError, Worker, check_reachable, missing_package, parse_address
 from depthguard.sources.base import register_joints
 from depthguard.sources.joints import JointSourceError, _robot, check_joint_state
 from depthguard.sources.stamped_queue import StampedQueue
