@@ -6,7 +6,8 @@ source is done, or the caller stops it (Ctrl-C, ``stop`` event).
 
 - **Real time** (default): one thread per source polls it on the run's clock
   (from 0, from a recording's first stamp, or the wall clock ``time.time()``
-  when a source is live) and pushes what it returns; the calling
+  when a source is live; a source with ``start_clock(t0)``, the simulator, is
+  told where that clock starts) and pushes what it returns; the calling
   thread steps the monitor every ``1 / control_hz`` s. The control thread
   never waits for a frame.
 - **Fast** (``fast=True``): one thread; at each control cycle ``t = k dt``
@@ -146,6 +147,9 @@ def run(monitor, frame_sources: list, joint_source, *, duration: float | None = 
     t0 = min(firsts) if firsts else 0.0           # a recording's clock starts at its first stamp
     if not fast and any(getattr(src, "live", False) for src in [*frame_sources, joint_source] if src is not None):
         t0 = time.time()                          # live sources stamp with the wall clock: so does the run
+    for src in {id(s): s for s in [*frame_sources, joint_source] if s is not None}.values():
+        if hasattr(src, "start_clock"):
+            src.start_clock(t0)                   # the simulator's time 0 is the run's start, on its clock
     try:
         if fast:
             with monitor.replay():                # one grid: each cycle follows a flush
