@@ -51,8 +51,28 @@ def _status_line(r) -> str:
             near += f", cannot judge {len(unobs)} point(s)"
     cams = " ".join(f"{c}:{'-' if s.age_s == float('inf') else f'{s.age_s * 1e3:.0f}ms'}" + ("!" if s.state == "stale" else "")
                     for c, s in r.cameras.items())
-    why = ("  STOP: " if r.override <= 0 else "  slowing: ") + "; ".join(r.reasons.values()) if r.reasons else ""
+    why = ("  STOP: " if r.override <= 0 else "  slowing: ") + "; ".join(_short_reasons(r.reasons)) if r.reasons else ""
     return f"t={r.t:7.2f}s override {r.override:4.2f}  {near}  cameras {cams}{why}"
+
+
+_REFUSED = "; its frames are refused"
+
+
+def _short_reasons(reasons: dict) -> list[str]:
+    """The reasons for the status line, a stale camera's refused frames first and alone (their
+    cause is what the user must read: runtime.refusals), the others as they are."""
+    refused = [f"camera {k.split(':', 1)[1]} refuses its frames{m.split(_REFUSED, 1)[1]}"
+               for k, m in reasons.items() if k.startswith("stale:") and _REFUSED in m]
+    return refused + [m for k, m in reasons.items() if not (k.startswith("stale:") and _REFUSED in m)]
+
+
+def never_accepted(stats: dict) -> str | None:
+    """One line naming every camera that refused frames and never accepted one (``Monitor.stats()``),
+    with its last refusal; None when there is none."""
+    bad = [f"camera {c} never had a frame accepted ({sum(s['refused'].values())} refused; last: "
+           f"{(s['last_refusal'] or '?').removeprefix(f'camera {c}: ').removeprefix(f'camera {c}: ')})"
+           for c, s in stats["cameras"].items() if s["frames"] == 0 and s["refused"]]
+    return "; ".join(bad) or None
 
 
 @app.command("monitor")
@@ -154,6 +174,17 @@ def monitor(
             f"settings on depthguard/{cell_key}/settings")
     tty = is_terminal() and not quiet
 
+    told: dict[str, str] = {}
+
+    def tell_refusals(r):
+        """Every cycle: a camera's refused frames, logged in full once as they start (or change cause)."""
+        for k, m in r.reasons.items():
+            if k.startswith("stale:") and _REFUSED in m:
+                why = m.split(_REFUSED, 1)[1].split(": ", 1)[-1]
+                if told.get(k) != why:
+                    told[k] = why
+                    log(f"monitor: camera {k.split(':', 1)[1]} refuses its frames: {why}")
+
     def status(r):
         line = _status_line(r)
         behind = _skipped_behind(sources)
@@ -177,7 +208,7 @@ def monitor(
     previous = {sig: signal.signal(sig, on_signal) for sig in (signal.SIGINT, signal.SIGTERM)}
     try:
         stats, wall = run(mon, sources, joint_source, duration=duration, fast=fast, stop=stop,
-                          status=status, status_hz=4.0 if tty else 1.0)
+                          on_reaction=tell_refusals, status=status, status_hz=4.0 if tty else 1.0)
         stats.interrupted = stats.interrupted or bool(interrupted)
     finally:
         for sig, handler in previous.items():
@@ -210,6 +241,10 @@ def monitor(
                f"stopped {summary['stopped_s']:.2f} s; nearest {near_text}; "
                f"step p99 {summary['step_ms']['p99']} ms; frame to reaction p99 {summary['frame_to_reaction_ms']['p99']} ms"
                + f"; wrote {out}/log.jsonl, summary.json and results.mcap")
+    refused = never_accepted(summary["stats"]) if fast else None
+    if refused:                         # a recording none of whose frames could be used: bad input
+        typer.echo(f"depthguard: error: {refused}", err=True)
+        raise typer.Exit(2)
     behind = _skipped_behind(sources)
     if behind:
         typer.echo(f"monitor: the simulated cameras fell behind real time and skipped {behind} frames: this machine "
