@@ -110,7 +110,7 @@ def monitor(
     from depthguard.runtime.monitor import Monitor, warm_up
     from depthguard.runtime.runner import run, summarise
     from depthguard.runtime.sinks import JsonlLog, SinkFanout, ZenohPublisher
-    from depthguard.sources.base import open_joints, open_source
+    from depthguard.sources.base import check_source_spec, open_joints, open_source
 
     if duration is not None and not duration > 0:
         raise typer.BadParameter("must be > 0 seconds", param_hint="--duration")
@@ -130,70 +130,83 @@ def monitor(
     if fast and any(s.startswith("ros2:") for s in [*specs, joints or ""]):
         raise typer.BadParameter("ros2: sources are live (stamped on the wall clock): run in real time, without --fast",
                                  param_hint="--fast")
-    sources = [open_source(s, the_rig, context) for s in specs]
-    joint_spec = joints or ("sim" if "sim_world" in context else None) \
+    schemes = [check_source_spec(s)[0] for s in specs]      # every argument checked before a source opens
+    joint_spec = joints or ("sim" if "sim" in schemes else None) \
         or next((s for s in specs if s.startswith("bag:")), None) \
         or ("ros2:" if any(s.startswith("ros2:") for s in specs) else None)   # a bag / a ROS cell has joints too
     if joint_spec is None:
         raise typer.BadParameter("a non-simulated source needs --joints (csv:FILE or zenoh:KEY)", param_hint="--joints")
-    joint_source = open_joints(joint_spec, the_rig, context)
-    cfg = the_rig.monitor
-    log("monitor: compiling kernels (once; cached on disk) ...")
-    seconds = warm_up(the_rig, cfg)
-    log(f"monitor: ready in {seconds:.1f} s; cameras {', '.join(c.id for c in the_rig.cameras)}; "
-        f"sources {', '.join(specs)}; joints {joint_spec}; {'as fast as possible' if fast else 'real time'}"
-        + ("" if duration else "; Ctrl-C stops"))
-    sinks = []
-    sinks.append(JsonlLog(out / "log.jsonl"))
-    from depthguard.runtime.mcap_results import McapResults      # results.mcap beside the input (R31)
-    sinks.append(McapResults(out / "results.mcap", the_rig.robot, [(w.name, w.position) for w in cfg.watch_points]))
-    session = listener = None
-    cell_key = cfg.cell or the_rig.name
-    if zenoh:
-        import zenoh as zenoh_lib
+    sources: list = []                  # every source opened is closed, whatever fails next: an SDK
+    joint_source = mon = None           # recording left playing at exit aborted the process (exit 134)
+    try:
+        for s in specs:
+            sources.append(open_source(s, the_rig, context))
+        joint_source = open_joints(joint_spec, the_rig, context)
+        cfg = the_rig.monitor
+        log("monitor: compiling kernels (once; cached on disk) ...")
+        seconds = warm_up(the_rig, cfg)
+        log(f"monitor: ready in {seconds:.1f} s; cameras {', '.join(c.id for c in the_rig.cameras)}; "
+            f"sources {', '.join(specs)}; joints {joint_spec}; {'as fast as possible' if fast else 'real time'}"
+            + ("" if duration else "; Ctrl-C stops"))
+        sinks = []
+        sinks.append(JsonlLog(out / "log.jsonl"))
+        from depthguard.runtime.mcap_results import McapResults      # results.mcap beside the input (R31)
+        sinks.append(McapResults(out / "results.mcap", the_rig.robot, [(w.name, w.position) for w in cfg.watch_points]))
+        session = listener = None
+        cell_key = cfg.cell or the_rig.name
+        if zenoh:
+            import zenoh as zenoh_lib
 
-        from depthguard.distributed.settings import zenoh_config
-        session = zenoh_lib.open(zenoh_config([zenoh_listen], list(zenoh_connect)))
-        sinks.append(ZenohPublisher(cell_key, session=session))
-    if ros2:
-        from depthguard.runtime.ros2_sink import open_ros2_sink
-        sinks.append(open_ros2_sink(context, the_rig.robot, [(w.name, w.position) for w in cfg.watch_points],
-                                    ros2_namespace))
-        log(f"monitor: publishing {ros2_namespace}/override, reaction and markers as ROS 2 topics (rmw_zenoh)")
-    fanout = SinkFanout(sinks, block=fast)
-    direct = [context["sim_world"].on_reaction] if "sim_world" in context else []
-    mon = Monitor(the_rig, cfg, sinks=direct + [fanout])
-    if view:                            # a sink that keeps the newest reaction; drawn on its own thread
-        from depthguard.viz.live import LiveView
-        mon.sinks.append(LiveView(the_rig, host=view_host, port=view_port, monitor=mon))
-        log(f"monitor: live view at {mon.sinks[-1].url}")
-    if session is not None:
-        from depthguard.runtime.remote import SettingsListener
-        listener = SettingsListener(mon, session, cell_key)
-        log(f"monitor: publishing under depthguard/{cell_key}/ (reaction, distances, health); "
-            f"settings on depthguard/{cell_key}/settings")
-    tty = is_terminal() and not quiet
+            from depthguard.distributed.settings import zenoh_config
+            session = zenoh_lib.open(zenoh_config([zenoh_listen], list(zenoh_connect)))
+            sinks.append(ZenohPublisher(cell_key, session=session))
+        if ros2:
+            from depthguard.runtime.ros2_sink import open_ros2_sink
+            sinks.append(open_ros2_sink(context, the_rig.robot, [(w.name, w.position) for w in cfg.watch_points],
+                                        ros2_namespace))
+            log(f"monitor: publishing {ros2_namespace}/override, reaction and markers as ROS 2 topics (rmw_zenoh)")
+        fanout = SinkFanout(sinks, block=fast)
+        direct = [context["sim_world"].on_reaction] if "sim_world" in context else []
+        mon = Monitor(the_rig, cfg, sinks=direct + [fanout])
+        if view:                            # a sink that keeps the newest reaction; drawn on its own thread
+            from depthguard.viz.live import LiveView
+            mon.sinks.append(LiveView(the_rig, host=view_host, port=view_port, monitor=mon))
+            log(f"monitor: live view at {mon.sinks[-1].url}")
+        if session is not None:
+            from depthguard.runtime.remote import SettingsListener
+            listener = SettingsListener(mon, session, cell_key)
+            log(f"monitor: publishing under depthguard/{cell_key}/ (reaction, distances, health); "
+                f"settings on depthguard/{cell_key}/settings")
+        tty = is_terminal() and not quiet
 
-    told: dict[str, str] = {}
+        told: dict[str, str] = {}
 
-    def tell_refusals(r):
-        """Every cycle: a camera's refused frames, logged in full once as they start (or change cause)."""
-        for k, m in r.reasons.items():
-            if k.startswith("stale:") and _REFUSED in m:
-                why = m.split(_REFUSED, 1)[1].split(": ", 1)[-1]
-                if told.get(k) != why:
-                    told[k] = why
-                    log(f"monitor: camera {k.split(':', 1)[1]} refuses its frames: {why}")
+        def tell_refusals(r):
+            """Every cycle: a camera's refused frames, logged in full once as they start (or change cause)."""
+            for k, m in r.reasons.items():
+                if k.startswith("stale:") and _REFUSED in m:
+                    why = m.split(_REFUSED, 1)[1].split(": ", 1)[-1]
+                    if told.get(k) != why:
+                        told[k] = why
+                        log(f"monitor: camera {k.split(':', 1)[1]} refuses its frames: {why}")
 
-    def status(r):
-        line = _status_line(r)
-        behind = _skipped_behind(sources)
-        if behind:                      # so that stale-camera stops are not read as the monitor's fault
-            line += f"  (simulator behind real time: {behind} frames skipped)"
-        if tty:
-            typer.echo("\r" + line[:200].ljust(200), nl=False, err=True)
-        elif not quiet:
-            log(line)
+        def status(r):
+            line = _status_line(r)
+            behind = _skipped_behind(sources)
+            if behind:                      # so that stale-camera stops are not read as the monitor's fault
+                line += f"  (simulator behind real time: {behind} frames skipped)"
+            if tty:
+                typer.echo("\r" + line[:200].ljust(200), nl=False, err=True)
+            elif not quiet:
+                log(line)
+
+    except BaseException:
+        if mon is not None:
+            mon.close()
+        for s in [*sources, joint_source]:
+            if s is not None:
+                s.close()
+        raise
 
     stop = threading.Event()
     interrupted = []
