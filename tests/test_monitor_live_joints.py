@@ -72,7 +72,7 @@ def test_simulated_cameras_with_zenoh_joints_fuse_and_stop_on_sigterm_with_a_sum
                                   "--zenoh-listen", f"tcp/127.0.0.1:{port}", "--out", str(out), "--quiet"],
                             stdout=subprocess.PIPE, stderr=subprocess.PIPE, text=True, cwd=tmp_path)
     stop = threading.Event()
-    session = zenoh.open(zenoh_config(["tcp/127.0.0.1:0"], [f"tcp/127.0.0.1:{port}"]))
+    session = None
 
     def publish():
         pub = session.declare_publisher(key)
@@ -81,11 +81,14 @@ def test_simulated_cameras_with_zenoh_joints_fuse_and_stop_on_sigterm_with_a_sum
             time.sleep(0.005)
 
     th = threading.Thread(target=publish, daemon=True)
-    th.start()
+    log = out / "log.jsonl"
     try:
         end = time.monotonic() + 600
+        while time.monotonic() < end and proc.poll() is None and not log.exists():
+            time.sleep(0.2)                    # the monitor listens: its joint source is open
+        session = zenoh.open(zenoh_config(["tcp/127.0.0.1:0"], [f"tcp/127.0.0.1:{port}"]))
+        th.start()
         while time.monotonic() < end and proc.poll() is None:
-            log = out / "log.jsonl"
             if log.exists() and log.stat().st_size > 2_000_000:      # a few seconds of cycles
                 break
             time.sleep(0.2)
@@ -94,8 +97,10 @@ def test_simulated_cameras_with_zenoh_joints_fuse_and_stop_on_sigterm_with_a_sum
         stdout, stderr = proc.communicate(timeout=60)
     finally:
         stop.set()
-        th.join(2)
-        session.close()
+        if th.is_alive():
+            th.join(2)
+        if session is not None:
+            session.close()
         if proc.poll() is None:
             proc.kill()
             proc.communicate()
