@@ -20,6 +20,7 @@ from pydantic import BaseModel, ConfigDict, Field, ValidationError, ValidationIn
 from depthguard.camera import Camera, CameraError
 from depthguard.config import MonitorConfig
 from depthguard.geometry.mesh import Mesh, load_mesh
+from depthguard.rig_checks import mesh_extent_problem
 from depthguard.geometry.primitives import Box, Capsule, Cylinder, Primitive, Sphere
 from depthguard.transforms import as_rigid, look_at, pose, quat_to_matrix
 
@@ -469,7 +470,11 @@ def _make_object(o: ObjectSpec, base_dir: Path) -> StaticObject:
         mpath = base_dir / mpath
     if not mpath.is_file():
         raise FileNotFoundError(f"mesh file not found: {mpath}")
-    return StaticObject(o.name, load_mesh(mpath, scale=o.scale).transformed(T), None)
+    mesh = load_mesh(mpath, scale=o.scale)
+    problem = mesh_extent_problem(*mesh.bounds, o.scale)     # millimetres without scale: 1000 x too large
+    if problem:
+        raise ValueError(f"{mpath.name}: {problem}")
+    return StaticObject(o.name, mesh.transformed(T), None)
 
 
 def _make_robot(rs: RobotSpec, base_dir: Path, src: str):
