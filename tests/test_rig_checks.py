@@ -74,3 +74,35 @@ def test_the_limits_are_one_centimetre_and_fifty_metres_of_the_largest_extent(tm
     else:
         with pytest.raises(RigError, match="a rig's lengths are metres"):
             _load(tmp_path, obj)
+
+
+def _cell_with_base_z(name, dz):
+    """The built-in cell ``name``'s rig with its robot moved ``dz`` m along z."""
+    from depthguard.sim.cells import cell_rig_path
+
+    path = cell_rig_path(name)
+    data = yaml.safe_load(path.read_text())
+    t = data["robot"]["base"]["translation"]
+    data["robot"]["base"]["translation"] = [t[0], t[1], t[2] + dz]
+    return dg.Rig.from_dict(data, source=path)                 # meshes relative to the cell's folder
+
+
+@pytest.mark.parametrize("name, table, deep_cm", [("flacco-cell", "table", 20.0), ("ur3-cell", "table_top", 2.0)])
+def test_a_robot_mounted_20_cm_inside_its_table_is_a_rig_error(name, table, deep_cm):
+    """flacco-cell's LWR stands on a 85-cm block: 20 cm lower, its base is 20 cm inside it; the
+    UR3 stands on a 4-cm table top: 20 cm lower, its base crosses the top (2 cm deep at its middle)."""
+    with pytest.raises(RigError) as err:
+        _cell_with_base_z(name, -0.20)
+    msg = str(err.value)
+    assert f"into the static object {table!r}" in msg and "robot.base" in msg and "\n" not in msg
+    assert float(msg.split(" reaches ")[1].split(" cm")[0]) == pytest.approx(deep_cm, abs=0.3)
+
+
+@pytest.mark.parametrize("name", ["flacco-cell", "ur3-cell"])
+@pytest.mark.parametrize("dz, ok", [(0.0, True), (-0.005, True), (0.05, True), (-0.03, False)])
+def test_a_base_standing_on_its_table_is_allowed_within_one_centimetre(name, dz, ok):
+    if ok:
+        assert _cell_with_base_z(name, dz).robot is not None
+    else:
+        with pytest.raises(RigError, match="contact up to 1 cm is allowed"):
+            _cell_with_base_z(name, dz)

@@ -20,7 +20,7 @@ from pydantic import BaseModel, ConfigDict, Field, ValidationError, ValidationIn
 from depthguard.camera import Camera, CameraError
 from depthguard.config import MonitorConfig
 from depthguard.geometry.mesh import Mesh, load_mesh
-from depthguard.rig_checks import mesh_extent_problem
+from depthguard.rig_checks import mesh_extent_problem, robot_inside_objects
 from depthguard.geometry.primitives import Box, Capsule, Cylinder, Primitive, Sphere
 from depthguard.transforms import as_rigid, look_at, pose, quat_to_matrix
 
@@ -445,6 +445,9 @@ class Rig:
         robot, q0 = None, None
         if spec.robot is not None:
             robot, q0 = _make_robot(spec.robot, base_dir, src)
+            inside = robot_inside_objects(robot, q0, objects)     # mounted 20 cm inside its table
+            if inside:
+                raise RigError(f"{src}: robot: {inside}")
         return cls(name=spec.name, cameras=cameras, workspace=ws, robot=robot, robot_q0=q0,
                    objects=objects, path=Path(source) if isinstance(source, Path) else None,
                    description=spec.description, monitor=spec.monitor or MonitorConfig(),
