@@ -181,10 +181,10 @@ class CameraSpec(_Strict):
         if self.fx is not None:
             intr = dict(width=self.width, height=self.height, fx=self.fx, fy=self.fy, cx=self.cx, cy=self.cy)
             rng = (0.4, 6.0)
-            if self.sensor is not None:
-                p = intrinsics_for(self.sensor, self.width, self.height) if self._has_mode() else None
-                if p is not None:
-                    rng = (p["min_range"], p["max_range"])
+            if self.sensor is not None:                  # its range, whatever the mode of the intrinsics
+                from depthguard.sources.sensors import sensor_model
+                m = sensor_model(self.sensor)
+                rng = (m.min_range, m.max_range)
         else:
             p = intrinsics_for(self.sensor, self.width, self.height)
             intr = {k: p[k] for k in ("width", "height", "fx", "fy", "cx", "cy")}
@@ -193,11 +193,6 @@ class CameraSpec(_Strict):
             rng = self.range
         return Camera(id=self.id, world_from_camera=self.pose.matrix4(), min_range=rng[0],
                       max_range=rng[1], sensor=self.sensor, **intr)
-
-    def _has_mode(self) -> bool:
-        from depthguard.sources.sensors import sensor_model
-        m = sensor_model(self.sensor)
-        return m.kind == "ideal" or (self.width, self.height) in m.resolutions
 
 
 class WorkspaceSpec(_Strict):
