@@ -44,7 +44,8 @@ class RunStats:
         self.slowed_s = 0.0
         self.nearest = math.inf
         self.nearest_at = None
-        self.unobserved_cycles = 0
+        self.unobserved_cycles = 0        # cycles in which some control or watch point could not be judged
+        self.unobserved_points: dict[str, int] = {}   # point name -> cycles it could not be judged
         self._t_prev = None
         self.last = None
         self.interrupted = False          # stopped by Ctrl-C (the summary is still written)
@@ -66,8 +67,10 @@ class RunStats:
         name, d = r.nearest()
         if d < self.nearest:
             self.nearest, self.nearest_at = d, (name, r.t)
-        if not np.all(r.observed[~r.is_watch]):
+        if not r.observed.all():          # watch points too: one no camera judges is reported
             self.unobserved_cycles += 1
+            for i in np.flatnonzero(~r.observed):
+                self.unobserved_points[r.names[i]] = self.unobserved_points.get(r.names[i], 0) + 1
         self.last = r
 
 
@@ -88,6 +91,7 @@ def summarise(monitor, stats: RunStats, wall_s: float, sources: dict, extra: dic
         "nearest_point": None if stats.nearest_at is None else stats.nearest_at[0],
         "nearest_t": None if stats.nearest_at is None else round(stats.nearest_at[1], 4),
         "unobserved_cycles": stats.unobserved_cycles,
+        "unobserved_points": dict(stats.unobserved_points),
         "source_errors": list(stats.source_errors),
         "control_scheduling": stats.control_scheduling,
         "distance_thread": {"queries": monitor.distance_queries,
