@@ -207,7 +207,8 @@ def valid_rig() -> dict:
             "robot": {"name": "lwr4", "joints": [0, 0.5, 0, -1, 0, 0.5, 0]},
             "objects": [{"name": "table", "box": {"size": [0.5, 0.5, 0.8]},
                          "pose": {"translation": [0.5, 0, 0.4]}},
-                        {"name": "fixture", "mesh": "tetra.obj", "scale": 1.0}]}
+                        {"name": "fixture", "mesh": "tetra.obj", "scale": 1.0,      # beside the robot, not in it
+                         "pose": {"translation": [-0.5, -0.5, 0.0]}}]}
 
 
 # (where, value, what the error must name): each value is wrong for its field

@@ -141,11 +141,12 @@ def test_robot_joints_checked(tmp_path):
 
 @needs_robot
 def test_robot_loads_with_base(tmp_path):
-    data = broken(lambda d: d.update(robot={"name": "lwr4", "base": {"translation": [0, 0, 0.5]}}))
+    # on the table top (z 0.725); at z 0.5 its links would cross the table, a rig error (test_rig_checks)
+    data = broken(lambda d: d.update(robot={"name": "lwr4", "base": {"translation": [0, 0, 0.725]}}))
     rig = dg.Rig.load(write(tmp_path, data))
     assert rig.robot.dof == 7
     poses = rig.robot.link_poses(rig.robot_q0)
-    assert poses[0][2, 3] == pytest.approx(0.5)
+    assert poses[0][2, 3] == pytest.approx(0.725)
 
 
 def test_a_camera_id_that_cannot_name_a_zenoh_key_is_refused_when_the_rig_loads(tmp_path):

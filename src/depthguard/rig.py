@@ -20,6 +20,7 @@ from pydantic import BaseModel, ConfigDict, Field, ValidationError, ValidationIn
 from depthguard.camera import Camera, CameraError
 from depthguard.config import MonitorConfig
 from depthguard.geometry.mesh import Mesh, load_mesh
+from depthguard.rig_checks import mesh_extent_problem, robot_inside_objects
 from depthguard.geometry.primitives import Box, Capsule, Cylinder, Primitive, Sphere
 from depthguard.transforms import as_rigid, look_at, pose, quat_to_matrix
 
@@ -180,10 +181,10 @@ class CameraSpec(_Strict):
         if self.fx is not None:
             intr = dict(width=self.width, height=self.height, fx=self.fx, fy=self.fy, cx=self.cx, cy=self.cy)
             rng = (0.4, 6.0)
-            if self.sensor is not None:
-                p = intrinsics_for(self.sensor, self.width, self.height) if self._has_mode() else None
-                if p is not None:
-                    rng = (p["min_range"], p["max_range"])
+            if self.sensor is not None:                  # its range, whatever the mode of the intrinsics
+                from depthguard.sensors import sensor_model
+                m = sensor_model(self.sensor)
+                rng = (m.min_range, m.max_range)
         else:
             p = intrinsics_for(self.sensor, self.width, self.height)
             intr = {k: p[k] for k in ("width", "height", "fx", "fy", "cx", "cy")}
@@ -192,11 +193,6 @@ class CameraSpec(_Strict):
             rng = self.range
         return Camera(id=self.id, world_from_camera=self.pose.matrix4(), min_range=rng[0],
                       max_range=rng[1], sensor=self.sensor, **intr)
-
-    def _has_mode(self) -> bool:
-        from depthguard.sensors import sensor_model
-        m = sensor_model(self.sensor)
-        return m.kind == "ideal" or (self.width, self.height) in m.resolutions
 
 
 class WorkspaceSpec(_Strict):
@@ -444,6 +440,9 @@ class Rig:
         robot, q0 = None, None
         if spec.robot is not None:
             robot, q0 = _make_robot(spec.robot, base_dir, src)
+            inside = robot_inside_objects(robot, q0, objects)     # mounted 20 cm inside its table
+            if inside:
+                raise RigError(f"{src}: robot: {inside}")
         return cls(name=spec.name, cameras=cameras, workspace=ws, robot=robot, robot_q0=q0,
                    objects=objects, path=Path(source) if isinstance(source, Path) else None,
                    description=spec.description, monitor=spec.monitor or MonitorConfig(),
@@ -469,7 +468,11 @@ def _make_object(o: ObjectSpec, base_dir: Path) -> StaticObject:
         mpath = base_dir / mpath
     if not mpath.is_file():
         raise FileNotFoundError(f"mesh file not found: {mpath}")
-    return StaticObject(o.name, load_mesh(mpath, scale=o.scale).transformed(T), None)
+    mesh = load_mesh(mpath, scale=o.scale)
+    problem = mesh_extent_problem(*mesh.bounds, o.scale)     # millimetres without scale: 1000 x too large
+    if problem:
+        raise ValueError(f"{mpath.name}: {problem}")
+    return StaticObject(o.name, mesh.transformed(T), None)
 
 
 def _make_robot(rs: RobotSpec, base_dir: Path, src: str):

@@ -66,6 +66,13 @@ class SensorModel:
         return hi if self.return_range is None else max(float(self.return_range), hi)
 
 
+# The D435's depth modes (Intel RealSense D400 series data sheet: 1280x720, 848x480, 640x480,
+# 640x360, 480x270, 424x240, and the high-rate 848x100 and 256x144), the first the default, and
+# the focal length of each (px, fx = fy): the 16:9 modes are the 1280x720 image scaled (f = 640 W /
+# 1280), 848x100 is a band of 848x480's rows (its f), 640x480 a 4:3 crop (385 px, calibrated units)
+_D435_MODES = ((640, 480), (424, 240), (1280, 720), (848, 480), (640, 360), (480, 270), (848, 100), (256, 144))
+_D435_FOCAL = (385.0, 212.0, 640.0, 424.0, 320.0, 240.0, 424.0, 128.0)
+
 SENSOR_MODELS: dict[str, SensorModel] = {
     m.name: m
     for m in (
@@ -77,11 +84,13 @@ SENSOR_MODELS: dict[str, SensorModel] = {
                     description="Microsoft Kinect v1: 640x480, f = 585 px (57.4x44.6 deg; data sheet 57x43), "
                                 "0.4-4 m rated (returns to about 8 m), disparity quantised to 1/8 px, "
                                 "noise growing with z^2"),
-        SensorModel("realsense_d435", ((640, 480), (424, 240), (1280, 720)), 87.0, 58.0, 0.2, 6.0, "stereo",
+        SensorModel("realsense_d435", _D435_MODES, 87.0, 58.0, 0.2, 6.0, "stereo",
                     sigma_a=0.0005, sigma_z2=0.002, baseline=0.05, edge_dropout=0.2,
-                    focal_px=(385.0, 212.0, 640.0), return_range=10.0,
-                    description="Intel RealSense D435 depth: f = 640 px at 1280x720 (90x59 deg; data sheet "
-                                "87x58), 212 px at 424x240, 385 px at 640x480 (a 4:3 crop, 80x64 deg); "
+                    focal_px=_D435_FOCAL, return_range=10.0,
+                    description="Intel RealSense D435 depth: the data sheet's depth modes; f = 640 px at "
+                                "1280x720 (90x59 deg; data sheet 87x58) and the same field of view in every "
+                                "16:9 mode (f = 640 W / 1280: 424 px at 848x480, 212 px at 424x240), 385 px at "
+                                "640x480 (a 4:3 crop, 80x64 deg), 848x100 a band of 848x480's rows; "
                                 "0.2-6 m rated (returns to 10 m), noise proportional to z^2"),
         SensorModel("tof", ((320, 240), (640, 480)), 70.0, 55.0, 0.3, 8.0, "tof",
                     sigma_a=0.01, flying_pixels=True, flying_fraction=0.5, edge_dropout=0.05, return_range=12.0,
@@ -114,7 +123,9 @@ def intrinsics_for(name: str, width: int | None = None, height: int | None = Non
         raise ValueError(f"sensor {name!r}: give both width and height or neither")
     if (width, height) not in m.resolutions and m.kind != "ideal":
         res = ", ".join(f"{w}x{h}" for w, h in m.resolutions)
-        raise ValueError(f"sensor {name!r} has no {width}x{height} mode; modes: {res}")
+        raise ValueError(f"sensor {name!r} has no {width}x{height} mode; modes: {res} - or give the camera's "
+                         f"intrinsics explicitly (width, height, fx, fy, cx, cy in pixels, with the sensor kept "
+                         f"for its range and noise)")
     if m.focal_px and (width, height) in m.resolutions:
         f = float(m.focal_px[m.resolutions.index((width, height))])
     else:

@@ -5,10 +5,14 @@
 
 1. fuses the frames per pixel (the median of the valid measurements; a pixel
    valid in fewer than half of them is left out — moving people vanish);
-2. checks the pose it was given: residual statistics and a verdict
-   (:func:`~depthguard.calibration.residuals.residual_stats`), robot removed;
-3. refines the pose (:func:`~depthguard.calibration.refine.refine_pose`) and
-   reports the directions the scene does not constrain (kept as given);
+2. checks the pose it was given: residual statistics
+   (:func:`~depthguard.calibration.residuals.residual_stats`), robot removed,
+   and where the known scene fits best
+   (:func:`~depthguard.calibration.refine.refine_pose`, also with
+   ``refine=False``: the fit is then measured, not applied); the verdict is the
+   worse of the two (:func:`~depthguard.calibration.verdict.judge`);
+3. with ``refine=True`` takes the fit as the refined pose and reports the
+   directions the scene does not constrain (kept as given);
 4. checks the refined pose the same way.
 
 :func:`calibrate_rig` does this for each camera of a rig; :func:`pose_diff`
@@ -25,6 +29,7 @@ import numpy as np
 from depthguard.calibration.refine import Refinement, pose_error, refine_pose
 from depthguard.calibration.residuals import ResidualStats, residual_stats
 from depthguard.calibration.scene import StaticScene
+from depthguard.calibration.verdict import judge
 
 __all__ = ["CameraCalibration", "calibrate_camera", "calibrate_rig", "fuse_frames", "pose_diff"]
 
@@ -51,12 +56,16 @@ def fuse_frames(frames) -> np.ndarray:
 @dataclass
 class CameraCalibration:
     """One camera's check and refinement: ``before`` / ``after`` :class:`ResidualStats`, the
-    ``refinement``, the camera as given (``camera``) and refined (``refined``)."""
+    ``refinement`` (the fit), the camera as given (``camera``) and refined (``refined``: the given
+    one when the fit was not applied, ``applied`` False); ``fit_offset`` ``(degrees, metres)``
+    from the given pose to the fit."""
     camera: object
     refined: object
     before: ResidualStats
     after: ResidualStats
     refinement: Refinement
+    applied: bool = True
+    fit_offset: tuple = (0.0, 0.0)
 
     @property
     def correction(self) -> tuple[float, float]:
@@ -67,6 +76,15 @@ class CameraCalibration:
         """Lines for a terminal: the check before and after, the refinement, the unconstrained directions."""
         ref = self.refinement
         deg, m = self.correction
+        if not self.applied:                       # --check-only: the fit measured, nothing refined
+            lines = [f"camera {self.camera.id}: as given {self.before.line()}"]
+            if ref.iterations:
+                fd, fm = self.fit_offset
+                lines.append(f"  the known scene fits best {fd:.3f} deg, {fm * 1e3:.1f} mm away ({ref.inliers} of "
+                             f"{ref.pixels} pixels inliers; {'converged' if ref.converged else 'NOT converged'}); "
+                             f"the check changes nothing")
+            lines += [f"  NOT CONSTRAINED by the scene (not judged): {s}" for s in ref.unconstrained]
+            return lines
         lines = [f"camera {self.camera.id}: as given {self.before.line()}",
                  f"  refined ({ref.iterations} iterations, {'converged' if ref.converged else 'NOT converged'}, "
                  f"{ref.inliers} of {ref.pixels} pixels inliers): moved {deg:.3f} deg, {m * 1e3:.1f} mm",
@@ -117,14 +135,19 @@ def calibrate_camera(cam, frames, scene: StaticScene, robot=None, qs=None, refin
     before = residual_stats(cam, measured, scene.view(cam).depth, rd0)
     if stride is None:
         stride = 2 if cam.width > 400 else 1
-    if refine:
+    no_fit = None
+    try:                                   # the fit, applied or not: the fine measure of the pose
         ref = refine_pose(cam, measured, scene, robot_depth, stride=stride)
-    else:
-        ref = Refinement(np.array(cam.world_from_camera), 0, True, 0, 0, math.nan)
+    except ValueError as exc:              # no scene where the camera looks: cannot be judged
+        ref, no_fit = Refinement(np.array(cam.world_from_camera), 0, False, 0, 0, math.nan), str(exc)
+    offset = pose_error(cam.world_from_camera, ref.world_from_camera)
+    before = judge(before, ref, offset, no_fit)
+    if not refine:
+        return CameraCalibration(cam, cam, before, before, ref, applied=False, fit_offset=offset)
     refined = cam.with_pose(ref.world_from_camera)
     rd1 = robot_depth(refined) if robot_depth is not None else None
-    after = residual_stats(refined, measured, scene.view(refined).depth, rd1)
-    return CameraCalibration(cam, refined, before, after, ref)
+    after = judge(residual_stats(refined, measured, scene.view(refined).depth, rd1), ref, (0.0, 0.0), no_fit)
+    return CameraCalibration(cam, refined, before, after, ref, applied=True, fit_offset=offset)
 
 
 def calibrate_rig(rig, frames: dict, qs: dict | None = None, refine: bool = True, log=None) -> dict:

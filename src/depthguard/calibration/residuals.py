@@ -141,7 +141,8 @@ class ResidualStats:
             return f"unknown: {self.reason}"
         return (f"{self.verdict}: median {self.median * 1e3:+.1f} mm ({self.median_sigma:+.1f} sigma), "
                 f"spread {self.spread * 1e3:.1f} mm, {100 * self.share_far:.1f} % farther and "
-                f"{100 * self.share_near:.1f} % nearer than {K_SIGMA:g} sigma, {self.pixels} pixels")
+                f"{100 * self.share_near:.1f} % nearer than {K_SIGMA:g} sigma, {self.pixels} pixels"
+                + ("" if self.verdict == "good" else f" - {self.reason}"))
 
 
 def residual_stats(cam, measured: np.ndarray, expected: np.ndarray, robot: np.ndarray | None = None,

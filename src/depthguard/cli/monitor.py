@@ -51,8 +51,28 @@ def _status_line(r) -> str:
             near += f", cannot judge {len(unobs)} point(s)"
     cams = " ".join(f"{c}:{'-' if s.age_s == float('inf') else f'{s.age_s * 1e3:.0f}ms'}" + ("!" if s.state == "stale" else "")
                     for c, s in r.cameras.items())
-    why = ("  STOP: " if r.override <= 0 else "  slowing: ") + "; ".join(r.reasons.values()) if r.reasons else ""
+    why = ("  STOP: " if r.override <= 0 else "  slowing: ") + "; ".join(_short_reasons(r.reasons)) if r.reasons else ""
     return f"t={r.t:7.2f}s override {r.override:4.2f}  {near}  cameras {cams}{why}"
+
+
+_REFUSED = "; its frames are refused"
+
+
+def _short_reasons(reasons: dict) -> list[str]:
+    """The reasons for the status line, a stale camera's refused frames first and alone (their
+    cause is what the user must read: runtime.refusals), the others as they are."""
+    refused = [f"camera {k.split(':', 1)[1]} refuses its frames{m.split(_REFUSED, 1)[1]}"
+               for k, m in reasons.items() if k.startswith("stale:") and _REFUSED in m]
+    return refused + [m for k, m in reasons.items() if not (k.startswith("stale:") and _REFUSED in m)]
+
+
+def never_accepted(stats: dict) -> str | None:
+    """One line naming every camera that refused frames and never accepted one (``Monitor.stats()``),
+    with its last refusal; None when there is none."""
+    bad = [f"camera {c} never had a frame accepted ({sum(s['refused'].values())} refused; last: "
+           f"{(s['last_refusal'] or '?').removeprefix(f'camera {c}: ').removeprefix(f'camera {c}: ')})"
+           for c, s in stats["cameras"].items() if s["frames"] == 0 and s["refused"]]
+    return "; ".join(bad) or None
 
 
 @app.command("monitor")
@@ -91,7 +111,7 @@ def monitor(
     from depthguard.runtime.monitor import Monitor, warm_up
     from depthguard.runtime.runner import run, summarise
     from depthguard.runtime.sinks import JsonlLog, SinkFanout, ZenohPublisher
-    from depthguard.sources.base import open_joints, open_source
+    from depthguard.sources.base import check_source_spec, open_joints, open_source
 
     if duration is not None and not duration > 0:
         raise typer.BadParameter("must be > 0 seconds", param_hint="--duration")
@@ -111,71 +131,95 @@ def monitor(
     if fast and any(s.startswith("ros2:") for s in [*specs, joints or ""]):
         raise typer.BadParameter("ros2: sources are live (stamped on the wall clock): run in real time, without --fast",
                                  param_hint="--fast")
-    sources = [open_source(s, the_rig, context) for s in specs]
-    joint_spec = joints or ("sim" if "sim_world" in context else None) \
+    schemes = [check_source_spec(s)[0] for s in specs]      # every argument checked before a source opens
+    joint_spec = joints or ("sim" if "sim" in schemes else None) \
         or next((s for s in specs if s.startswith("bag:")), None) \
         or ("ros2:" if any(s.startswith("ros2:") for s in specs) else None)   # a bag / a ROS cell has joints too
     if sink and fast:
         raise typer.BadParameter("a robot sink is live: run in real time, without --fast", param_hint="--sink")
     if joint_spec is None:
         raise typer.BadParameter("a non-simulated source needs --joints (csv:FILE or zenoh:KEY)", param_hint="--joints")
-    joint_source = open_joints(joint_spec, the_rig, context)
-    from depthguard.sources.realsense_clock import check_joint_clock      # one clock for frames and joints (R30)
+    sources: list = []                  # every source opened is closed, whatever fails next: an SDK
+    joint_source = mon = None           # recording left playing at exit aborted the process (exit 134)
+    robot_sinks: list = []
     try:
+        for s in specs:
+            sources.append(open_source(s, the_rig, context))
+        joint_source = open_joints(joint_spec, the_rig, context)
+        from depthguard.sources.realsense_clock import check_joint_clock      # one clock for frames and joints (R30)
         check_joint_clock(sources, joint_source, joint_spec)
-    except ValueError:
+        from depthguard.runtime.sink_specs import open_sink
+        for x in sink:                  # --sink ur-rtde:HOST (docs/ROBOTS.md)
+            robot_sinks.append(open_sink(x))
+        cfg = the_rig.monitor
+        log("monitor: compiling kernels (once; cached on disk) ...")
+        seconds = warm_up(the_rig, cfg)
+        log(f"monitor: ready in {seconds:.1f} s; cameras {', '.join(c.id for c in the_rig.cameras)}; "
+            f"sources {', '.join(specs)}; joints {joint_spec}; {'as fast as possible' if fast else 'real time'}"
+            + ("" if duration else "; Ctrl-C stops"))
+        sinks = []
+        sinks.append(JsonlLog(out / "log.jsonl"))
+        from depthguard.runtime.mcap_results import McapResults      # results.mcap beside the input (R31)
+        sinks.append(McapResults(out / "results.mcap", the_rig.robot, [(w.name, w.position) for w in cfg.watch_points]))
+        session = listener = None
+        cell_key = cfg.cell or the_rig.name
+        if zenoh:
+            import zenoh as zenoh_lib
+
+            from depthguard.transport.settings import zenoh_config
+            session = zenoh_lib.open(zenoh_config([zenoh_listen], list(zenoh_connect)))
+            sinks.append(ZenohPublisher(cell_key, session=session))
+        if ros2:
+            from depthguard.runtime.ros2_sink import open_ros2_sink
+            sinks.append(open_ros2_sink(context, the_rig.robot, [(w.name, w.position) for w in cfg.watch_points],
+                                        ros2_namespace))
+            log(f"monitor: publishing {ros2_namespace}/override, reaction and markers as ROS 2 topics (rmw_zenoh)")
+        fanout = SinkFanout(sinks, block=fast)
+        direct = [context["sim_world"].on_reaction] if "sim_world" in context else []
+        direct += robot_sinks           # called by the control thread: they only keep the newest reaction
+        mon = Monitor(the_rig, cfg, sinks=direct + [fanout])
+        if view:                            # a sink that keeps the newest reaction; drawn on its own thread
+            from depthguard.viz.live import LiveView
+            mon.sinks.append(LiveView(the_rig, host=view_host, port=view_port, monitor=mon))
+            log(f"monitor: live view at {mon.sinks[-1].url}")
+        if session is not None:
+            from depthguard.runtime.remote import SettingsListener
+            listener = SettingsListener(mon, session, cell_key)
+            log(f"monitor: publishing under depthguard/{cell_key}/ (reaction, distances, health); "
+                f"settings on depthguard/{cell_key}/settings")
+        tty = is_terminal() and not quiet
+
+        told: dict[str, str] = {}
+
+        def tell_refusals(r):
+            """Every cycle: a camera's refused frames, logged in full once as they start (or change cause)."""
+            for k, m in r.reasons.items():
+                if k.startswith("stale:") and _REFUSED in m:
+                    why = m.split(_REFUSED, 1)[1].split(": ", 1)[-1]
+                    if told.get(k) != why:
+                        told[k] = why
+                        log(f"monitor: camera {k.split(':', 1)[1]} refuses its frames: {why}")
+
+        def status(r):
+            line = _status_line(r)
+            behind = _skipped_behind(sources)
+            if behind:                      # so that stale-camera stops are not read as the monitor's fault
+                line += f"  (simulator behind real time: {behind} frames skipped)"
+            if tty:
+                typer.echo("\r" + line[:200].ljust(200), nl=False, err=True)
+            elif not quiet:
+                log(line)
+
+    except BaseException:
+        if mon is not None:
+            mon.close()                 # its sinks too
+        else:
+            for rs in robot_sinks:
+                rs.close()
         for s in [*sources, joint_source]:
-            s.close()                   # a recording's SDK threads stopped before the error ends the process
+            if s is not None:
+                s.close()
         raise
-    from depthguard.runtime.sink_specs import open_sink
-    robot_sinks = [open_sink(s) for s in sink]          # --sink ur-rtde:HOST (docs/ROBOTS.md)
-    cfg = the_rig.monitor
-    log("monitor: compiling kernels (once; cached on disk) ...")
-    seconds = warm_up(the_rig, cfg)
-    log(f"monitor: ready in {seconds:.1f} s; cameras {', '.join(c.id for c in the_rig.cameras)}; "
-        f"sources {', '.join(specs)}; joints {joint_spec}; {'as fast as possible' if fast else 'real time'}"
-        + ("" if duration else "; Ctrl-C stops"))
-    sinks = []
-    sinks.append(JsonlLog(out / "log.jsonl"))
-    from depthguard.runtime.mcap_results import McapResults      # results.mcap beside the input (R31)
-    sinks.append(McapResults(out / "results.mcap", the_rig.robot, [(w.name, w.position) for w in cfg.watch_points]))
-    session = listener = None
-    cell_key = cfg.cell or the_rig.name
-    if zenoh:
-        import zenoh as zenoh_lib
-
-        from depthguard.transport.settings import zenoh_config
-        session = zenoh_lib.open(zenoh_config([zenoh_listen], list(zenoh_connect)))
-        sinks.append(ZenohPublisher(cell_key, session=session))
-    if ros2:
-        from depthguard.runtime.ros2_sink import open_ros2_sink
-        sinks.append(open_ros2_sink(context, the_rig.robot, [(w.name, w.position) for w in cfg.watch_points],
-                                    ros2_namespace))
-        log(f"monitor: publishing {ros2_namespace}/override, reaction and markers as ROS 2 topics (rmw_zenoh)")
-    fanout = SinkFanout(sinks, block=fast)
-    direct = [context["sim_world"].on_reaction] if "sim_world" in context else []
-    direct += robot_sinks               # called by the control thread: they only keep the newest reaction
-    mon = Monitor(the_rig, cfg, sinks=direct + [fanout])
-    if view:                            # a sink that keeps the newest reaction; drawn on its own thread
-        from depthguard.viz.live import LiveView
-        mon.sinks.append(LiveView(the_rig, host=view_host, port=view_port, monitor=mon))
-        log(f"monitor: live view at {mon.sinks[-1].url}")
-    if session is not None:
-        from depthguard.runtime.remote import SettingsListener
-        listener = SettingsListener(mon, session, cell_key)
-        log(f"monitor: publishing under depthguard/{cell_key}/ (reaction, distances, health); "
-            f"settings on depthguard/{cell_key}/settings")
-    tty = is_terminal() and not quiet
-
-    def status(r):
-        line = _status_line(r)
-        behind = _skipped_behind(sources)
-        if behind:                      # so that stale-camera stops are not read as the monitor's fault
-            line += f"  (simulator behind real time: {behind} frames skipped)"
-        if tty:
-            typer.echo("\r" + line[:200].ljust(200), nl=False, err=True)
-        elif not quiet:
-            log(line)
 
     stop = threading.Event()
     interrupted = []
@@ -190,7 +234,7 @@ def monitor(
     previous = {sig: signal.signal(sig, on_signal) for sig in (signal.SIGINT, signal.SIGTERM)}
     try:
         stats, wall = run(mon, sources, joint_source, duration=duration, fast=fast, stop=stop,
-                          status=status, status_hz=4.0 if tty else 1.0)
+                          on_reaction=tell_refusals, status=status, status_hz=4.0 if tty else 1.0)
         stats.interrupted = stats.interrupted or bool(interrupted)
     finally:
         for sig, handler in previous.items():
@@ -223,6 +267,10 @@ def monitor(
                f"stopped {summary['stopped_s']:.2f} s; nearest {near_text}; "
                f"step p99 {summary['step_ms']['p99']} ms; frame to reaction p99 {summary['frame_to_reaction_ms']['p99']} ms"
                + f"; wrote {out}/log.jsonl, summary.json and results.mcap")
+    refused = never_accepted(summary["stats"]) if fast else None
+    if refused:                         # a recording none of whose frames could be used: bad input
+        typer.echo(f"depthguard: error: {refused}", err=True)
+        raise typer.Exit(2)
     behind = _skipped_behind(sources)
     if behind:
         typer.echo(f"monitor: the simulated cameras fell behind real time and skipped {behind} frames: this machine "

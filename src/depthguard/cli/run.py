@@ -30,7 +30,7 @@ def run(
     distance_hz: Optional[float] = typer.Option(None, "--distance-hz", help="Rate of the distance computation (default: every 500 Hz control cycle, R15)."),
     no_noise: bool = typer.Option(False, "--no-noise", help="Ideal depth images (no sensor noise)."),
     camera_latency: Optional[float] = typer.Option(None, "--camera-latency", help="Seconds from a frame's capture to its delivery (default: one camera period; 0: each frame is used in the cycle it is captured)."),
-    reaction: str = typer.Option("repulsion", "--reaction", help="repulsion (R13, R14), ssm (speed and separation monitoring, ISO/TS 15066, R33; docs/SSM.md) or both."),
+    reaction: Optional[str] = typer.Option(None, "--reaction", help="repulsion (R13, R14), ssm (speed and separation monitoring, ISO/TS 15066, R33; docs/SSM.md) or both (default: the rig's monitor: reaction, repulsion when it sets none)."),
     quiet: bool = typer.Option(False, "--quiet", "-q", help="No progress output."),
 ) -> None:
     """Run the robot's hexagon task with a scenario's obstacles, closing the loop: the LWR on
@@ -61,7 +61,7 @@ def run(
     if cameras not in ("all", "principal"):
         raise typer.BadParameter(f"must be 'all' or 'principal' (got {cameras!r})", param_hint="--cameras")
     fusion = "grid" if cameras == "all" else "single"
-    if reaction not in ("repulsion", "ssm", "both"):
+    if reaction is not None and reaction not in ("repulsion", "ssm", "both"):
         raise typer.BadParameter(f"must be repulsion, ssm or both (got {reaction!r})", param_hint="--reaction")
     if duration is not None and not duration > 0:
         raise typer.BadParameter("must be > 0 seconds", param_hint="--duration")
@@ -76,6 +76,11 @@ def run(
     if the_rig.robot is None:
         raise ValueError(f"{rig if rig is not None else the_cell.name}: the rig has no robot to drive "
                          f"(add a robot: section)")
+    # the rig's monitor: reaction unless --reaction is given (issue 33 item 6: the option's default won)
+    reaction_from = "--reaction" if reaction is not None else "the rig's monitor: reaction"
+    reaction = reaction if reaction is not None else the_rig.monitor.reaction
+    if not quiet:
+        typer.echo(f"run: reaction {reaction} (from {reaction_from})", err=True)
     cfg = LoopConfig(fusion=fusion, noise=not no_noise, distance_hz=distance_hz, camera_latency=camera_latency,
                      reaction=reaction)
     paper_task = rig is None and the_cell.name == "flacco-cell"
@@ -90,23 +95,25 @@ def run(
 
     summary, res = run_scenario(scenario, out=out, duration=duration, seed=seed, config=cfg,
                                 cell=the_cell.name if rig is None else the_cell, progress=progress)
+    import json
+
+    summary = dict(summary, reaction=reaction, reaction_from=reaction_from)
     typer.echo(_one_line(summary))
     if reaction != "repulsion":                     # R33: the SSM's figures, also in summary.json
-        import json
-
         from depthguard.evaluation.ssm_compare import row_of
         row = row_of(summary, res, reaction)
-        (out / "summary.json").write_text(json.dumps(dict(summary, ssm_compare=row), indent=2))
+        summary = dict(summary, ssm_compare=row)
         typer.echo(f"SSM: task progress {row['progress']:.2f}, protective stops {row['protective_stops']}, "
                    f"time stopped {row['time_stopped_s']:.2f} s, SSM violations {row['ssm_violations']} "
                    f"(with Z_d {row['ssm_violations_with_Z_d']})")
+    (out / "summary.json").write_text(json.dumps(summary, indent=2))
     typer.echo(f"wrote {out}/summary.json and plots")
 
 
 def _one_line(s: dict) -> str:
     rms = s["ee_tracking_rms_m"]
     dyn = s.get("min_true_distance_dynamic_m")
-    parts = [f"{s['scenario']}: min true distance {s['min_true_distance_m'] * 100:.1f} cm"
+    parts = [f"{s['scenario']} ({s['reaction']}, from {s['reaction_from']}): min true distance {s['min_true_distance_m'] * 100:.1f} cm"
              + ("" if dyn is None else f" (to moving obstacles {dyn * 100:.1f} cm)"),
              "COLLISION" if s["collision"] else "no collision",
              f"EE tracking RMS {rms * 1000:.1f} mm" if rms is not None else "EE tracking RMS n/a",

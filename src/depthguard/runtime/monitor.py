@@ -47,6 +47,7 @@ from depthguard.runtime.distances import DistanceWorker, bound_distances
 from depthguard.runtime.ingest import CameraWorker, FusionWorker
 from depthguard.robot.joint_history import JointHistory
 from depthguard.runtime.result import CameraStatus, Reaction
+from depthguard.runtime.refusals import explain_stale
 
 __all__ = ["Monitor"]
 
@@ -125,6 +126,7 @@ class Monitor:
         self._t_last: float | None = None
         self._last_q: np.ndarray | None = None
         self._seen: dict[str, int] = {}          # camera -> version already used by a cycle
+        self._refusal_marks: dict[str, tuple[int, int]] = {}   # runtime.refusals: refused since the frame in use
         self._dist_worker: DistanceWorker | None = None     # real_time(): distances off this thread
         self._worker_data = self.robot.create_data()
         self.distance_fallbacks: dict[str, int] = {}   # cycles that queried the grid themselves, by why
@@ -350,6 +352,7 @@ class Monitor:
         reasons = stop_reasons(ages, limit, ids, obs[:m_cp], D[:m_cp], V[:m_cp], self._cp_names)
         for c, msg in untrusted.items():
             reasons[f"untrusted:{c}"] = msg
+        explain_stale(reasons, self._workers, self._refusal_marks)     # a stale camera's refused frames
         if joints_age > cfg.joints_stale_s + 1e-9:
             reasons["stale:joints"] = (f"joint states: none for more than {cfg.joints_stale_s * 1e3:.0f} ms "
                                        f"- stale data (R27)" if latest is not None else

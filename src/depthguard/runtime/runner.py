@@ -6,7 +6,8 @@ source is done, or the caller stops it (Ctrl-C, ``stop`` event).
 
 - **Real time** (default): one thread per source polls it on the run's clock
   (from 0, from a recording's first stamp, or the wall clock ``time.time()``
-  when a source is live) and pushes what it returns; the calling
+  when a source is live; a source with ``start_clock(t0)``, the simulator, is
+  told where that clock starts) and pushes what it returns; the calling
   thread steps the monitor every ``1 / control_hz`` s. The control thread
   never waits for a frame.
 - **Fast** (``fast=True``): one thread; at each control cycle ``t = k dt``
@@ -43,7 +44,8 @@ class RunStats:
         self.slowed_s = 0.0
         self.nearest = math.inf
         self.nearest_at = None
-        self.unobserved_cycles = 0
+        self.unobserved_cycles = 0        # cycles in which some control or watch point could not be judged
+        self.unobserved_points: dict[str, int] = {}   # point name -> cycles it could not be judged
         self._t_prev = None
         self.last = None
         self.interrupted = False          # stopped by Ctrl-C (the summary is still written)
@@ -65,8 +67,10 @@ class RunStats:
         name, d = r.nearest()
         if d < self.nearest:
             self.nearest, self.nearest_at = d, (name, r.t)
-        if not np.all(r.observed[~r.is_watch]):
+        if not r.observed.all():          # watch points too: one no camera judges is reported
             self.unobserved_cycles += 1
+            for i in np.flatnonzero(~r.observed):
+                self.unobserved_points[r.names[i]] = self.unobserved_points.get(r.names[i], 0) + 1
         self.last = r
 
 
@@ -87,6 +91,7 @@ def summarise(monitor, stats: RunStats, wall_s: float, sources: dict, extra: dic
         "nearest_point": None if stats.nearest_at is None else stats.nearest_at[0],
         "nearest_t": None if stats.nearest_at is None else round(stats.nearest_at[1], 4),
         "unobserved_cycles": stats.unobserved_cycles,
+        "unobserved_points": dict(stats.unobserved_points),
         "source_errors": list(stats.source_errors),
         "control_scheduling": stats.control_scheduling,
         "distance_thread": {"queries": monitor.distance_queries,
@@ -146,6 +151,9 @@ def run(monitor, frame_sources: list, joint_source, *, duration: float | None = 
     t0 = min(firsts) if firsts else 0.0           # a recording's clock starts at its first stamp
     if not fast and any(getattr(src, "live", False) for src in [*frame_sources, joint_source] if src is not None):
         t0 = time.time()                          # live sources stamp with the wall clock: so does the run
+    for src in {id(s): s for s in [*frame_sources, joint_source] if s is not None}.values():
+        if hasattr(src, "start_clock"):
+            src.start_clock(t0)                   # the simulator's time 0 is the run's start, on its clock
     try:
         if fast:
             with monitor.replay():                # one grid: each cycle follows a flush

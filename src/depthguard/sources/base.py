@@ -37,7 +37,7 @@ import numpy as np
 from depthguard.sources.frame import Frame
 
 __all__ = ["FrameSource", "JointSource", "register_source", "register_joints", "open_source",
-           "open_joints", "source_schemes", "joint_schemes", "split_spec"]
+           "open_joints", "check_source_spec", "source_schemes", "joint_schemes", "split_spec"]
 
 
 @runtime_checkable
@@ -122,12 +122,19 @@ def split_spec(spec: str) -> tuple[str, str]:
     return scheme.strip(), arg.strip()
 
 
-def open_source(spec: str, rig, context: dict | None = None):
-    """The frame source of ``spec`` (``ValueError`` naming the known schemes for an unknown one)."""
+def check_source_spec(spec: str) -> tuple[str, str]:
+    """``(scheme, argument)`` of a frame source spec, opening nothing (``ValueError`` naming the
+    known schemes for an unknown one): a command checks all its arguments before any source opens."""
     _load_modules()
     scheme, arg = split_spec(spec)
     if scheme not in _SOURCES:
         raise ValueError(f"unknown source {spec!r}: the scheme must be one of {', '.join(sorted(_SOURCES))}")
+    return scheme, arg
+
+
+def open_source(spec: str, rig, context: dict | None = None):
+    """The frame source of ``spec`` (``ValueError`` naming the known schemes for an unknown one)."""
+    scheme, arg = check_source_spec(spec)
     return _SOURCES[scheme](arg, rig, {} if context is None else context)
 
 

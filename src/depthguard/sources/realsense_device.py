@@ -26,10 +26,12 @@ that names what to install.
 
 from __future__ import annotations
 
+import atexit
 import math
 import sys
 import threading
 import time
+import weakref
 from collections import deque
 
 import numpy as np
@@ -201,6 +203,21 @@ def _calibrate_free_refs() -> int:
 _FREE_REFS = _calibrate_free_refs()
 
 
+#: the streams started and not stopped yet: stopped at exit (``_stop_open_streams``)
+_OPEN_STREAMS: "weakref.WeakSet[DepthStream]" = weakref.WeakSet()
+
+
+@atexit.register
+def _stop_open_streams() -> None:
+    """Stop every stream still running when the interpreter exits, before it finalizes: an SDK
+    thread still in a stream's Python callback then (a recording's blocking callback waiting for
+    room, say) is torn down by the interpreter's shutdown inside C++, and the SDK aborts the
+    process (``FATAL: exception not rethrown``, exit 134, or a segmentation fault) — as a
+    command that raised a usage error after opening a recording did."""
+    for stream in list(_OPEN_STREAMS):
+        stream.stop()
+
+
 class DepthStream:
     """One depth sensor started with a converting callback (module docstring).
 
@@ -245,6 +262,7 @@ class DepthStream:
         except Exception:
             sensor.close()
             raise
+        _OPEN_STREAMS.add(self)
 
     def _on_frame(self, frame) -> None:
         try:
@@ -334,6 +352,7 @@ class DepthStream:
                 return
             self._stopped = True
             self._cv.notify_all()
+        _OPEN_STREAMS.discard(self)
         for call in (self.sensor.stop, self.sensor.close):
             try:
                 call()

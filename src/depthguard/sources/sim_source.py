@@ -21,6 +21,15 @@ Cameras deliver at ``camera_hz`` (each with its own phase: not synchronised);
 each frame is rendered at its capture time with the robot where it was then,
 and stamped with that time. The scene loops over its scripted duration.
 
+The simulator's time starts at the run's clock origin (``start_clock``, called by
+the runner): 0 for a run of the simulator alone, a recording's first stamp, or
+the wall clock ``time.time()`` when a live source (``zenoh:`` or ``ros2:`` joint
+states) sets the run's clock. Its frames and joint states are stamped on that
+clock, so that they meet a live source's stamps. The robot never catches up more
+than ``states``' span (5 s) of joint ticks in one call: a world that is further
+behind jumps ahead (``skipped_ticks`` counts the ticks never computed), so that
+one call's work and memory are bounded whatever ``t`` it is given.
+
 In a real-time run (the runner says so) a camera that falls more than a period
 behind drops the frames it could not render, and the cameras take their noise's
 normals from a pre-drawn bank (:class:`~depthguard.sources.noise.NormalBank`: the
@@ -99,7 +108,9 @@ class SimWorld:
         self.slowed_s = 0.0             # seconds below 0.95 of the path's speed
         self.stopped_s = 0.0            # seconds below 1 % of it
         self._tau = self.start          # path time of the robot
-        self._tick = 0                  # next joint tick index (time = tick / joint_hz)
+        self._tick = 0                  # next joint tick index (time = origin + tick / joint_hz)
+        self.origin = 0.0               # the run's clock at the simulator's time 0 (start_clock)
+        self.skipped_ticks = 0          # joint ticks jumped over by a world far behind (advance)
         self._path_end = float(getattr(self.scene.robot_path, "end", 0.0))   # a JointPath loops; a callable does not
 
     def on_reaction(self, reaction) -> None:
@@ -136,13 +147,32 @@ class SimWorld:
             tau = tau % self._path_end
         return self.scene.robot_q(tau)
 
+    def start_clock(self, origin: float) -> None:
+        """Put the simulator's time 0 at ``origin`` s of the run's clock (module docstring); only
+        before the robot has moved (a world already advanced keeps its clock)."""
+        if not math.isfinite(origin):
+            raise ValueError(f"sim source: the clock origin must be finite (got {origin!r})")
+        with self._lock:
+            if self._tick == 0:
+                self.origin = float(origin)
+
     def advance(self, t: float) -> list[tuple[float, np.ndarray]]:
-        """Move the robot to run time ``t``; the new ``(stamp, q)`` states, in order."""
+        """Move the robot to run time ``t`` (s, the run's clock); the new ``(stamp, q)`` states, in
+        order, at most ``states.maxlen`` of them (a world further behind jumps ahead, keeping the
+        speed scale of its last tick; ``skipped_ticks`` counts the jump)."""
         new = []
         with self._lock:
             dt = 1.0 / self.joint_hz
-            while self._tick * dt <= t + 1e-12:
-                ts = self._tick * dt
+            local = t - self.origin
+            due = math.floor(local / dt + 1e-9)         # the newest tick due at t
+            if due - self._tick >= self.states.maxlen:
+                skip = due - self._tick - self.states.maxlen + 1
+                if self._tick > 0:
+                    self._tau += self.scale * skip * dt
+                self.skipped_ticks += skip
+                self._tick += skip
+            while self._tick * dt <= local + 1e-12:
+                ts = self.origin + self._tick * dt
                 if self._tick > 0:
                     self.scale = self._speed_scale(self._tau, dt)
                     self._tau += self.scale * dt
@@ -157,6 +187,7 @@ class SimWorld:
         return new
 
     def dynamic(self, t: float) -> list:
+        """The people and props at the simulator's time ``t`` (s from its start, not the run's clock)."""
         return [] if self.alone else list(self.scene.dynamic_at(self.scene_time(t)))
 
 
@@ -168,6 +199,10 @@ class SimJoints:
         self.done = False
         self.lost = None
         self._last = -math.inf          # stamp of the newest state returned
+
+    def start_clock(self, origin: float) -> None:
+        """The run's clock origin (module docstring)."""
+        self.world.start_clock(origin)
 
     def states_until(self, t: float) -> list[tuple[float, np.ndarray]]:
         """The robot's states up to ``t`` not returned yet (the frame source may have moved the
@@ -215,6 +250,10 @@ class SimFrames:
         self.skipped = 0
         self.done = False
         self.lost = None
+
+    def start_clock(self, origin: float) -> None:
+        """The run's clock origin (module docstring): frames are stamped ``origin +`` their time."""
+        self.world.start_clock(origin)
 
     def use_noise_bank(self) -> None:
         """Real time (set by the runner): the cameras take their noise's normals from one
@@ -269,8 +308,10 @@ class SimFrames:
         return d
 
     def frames_until(self, t: float) -> list[Frame]:
+        """The frames captured by ``t`` (s, the run's clock) not returned yet, stamped on that clock."""
         self.world.advance(t)
-        t = min(t, self.world.history.newest_stamp)   # a frame needs the robot's pose at its capture
+        origin = self.world.origin
+        t = min(t, self.world.history.newest_stamp) - origin   # a frame needs the robot's pose at its capture
         out = []
         for cid in self.camera_ids:
             if self.skip_behind and self._next[cid] + self._period <= t + 1e-12:
@@ -286,8 +327,8 @@ class SimFrames:
                 self._next[cid] = ph + (math.floor((tc - ph) / self._period + 1e-9) + 1) * self._period
                 if cid in self._stopped and tc >= self._stopped[cid]:
                     continue
-                q = self.world.history.at(min(tc, t))         # tc <= t up to rounding
-                out.append(Frame(cid, self.render(cid, tc, q), tc))
+                q = self.world.history.at(origin + min(tc, t))         # tc <= t up to rounding
+                out.append(Frame(cid, self.render(cid, tc, q), origin + tc))
         out.sort(key=lambda f: f.stamp)
         return out
 

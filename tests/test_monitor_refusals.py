@@ -1,0 +1,96 @@
+"""A refused frame reaches the user when it happens (issue 33 item 2, R27, R28): the stale
+camera's stop reason says why its frames are refused, and a --fast run in which a camera never
+had a frame accepted ends with exit status 2 and that reason in one line."""
+
+from __future__ import annotations
+
+import json
+import subprocess
+import sys
+
+import numpy as np
+
+from depthguard.filtering.expected import ExpectedDepth
+from depthguard.runtime.monitor import Monitor
+from depthguard.sim import load_cell
+from depthguard.sources.frame import Frame
+
+DG = [sys.executable, "-m", "depthguard.cli"]
+
+
+def _still(rig, cam, q0):
+    return np.array(ExpectedDepth(cam, rig.robot, rig.static_meshes()).known(q0), copy=True)
+
+
+def test_a_stale_cameras_reason_names_its_refused_frames_until_one_is_accepted():
+    rig = load_cell("flacco-cell").rig
+    q0 = np.asarray(rig.robot_q0, dtype=np.float64)
+    cam0, cam1 = rig.cameras[0], rig.cameras[1]
+    good0, good1 = _still(rig, cam0, q0), _still(rig, cam1, q0)
+    limit = rig.monitor.camera_stale_limit
+    with Monitor(rig, rig.monitor.with_changes(invalid="free")) as mon:
+        for k in range(400):
+            mon.push_joints(k * 0.002, q0)
+        mon.push_frame(Frame(cam0.id, good0 / 1000.0, 0.001))       # metres written into a millimetre PNG
+        mon.push_frame(Frame(cam1.id, good1, 0.001))
+        mon.flush()
+        r = mon.step(0.01)
+        assert "hold metres" in r.reasons[f"stale:{cam0.id}"] and "refused" in r.reasons[f"stale:{cam0.id}"]
+        assert "refused" not in r.reasons.get(f"stale:{cam1.id}", "")   # stale too (no grid yet), not refusing
+        mon.push_frame(Frame(cam0.id, good0, 0.02))                  # a good frame: the refusal is history
+        mon.push_frame(Frame(cam1.id, good1, 0.02))
+        mon.flush()
+        assert f"stale:{cam0.id}" not in mon.step(0.03).reasons
+        mon.push_frame(Frame(cam0.id, good0 / 1000.0, 0.04))        # bad again; the good frame grows old
+        mon.push_frame(Frame(cam1.id, good1, 0.02 + limit))
+        mon.flush()
+        r = mon.step(0.02 + limit + 0.01)
+        assert "hold metres" in r.reasons[f"stale:{cam0.id}"]
+        assert "refused" not in r.reasons.get(f"stale:{cam1.id}", "")
+
+
+def test_a_cameras_stale_reason_without_refusals_stays_as_it_was():
+    rig = load_cell("flacco-cell").rig
+    q0 = np.asarray(rig.robot_q0, dtype=np.float64)
+    with Monitor(rig) as mon:
+        mon.push_joints(0.0, q0)
+        r = mon.step(0.5)
+        assert all(m.endswith("stale data (R27)") for k, m in r.reasons.items() if k.startswith("stale:"))
+
+
+def test_a_fast_run_whose_camera_never_had_a_frame_accepted_exits_2_naming_why(tmp_path):
+    """A recording whose cam0 PNGs hold metres (values 1000 x too small as millimetres): the
+    status says so while it runs, the log's reasons too, and the run exits 2 with one line."""
+    from depthguard.sim.cells import cell_rig_path
+    from depthguard.sources.images import write_image_dir
+    from depthguard.sources.sim_source import SimFrames, SimWorld
+
+    world = SimWorld("flacco-cell", alone=True, noiseless=True)
+    sim = SimFrames(world)
+    T0, dur = 1.7e9, 0.3
+    world.advance(dur + 0.05)
+    frames = []
+    for k in range(int(dur * 30) + 1):
+        for i, cid in enumerate(sim.camera_ids):
+            tc = k / 30 + i * 0.011 + 0.005
+            d = sim.render(cid, tc, world.history.at(tc))
+            frames.append(Frame(cid, d / 1000.0 if cid == "cam0" else d, T0 + tc))
+    write_image_dir(tmp_path / "rec", sorted(frames, key=lambda f: f.stamp))
+    rows = ["stamp," + ",".join(f"q{j + 1}" for j in range(world.robot.dof))]
+    for k in range(int((dur + 0.05) * 500)):
+        rows.append(f"{T0 + k / 500!r}," + ",".join(repr(float(x)) for x in world.history.at(k / 500)))
+    (tmp_path / "joints.csv").write_text("\n".join(rows) + "\n")
+    out = tmp_path / "out"
+    res = subprocess.run(DG + ["monitor", "--rig", str(cell_rig_path("flacco-cell")), "--source",
+                               f"images:{tmp_path / 'rec'}", "--joints", f"csv:{tmp_path / 'joints.csv'}",
+                               "--fast", "--out", str(out)], capture_output=True, text=True, timeout=600)
+    assert res.returncode == 2, (res.stdout, res.stderr)
+    errors = [x for x in res.stderr.splitlines() if "error" in x]
+    assert len(errors) == 1 and "camera cam0 never had a frame accepted" in errors[0] and "hold metres" in errors[0]
+    assert "cam1" not in errors[0] and "Traceback" not in res.stderr
+    assert "camera cam0 refuses its frames" in res.stderr                     # the status, while it ran
+    log = [json.loads(x) for x in (out / "log.jsonl").read_text().splitlines()]
+    assert any("hold metres" in r["reasons"].get("stale:cam0", "") for r in log)
+    summary = json.loads((out / "summary.json").read_text())
+    assert summary["stats"]["cameras"]["cam0"]["frames"] == 0
+    assert summary["stats"]["cameras"]["cam1"]["frames"] > 0

@@ -1,0 +1,30 @@
+"""A watch point that no camera judges is counted in the summary (issue 33 item 7, R26, R31)."""
+
+import numpy as np
+
+from depthguard.config import WatchPoint
+from depthguard.runtime.monitor import Monitor
+from depthguard.runtime.runner import run, summarise
+from depthguard.sources.base import open_joints, open_source
+from depthguard.sim import load_cell
+
+
+def test_a_watch_point_no_camera_sees_is_counted_in_every_cycle():
+    rig = load_cell("flacco-cell").rig
+    cfg = rig.monitor.with_changes(watch_points=(WatchPoint(name="door", position=(0.5, 0.0, 0.5)),
+                                                 WatchPoint(name="attic", position=(0.0, 0.0, 30.0))))
+    context: dict = {}
+    frames = open_source("sim:flacco-cell:alone:noiseless", rig, context)
+    joints = open_joints("sim", rig, context)
+    log = []
+    with Monitor(rig, cfg) as mon:
+        stats, wall = run(mon, [frames], joints, duration=0.3, fast=True, on_reaction=log.append)
+        summary = summarise(mon, stats, wall, {})
+    # the truth: each cycle's own reaction says which points were judged
+    attic = [bool(r.observed[list(r.names).index("attic")]) for r in log]
+    door = [bool(r.observed[list(r.names).index("door")]) for r in log]
+    assert not any(attic) and any(door)
+    some_unjudged = sum(1 for r in log if not np.all(r.observed))
+    assert summary["unobserved_cycles"] == some_unjudged == len(log) == summary["cycles"]
+    assert summary["unobserved_points"]["attic"] == len(log)
+    assert summary["unobserved_points"].get("door", 0) == door.count(False)
