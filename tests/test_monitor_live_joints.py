@@ -61,7 +61,7 @@ def test_simulated_cameras_with_zenoh_joints_fuse_and_stop_on_sigterm_with_a_sum
     SIGTERM ends the run with its summary written (it used to hang, ignore SIGTERM and grow)."""
     import zenoh
 
-    from depthguard.distributed.settings import zenoh_config
+    from depthguard.transport.settings import zenoh_config
     from depthguard.sim.cells import load_cell
 
     port = _free_port()

@@ -9,7 +9,7 @@ import yaml
 
 import depthguard as dg
 from depthguard.rig import RigError
-from depthguard.sources.sensors import intrinsics_for
+from depthguard.sensors import intrinsics_for
 
 
 def _rig(tmp_path, camera):
