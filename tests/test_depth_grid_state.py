@@ -5,6 +5,7 @@ answers of a build that works it out itself, and is never used when made with ot
 from __future__ import annotations
 
 import numpy as np
+import pytest
 
 from depthguard.fusion import depth_grid_ref as ref
 from depthguard.fusion.depth_grid import DepthGridMap
@@ -111,3 +112,16 @@ def test_pyramids_made_with_the_state_are_the_grids():
     h, w = free.shape
     lv1 = states["c1"].pmin[h * w: h * w + (h // 2) * (w // 2)].reshape(h // 2, w // 2)
     np.testing.assert_array_equal(lv1, free.reshape(h // 2, 2, w // 2, 2).min(axis=(1, 3)))
+
+
+@pytest.mark.slow
+def test_bench_share_rows_in_quick_mode():
+    """``depthguard bench --only share`` (the build's CPU with the cameras' states beside the build
+    working them out) gives finite rows with their peer (no speed asserted: the bench's)."""
+    from depthguard.evaluation.bench import BenchContext, run
+
+    rows = {r.name: r for r in run(["share"], BenchContext(quick=True, repeats=3))}
+    for cell in ("flacco-cell", "ur3-cell"):
+        build = rows[f"share.build_cpu_ms.{cell}"]
+        assert np.isfinite(build.value) and build.value > 0 and build.peer_value > 0
+        assert rows[f"share.state_cpu_ms.{cell}"].value > 0

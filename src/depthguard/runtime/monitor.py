@@ -165,7 +165,10 @@ class Monitor:
         if len(ids) < 2 or cid not in ids:
             return None
         other = cid != ids[0]
-        return StateOptions.of(cfg), cfg.robot_in_others == "free" and other, other
+        # pyramids stay with the build (False): made here into fresh memory per frame they cost the
+        # worker 6-7 ms of page faults on a loaded machine against ~1 ms in the grid's own buffers
+        # (measured 2026-11-25); a reused ring needs a check that the build did not copy a torn one
+        return StateOptions.of(cfg), cfg.robot_in_others == "free" and other, False
 
     def _make_grid(self, cams: tuple[str, ...]):
         from depthguard.fusion.depth_grid import DepthGridMap

@@ -23,6 +23,7 @@ _MODULES = [
     "depthguard.evaluation.bench.render",
     "depthguard.evaluation.bench.distance",
     "depthguard.evaluation.bench.depthgrid",
+    "depthguard.evaluation.bench.camera_share",
     "depthguard.evaluation.bench.loop",
     "depthguard.evaluation.bench.freespace",
     "depthguard.evaluation.bench.robot",

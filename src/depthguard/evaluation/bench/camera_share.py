@@ -1,0 +1,123 @@
+"""Bench group ``share``: a fusion build's CPU with each camera's share made on its own thread (R36).
+
+On ``flacco-cell`` and ``ur3-cell`` (the product's ``monitor:`` settings: invalid pixels
+unknown, silhouette and small-gap rules, padded robot), noisy simulated frames of every camera
+along one second of the robot's path are rendered before any clock, the cameras taking turns as
+unsynchronised cameras do. Each build loads the one camera that changed (the robot's volume at
+the capture joints of the frames in use, ``set_frames`` with ``changed=``) and classifies the
+cells around the control points ahead (``query`` at ``rho + distance_margin``), as the
+monitor's fusion worker does.
+
+* ``share.build_cpu_ms.<cell>`` — CPU seconds of that build (``time.thread_time``, one numba
+  thread: robust to other load on the machine), median over the frames, with each frame's state
+  and pyramids made beforehand by :class:`~depthguard.fusion.depth_grid_state.StateMaker` (what
+  the camera's worker does) and copied in (the monitor's split). Peer: the same builds working the states out
+  themselves (the build before the camera's share moved out), alternated run by run; the
+  figures are the least median of five runs each.
+* ``share.state_cpu_ms.<cell>`` — what the camera's worker pays per frame for its share (the
+  state; the pyramids stay with the build, as in the monitor: made into fresh memory per frame
+  they cost the worker several ms of page faults).
+"""
+
+from __future__ import annotations
+
+import time
+
+import numpy as np
+
+from depthguard.evaluation.bench import BenchContext, BenchRow, group
+
+CELLS = (("flacco-cell", 8.5), ("ur3-cell", 2.0))      # (cell, scene time of the first frame)
+
+
+def _frames(cell_name: str, t0: float, n: int):
+    from depthguard.filtering.expected import ExpectedDepth
+    from depthguard.fusion.depth_grid_state import StateMaker, StateOptions
+    from depthguard.sim.cells import load_cell
+    from depthguard.sources.sim_source import SimFrames, SimWorld
+
+    cell = load_cell(cell_name)
+    rig, cfg = cell.rig, cell.rig.monitor
+    sim = SimFrames(SimWorld(cell_name, seed=0))
+    cams = list(rig.cameras)
+    expected = {c.id: ExpectedDepth(c, rig.robot, rig.static_meshes()) for c in cams}
+    makers = {c.id: StateMaker(c) for c in cams}
+    options = StateOptions.of(cfg)
+    out, state_s = [], []
+    for k in range(n):
+        cam = cams[k % len(cams)]
+        t = t0 + k / (30.0 * len(cams))
+        q = np.asarray(cell.scene.robot_q(t), dtype=np.float64)
+        depth = sim.render(cam.id, t, q).copy()
+        rd = np.array(expected[cam.id].robot(q), copy=True)
+        other = cam.id != cams[0].id
+        out.append((cam.id, depth, rd, q, (options, cfg.robot_in_others == "free" and other, False)))
+    for cid, depth, rd, _q, role in out:                 # compiled and buffers touched: not timed
+        makers[cid].make(depth, rd, *role)
+    for i, (cid, depth, rd, q, role) in enumerate(out):
+        c0 = time.thread_time()
+        st = makers[cid].make(depth, rd, *role)
+        state_s.append(time.thread_time() - c0)
+        out[i] = (cid, depth, rd, q, st)
+    return cell, out, state_s
+
+
+def _builds(grid, cell, frames, with_states: bool) -> float:
+    """Median CPU seconds of the builds over ``frames`` (module docstring)."""
+    from depthguard.robot.volume import robot_volume
+
+    rig, cfg = cell.rig, cell.rig.monitor
+    robot = rig.robot
+    data = robot.create_data()
+    n_cams = len(rig.cameras)
+    depths, rds, qs, states, cpu = {}, {}, {}, {}, []
+    for i, (cid, d, rd, q, st) in enumerate(frames):
+        depths[cid], rds[cid], qs[cid], states[cid] = d, rd, q, st
+        if len(depths) < n_cams:
+            continue
+        c0 = time.thread_time()
+        caps = robot_volume(robot, list(qs.values()), cfg.robot_padding)
+        grid.set_frames(depths, rds, robot_offset=cfg.robot_offset, robot_capsules=caps, invalid=cfg.invalid,
+                        robot_in_others=cfg.robot_in_others, changed={cid} if i >= n_cams else None,
+                        silhouette_px=cfg.silhouette_px, gap_px=cfg.gap_px,
+                        states=states if with_states else None)
+        robot.forward(q, data)
+        grid.query(data.cp_positions, rho=cfg.query_rho + cfg.distance_margin, method=cfg.method)
+        cpu.append(time.thread_time() - c0)
+    return float(np.median(cpu))
+
+
+@group("share")
+def bench_share(ctx: BenchContext) -> list[BenchRow]:
+    import numba
+
+    from depthguard.fusion.depth_grid import DepthGridMap
+
+    rows: list[BenchRow] = []
+    previous = numba.get_num_threads()
+    numba.set_num_threads(1)
+    try:
+        for name, t0 in CELLS:
+            cell, frames, state_s = _frames(name, t0, 8 if ctx.quick else 24)
+            rig = cell.rig
+            cams = list(rig.cameras)
+            d_min, d_max = rig.workspace.depth_span(cams[0])
+            grid = DepthGridMap(cams, principal=cams[0].id, d_min=d_min, d_max=d_max, delta_d=rig.monitor.delta_d)
+            grid.touch()
+            seq = frames * (1 if ctx.quick else 3)
+            _builds(grid, cell, seq, True)                   # compiled, pages touched
+            _builds(grid, cell, seq, False)
+            shared, own = [], []
+            for _ in range(2 if ctx.quick else 5):
+                shared.append(_builds(grid, cell, seq, True))
+                own.append(_builds(grid, cell, seq, False))
+            rows.append(BenchRow(f"share.build_cpu_ms.{name}", 1e3 * min(shared), "ms",
+                                 peer="the build working the states out itself", peer_value=1e3 * min(own),
+                                 note=f"{len(cams)} cameras 640x480, one build per frame, one numba thread, CPU "
+                                      f"(thread_time); least median of {len(shared)} alternated runs; goal: the "
+                                      f"build near 1 ms (R36)"))
+            rows.append(BenchRow(f"share.state_cpu_ms.{name}", 1e3 * float(np.median(state_s)), "ms",
+                                 note="a frame's state on its camera's worker, one numba thread"))
+    finally:
+        numba.set_num_threads(previous)
+    return rows
