@@ -36,6 +36,8 @@ def test_a_stale_cameras_reason_names_its_refused_frames_until_one_is_accepted()
         mon.flush()
         r = mon.step(0.01)
         assert "hold metres" in r.reasons[f"stale:{cam0.id}"] and "refused" in r.reasons[f"stale:{cam0.id}"]
+        last = mon.stats()["cameras"][cam0.id]["last_refusal"]
+        assert last.count(f"camera {cam0.id}") == 1, last      # named once, not "camera X: camera X:"
         assert "refused" not in r.reasons.get(f"stale:{cam1.id}", "")   # stale too (no grid yet), not refusing
         mon.push_frame(Frame(cam0.id, good0, 0.02))                  # a good frame: the refusal is history
         mon.push_frame(Frame(cam1.id, good1, 0.02))

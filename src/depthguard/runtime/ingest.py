@@ -148,7 +148,8 @@ class CameraWorker:
     def _refuse(self, key: str, message: str) -> None:
         with self.lock:
             self.refusals[key] = self.refusals.get(key, 0) + 1
-            self.last_refusal = f"camera {self.id}: {message}"
+            prefix = f"camera {self.id}: "       # a message from depth_io already names the camera
+            self.last_refusal = message if message.startswith(prefix) else prefix + message
 
     def _run(self) -> None:
         background_thread()

@@ -31,5 +31,5 @@ def explain_stale(reasons: dict[str, str], workers: dict, marks: dict[str, tuple
             mark = marks[cid] = (version, refused if product is not None else 0)
         key = f"stale:{cid}"
         if key in reasons and last and refused > mark[1]:
-            why = last.removeprefix(f"camera {cid}: ").removeprefix(f"camera {cid}: ")
+            why = last.removeprefix(f"camera {cid}: ")
             reasons[key] += f"; its frames are refused ({refused - mark[1]}): {why}"

@@ -109,7 +109,6 @@ class LoopTruth:
         return np.maximum(d[:m], 0.0), float(d[m:].min()), float((sd_dyn - r_all)[m:].min())
 
 
-
 def _mount_points(robot, static, q: np.ndarray, cap: np.ndarray, u: np.ndarray, rng, touch: float = 0.005,
                   invariant: float = 1e-3) -> list[tuple[int, np.ndarray]]:
     """``[(static index, (k,) bool), ...]``: per static object that carries the robot, which of the
