@@ -154,3 +154,33 @@ def test_monitor_refuses_a_bad_franka_in_one_line(tmp_path, args, words):
                          capture_output=True, text=True, timeout=300)
     assert res.returncode == 2, (res.stdout, res.stderr)
     assert words in res.stderr and "Traceback" not in res.stderr
+
+
+@pytest.mark.slow
+def test_a_lost_robot_is_said_and_the_joints_go_stale(fr3):
+    """The simulator's server goes away while the path runs: the sink says so (R27) and the
+    joint source stops giving states (the monitor then stops on stale joints)."""
+    from franky_sim import SimulationServer
+    from franky_sim.mujoco_simulator import MujocoSimulator
+
+    rig = load_cell("flacco-cell").rig
+    with MujocoSimulator(enable_visualization=False) as sim:
+        robot = sim.add_robot()
+        server = SimulationServer(sim)
+        server.__enter__()
+        server.run_async()
+        home = np.array(robot.inner_state.q, dtype=float)
+        sink = FrankySink(robot.hostname, np.array([home, home + [0.5, 0, 0, 0, 0, 0, 0]]))
+        src = open_joints(f"franky:{robot.hostname}", rig, {})
+        try:
+            _drive(sink, 1.0, 1.0)
+            assert src.received > 0 and sink.lost is None
+            server.__exit__(None, None, None)
+            _drive(sink, 1.0, 3.0)
+            n = src.received
+            time.sleep(0.5)
+            assert sink.lost is not None and "R27" in sink.lost, sink.events
+            assert src.received == n                                   # no state comes any more
+        finally:
+            src.close()
+            sink.close()
