@@ -139,20 +139,29 @@ COLOR_FROM_DEPTH = np.eye(4)
 COLOR_FROM_DEPTH[:3, 3] = (-0.015, 0.0, 0.0)                 # the colour imager 15 mm to the depth's left
 
 
-def realsense(mount: np.ndarray):
-    """realsense-ros 4.x, camera_namespace = camera_name = camera, align_depth.enable: true."""
-    ns = "/camera/camera"
+def realsense(mount: np.ndarray, name: str = "camera"):
+    """realsense-ros 4.x, camera_namespace = camera_name = ``name`` (default ``camera``), align_depth.enable:
+    true; its frames are prefixed with the camera's name (``camera_link``, ``camera_depth_optical_frame``)."""
+    ns = f"/{name}/{name}"
     world_from_link = mount @ np.linalg.inv(BODY_FROM_OPTICAL)        # camera_link: x forward, z up
     color_frame = BODY_FROM_OPTICAL @ np.linalg.inv(COLOR_FROM_DEPTH) @ np.linalg.inv(BODY_FROM_OPTICAL)
-    streams = [(f"{ns}/depth/image_rect_raw", "16UC1", "camera_depth_optical_frame", {"k": K_DEPTH, "d": [0.0] * 5}),
-               (f"{ns}/aligned_depth_to_color/image_raw", "16UC1", "camera_color_optical_frame", {"k": K_COLOR, "d": [0.0] * 5}),
-               (f"{ns}/color/image_raw", "rgb8", "camera_color_optical_frame", {"k": K_COLOR, "d": [0.0] * 5}),
-               (f"{ns}/infra1/image_rect_raw", "mono8", "camera_infra1_optical_frame", {"k": K_DEPTH, "d": [0.0] * 5})]
-    tf = [("world", "camera_link", world_from_link), ("camera_link", "camera_depth_frame", np.eye(4)),
-          ("camera_depth_frame", "camera_depth_optical_frame", BODY_FROM_OPTICAL),
-          ("camera_link", "camera_color_frame", color_frame),
-          ("camera_color_frame", "camera_color_optical_frame", BODY_FROM_OPTICAL)]
-    return streams, tf, {"camera": (f"{ns}/depth/image_rect_raw", K_DEPTH, mount)}
+    f = name
+    streams = [(f"{ns}/depth/image_rect_raw", "16UC1", f"{f}_depth_optical_frame", {"k": K_DEPTH, "d": [0.0] * 5}),
+               (f"{ns}/aligned_depth_to_color/image_raw", "16UC1", f"{f}_color_optical_frame", {"k": K_COLOR, "d": [0.0] * 5}),
+               (f"{ns}/color/image_raw", "rgb8", f"{f}_color_optical_frame", {"k": K_COLOR, "d": [0.0] * 5}),
+               (f"{ns}/infra1/image_rect_raw", "mono8", f"{f}_infra1_optical_frame", {"k": K_DEPTH, "d": [0.0] * 5})]
+    tf = [("world", f"{f}_link", world_from_link), (f"{f}_link", f"{f}_depth_frame", np.eye(4)),
+          (f"{f}_depth_frame", f"{f}_depth_optical_frame", BODY_FROM_OPTICAL),
+          (f"{f}_link", f"{f}_color_frame", color_frame),
+          (f"{f}_color_frame", f"{f}_color_optical_frame", BODY_FROM_OPTICAL)]
+    return streams, tf, {name: (f"{ns}/depth/image_rect_raw", K_DEPTH, mount)}
+
+
+def two_realsense(mount: np.ndarray):
+    """Two realsense-ros cameras started as ``left`` and ``right`` (docs/OWN_CELL.md), one bag."""
+    s1, t1, c1 = realsense(mount, "left")
+    s2, t2, c2 = realsense(look_at([1.0, 1.0, 2.0], [0.0, 0.0, 0.8]), "right")
+    return s1 + s2, t1 + t2, {**c1, **c2}
 
 
 def orbbec(mount: np.ndarray):
@@ -196,7 +205,8 @@ def _load_draft(bag, tmp_path, name):
     return Rig.load(out), text, notes
 
 
-@pytest.mark.parametrize("layout, storage", [(realsense, "mcap"), (orbbec, "sqlite3"), (azure, "mcap")])
+@pytest.mark.parametrize("layout, storage", [(realsense, "mcap"), (two_realsense, "mcap"), (orbbec, "sqlite3"),
+                                             (azure, "mcap")])
 def test_each_driver_layout_plays_with_its_intrinsics_and_pose(tmp_path, layout, storage):
     streams, tf, cameras = layout(WORLD_FROM_CAM)
     bag = tmp_path / "bag"
