@@ -80,23 +80,24 @@ def monitor(
     rig: Optional[Path] = typer.Option(None, "--rig", help="Rig file (YAML) of your cell; its monitor: section sets the runtime."),
     cell: Optional[str] = typer.Option(None, "--cell", help="A built-in cell (default flacco-cell when no --rig)."),
     source: List[str] = typer.Option([], "--source", help="Frame source SCHEME:ARG, repeatable: sim[:CELL[:SITUATION]] (then any of :alone :dark :noiseless), images:DIR, bag:PATH (a ROS 2 bag, docs/BAGS.md), realsense[:CAM=SERIAL,...] and realsense-file:PATH (docs/REALSENSE.md), ros2: (live ROS 2 topics through rmw_zenoh, docs/ROS2.md), units:ENDPOINT (the camera units of a fusion server; list their cameras in the rig's monitor: remote_cameras). Default: the simulator of the cell (or of the rig's own scene)."),
-    joints: Optional[str] = typer.Option(None, "--joints", help="Joint source: sim (the simulated robot, which obeys the reaction), csv:FILE, zenoh:KEY, bag:PATH, ros2:[TOPIC] (default /joint_states). Default: sim with a sim source, the bag with a bag: source, ros2: with a ros2: source."),
+    joints: Optional[str] = typer.Option(None, "--joints", help="Joint source: sim (the simulated robot, which obeys the reaction), csv:FILE, zenoh:KEY, bag:PATH, ros2:[TOPIC] (default /joint_states), ur-rtde:HOST, franky:HOST. Default: sim with a sim source, the bag with a bag: source, ros2: with a ros2: source."),
     out: Optional[Path] = typer.Option(None, "--out", "-o", help="Folder for log.jsonl (one line per control cycle) and summary.json (default: out/monitor/<UTC time>)."),
     duration: Optional[float] = typer.Option(None, "--duration", help="Seconds of run time (default: until Ctrl-C or the end of the sources)."),
     fast: bool = typer.Option(False, "--fast", help="As fast as possible and deterministic (recordings, simulation), not in real time."),
     zenoh: bool = typer.Option(False, "--zenoh", help="Publish reactions, distances and health under depthguard/<cell>/... (loopback unless --zenoh-listen)."),
     zenoh_listen: Optional[str] = typer.Option(None, "--zenoh-listen", help="Zenoh endpoint the monitor listens on (default: the rig's monitor: zenoh_listen, loopback)."),
     zenoh_connect: List[str] = typer.Option([], "--zenoh-connect", help="Zenoh endpoints to connect to (repeatable)."),
-    ros2: bool = typer.Option(False, "--ros2", help="Publish the reaction as ROS 2 topics through rmw_zenoh: <ns>/override (std_msgs/Float64), <ns>/reaction, <ns>/markers (docs/ROS2.md)."),
+    ros2: bool = typer.Option(False, "--ros2", help="Publish the reaction as ROS 2 topics through rmw_zenoh: <ns>/override (std_msgs/Float64), <ns>/reaction, <ns>/markers, and the speed scaling of a joint_trajectory_controller (--ros2-scaling-topic) (docs/ROS2.md)."),
     ros2_domain: Optional[int] = typer.Option(None, "--ros2-domain", callback=in_range(0, 232), help="ROS 2 domain id (0 to 232) of ros2: sources and --ros2 (default: ROS_DOMAIN_ID, else 0)."),
     ros2_router: Optional[str] = typer.Option(None, "--ros2-router", help="Zenoh router of the ROS 2 cell (default tcp/127.0.0.1:7447, where rmw_zenohd listens)."),
     ros2_namespace: str = typer.Option("/depthguard", "--ros2-namespace", help="Namespace of the topics --ros2 publishes."),
+    ros2_scaling_topic: str = typer.Option("/joint_trajectory_controller/speed_scaling_input", "--ros2-scaling-topic", help="Where --ros2 publishes control_msgs/SpeedScalingFactor (transient local) for a ros2_control joint_trajectory_controller: its ~/speed_scaling_input; 'none' for no scaling topic (docs/ROS2.md)."),
     quiet: bool = typer.Option(False, "--quiet", "-q", help="No status line."),
     units_keys: Optional[Path] = typer.Option(None, "--units-keys", help="Certificate directory (depthguard keys admin) for a units:tls/HOST:PORT source of a server started with --keys (docs/THREAT_MODEL.md)."),
     view: bool = typer.Option(False, "--view", help="A live 3-D view in the browser (docs/VIEW.md)."),
     view_host: str = typer.Option("127.0.0.1", "--view-host", help="Address the view listens on (anyone who reaches it can change rho)."),
     view_port: int = typer.Option(8080, "--view-port", callback=in_range(0, 65535), help="Port of the view, 0 to 65535 (a busy one: the next free)."),
-    sink: List[str] = typer.Option([], "--sink", help="Send the reaction to a robot, SCHEME:ARG, repeatable: ur-rtde:HOST (a Universal Robots arm's speed slider through RTDE; needs depthguard[ur]; docs/ROBOTS.md)."),
+    sink: List[str] = typer.Option([], "--sink", help="Send the reaction to a robot, SCHEME:ARG, repeatable: ur-rtde:HOST (a Universal Robots arm's speed slider through RTDE; needs depthguard[ur]), franky:HOST,path=FILE (a Franka FR3 runs the joint path of FILE through franky, slowed and stopped by the reaction; needs depthguard[franka]) (docs/ROBOTS.md)."),
 ) -> None:
     """Run the monitor: frames and joint states in, the robot's reaction out (R29).
 
@@ -149,8 +150,8 @@ def monitor(
         from depthguard.sources.realsense_clock import check_joint_clock      # one clock for frames and joints (R30)
         check_joint_clock(sources, joint_source, joint_spec)
         from depthguard.runtime.sink_specs import open_sink
-        for x in sink:                  # --sink ur-rtde:HOST (docs/ROBOTS.md)
-            robot_sinks.append(open_sink(x))
+        for x in sink:                  # --sink ur-rtde:HOST, franky:HOST,path=FILE (docs/ROBOTS.md)
+            robot_sinks.append(open_sink(x, rig=the_rig))
         cfg = the_rig.monitor
         log("monitor: compiling kernels (once; cached on disk) ...")
         seconds = warm_up(the_rig, cfg)
@@ -172,8 +173,9 @@ def monitor(
         if ros2:
             from depthguard.runtime.ros2_sink import open_ros2_sink
             sinks.append(open_ros2_sink(context, the_rig.robot, [(w.name, w.position) for w in cfg.watch_points],
-                                        ros2_namespace))
-            log(f"monitor: publishing {ros2_namespace}/override, reaction and markers as ROS 2 topics (rmw_zenoh)")
+                                        ros2_namespace, None if ros2_scaling_topic.lower() == "none" else ros2_scaling_topic))
+            log(f"monitor: publishing {ros2_namespace}/override, reaction and markers as ROS 2 topics (rmw_zenoh)"
+                + ("" if ros2_scaling_topic.lower() == "none" else f", the speed scaling on {ros2_scaling_topic}"))
         fanout = SinkFanout(sinks, block=fast)
         direct = [context["sim_world"].on_reaction] if "sim_world" in context else []
         direct += robot_sinks           # called by the control thread: they only keep the newest reaction
