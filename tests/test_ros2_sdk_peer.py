@@ -24,7 +24,7 @@ import pytest
 
 sdk = pytest.importorskip("zenoh_ros2_sdk", reason="zenoh-ros2-sdk (test extra) is the independent ROS 2 node")
 
-from ros2_peer import router, wait_for  # noqa: E402,F401
+from ros2_peer import check_frames_used_live, router, wait_for  # noqa: E402,F401
 
 from depthguard.sim import load_cell  # noqa: E402
 
@@ -181,14 +181,17 @@ def test_cli_monitor_exchanges_every_topic_with_a_zenoh_ros2_sdk_node(peer, rout
         log = [json.loads(x) for x in (out / "log.jsonl").read_text().splitlines()]
         summary = json.loads((out / "summary.json").read_text())
         assert log[-1]["cameras"]["cam0"]["frames"] > 10 and log[-1]["cameras"]["cam1"]["frames"] > 10
-        assert any(r["cameras"]["cam0"]["state"] == "fresh" for r in log[-250:])
+        check_frames_used_live(log, summary)           # as they come, to the end (not "fresh": see there)
         assert set(summary["source_counts"]["ros2:"]) <= {"no_camera_info:cam0", "no_camera_info:cam1",
-                                                          "overflow:cam0", "overflow:cam1"}, summary["source_counts"]
+                                                          "overflow:cam0", "overflow:cam1", "joints_overflow"}, \
+            summary["source_counts"]
         assert wait_for(lambda: min(len(v) for v in got.values()) >= len(log), 5.0), \
             ({k: len(v) for k, v in got.items()}, len(log))
         assert got["override"] == pytest.approx([r["override"] for r in log], abs=1e-6)
         assert got["scaling"] == pytest.approx([r["speed_scale"] for r in log], abs=1e-6)
-        assert {r["speed_scale"] for r in log} >= {0.0} and max(r["speed_scale"] for r in log) > 0.0   # stop and go
+        assert {r["speed_scale"] for r in log} >= {0.0}                                     # the start's stop
+        if any(not r["reasons"] for r in log[:-1]):    # and go, once nothing stops it (a loaded machine's
+            assert max(r["speed_scale"] for r in log) > 0.0   # cameras can be stale the whole run: then no go)
         for msg, r in zip(got["reaction"], log):
             assert msg.header.stamp.sec + msg.header.stamp.nanosec * 1e-9 == pytest.approx(r["t"], abs=1e-6)
             assert msg.override == pytest.approx(r["override"], abs=1e-6)
