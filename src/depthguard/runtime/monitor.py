@@ -152,7 +152,8 @@ class Monitor:
                  if cfg.drift_watch else None)                       # R34
         self._workers[cid] = CameraWorker(self._cameras[cid], self.robot, self._static, self.joints,
                                           cfg.joint_wait_s, self.fusion.notify, drift=drift,
-                                          state_options=lambda: self._state_options(cid))
+                                          state_options=lambda: self._state_options(cid),
+                                          learned=getattr(self.rig, "learned", {}).get(cid))   # issue 31
 
     def _state_options(self, cid: str):
         """``(StateOptions, robot_free, pyramids)`` for camera ``cid``'s frames as the depth grid will
@@ -283,6 +284,17 @@ class Monitor:
                 out[c] = {"untrusted": d.untrusted, "share": d.share, "baseline": d.baseline,
                           "flagged_at": d.flagged_at, "judged": d.judged, "samples": d.samples,
                           "message": d.message}
+        return out
+
+    def scene_changes(self) -> list[dict]:
+        """Where the cell no longer matches its learned scene (issue 31): per camera and region,
+        ``kind`` new (something stayed in front of it) or gone, the tile's ``box`` (u0, v0, u1, v1 px),
+        ``share`` and ``since`` (s); [] without a learned scene
+        (:class:`~depthguard.runtime.scene_change.SceneChangeWatch`). Never learned into the scene."""
+        out = []
+        for w in list(self._workers.values()):
+            if getattr(w, "scene_change", None) is not None:
+                out.extend(w.scene_change.changes())
         return out
 
     def remove_camera(self, camera_id: str) -> None:
