@@ -240,3 +240,28 @@ def test_something_gone_is_said(setup):
         ch = watch.update(sim.capture(rest, stamp=0.5 * k), None, 0.5 * k)
     assert any(c["kind"] == "gone" for c in ch)
     assert all(c["kind"] == "gone" for c in ch)
+
+
+def test_calibration_check_with_the_learned_scene_as_with_cad(setup):
+    """The calibration check's verdict with the learned scene in place of the CAD: good at the rig's
+    pose, not good for a camera turned by 2 degrees (the truth: the turn the test applies), as the
+    CAD's residual check says."""
+    from depthguard.calibration.calibrate import calibrate_camera, fuse_frames
+    from depthguard.calibration.residuals import residual_stats
+    from depthguard.calibration.scene import StaticScene
+    from test_calibration_drift import turned
+
+    rig, cad, q0, learned = setup
+    scene = StaticScene(cad)
+    for cam in rig.cameras:
+        sc, _ = learned[cam.id]
+        for true_cam, good in ((cam, True), (turned(cam, "pan", 2.0), False)):
+            frames = [SimulatedCamera(true_cam, seed=20 + k).capture(cad + list(rig.robot.link_meshes(q0)), stamp=k)
+                      for k in range(3)]
+            rd = ExpectedDepth(cam, rig.robot).robot(q0)
+            # the CAD's residual check (its fit needs more pixels than these small images give)
+            with_cad = residual_stats(cam, fuse_frames(frames), scene.view(cam).depth, rd)
+            with_learned = calibrate_camera(cam, frames, None, rig.robot, [q0], refine=False,
+                                            learned=sc.depth).before
+            assert (with_cad.verdict == "good") is good, (cam.id, with_cad)
+            assert (with_learned.verdict == "good") is good, (cam.id, with_learned)
