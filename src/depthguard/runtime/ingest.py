@@ -98,7 +98,7 @@ class CameraWorker:
 
     def __init__(self, cam, robot, static_meshes, joints: JointHistory, joint_wait_s: float,
                  on_product, name: str | None = None, drift: dict | None = None, state_options=None,
-                 learned=None, scene_change: dict | None = None):
+                 learned=None, scene_change: dict | None = None, ssm_muted=None):
         self.camera = cam
         # the camera's share of the grid build (R36): state_options() -> (StateOptions, robot_free,
         # pyramids) or None (no state made here; the build works it out)
@@ -112,6 +112,10 @@ class CameraWorker:
         # learned surface's observed spread widens its tolerance where it exceeds the sensor's
         self.drift = (DriftWatch(cam, self.expected.static, sigma=None if learned is None else learned.sigma,
                                  **drift) if drift is not None else None)
+        # issue 31 point 3: SSM from what is not the known scene: ssm_muted = (VoxelFilter, push(cid,
+        # centres, size, stamp)) or None; the frame's unknown objects are pushed after each frame
+        self.ssm_muted = ssm_muted
+        self._known = np.zeros(cam.shape, dtype=np.float32) if ssm_muted is not None else None
         # issue 31 point 4: where the cell no longer matches its learned scene, said per region
         self.scene_change = None
         if learned is not None:
@@ -215,6 +219,13 @@ class CameraWorker:
         rd = np.array(self.expected.robot(q), copy=True)
         if self.scene_change is not None:
             self.scene_change.update(depth, rd, stamp)
+        if self.ssm_muted is not None:            # R17's filter: the known scene and the robot removed
+            from depthguard.render.composite import nearest_depth
+            vfilter, push = self.ssm_muted
+            np.copyto(self._known, self.expected.static)
+            nearest_depth(self._known, rd)
+            vs = vfilter.filter(depth, expected=self._known)
+            push(self.id, vs.centres(), vs.voxel_size, stamp)
         d = np.array(depth, dtype=np.float32, copy=True)
         state = self._state(d, rd)
         with self.lock:
