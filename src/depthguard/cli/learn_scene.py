@@ -82,9 +82,11 @@ def learn_scene(
             from depthguard.filtering.expected import ExpectedDepth
             cam = the_rig.camera(cid)
             r = compare_with_cad(cam, sc, ExpectedDepth(cam, None, cad).static, info["hidden"][cid])
+            seen = r["cad_pixels"] - r["hidden_by_robot"]
             line += (f"; CAD reproduced within the band on {100 * r['share']:.2f} % of its {r['cad_pixels']} "
-                     f"pixels (rest: {r['unknown']} unknown, of them {r['hidden_by_robot']} always behind the "
-                     f"robot; {r['edge']} on depth edges; {r['off']} off)")
+                     f"pixels in range, {100 * r['within_band'] / max(seen, 1):.2f} % of the {seen} the robot "
+                     f"did not always hide (rest: {r['unknown']} unknown, of them {r['hidden_by_robot']} always "
+                     f"behind the robot; {r['edge']} on depth edges; {r['off']} off)")
         typer.echo(line)
     if info["skipped_without_joints"]:
         typer.echo(f"{info['skipped_without_joints']} frames skipped: no joint states at their capture")
