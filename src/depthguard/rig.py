@@ -278,6 +278,13 @@ class ObjectSpec(_Strict):
         return self
 
 
+class SceneSpec(_Strict):
+    """``scene: {learned: DIR}``: the static scene learned from the cameras (issue 31,
+    :mod:`depthguard.learned_scene`), beside or instead of the CAD objects; DIR is relative
+    to the rig file."""
+    learned: Optional[str] = Field(default=None, min_length=1)
+
+
 class RigSpec(_Strict):
     version: int = RIG_SCHEMA_VERSION
     name: str = "rig"
@@ -286,6 +293,7 @@ class RigSpec(_Strict):
     cameras: list[CameraSpec] = Field(min_length=1)
     robot: Optional[RobotSpec] = None
     objects: list[ObjectSpec] = Field(default_factory=list)
+    scene: Optional[SceneSpec] = None
     monitor: Optional[MonitorConfig] = None
 
     @field_validator("version")
@@ -365,6 +373,8 @@ class Rig:
     monitor: MonitorConfig = field(default_factory=MonitorConfig)   # the rig's ``monitor:`` section
     topics: dict = field(default_factory=dict)   # camera id -> depth Image topic (``topic:``, R31)
     depth_scales: dict = field(default_factory=dict)   # camera id -> m per 16-bit unit (``depth_scale:``, R31)
+    learned: dict = field(default_factory=dict)   # camera id -> LearnedScene (``scene: {learned: DIR}``, issue 31)
+    learned_dir: Optional[Path] = None            # that DIR, resolved
 
     def __repr__(self) -> str:
         """One line: the name, file, camera ids, workspace, robot and object names (no mesh arrays)."""
@@ -389,6 +399,26 @@ class Rig:
 
     def static_meshes(self) -> list[Mesh]:
         return [o.mesh for o in self.objects]
+
+    def learned_depth(self, camera_id: str) -> Optional[np.ndarray]:
+        """(H, W) float32 m: camera ``camera_id``'s learned static scene (0 = unknown), or None
+        when the rig has none for it (:mod:`depthguard.learned_scene`)."""
+        sc = self.learned.get(camera_id)
+        return None if sc is None else sc.depth
+
+    def without_cad(self) -> "Rig":
+        """This rig with its static CAD objects taken out (the learned scene, if any, stays): what a
+        cell without CAD sees, for comparing the two."""
+        import dataclasses
+        return dataclasses.replace(self, objects=[])
+
+    def with_learned(self, folder) -> "Rig":
+        """This rig with the learned scene in ``folder`` (:func:`depthguard.learned_scene.load`;
+        a scene learned at another camera pose or size raises its one-sentence error)."""
+        import dataclasses
+
+        from depthguard.learned_scene import load
+        return dataclasses.replace(self, learned=load(folder, self.cameras), learned_dir=Path(folder))
 
     def key(self) -> str:
         """Hash of every camera (for caches keyed by the rig's geometry)."""
@@ -437,6 +467,15 @@ class Rig:
                 field_name = "mesh" if o.mesh is not None else "pose"
                 raise RigError(f"{src}: objects[{i}].{field_name} ({o.name}): {exc}") from None
 
+        learned, learned_dir = {}, None
+        if spec.scene is not None and spec.scene.learned:
+            from depthguard.learned_scene import LearnedSceneError, load
+            learned_dir = (base_dir / spec.scene.learned).resolve()
+            try:
+                learned = load(learned_dir, cameras)
+            except LearnedSceneError as exc:
+                raise RigError(f"{src}: scene.learned: {exc}") from None
+
         robot, q0 = None, None
         if spec.robot is not None:
             robot, q0 = _make_robot(spec.robot, base_dir, src)
@@ -447,7 +486,8 @@ class Rig:
                    objects=objects, path=Path(source) if isinstance(source, Path) else None,
                    description=spec.description, monitor=spec.monitor or MonitorConfig(),
                    topics={c.id: c.topic for c in spec.cameras if c.topic},
-                   depth_scales={c.id: c.depth_scale for c in spec.cameras if c.depth_scale is not None})
+                   depth_scales={c.id: c.depth_scale for c in spec.cameras if c.depth_scale is not None},
+                   learned=learned, learned_dir=learned_dir)
 
 
 def _make_object(o: ObjectSpec, base_dir: Path) -> StaticObject:

@@ -202,7 +202,21 @@ def monitor(
                         told[k] = why
                         log(f"monitor: camera {k.split(':', 1)[1]} refuses its frames: {why}")
 
+        changes_told: set = set()
+
+        def tell_changes():
+            """A changed cell (issue 31): each region that newly changed, once, as a log line."""
+            from depthguard.runtime.scene_change import SceneChangeWatch
+            now = mon.scene_changes() if mon is not None else []
+            for ch in now:
+                key = (ch["camera"], ch["kind"], ch["region"])
+                if key not in changes_told:
+                    changes_told.add(key)
+                    log("monitor: " + SceneChangeWatch.sentence(ch))
+            changes_told.intersection_update({(c["camera"], c["kind"], c["region"]) for c in now})
+
         def status(r):
+            tell_changes()
             line = _status_line(r)
             behind = _skipped_behind(sources)
             if behind:                      # so that stale-camera stops are not read as the monitor's fault
@@ -255,6 +269,7 @@ def monitor(
                         {"interrupted": stats.interrupted, "fast": fast,
                          "sinks_dropped": fanout.dropped, "sink_errors": fanout.errors,
                          "source_counts": {sp: s.counters() for sp, s in zip(specs, sources) if hasattr(s, "counters")}})
+    summary["scene_changes"] = mon.scene_changes()       # issue 31: where the cell no longer matches its learned scene
     (out / "summary.json").write_text(json.dumps(summary, indent=1, allow_nan=False) + "\n")
     near = summary["nearest_distance_m"]
     if near is not None:

@@ -91,6 +91,12 @@ class Monitor:
         self.joints = JointHistory(self.robot.dof, cfg.joint_history_s, q_min=self.robot.q_min,
                                    q_max=self.robot.q_max, max_gap_s=cfg.joints_stale_s)
         self._static = rig.static_meshes()
+        # issue 31 point 3: SSM from what is not the known scene (ssm.known_scene: muted): the
+        # cameras' unknown objects as voxels, like the camera units' (R17, R25)
+        self._ssm_voxels = None
+        if cfg.reaction != "repulsion" and cfg.ssm.known_scene == "muted":
+            from depthguard.runtime.voxel_input import VoxelObstacles
+            self._ssm_voxels = VoxelObstacles()
         self._workers: dict[str, CameraWorker] = {}
         self.fusion = FusionWorker(self._workers, self._make_grid, self._fusion_settings, self.robot)
         self.fusion.prepare(self._camera_ids)      # the grid made now, not by the first frames
@@ -152,7 +158,18 @@ class Monitor:
                  if cfg.drift_watch else None)                       # R34
         self._workers[cid] = CameraWorker(self._cameras[cid], self.robot, self._static, self.joints,
                                           cfg.joint_wait_s, self.fusion.notify, drift=drift,
-                                          state_options=lambda: self._state_options(cid))
+                                          state_options=lambda: self._state_options(cid),
+                                          learned=getattr(self.rig, "learned", {}).get(cid),   # issue 31
+                                          ssm_muted=self._ssm_muted(cid))
+
+    def _ssm_muted(self, cid: str):
+        """``(VoxelFilter, push)`` for camera ``cid`` when SSM mutes the known scene, else None."""
+        if self._ssm_voxels is None:
+            return None
+        from depthguard.fusion.voxels import VoxelFilter
+        ws = self.rig.workspace
+        return (VoxelFilter(self._cameras[cid], (ws.lo, ws.hi), voxel_size=self.config.ssm.muted_voxel_size),
+                self._ssm_voxels.push)
 
     def _state_options(self, cid: str):
         """``(StateOptions, robot_free, pyramids)`` for camera ``cid``'s frames as the depth grid will
@@ -285,6 +302,17 @@ class Monitor:
                           "message": d.message}
         return out
 
+    def scene_changes(self) -> list[dict]:
+        """Where the cell no longer matches its learned scene (issue 31): per camera and region,
+        ``kind`` new (something stayed in front of it) or gone, the tile's ``box`` (u0, v0, u1, v1 px),
+        ``share`` and ``since`` (s); [] without a learned scene
+        (:class:`~depthguard.runtime.scene_change.SceneChangeWatch`). Never learned into the scene."""
+        out = []
+        for w in list(self._workers.values()):
+            if getattr(w, "scene_change", None) is not None:
+                out.extend(w.scene_change.changes())
+        return out
+
     def remove_camera(self, camera_id: str) -> None:
         """Stop monitoring a camera: its frames are no longer awaited nor used. The principal
         can be removed: the next camera becomes principal."""
@@ -379,7 +407,12 @@ class Monitor:
                     self._qd_meas /= t - prev[0]
                 self._q_ssm_prev = (t, q.copy())
             age = t - min(stamps.values()) if stamps else cfg.camera_stale_limit   # none: nothing observed
-            s_ssm, pstop = self._ssm.update(t, dt, D[:m_cp], V[:m_cp], data.cp_positions, data.cp_jacobians,
+            D_s, V_s = D[:m_cp], V[:m_cp]
+            if self._ssm_voxels is not None:           # issue 31: the separation from what is not the known scene
+                D_s, V_s = np.full(m_cp, np.inf), np.zeros((m_cp, 3))
+                self._ssm_voxels.nearest(self._P[:m_cp], cfg.query_rho, D_s, V_s,
+                                         robot_capsules=robot.collision_segments(q, cfg.robot_padding))
+            s_ssm, pstop = self._ssm.update(t, dt, D_s, V_s, data.cp_positions, data.cp_jacobians,
                                             self._qd_meas if qd is None else np.asarray(qd, dtype=np.float64),
                                             obs[:m_cp], age)
             scale = float(k) * s_ssm
