@@ -19,12 +19,13 @@ frame:
 3. supervision: a stale or missing camera frame, stale joints, an
    unobserved control point, a control point inside an obstacle frustum
    → the override ramps to 0 (R26, R27), with the reasons;
-4. reaction: repulsion at the end effector (R13), joint-velocity limits
-   from the other control points and the joint limits (R14), both times the
-   override; or (``reaction: ssm | both``) speed and separation monitoring
-   (R33, :mod:`depthguard.control.ssm_runtime`): a speed scale for the
-   commanded motion and a protective stop, distances looked for within
-   ``max(rho, ssm.range)``.
+4. reaction: the reaction policies of ``cfg.policies`` (:mod:`depthguard.control.policy`),
+   each given the cycle's distances, joints and override: repulsion at the end effector
+   (R13) with joint-velocity limits from the other control points and the joint limits
+   (R14), both times the override; speed and separation monitoring (R33,
+   :mod:`depthguard.control.policy_ssm`): a speed scale and a protective stop, distances
+   looked for within ``max(rho, ssm.range)``. The most restrictive wins: the speed scale
+   is the override times the smallest policy scale, the boxes are intersected.
 
 Every clock is the caller's: stamps of frames and joints and the ``t`` of
 ``step`` are seconds on one clock (``time.monotonic()`` for a live cell,
@@ -41,6 +42,7 @@ from contextlib import contextmanager
 import numpy as np
 
 from depthguard.config import MonitorConfig
+from depthguard.control.policy import Cycle, PolicySetup, make_policies
 from depthguard.control.reaction import reaction as reaction_of
 from depthguard.control.supervisor import SafetySupervisor, stop_reasons
 from depthguard.runtime.distances import DistanceWorker, bound_distances
@@ -110,19 +112,13 @@ class Monitor:
         self._is_watch = np.arange(m) >= len(self._cp_names)
         self._q_min, self._q_max, self._qd_max = (np.ascontiguousarray(a, dtype=np.float64) for a in
                                                   (self.robot.q_min, self.robot.q_max, self.robot.qd_max))
-        self._react_buf = (np.empty(3), np.empty(self.robot.dof), np.empty(self.robot.dof))
         self._sup = SafetySupervisor(cfg.dt, cfg.stop_time, cfg.resume_time)
-        # speed and separation monitoring (R33): the mode is fixed for the monitor's life
+        # the reaction policies (control.policy, R13, R14, R33): fixed for the monitor's life
         m_cp = len(self._cp_names)
-        self._ssm = None
-        if cfg.reaction != "repulsion":
-            from depthguard.control.ssm_runtime import SpeedSeparation
-            self._ssm = SpeedSeparation(cfg.ssm, [self._cameras[c] for c in self._camera_ids], m_cp,
-                                        self.robot.dof, cfg.delta_d, cfg.gap_px, cfg.dt)
-        self._D_none = np.full(m_cp, np.inf)          # ssm mode: no repulsion, the joint box alone
-        self._D_rep = np.empty(m_cp)                  # both: the repulsion sees only what is within rho
-        self._qd_meas = np.zeros(self.robot.dof)      # qd not given: from the joints of two cycles
-        self._q_ssm_prev: tuple[float, np.ndarray] | None = None
+        setup = PolicySetup(cfg, self.robot, tuple(self._cameras[c] for c in self._camera_ids), self._cp_names)
+        self._policies = make_policies(cfg.policies, setup)
+        self._D_none = np.full(m_cp, np.inf)          # no policy gives a box: the joint limits' alone
+        self._box_buf = (np.empty(3), np.empty(self.robot.dof), np.empty(self.robot.dof))
         self._t_last: float | None = None
         self._last_q: np.ndarray | None = None
         self._seen: dict[str, int] = {}          # camera -> version already used by a cycle
@@ -363,44 +359,56 @@ class Monitor:
         dt = cfg.dt if self._t_last is None else min(max(t - self._t_last, 0.0), 1.0)
         self._t_last = t
         k = self._sup.update(t, reasons, dt=dt)
-        D_rep = D[:m_cp]
-        scale, pstop, ssm_table, s_ssm = float(k), False, None, 1.0
-        if self._ssm is not None:                      # R33: speed scale and protective stop
-            if cfg.reaction == "ssm":
-                D_rep = self._D_none
-            else:
-                np.copyto(self._D_rep, D_rep)
-                self._D_rep[self._D_rep > cfg.rho] = np.inf
-                D_rep = self._D_rep
-            if qd is None:
-                prev = self._q_ssm_prev
-                if prev is not None and t > prev[0]:
-                    np.subtract(q, prev[1], out=self._qd_meas)
-                    self._qd_meas /= t - prev[0]
-                self._q_ssm_prev = (t, q.copy())
-            age = t - min(stamps.values()) if stamps else cfg.camera_stale_limit   # none: nothing observed
-            s_ssm, pstop = self._ssm.update(t, dt, D[:m_cp], V[:m_cp], data.cp_positions, data.cp_jacobians,
-                                            self._qd_meas if qd is None else np.asarray(qd, dtype=np.float64),
-                                            obs[:m_cp], age)
-            scale = float(k) * s_ssm
-            ssm_table = self._ssm.table.copy()
-            if pstop:
-                reasons = {**reasons, **self._ssm.reason(self._cp_names)}
-        rep, lo, hi = reaction_of(D_rep, V[:m_cp], data.cp_jacobians, q, self._q_min, self._q_max,
-                                  self._qd_max, cfg.dt, cfg.rho, cfg.v_max, cfg.alpha, k, out=self._react_buf)
+        age = t - min(stamps.values()) if stamps else cfg.camera_stale_limit   # none: nothing observed
+        cycle = Cycle(float(t), dt, q, None if qd is None else np.asarray(qd, dtype=np.float64), D[:m_cp],
+                      V[:m_cp], obs[:m_cp], data.cp_positions, data.cp_jacobians, age, float(k), reasons, cfg)
+        rep, lo, hi, s_pol, pstop, parts = self._react(cycle)
+        for part in parts.values():
+            if part.reasons:
+                reasons = {**reasons, **part.reasons}
+        scale = float(k) * s_pol
+        ssm = parts.get("ssm")
         step_s = time.perf_counter() - t_wall
         self.cycles += 1
         self.step_s.append(step_s)
         if len(self.step_s) > 100_000:
             del self.step_s[:50_000]
-        r = Reaction(t=float(t), override=float(k), repulsion=rep.copy(), qd_min=lo.copy(), qd_max=hi.copy(),
+        r = Reaction(t=float(t), override=float(k), repulsion=rep, qd_min=lo, qd_max=hi,
                      names=self._names, distance=D, direction=V, observed=obs, is_watch=self._is_watch,
                      reasons=reasons, cameras=cams, joints_age_s=float(joints_age), q=q.copy(),
-                     frame_stamps=stamps, step_s=step_s, reaction=cfg.reaction, speed_scale=scale,
-                     protective_stop=pstop, ssm=ssm_table, ssm_scale=float(s_ssm))
+                     frame_stamps=stamps, step_s=step_s, reaction=cfg.reaction_mode, speed_scale=scale,
+                     protective_stop=pstop, ssm=None if ssm is None else ssm.terms,
+                     ssm_scale=1.0 if ssm is None else float(ssm.scale), parts=parts)
         for s in self.sinks:
             s(r)
         return r
+
+    def _react(self, c: Cycle):
+        """The policies' parts composed (:mod:`depthguard.control.policy`): ``(repulsion (3,),
+        qd_min, qd_max (dof,), scale, stop, parts)`` — the repulsions summed, the boxes
+        intersected (none: the joint limits' box times the override), the smallest scale (0
+        when one stops)."""
+        parts = {}
+        rep = lo = hi = None
+        scale, stop = 1.0, False
+        for name, pol in self._policies:
+            part = pol.update(c)
+            parts[name] = part
+            scale = min(scale, float(part.scale))
+            if part.stop:
+                stop, scale = True, 0.0
+            if part.repulsion is not None:
+                rep = part.repulsion.copy() if rep is None else rep + part.repulsion
+            if part.qd_min is not None:
+                lo = part.qd_min.copy() if lo is None else np.maximum(lo, part.qd_min)
+                hi = part.qd_max.copy() if hi is None else np.minimum(hi, part.qd_max)
+        if lo is None:
+            cfg = c.config
+            _, lo, hi = reaction_of(self._D_none, c.direction, c.jacobians, c.q, self._q_min, self._q_max,
+                                    self._qd_max, cfg.dt, cfg.rho, cfg.v_max, cfg.alpha, c.override,
+                                    out=self._box_buf)
+            lo, hi = lo.copy(), hi.copy()
+        return np.zeros(3) if rep is None else rep, lo, hi, scale, stop, parts
 
     def _distances(self, cfg, q, D, V, obs) -> dict[str, float]:
         """Distances of ``self._P`` into ``D``, ``V``, ``obs``; returns the capture stamps of the
