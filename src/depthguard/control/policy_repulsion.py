@@ -29,19 +29,27 @@ class Repulsion:
         self._q_min, self._q_max, self._qd_max = (np.ascontiguousarray(a, dtype=np.float64) for a in
                                                   (robot.q_min, robot.q_max, robot.qd_max))
         self._D = np.empty(len(setup.cp_names))
-        self._out = (np.empty(3), np.empty(robot.dof), np.empty(robot.dof))
+        self._cfg = None                             # the settings last read (they may change while running)
+
+    def _read(self, cfg) -> None:
+        self._cfg = cfg
+        self._clip = cfg.query_rho > cfg.rho         # looked for farther for another policy: not repelled
+        self._params = (float(cfg.dt), float(cfg.rho), float(cfg.v_max), float(cfg.alpha))
 
     @staticmethod
     def reach(config) -> float:
         return float(config.rho)
 
     def update(self, c: Cycle) -> Part:
-        cfg = c.config
+        if c.config is not self._cfg:
+            self._read(c.config)
+        dt, rho, v_max, alpha = self._params
         D = c.distance
-        if cfg.query_rho > cfg.rho:                 # looked for farther for another policy: not repelled
+        if self._clip:
             np.copyto(self._D, D)
-            self._D[self._D > cfg.rho] = np.inf
+            self._D[self._D > rho] = np.inf
             D = self._D
+        n = self._q_min.shape[0]
         rep, lo, hi = reaction(D, c.direction, c.jacobians, c.q, self._q_min, self._q_max, self._qd_max,
-                               cfg.dt, cfg.rho, cfg.v_max, cfg.alpha, c.override, out=self._out)
-        return Part(repulsion=rep.copy(), qd_min=lo.copy(), qd_max=hi.copy())
+                               dt, rho, v_max, alpha, c.override, out=(np.empty(3), np.empty(n), np.empty(n)))
+        return Part(repulsion=rep, qd_min=lo, qd_max=hi)

@@ -117,6 +117,7 @@ class Monitor(MonitorDistances):
         m_cp = len(self._cp_names)
         setup = PolicySetup(cfg, self.robot, tuple(self._cameras[c] for c in self._camera_ids), self._cp_names)
         self._policies = make_policies(cfg.policies, setup)
+        self._mode = cfg.reaction_mode
         self._D_none = np.full(m_cp, np.inf)          # no policy gives a box: the joint limits' alone
         self._box_buf = (np.empty(3), np.empty(self.robot.dof), np.empty(self.robot.dof))
         self._t_last: float | None = None
@@ -376,7 +377,7 @@ class Monitor(MonitorDistances):
         r = Reaction(t=float(t), override=float(k), repulsion=rep, qd_min=lo, qd_max=hi,
                      names=self._names, distance=D, direction=V, observed=obs, is_watch=self._is_watch,
                      reasons=reasons, cameras=cams, joints_age_s=float(joints_age), q=q.copy(),
-                     frame_stamps=stamps, step_s=step_s, reaction=cfg.reaction_mode, speed_scale=scale,
+                     frame_stamps=stamps, step_s=step_s, reaction=self._mode, speed_scale=scale,
                      protective_stop=pstop, ssm=None if ssm is None else ssm.terms,
                      ssm_scale=1.0 if ssm is None else float(ssm.scale), parts=parts)
         for s in self.sinks:
@@ -391,17 +392,18 @@ class Monitor(MonitorDistances):
         parts = {}
         rep = lo = hi = None
         scale, stop = 1.0, False
-        for name, pol in self._policies:
+        for name, pol in self._policies:         # a part's arrays are its own (fresh): kept, not copied
             part = pol.update(c)
             parts[name] = part
-            scale = min(scale, float(part.scale))
+            if part.scale < scale:
+                scale = float(part.scale)
             if part.stop:
                 stop, scale = True, 0.0
             if part.repulsion is not None:
-                rep = part.repulsion.copy() if rep is None else rep + part.repulsion
+                rep = part.repulsion if rep is None else rep + part.repulsion
             if part.qd_min is not None:
-                lo = part.qd_min.copy() if lo is None else np.maximum(lo, part.qd_min)
-                hi = part.qd_max.copy() if hi is None else np.minimum(hi, part.qd_max)
+                lo = part.qd_min if lo is None else np.maximum(lo, part.qd_min)
+                hi = part.qd_max if hi is None else np.minimum(hi, part.qd_max)
         if lo is None:
             cfg = c.config
             _, lo, hi = reaction_of(self._D_none, c.direction, c.jacobians, c.q, self._q_min, self._q_max,
