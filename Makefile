@@ -12,7 +12,7 @@ venv: $(STAMP)
 $(STAMP): pyproject.toml
 	test -x $(PY) || $(PYTHON) -m venv $(VENV)
 	$(PY) -m pip install --quiet --upgrade pip
-	$(PY) -m pip install --quiet -e '.[test,bench,realsense,ur]'
+	$(PY) -m pip install --quiet -e '.[test,bench,realsense,ur,franka]'
 	touch $(STAMP)
 
 ## The main job on the built-in simulated cell.

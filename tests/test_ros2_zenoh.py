@@ -95,7 +95,10 @@ def test_sink_keys_tokens_attachment_and_payloads_through_a_router(router):
         f"@ros2_lv/3/{zid}/0/2/MP/%/%/depthguard/%depthguard%reaction/depthguard_msgs::msg::dds_::Reaction_/"
         f"{h['depthguard_msgs/msg/Reaction']}/::,10:,:,:,,",
         f"@ros2_lv/3/{zid}/0/3/MP/%/%/depthguard/%depthguard%markers/visualization_msgs::msg::dds_::MarkerArray_/"
-        f"{h['visualization_msgs/msg/MarkerArray']}/::,10:,:,:,,"}
+        f"{h['visualization_msgs/msg/MarkerArray']}/::,10:,:,:,,",
+        # the joint_trajectory_controller's speed scaling: reliable, TRANSIENT_LOCAL (durability 1), depth 1
+        f"@ros2_lv/3/{zid}/0/4/MP/%/%/depthguard/%joint_trajectory_controller%speed_scaling_input/"
+        f"control_msgs::msg::dds_::SpeedScalingFactor_/{rz.type_hash('control_msgs/msg/SpeedScalingFactor')}/:1:,1:,:,:,,"}
     assert wait_for(lambda: tokens(spy, 3) == expected), tokens(spy, 3)
     time.sleep(0.2)
     reactions = _reactions(rig)

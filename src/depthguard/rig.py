@@ -207,7 +207,14 @@ def _make_robot(rs: RobotSpec, base_dir: Path, src: str):
 
     base = rs.base.matrix4() if rs.base is not None else np.eye(4)
     target = rs.name
-    if rs.urdf is not None:
+    if rs.urdf is not None and rs.urdf.startswith("package://"):
+        from depthguard.robot.urdf import resolve_uri
+        try:                                     # a ROS package's URDF (example-robot-data, ROS_PACKAGE_PATH)
+            target = str(resolve_uri(rs.urdf, base_dir))
+        except FileNotFoundError as exc:
+            raise RigError(f"{src}: robot.urdf: {str(exc).replace('cannot resolve mesh', 'cannot find')} (package:// "
+                           f"looks in example-robot-data's share folder, then $ROS_PACKAGE_PATH)") from None
+    elif rs.urdf is not None:
         up = Path(rs.urdf)
         target = str(up if up.is_absolute() else base_dir / up)
         if not Path(target).is_file():

@@ -80,20 +80,21 @@ def monitor(
     rig: Optional[Path] = typer.Option(None, "--rig", help="Rig file (YAML) of your cell; its monitor: section sets the runtime."),
     cell: Optional[str] = typer.Option(None, "--cell", help="A built-in cell (default flacco-cell when no --rig)."),
     source: List[str] = typer.Option([], "--source", help="Frame source SCHEME:ARG, repeatable: sim[:CELL[:SITUATION]] (then any of :alone :dark :noiseless), images:DIR, bag:PATH (a ROS 2 bag, docs/BAGS.md), realsense[:CAM=SERIAL,...] and realsense-file:PATH (docs/REALSENSE.md), ros2: (live ROS 2 topics through rmw_zenoh, docs/ROS2.md), units:ENDPOINT (the camera units of a fusion server; list their cameras in the rig's monitor: remote_cameras). Default: the simulator of the cell (or of the rig's own scene)."),
-    joints: Optional[str] = typer.Option(None, "--joints", help="Joint source: sim (the simulated robot, which obeys the reaction), csv:FILE, zenoh:KEY, bag:PATH, ros2:[TOPIC] (default /joint_states). Default: sim with a sim source, the bag with a bag: source, ros2: with a ros2: source."),
+    joints: Optional[str] = typer.Option(None, "--joints", help="Joint source: sim (the simulated robot, which obeys the reaction), csv:FILE, zenoh:KEY, bag:PATH, ros2:[TOPIC] (default /joint_states), ur-rtde:HOST, franky:HOST. Default: sim with a sim source, the bag with a bag: source, ros2: with a ros2: source."),
     out: Optional[Path] = typer.Option(None, "--out", "-o", help="Folder for log.jsonl (one line per control cycle) and summary.json (default: out/monitor/<UTC time>)."),
     duration: Optional[float] = typer.Option(None, "--duration", help="Seconds of run time (default: until Ctrl-C or the end of the sources)."),
     fast: bool = typer.Option(False, "--fast", help="As fast as possible and deterministic (recordings, simulation), not in real time."),
     zenoh: bool = typer.Option(False, "--zenoh", help="Shorthand of --sink zenoh: (publish reactions, distances and health under depthguard/<cell>/..., loopback unless --zenoh-listen)."),
     zenoh_listen: Optional[str] = typer.Option(None, "--zenoh-listen", help="Zenoh endpoint the monitor listens on (default: the rig's monitor: zenoh_listen, loopback)."),
     zenoh_connect: List[str] = typer.Option([], "--zenoh-connect", help="Zenoh endpoints to connect to (repeatable)."),
-    ros2: bool = typer.Option(False, "--ros2", help="Shorthand of --sink ros2: (the reaction as ROS 2 topics through rmw_zenoh: /depthguard/override (std_msgs/Float64), reaction, markers; docs/ROS2.md)."),
+    ros2: bool = typer.Option(False, "--ros2", help="Shorthand of --sink ros2: (the reaction as ROS 2 topics through rmw_zenoh: /depthguard/override (std_msgs/Float64), reaction, markers, and the speed scaling of a joint_trajectory_controller on --ros2-scaling-topic; docs/ROS2.md)."),
     ros2_domain: Optional[int] = typer.Option(None, "--ros2-domain", callback=in_range(0, 232), help="ROS 2 domain id (0 to 232) of ros2: sources and --ros2 (default: ROS_DOMAIN_ID, else 0)."),
     ros2_router: Optional[str] = typer.Option(None, "--ros2-router", help="Zenoh router of the ROS 2 cell (default tcp/127.0.0.1:7447, where rmw_zenohd listens)."),
+    ros2_scaling_topic: str = typer.Option("/joint_trajectory_controller/speed_scaling_input", "--ros2-scaling-topic", help="Where --ros2 publishes control_msgs/SpeedScalingFactor (transient local) for a ros2_control joint_trajectory_controller: its ~/speed_scaling_input; 'none' for no scaling topic (docs/ROS2.md)."),
     quiet: bool = typer.Option(False, "--quiet", "-q", help="No status line."),
     units_keys: Optional[Path] = typer.Option(None, "--units-keys", help="Certificate directory (depthguard keys admin) for a units:tls/HOST:PORT source of a server started with --keys (docs/THREAT_MODEL.md)."),
     view: bool = typer.Option(False, "--view", help="Shorthand of --sink view: (a live 3-D view in the browser at 127.0.0.1:8080; docs/VIEW.md)."),
-    sink: List[str] = typer.Option([], "--sink", help="Where the reaction goes besides OUT/log.jsonl and OUT/results.mcap, SCHEME:ARG, repeatable: zenoh:[CELL], ros2:[NAMESPACE] (default /depthguard; docs/ROS2.md), view:[[HOST:]PORT] (the live view, default 127.0.0.1:8080, anyone who reaches it can change rho; docs/VIEW.md), ur-rtde:HOST (a Universal Robots arm's speed slider through RTDE; needs depthguard[ur]; docs/ROBOTS.md), jsonl:FILE, mcap:FILE, or a registered plug-in's scheme (docs/ARCHITECTURE.md)."),
+    sink: List[str] = typer.Option([], "--sink", help="Where the reaction goes besides OUT/log.jsonl and OUT/results.mcap, SCHEME:ARG, repeatable: zenoh:[CELL], ros2:[NAMESPACE] (default /depthguard; docs/ROS2.md), view:[[HOST:]PORT] (the live view, default 127.0.0.1:8080, anyone who reaches it can change rho; docs/VIEW.md), ur-rtde:HOST (a Universal Robots arm's speed slider through RTDE; needs depthguard[ur]), franky:HOST,path=FILE (a Franka FR3 runs the joint path of FILE through franky, slowed and stopped by the reaction; needs depthguard[franka]) (docs/ROBOTS.md), jsonl:FILE, mcap:FILE, or a registered plug-in's scheme (docs/ARCHITECTURE.md)."),
 ) -> None:
     """Run the monitor: frames and joint states in, the robot's reaction out (R29).
 
@@ -126,7 +127,7 @@ def monitor(
     if units_keys is not None:
         context["units_keys"] = units_keys
     context.update(ros2_domain=ros2_domain, ros2_router=ros2_router)     # ros2: sources and sinks (docs/ROS2.md)
-    context.update(out=out, fast=fast)
+    context.update(out=out, fast=fast, ros2_scaling_topic=ros2_scaling_topic)
     sink_specs = ["jsonl:", "mcap:"] + shorthand_specs(zenoh=zenoh, ros2=ros2, view=view) + list(sink)
     for x in sink_specs:
         try:
@@ -140,7 +141,7 @@ def monitor(
     joint_spec = joints or ("sim" if "sim" in schemes else None) \
         or next((s for s in specs if s.startswith("bag:")), None) \
         or ("ros2:" if any(s.startswith("ros2:") for s in specs) else None)   # a bag / a ROS cell has joints too
-    if fast and any(x.startswith("ur-rtde:") for x in sink):
+    if fast and any(x.startswith(("ur-rtde:", "franky:")) for x in sink):
         raise typer.BadParameter("a robot sink is live: run in real time, without --fast", param_hint="--sink")
     if joint_spec is None:
         raise typer.BadParameter("a non-simulated source needs --joints (csv:FILE or zenoh:KEY)", param_hint="--joints")

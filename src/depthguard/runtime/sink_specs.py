@@ -11,6 +11,7 @@ and every run writes ``jsonl:`` and ``mcap:`` into its folder. Built-in schemes:
 ``ros2:[NS]``     ``NS/override``, ``reaction``, ``markers`` over rmw_zenoh (default ``/depthguard``)  :mod:`depthguard.runtime.ros2_sink`
 ``view:[[HOST:]PORT]``  the live 3-D view in the browser (default 127.0.0.1:8080)  :mod:`depthguard.viz.live`
 ``ur-rtde:HOST``  a Universal Robots arm's speed slider (needs ``depthguard[ur]``)  :mod:`depthguard.runtime.ur_sink`
+``franky:HOST,path=FILE``  a Franka FR3 runs a joint path, slowed and stopped by the reaction  :mod:`depthguard.runtime.franky_sink`
 ==============  ==============================================================  =======================================
 
 A sink is a callable ``sink(reaction)`` (:class:`~depthguard.runtime.result.Reaction`) with
@@ -50,6 +51,7 @@ SINK_SCHEMES: dict[str, str | Callable] = {
     "ros2": "depthguard.runtime.ros2_sink:open_ros2",
     "view": "depthguard.viz.live:open_view",
     "ur-rtde": "depthguard.runtime.ur_sink:open_ur_sink",
+    "franky": "depthguard.runtime.franky_sink:open_franky_sink",
 }
 
 
