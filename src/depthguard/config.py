@@ -23,7 +23,7 @@ from pydantic import BaseModel, ConfigDict, Field, field_validator, model_valida
 
 from depthguard.control.ssm_config import SSMConfig
 
-__all__ = ["MonitorConfig", "WatchPoint", "CAMERA_ID_PATTERN", "check_camera_id"]
+__all__ = ["MonitorConfig", "WatchPoint", "CAMERA_ID_PATTERN", "check_camera_id", "PRODUCT_RHO"]
 
 _Vec3 = tuple[float, float, float]
 
@@ -270,3 +270,7 @@ class MonitorConfig(BaseModel):
         except ValidationError as exc:
             raise ValueError("; ".join(f"{'.'.join(str(p) for p in e['loc']) or 'monitor'}: "
                                        f"{e['msg'].removeprefix('Value error, ')}" for e in exc.errors())) from None
+
+
+#: the product's radius of surveillance (m): the default of the library's distance queries too
+PRODUCT_RHO: float = MonitorConfig.model_fields["rho"].default
