@@ -11,6 +11,8 @@ import math
 import numpy as np
 import pytest
 
+from depthguard.sources.sim_source import sim_world
+
 from depthguard.calibration.refine import so3_exp
 from depthguard.filtering.expected import ExpectedDepth
 from depthguard.runtime.drift import DriftWatch
@@ -163,7 +165,7 @@ def test_the_whole_scene_of_people_moving_raises_no_false_alarm():
     ctx: dict = {}
     src = open_source("sim:flacco-cell:seed=3", c.rig, ctx)
     js = open_joints("sim", c.rig, ctx)
-    world = ctx["sim_world"]
+    world = sim_world(ctx)
     untrusted = []
     cfg = c.rig.monitor.with_changes(control_hz=100.0)     # the drift watch runs on the frames, not the cycles
     with Monitor(c.rig, cfg, sinks=[world.on_reaction,

@@ -35,6 +35,7 @@ LAYERS: tuple[str, ...] = (
     "control",        # reaction kernels and their settings (R13-R15, R22, R27, R33)
     "config",         # MonitorConfig (R26-R32)
     "rig_checks",     # sanity checks of a rig's numbers (a mesh's unit, a robot inside its table)
+    "rig_schema",     # the rig file's pydantic models (R2)
     "rig",
     "transport",      # Zenoh settings, the fusion server's wire format and client, ROS 2 over Zenoh
     "filtering",

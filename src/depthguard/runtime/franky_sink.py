@@ -76,6 +76,8 @@ class FrankySink:
     """
 
     name = "franky"
+    direct = True                  # keeps the newest reaction (runtime.sink_specs)
+    live = True                    # drives a robot: never a run as fast as possible
 
     def __init__(self, host: str, path, *, q_min=None, q_max=None, floor: float = 0.05, step: float = 0.1,
                  stale_s: float = 0.1, rate_hz: float = 100.0, tolerance: float = 2e-3, retry_s: float = 1.0):
@@ -211,7 +213,7 @@ class FrankySink:
         self.link.release()
 
 
-def open_franky_sink(argument: str, rig=None) -> FrankySink:
+def open_franky_sink(argument: str, rig=None, context: dict | None = None) -> FrankySink:
     """The sink of ``franky:HOST,path=FILE`` (the rig's robot limits checked when a rig is given)."""
     host_part, _, rest = (argument or "").partition(",")
     opts = dict(x.split("=", 1) for x in rest.split(",") if "=" in x)

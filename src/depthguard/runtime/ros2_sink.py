@@ -140,3 +140,15 @@ def open_ros2_sink(context: dict, robot, watch_points=(), namespace: str = DEFAU
     from depthguard.transport.ros2_zenoh import node_for
 
     return Ros2Sink(node_for(context), robot, watch_points, namespace, scaling_topic=scaling_topic)
+
+
+def open_ros2(argument: str, rig, context: dict) -> Ros2Sink:
+    """``ros2:[NAMESPACE]`` (:mod:`depthguard.runtime.sink_specs`): default ``/depthguard``; the
+    node is the run's (``context``: ``ros2_domain``, ``ros2_router``, shared with ``ros2:`` sources)."""
+    ns = argument or DEFAULT_NAMESPACE
+    scaling = context.get("ros2_scaling_topic", DEFAULT_SCALING_TOPIC)
+    scaling = None if scaling is None or scaling.lower() == "none" else scaling
+    sink = open_ros2_sink(context, rig.robot, [(w.name, w.position) for w in rig.monitor.watch_points], ns, scaling)
+    sink.describe = (f"publishing {ns.rstrip('/')}/override, reaction and markers as ROS 2 topics (rmw_zenoh)"
+                     + ("" if scaling is None else f", the speed scaling on {scaling}"))
+    return sink

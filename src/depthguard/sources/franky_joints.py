@@ -128,7 +128,9 @@ def open_franky_joints(argument: str, rig, context: dict) -> FrankyJoints:
         host = parse_host(argument, "--joints franky")
     except FrankyError as exc:
         raise JointSourceError(str(exc)) from None
-    if "sim_world" in context:
+    from depthguard.sources.sim_source import sim_world
+
+    if sim_world(context) is not None:
         raise JointSourceError(f"--joints franky:{host} is live (stamped on the wall clock) and cannot drive the "
                                f"simulated cameras (their clock starts at 0): use it with live cameras "
                                f"(realsense:, ros2:, units:)")

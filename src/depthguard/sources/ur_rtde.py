@@ -145,7 +145,9 @@ def open_ur_rtde_joints(argument: str, rig, context: dict) -> UrRtdeJoints:
         host = parse_address(argument, "--joints ur-rtde")
     except UrError as exc:
         raise JointSourceError(str(exc)) from None
-    if "sim_world" in context:
+    from depthguard.sources.sim_source import sim_world
+
+    if sim_world(context) is not None:
         # a live source puts the run on the wall clock; the simulator's frames count from 0 and
         # would be simulated up to the wall clock's time (the run never starts)
         raise JointSourceError(f"--joints ur-rtde:{host} is live (stamped on the wall clock) and cannot drive "
