@@ -19,9 +19,9 @@ $(STAMP): pyproject.toml
 demo: $(STAMP)
 	$(VENV)/bin/depthguard demo --out $(OUT)/demo
 
-## Every test (slow and multi-process ones included).
+## Every test (slow and multi-process ones included); the 40 slowest are listed at the end (the suite must stay well under 15 min).
 test: $(STAMP)
-	$(PY) -m pytest -q -p no:cacheprovider
+	$(PY) -m pytest -q -p no:cacheprovider --durations=40
 
 ## Everything but the tests marked slow.
 test-fast: $(STAMP)
