@@ -26,7 +26,7 @@ import numpy as np
 
 from depthguard.progress import log
 from depthguard.sources.base import register_joints
-from depthguard.sources.joints import JointSourceError, _robot, check_joint_state
+from depthguard.sources.joints import JointSourceError, _robot, check_joint_state, refuse_beside_simulator
 from depthguard.sources.stamped_queue import StampedQueue
 from depthguard.transport.franky_link import FRANKA_DOF, FrankyError, link_for, parse_host
 
@@ -47,7 +47,7 @@ class FrankyJoints:
             raise JointSourceError(f"{what}: a Franka reports {FRANKA_DOF} joints, the rig's robot "
                                    f"{self._robot.name} has {self._robot.dof}: use the rig of this robot")
         self.host, self.period = host, 1.0 / float(frequency)
-        self.received = self.rejected = self.out_of_order = 0
+        self.received = self.rejected = self.out_of_order = self.overflow = 0
         self.last_error: str | None = None
         self.robot_stamps: deque[tuple[float, float]] = deque(maxlen=10000)
         self._lost: str | None = None
@@ -98,8 +98,11 @@ class FrankyJoints:
             return
         self.received += 1
         self.robot_stamps.append((stamp, float(robot_t)))
-        if self._queue.offer(stamp, (stamp, arr)) == "out_of_order":
+        what = self._queue.offer(stamp, (stamp, arr))
+        if what == "out_of_order":
             self.out_of_order += 1
+        elif what is not None:
+            self.overflow += 1              # the oldest waiting state dropped (a run that does not read them)
 
     def states_until(self, t: float) -> list[tuple[float, np.ndarray]]:
         """The received states with host stamp <= ``t`` (s) not given yet, in stamp order."""
@@ -128,10 +131,5 @@ def open_franky_joints(argument: str, rig, context: dict) -> FrankyJoints:
         host = parse_host(argument, "--joints franky")
     except FrankyError as exc:
         raise JointSourceError(str(exc)) from None
-    from depthguard.sources.sim_source import sim_world
-
-    if sim_world(context) is not None:
-        raise JointSourceError(f"--joints franky:{host} is live (stamped on the wall clock) and cannot drive the "
-                               f"simulated cameras (their clock starts at 0): use it with live cameras "
-                               f"(realsense:, ros2:, units:)")
+    refuse_beside_simulator(f"franky:{host}", context)
     return FrankyJoints(host, rig)
