@@ -151,6 +151,21 @@ class Camera:
         return Camera(self.id, self.width, self.height, self.fx, self.fy, self.cx, self.cy,
                       world_from_camera, self.min_range, self.max_range, self.sensor)
 
+    def binned(self, b: int) -> "Camera":
+        """The camera whose pixel is a ``b x b`` block of this one's (R10: the depth grid's
+        principal at a coarser pixel, ``principal_bin``): ``ceil(W / b) x ceil(H / b)`` pixels,
+        ``fx / b``, ``fy / b``, and the principal point where pixel ``(u, v)``'s block centre
+        ``(b u + (b - 1) / 2, b v + (b - 1) / 2)`` of this camera projects; same pose and
+        range. ``b = 1`` is this camera itself."""
+        b = int(b)
+        if b < 1:
+            raise CameraError(f"camera {self.id!r}: a pixel bin must be >= 1 (got {b})")
+        if b == 1:
+            return self
+        return Camera(self.id, -(-self.width // b), -(-self.height // b), self.fx / b, self.fy / b,
+                      (self.cx + 0.5) / b - 0.5, (self.cy + 0.5) / b - 0.5, self.world_from_camera,
+                      self.min_range, self.max_range, self.sensor)
+
     def key(self) -> str:
         """A stable hash of every parameter, for on-disk caches keyed by the rig."""
         h = hashlib.sha256()

@@ -51,7 +51,7 @@ from depthguard.distance.silhouette import SilhouetteBuffers, check_silhouette_p
 from depthguard.fusion import depth_grid_capsules, depth_grid_kernels, depth_grid_lazy, depth_grid_lookup, depth_grid_reach
 from depthguard.fusion.depth_grid_memo import new_memo
 from depthguard.fusion.depth_grid_offline import corner_rays, default_cache_dir, load_map, map_key, save_map
-from depthguard.fusion.depth_grid_state import StateOptions, pyramid_layout, pyramid_levels, state_into
+from depthguard.fusion.depth_grid_state import StateOptions, bin_state, pyramid_layout, pyramid_levels, state_into
 
 __all__ = ["DepthGridMap", "default_cache_dir"]
 
@@ -124,6 +124,16 @@ class DepthGridMap:
         False: always build, never write.
     quiet : bool
         No progress output while building.
+    principal_bin : int >= 1
+        The grid's pixel is a ``principal_bin x principal_bin`` block of the principal's
+        pixels (default 1: the paper's grid, one cell column per pixel). The principal's
+        per-pixel state is binned by :func:`~depthguard.fusion.depth_grid_state.bin_state`
+        (a block is free up to its nearest pixel's free depth) and the grid is the binned
+        camera's (:meth:`~depthguard.camera.Camera.binned`): ``principal_bin**2`` times fewer
+        columns to classify and look up, the other cameras at their full resolution. Every
+        obstacle cell of the pixels lies in an obstacle cell of the blocks (or in space no camera
+        clears), so a distance can only come out smaller, by at most a block's width at its
+        depth; ``principal`` is then the binned camera, ``principal_full`` the camera itself.
 
     Attributes: ``principal`` (Camera), ``others`` (list[Camera]), ``shape``
     ``(H, W, n_d)``, ``nbytes`` (the map's tables), ``build_seconds``,
@@ -131,7 +141,7 @@ class DepthGridMap:
     """
 
     def __init__(self, cameras, principal, d_min: float, d_max: float, delta_d: float,
-                 cache_dir=None, *, cache: bool = True, quiet: bool = True):
+                 cache_dir=None, *, cache: bool = True, quiet: bool = True, principal_bin: int = 1):
         cams = list(cameras)
         if not cams:
             raise ValueError("DepthGridMap needs at least one camera")
@@ -157,7 +167,11 @@ class DepthGridMap:
         n_d = int(math.ceil((d_max - d_min) / delta_d - 1e-9))
         if n_d > 1_000_000:
             raise ValueError(f"grid has {n_d} depth slices; increase delta_d")
-        self.principal: Camera = cams[ids.index(pid)]
+        if isinstance(principal_bin, bool) or not isinstance(principal_bin, (int, np.integer)) or principal_bin < 1:
+            raise ValueError(f"principal_bin must be an integer >= 1 (got {principal_bin!r})")
+        self.principal_bin = int(principal_bin)
+        self.principal_full: Camera = cams[ids.index(pid)]
+        self.principal: Camera = self.principal_full.binned(self.principal_bin)
         self.others: list[Camera] = [c for c in cams if c.id != pid]
         self.d_min, self.delta_d, self.n_d = d_min, delta_d, n_d
         self.d_max = d_min + n_d * delta_d
@@ -247,8 +261,9 @@ class DepthGridMap:
             size = max(size, n)
         self._kpmin = np.zeros((max(nk, 1), size))
         self._kpmax = np.zeros((max(nk, 1), size))
-        self._silhouette = SilhouetteBuffers((max(P.height, Hk), max(P.width, Wk)))
-        self._gaps = GapBuffers((max(P.height, Hk), max(P.width, Wk)))
+        F = self.principal_full
+        self._silhouette = SilhouetteBuffers((max(F.height, Hk), max(F.width, Wk)))
+        self._gaps = GapBuffers((max(F.height, Hk), max(F.width, Wk)))
         self._loaded_options_pending = None
         self.states_used = 0       # camera states copied in (set_frames(states=...))
         self.pyramids_used = 0     # ... and the other cameras' pyramids made with them
@@ -418,8 +433,7 @@ class DepthGridMap:
         """The loading part of :meth:`set_frames` (arguments checked there)."""
         P = self.principal
         if P.id in fresh:
-            self._state(P, depths[P.id], robot_depths.get(P.id), off, self._pfree, self._pkind, False,
-                        states.get(P.id))
+            self._principal_state(depths[P.id], robot_depths.get(P.id), states.get(P.id))
         for k, cam in enumerate(self.others):
             if cam.id not in fresh:
                 continue
@@ -538,6 +552,29 @@ class DepthGridMap:
                         max(int(np.floor(pv.min() + 0.5)) - 1, 0), min(int(np.floor(pv.max() + 0.5)) + 1, P.height - 1))
         return boxes
 
+    def _principal_state(self, depth, robot_depth, state) -> None:
+        """The principal's per-pixel state into ``_pfree`` / ``_pkind``: :meth:`_state`, binned
+        (:func:`~depthguard.fusion.depth_grid_state.bin_state`) with ``principal_bin > 1``: copied
+        from ``state`` made binned with this build's options, else worked out at full resolution
+        here and binned."""
+        b = self.principal_bin
+        if b == 1:
+            self._state(self.principal, depth, robot_depth, None, self._pfree, self._pkind, False, state)
+            return
+        if (state is not None and state.bin == b and state.options == self._loaded_options_pending
+                and not state.robot_free and state.free.shape == self.principal.shape):
+            np.copyto(self._pfree, state.free)
+            np.copyto(self._pkind, state.kind)
+            self.states_used += 1
+            return
+        if state is not None and state.bin == 1 and state.options == self._loaded_options_pending \
+                and not state.robot_free and state.free.shape == self.principal_full.shape:
+            bin_state(state.free, state.kind, b, self._pfree, self._pkind)     # made at full resolution
+            self.states_used += 1
+            return
+        state_into(self.principal_full, depth, robot_depth, self._loaded_options_pending, False, self._silhouette,
+                   self._gaps, self._pfree, self._pkind, b)
+
     def _state(self, cam, depth, robot_depth, off, out_free, out_kind, robot_free, state=None):
         """Camera ``cam``'s per-pixel state into ``out_free`` / ``out_kind``: copied from ``state``
         (a :class:`~depthguard.fusion.depth_grid_state.CameraState` made off the build, e.g. by the
@@ -545,7 +582,7 @@ class DepthGridMap:
         worked out here (None returned)."""
         options = self._loaded_options_pending
         if (state is not None and state.options == options and state.robot_free == bool(robot_free)
-                and state.free.shape == cam.shape):
+                and state.bin == 1 and state.free.shape == cam.shape):
             H, W = cam.shape
             np.copyto(out_free[:H, :W], state.free)
             np.copyto(out_kind[:H, :W], state.kind)

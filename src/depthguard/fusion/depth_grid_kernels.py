@@ -113,35 +113,36 @@ def frame_state(depth, robot_depth, use_robot, min_range, max_range, robot_offse
     H, W = depth.shape
     for v in prange(H):                       # rows on the caller's numba threads
         for u in range(W):
-            m = np.float64(depth[v, u])
-            if not ((m == m) and m > 0.0 and m >= min_range and m <= max_range):
-                out_kind[v, u] = KIND_UNKNOWN
-                if invalid_free:
-                    out_free[v, u] = np.inf
-                    continue
-                if m > max_range and m <= RETURN_LIMIT_FACTOR * max_range:   # a return beyond the rated range
-                    out_free[v, u] = max_range
-                    continue
-                out_free[v, u] = min_range
-                if silhouette is not None:
-                    drd = np.float64(silhouette[v, u])
-                    if drd > 0.0:
-                        out_free[v, u] = drd
-                        out_kind[v, u] = KIND_ROBOT
-                        continue
-                if gap is not None:
-                    g = np.float64(gap[v, u])
-                    if g > 0.0:
-                        out_free[v, u] = g
-                continue
-            if use_robot:
-                dr = np.float64(robot_depth[v, u])
-                if dr > 0.0 and m >= dr - robot_offset:
-                    out_free[v, u] = np.inf if robot_free else dr
-                    out_kind[v, u] = KIND_ROBOT
-                    continue
-            out_free[v, u] = m
-            out_kind[v, u] = KIND_SURFACE
+            f, k = pixel_state(depth, robot_depth, use_robot, min_range, max_range, robot_offset,
+                               invalid_free, robot_free, silhouette, gap, v, u)
+            out_free[v, u] = f
+            out_kind[v, u] = k
+
+
+@njit(cache=True, inline="always")
+def pixel_state(depth, robot_depth, use_robot, min_range, max_range, robot_offset, invalid_free, robot_free,
+                silhouette, gap, v, u):
+    """``(free depth, kind)`` of pixel ``(v, u)``: the rule of :func:`frame_state`, stated once."""
+    m = np.float64(depth[v, u])
+    if not ((m == m) and m > 0.0 and m >= min_range and m <= max_range):
+        if invalid_free:
+            return np.inf, KIND_UNKNOWN
+        if m > max_range and m <= RETURN_LIMIT_FACTOR * max_range:   # a return beyond the rated range
+            return max_range, KIND_UNKNOWN
+        if silhouette is not None:
+            drd = np.float64(silhouette[v, u])
+            if drd > 0.0:
+                return drd, KIND_ROBOT
+        if gap is not None:
+            g = np.float64(gap[v, u])
+            if g > 0.0:
+                return g, KIND_UNKNOWN
+        return min_range, KIND_UNKNOWN
+    if use_robot:
+        dr = np.float64(robot_depth[v, u])
+        if dr > 0.0 and m >= dr - robot_offset:
+            return (np.inf if robot_free else dr), KIND_ROBOT
+    return m, KIND_SURFACE
 
 
 @njit(cache=True, parallel=True, nogil=True)

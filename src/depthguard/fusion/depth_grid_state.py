@@ -27,9 +27,12 @@ import numpy as np
 from depthguard.camera import check_depth_image
 from depthguard.distance.gaps import GapBuffers, check_gap_px
 from depthguard.distance.silhouette import SilhouetteBuffers, check_silhouette_px
-from depthguard.fusion.depth_grid_kernels import build_pyramids, frame_state
+from numba import njit, prange
 
-__all__ = ["StateOptions", "CameraState", "StateMaker", "state_into", "pyramid_levels", "pyramid_layout"]
+from depthguard.fusion.depth_grid_kernels import build_pyramids, frame_state, pixel_state
+
+__all__ = ["StateOptions", "CameraState", "StateMaker", "state_into", "pyramid_levels", "pyramid_layout",
+           "bin_state", "bin_state_numpy", "frame_state_binned"]
 
 
 def pyramid_levels(height: int, width: int) -> int:
@@ -83,15 +86,105 @@ class CameraState(NamedTuple):
     pmin: np.ndarray | None = None
     pmax: np.ndarray | None = None
     levels: int = 0
+    bin: int = 1
+
+
+@njit(cache=True, parallel=True, nogil=True)
+def bin_state(free, kind, b, out_free, out_kind):
+    """A frame's state (``free`` (H, W) float64 m, ``kind`` (H, W) int8) at the principal's
+    binned pixel (R10, ``principal_bin``): pixel ``(u, v)`` of ``out_*`` (``ceil(H / b)``,
+    ``ceil(W / b)``) is the ``b x b`` block of pixels ``b v .. b v + b - 1`` x ``b u .. b u + b - 1``
+    (those inside the image). Its free depth is the block's smallest — the block's frustum is
+    free only up to where every pixel's ray is — and its kind that pixel's, the smallest kind
+    where several share it, so ``KIND_SURFACE`` first (a measured return there is an obstacle
+    without confirmation, R12 case 2; the other kinds leave the cell to the other cameras). Every cell
+    the pixels' states make an obstacle lies in an obstacle cell of the block or in space no
+    camera clears (the safe side); :func:`bin_state_numpy` is its twin."""
+    H, W = free.shape
+    hb = out_free.shape[0]
+    wb = out_free.shape[1]
+    if b == 2 and H % 2 == 0 and W % 2 == 0:
+        for j in prange(hb):               # the common case, unrolled (4x faster)
+            for i in range(wb):
+                m = free[2 * j, 2 * i]
+                k = kind[2 * j, 2 * i]
+                for c in range(1, 4):
+                    f = free[2 * j + (c >> 1), 2 * i + (c & 1)]
+                    kk = kind[2 * j + (c >> 1), 2 * i + (c & 1)]
+                    if f < m or (f == m and kk < k):
+                        m = f
+                        k = kk
+                out_free[j, i] = m
+                out_kind[j, i] = k
+        return
+    for j in prange(hb):
+        v1 = min(H, j * b + b)
+        for i in range(wb):
+            u1 = min(W, i * b + b)
+            m = np.inf
+            k = np.int8(-1)
+            for v in range(j * b, v1):
+                for u in range(i * b, u1):
+                    f = free[v, u]
+                    if f < m or k < 0 or (f == m and kind[v, u] < k):
+                        m = f
+                        k = kind[v, u]
+            out_free[j, i] = m
+            out_kind[j, i] = k
+
+
+def bin_state_numpy(free: np.ndarray, kind: np.ndarray, b: int) -> tuple[np.ndarray, np.ndarray]:
+    """The plain-numpy twin of :func:`bin_state`: ``(free, kind)`` of the binned pixels."""
+    H, W = free.shape
+    hb, wb = -(-H // b), -(-W // b)
+    f = np.full((hb * b, wb * b), np.inf)
+    f[:H, :W] = free
+    k = np.full((hb * b, wb * b), 127, dtype=np.int16)
+    k[:H, :W] = kind
+    blocks_f = f.reshape(hb, b, wb, b).transpose(0, 2, 1, 3).reshape(hb, wb, b * b)
+    blocks_k = k.reshape(hb, b, wb, b).transpose(0, 2, 1, 3).reshape(hb, wb, b * b)
+    out_f = blocks_f.min(axis=2)
+    at_min = (blocks_f == out_f[..., None]) & (blocks_k != 127)
+    # the kind at the smallest free depth, the smallest kind (a surface first) where several share it
+    rank = np.where(at_min, blocks_k, 1000)
+    pick = np.take_along_axis(blocks_k, rank.argmin(axis=2)[..., None], axis=2)[..., 0]
+    return out_f, pick.astype(np.int8)
+
+
+@njit(cache=True, parallel=True, nogil=True)
+def frame_state_binned(depth, robot_depth, use_robot, min_range, max_range, robot_offset, invalid_free, robot_free,
+                       b, out_free, out_kind, silhouette=None, gap=None):
+    """:func:`~depthguard.fusion.depth_grid_kernels.frame_state` and :func:`bin_state` in one
+    pass (the same per-pixel rule, the same block rule; the full-resolution state is never
+    written): ``out_*`` (``ceil(H / b)``, ``ceil(W / b)``)."""
+    H, W = depth.shape
+    hb = out_free.shape[0]
+    wb = out_free.shape[1]
+    for j in prange(hb):
+        v1 = min(H, j * b + b)
+        for i in range(wb):
+            u1 = min(W, i * b + b)
+            m = np.inf
+            k = -1
+            for v in range(j * b, v1):
+                for u in range(i * b, u1):
+                    f, kk = pixel_state(depth, robot_depth, use_robot, min_range, max_range, robot_offset,
+                                        invalid_free, robot_free, silhouette, gap, v, u)
+                    if f < m or k < 0 or (f == m and kk < k):
+                        m = f
+                        k = kk
+            out_free[j, i] = m
+            out_kind[j, i] = k
 
 
 def state_into(cam, depth, robot_depth, options: StateOptions, robot_free: bool, silhouette: SilhouetteBuffers,
-               gaps: GapBuffers, out_free: np.ndarray, out_kind: np.ndarray) -> None:
+               gaps: GapBuffers, out_free: np.ndarray, out_kind: np.ndarray, bin: int = 1) -> None:
     """Write the state of ``depth`` (H, W) m with the robot rendered as ``robot_depth`` (H, W) m
     (None: no robot) into ``out_free`` / ``out_kind`` (>= H, >= W; the top-left (H, W) is
-    written). ``silhouette`` and ``gaps`` are scratch buffers of the calling thread. The one
-    place that turns a frame into its state: the grid's own build and :class:`StateMaker`
-    both call it (R9, R28, R32)."""
+    written; with ``bin > 1`` the binned state, :func:`frame_state_binned`, into the top-left
+    ``(ceil(H / bin), ceil(W / bin))``). ``silhouette`` and ``gaps`` are scratch buffers of the
+    calling thread. The one place that turns a frame into its state: the grid's own build and
+    :class:`StateMaker` both call it (R9, R28, R32)."""
     d = check_depth_image(cam, depth)
     use = robot_depth is not None
     rd = check_depth_image(cam, robot_depth, name="robot_depth") if use else np.zeros((1, 1), np.float32)
@@ -100,6 +193,10 @@ def state_into(cam, depth, robot_depth, options: StateOptions, robot_free: bool,
     n_gap = check_gap_px(options.gap_px)
     sil = silhouette.dilate(rd, n_sil) if (use and n_sil > 0 and not invalid_free) else None
     gap = gaps.gaps(d, cam.min_range, cam.max_range, n_gap) if (n_gap > 0 and not invalid_free) else None
+    if int(bin) > 1:
+        frame_state_binned(d, rd, use, cam.min_range, cam.max_range, float(options.robot_offset), invalid_free,
+                           bool(robot_free), int(bin), out_free, out_kind, sil, gap)
+        return
     frame_state(d, rd, use, cam.min_range, cam.max_range, float(options.robot_offset), invalid_free,
                 bool(robot_free), out_free, out_kind, sil, gap)
 
@@ -114,11 +211,19 @@ class StateMaker:
         self._gaps = GapBuffers(cam.shape)
 
     def make(self, depth, robot_depth, options: StateOptions, robot_free: bool = False,
-             pyramids: bool = False) -> CameraState:
+             pyramids: bool = False, bin: int = 1) -> CameraState:
         """The state of one frame, in new arrays (the grid copies them in; the frame's product
         holds them); with ``pyramids`` (a camera other than the principal) its min / max
-        pyramids too."""
+        pyramids too; with ``bin > 1`` (the principal of a grid with ``principal_bin``) at
+        the binned pixel (:func:`bin_state`; no pyramids)."""
         cam = self.camera
+        b = int(bin)
+        if b > 1:
+            shape = (-(-cam.height // b), -(-cam.width // b))
+            free = np.empty(shape, dtype=np.float64)
+            kind = np.empty(shape, dtype=np.int8)
+            state_into(cam, depth, robot_depth, options, robot_free, self._silhouette, self._gaps, free, kind, b)
+            return CameraState(free, kind, options, bool(robot_free), bin=b)
         free = np.empty(cam.shape, dtype=np.float64)
         kind = np.empty(cam.shape, dtype=np.int8)
         state_into(cam, depth, robot_depth, options, robot_free, self._silhouette, self._gaps, free, kind)

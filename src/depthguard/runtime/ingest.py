@@ -101,7 +101,7 @@ class CameraWorker:
                  learned=None, scene_change: dict | None = None, ssm_muted=None):
         self.camera = cam
         # the camera's share of the grid build (R36): state_options() -> (StateOptions, robot_free,
-        # pyramids) or None (no state made here; the build works it out)
+        # pyramids, bin) or None (no state made here; the build works it out)
         self.state_options = state_options
         self._state_maker = None
         self.id = cam.id
@@ -246,8 +246,8 @@ class CameraWorker:
 
         if self._state_maker is None:
             self._state_maker = StateMaker(self.camera)
-        options, robot_free, pyramids = wanted
-        return self._state_maker.make(depth, robot_depth, options, robot_free, pyramids)
+        options, robot_free, pyramids, bin_px = wanted
+        return self._state_maker.make(depth, robot_depth, options, robot_free, pyramids, bin_px)
 
 
 @dataclass

@@ -170,7 +170,7 @@ class Monitor(MonitorDistances):
                 self._ssm_voxels.push)
 
     def _state_options(self, cid: str):
-        """``(StateOptions, robot_free, pyramids)`` for camera ``cid``'s frames as the depth grid will
+        """``(StateOptions, robot_free, pyramids, bin)`` for camera ``cid``'s frames as the depth grid will
         load them (its role: the principal, or another camera whose pyramids the grid reads), or
         None with one camera (no grid, R36)."""
         from depthguard.fusion.depth_grid_state import StateOptions
@@ -183,7 +183,7 @@ class Monitor(MonitorDistances):
         # pyramids stay with the build (False): made here into fresh memory per frame they cost the
         # worker 6-7 ms of page faults on a loaded machine against ~1 ms in the grid's own buffers
         # (measured 2026-11-25); a reused ring needs a check that the build did not copy a torn one
-        return StateOptions.of(cfg), cfg.robot_in_others == "free" and other, False
+        return StateOptions.of(cfg), cfg.robot_in_others == "free" and other, False, 1 if other else cfg.principal_bin
 
     def _make_grid(self, cams: tuple[str, ...]):
         from depthguard.fusion.depth_grid import DepthGridMap
@@ -193,7 +193,8 @@ class Monitor(MonitorDistances):
             from depthguard.runtime.single import OneCameraMap
             return OneCameraMap(cameras[0])
         d_min, d_max = self.rig.workspace.depth_span(cameras[0])
-        return DepthGridMap(cameras, principal=cams[0], d_min=d_min, d_max=d_max, delta_d=self.config.delta_d)
+        return DepthGridMap(cameras, principal=cams[0], d_min=d_min, d_max=d_max, delta_d=self.config.delta_d,
+                            principal_bin=self.config.principal_bin)
 
     def _fusion_settings(self):
         """(config, camera ids, points whose cells to classify ahead) for the fusion worker."""

@@ -54,7 +54,8 @@ def _frames(cell_name: str, t0: float, n: int):
         depth = sim.render(cam.id, t, q).copy()
         rd = np.array(expected[cam.id].robot(q), copy=True)
         other = cam.id != cams[0].id
-        out.append((cam.id, depth, rd, q, (options, cfg.robot_in_others == "free" and other, False)))
+        out.append((cam.id, depth, rd, q, (options, cfg.robot_in_others == "free" and other, False,
+                                           1 if other else cfg.principal_bin)))
     for cid, depth, rd, _q, role in out:                 # compiled and buffers touched: not timed
         makers[cid].make(depth, rd, *role)
     for i, (cid, depth, rd, q, role) in enumerate(out):
@@ -109,7 +110,8 @@ def bench_share(ctx: BenchContext) -> list[BenchRow]:
             rig = cell.rig
             cams = list(rig.cameras)
             d_min, d_max = rig.workspace.depth_span(cams[0])
-            grid = DepthGridMap(cams, principal=cams[0].id, d_min=d_min, d_max=d_max, delta_d=rig.monitor.delta_d)
+            grid = DepthGridMap(cams, principal=cams[0].id, d_min=d_min, d_max=d_max, delta_d=rig.monitor.delta_d,
+                                principal_bin=rig.monitor.principal_bin)
             grid.touch()
             seq = frames * (1 if ctx.quick else 3)
             _builds(grid, cell, seq, True)                   # compiled, pages touched
