@@ -238,8 +238,10 @@ class DepthGridMap:
     # ------------------------------------------------------------ on-line (R12)
     def _alloc_frames(self) -> None:
         P = self.principal
-        self._pfree = np.empty(P.shape)
-        self._pkind = np.empty(P.shape, dtype=np.int8)
+        # the principal's state: these buffers when the grid works it out, else the state's own
+        # arrays (made per frame off the build and never written again: no copy)
+        self._pfree_own = self._pfree = np.empty(P.shape)
+        self._pkind_own = self._pkind = np.empty(P.shape, dtype=np.int8)
         nk = len(self.others)
         Hk = max([c.height for c in self.others], default=1)
         Wk = max([c.width for c in self.others], default=1)
@@ -294,7 +296,7 @@ class DepthGridMap:
         first write, so without this the first frames pay for it: about 150 MB for two 640x480
         cameras, 30-270 ms (R29: the frames' path; the monitor calls it off that path,
         :meth:`~depthguard.runtime.ingest.FusionWorker.prepare`)."""
-        arrays = (self._pfree, self._pkind, self._kfree, self._kkind, self._band, self._cap_lo, self._cap_hi,
+        arrays = (self._pfree_own, self._pkind_own, self._kfree, self._kkind, self._band, self._cap_lo, self._cap_hi,
                   self._cap_n, self._obits, self._cbits, self._stamp, *self._kmemo, self._clear, self._free_to,
                   self._span, self._kpmin, self._kpmax)
         return sum(touch_pages(a) for a in arrays)
@@ -446,8 +448,9 @@ class DepthGridMap:
                 self._kfree[k].fill(0.0)          # nothing seen: clears nothing
             if used is not None and used.pmin is not None and used.levels == self._koff.shape[1]:
                 n = len(used.pmin)                # the camera's pyramids, made with its state
-                np.copyto(self._kpmin[k][:n], used.pmin)
-                np.copyto(self._kpmax[k][:n], used.pmax)
+                o = self._koff[k, 1] if self._koff.shape[1] > 1 else 0    # level 0 is never read
+                np.copyto(self._kpmin[k][o:n], used.pmin[o:])
+                np.copyto(self._kpmax[k][o:n], used.pmax[o:])
                 self.pyramids_used += 1
                 continue
             depth_grid_kernels.build_pyramids(self._kfree[k], cam.height, cam.width, self._kpmin[k], self._kpmax[k],
@@ -553,19 +556,22 @@ class DepthGridMap:
         return boxes
 
     def _principal_state(self, depth, robot_depth, state) -> None:
-        """The principal's per-pixel state into ``_pfree`` / ``_pkind``: :meth:`_state`, binned
-        (:func:`~depthguard.fusion.depth_grid_state.bin_state`) with ``principal_bin > 1``: copied
-        from ``state`` made binned with this build's options, else worked out at full resolution
-        here and binned."""
+        """The principal's per-pixel state as ``_pfree`` / ``_pkind``: ``state``'s own arrays where
+        it was made with this build's options and bin (no copy: a state is never written after
+        it is made), else worked out here into the grid's buffers — binned with
+        ``principal_bin > 1`` (from a full-resolution ``state`` by
+        :func:`~depthguard.fusion.depth_grid_state.bin_state`, from the frame in one pass)."""
         b = self.principal_bin
-        if b == 1:
-            self._state(self.principal, depth, robot_depth, None, self._pfree, self._pkind, False, state)
-            return
         if (state is not None and state.bin == b and state.options == self._loaded_options_pending
-                and not state.robot_free and state.free.shape == self.principal.shape):
-            np.copyto(self._pfree, state.free)
-            np.copyto(self._pkind, state.kind)
+                and not state.robot_free and state.free.shape == self.principal.shape
+                and state.free.dtype == np.float64 and state.kind.dtype == np.int8
+                and state.free.flags.c_contiguous and state.kind.flags.c_contiguous):
+            self._pfree, self._pkind = state.free, state.kind        # used in place (read only)
             self.states_used += 1
+            return
+        self._pfree, self._pkind = self._pfree_own, self._pkind_own
+        if b == 1:
+            self._state(self.principal, depth, robot_depth, None, self._pfree, self._pkind, False, None)
             return
         if state is not None and state.bin == 1 and state.options == self._loaded_options_pending \
                 and not state.robot_free and state.free.shape == self.principal_full.shape:

@@ -148,18 +148,33 @@ def pixel_state(depth, robot_depth, use_robot, min_range, max_range, robot_offse
 @njit(cache=True, parallel=True, nogil=True)
 def build_pyramids(free, H, W, pmin, pmax, offsets, dims):
     """Min- and max-pyramids of a free-depth image: level ``l`` holds the
-    minimum (maximum) over aligned ``2^l x 2^l`` blocks (level 0 is the image).
+    minimum (maximum) over aligned ``2^l x 2^l`` blocks. Level 0 (the image itself) is
+    not written — :func:`_box_min` / :func:`_box_max` start at level 1 (a superset of a box
+    bounds it as well), so a frame costs one read of ``free`` and a third of its size in
+    writes — unless it is the only level (a 1 x 1 image).
     ``pmin`` / ``pmax`` are flat float64 buffers; level ``l`` (``dims[l] = (h_l, w_l)``)
     starts at ``offsets[l]``, row-major. Used only to skip work exactly: a box
     whose minimum free depth exceeds a depth is free up to it in every pixel;
     one whose maximum is below a depth is occupied or hidden before it in every pixel."""
     nl = offsets.shape[0]
-    o = offsets[0]
-    for v in prange(H):                       # rows of a level on the caller's numba threads
-        for u in range(W):
-            pmin[o + v * W + u] = free[v, u]
-            pmax[o + v * W + u] = free[v, u]
-    for lv in range(1, nl):
+    if nl == 1:
+        for v in range(H):
+            for u in range(W):
+                pmin[offsets[0] + v * W + u] = free[v, u]
+                pmax[offsets[0] + v * W + u] = free[v, u]
+        return
+    hl = dims[1, 0]
+    wl = dims[1, 1]
+    ol = offsets[1]
+    for v in prange(hl):                      # level 1 from the image, rows on the caller's threads
+        r0 = 2 * v
+        r1 = min(2 * v + 1, H - 1)
+        for u in range(wl):
+            u0 = 2 * u
+            u1 = min(2 * u + 1, W - 1)
+            pmin[ol + v * wl + u] = min(min(free[r0, u0], free[r0, u1]), min(free[r1, u0], free[r1, u1]))
+            pmax[ol + v * wl + u] = max(max(free[r0, u0], free[r0, u1]), max(free[r1, u0], free[r1, u1]))
+    for lv in range(2, nl):
         hp = dims[lv - 1, 0]
         wp = dims[lv - 1, 1]
         hl = dims[lv, 0]
@@ -180,10 +195,11 @@ def build_pyramids(free, H, W, pmin, pmax, offsets, dims):
 @njit(cache=True, inline="always")
 def _box_min(pyr, offsets, dims, u0, u1, v0, v1):
     """Lower bound of the free depth over pixels ``u0..u1 x v0..v1`` (inclusive):
-    the minimum over the pyramid blocks covering the box (at most 2 x 2).
+    the minimum over the pyramid blocks covering the box (at most 2 x 2, from level 1 up:
+    level 0 is not kept, :func:`build_pyramids`).
     With the max-pyramid and the comparison reversed, the upper bound."""
     nl = offsets.shape[0]
-    lv = 0
+    lv = 1 if nl > 1 else 0
     while lv < nl - 1 and ((u1 >> lv) - (u0 >> lv) > 1 or (v1 >> lv) - (v0 >> lv) > 1):
         lv += 1
     a0 = u0 >> lv
@@ -204,7 +220,7 @@ def _box_min(pyr, offsets, dims, u0, u1, v0, v1):
 @njit(cache=True, inline="always")
 def _box_max(pyr, offsets, dims, u0, u1, v0, v1):
     nl = offsets.shape[0]
-    lv = 0
+    lv = 1 if nl > 1 else 0
     while lv < nl - 1 and ((u1 >> lv) - (u0 >> lv) > 1 or (v1 >> lv) - (v0 >> lv) > 1):
         lv += 1
     wl = dims[lv, 1]
