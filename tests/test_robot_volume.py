@@ -64,3 +64,19 @@ def test_volume_holds_every_pose_and_every_sweep(n_poses):
             disp = np.max([np.linalg.norm(robot.collision_segments(q, padding)[0] - ab0, axis=2).max(axis=1)
                            for q in poses[1:]], axis=0)
             np.testing.assert_allclose(grow, disp, rtol=1e-12, atol=1e-12)
+
+
+def test_cached_poses_give_the_same_volume():
+    """With a cache (the fusion worker's), a pose array seen before reuses its capsules: the
+    volume equals the one computed afresh; a new array with other joints, or another padding,
+    is computed again."""
+    robot = load_cell("flacco-cell").rig.robot
+    rng = np.random.default_rng(9)
+    qa, qb = rng.uniform(robot.q_min, robot.q_max), rng.uniform(robot.q_min, robot.q_max)
+    cache: dict = {}
+    for poses, pad in (([qa, qb], 0.07), ([qa, qb], 0.07), ([qb, qa.copy() + 0.1], 0.07), ([qa, qb], 0.05)):
+        got = robot_volume(robot, poses, pad, cache)
+        want = robot_volume(robot, poses, pad)
+        np.testing.assert_array_equal(got[0], want[0])
+        np.testing.assert_array_equal(got[1], want[1])
+    assert len(cache) == 3          # qa, qb, the new array; qa and qb again at 0.05 replace their entries

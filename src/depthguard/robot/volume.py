@@ -12,7 +12,7 @@ import numpy as np
 __all__ = ["robot_volume"]
 
 
-def robot_volume(robot, poses, padding: float) -> tuple[np.ndarray, np.ndarray]:
+def robot_volume(robot, poses, padding: float, cache: dict | None = None) -> tuple[np.ndarray, np.ndarray]:
     """The robot's own volume for frames captured at several joint poses (R9, R12): its padded
     capsules at the first pose, each grown by how far that capsule's end points move to any
     other pose — ``(segments (C, 2, 3), radii (C,))`` metres, world.
@@ -28,9 +28,25 @@ def robot_volume(robot, poses, padding: float) -> tuple[np.ndarray, np.ndarray]:
     convex), at most the growth. So the other poses' grown capsules add nothing the robot
     occupied, only more exclusion (and twice the capsules per build). An excluded cell lies
     within ``padding`` plus the robot's motion between the captures in use (R25).
+
+    ``cache``: a dict the caller keeps between calls (the fusion worker: one per grid build
+    loop). A pose given as the same array object as in an earlier call with the same
+    ``padding`` reuses that call's capsules (a camera whose frame did not change keeps its
+    capture joints' array); the arrays must not be written in between. At most 64 poses
+    are kept.
     """
     uniq = list({id(q): q for q in poses}.values())
-    segs = [robot.collision_segments(q, padding) for q in uniq]
+    if cache is None:
+        segs = [robot.collision_segments(q, padding) for q in uniq]
+    else:
+        segs = []
+        for q in uniq:
+            hit = cache.get(id(q))
+            if hit is None or hit[0] is not q or hit[1] != padding:
+                if len(cache) >= 64:
+                    cache.clear()
+                hit = cache[id(q)] = (q, padding, robot.collision_segments(q, padding))
+            segs.append(hit[2])
     ab, r = segs[0]
     grow = np.zeros(len(r))
     for ab2, _ in segs[1:]:

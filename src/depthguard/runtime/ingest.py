@@ -293,6 +293,7 @@ class FusionWorker:
         self.builds = 0
         self.fused: dict[str, int] = {}           # per camera: frames loaded into a grid
         self._last_fused: dict[str, int] = {}
+        self._volumes: dict = {}                  # robot_volume's capsules per capture-joints array
         self.build_seconds: list[float] = []
         self.errors = 0
         self.last_error: str | None = None
@@ -398,7 +399,7 @@ class FusionWorker:
                 return False
             depths = {c: products[c].depth for c in cams}
             rdepths = {c: products[c].robot_depth for c in cams}
-            caps = robot_volume(self.robot, [p.q for p in products.values()], cfg.robot_padding)
+            caps = robot_volume(self.robot, [p.q for p in products.values()], cfg.robot_padding, self._volumes)
             back.loaded = False
             kw = {}
             states = {c: products[c].state for c in cams if products[c].state is not None}
