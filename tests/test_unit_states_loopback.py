@@ -37,7 +37,40 @@ class _Joints:
         pass
 
 
+K = 4                # cycles compared
+
+
+def _bad_messages(node, ids, units, monitor, frames, t, q):
+    """Bad network messages: refused and counted by the source (truncated, another version, another
+    camera than the key's, a camera not in the rig), or by the monitor (other options), never combined."""
+    from depthguard.transport import state_wire as sw
+
+    a, b = ids[0], ids[1]
+    good = node.state_unit.encode(frames[a].depth, t + 1.0, q, 99, node.settings.state)
+    other_opts = node.state_unit.encode(frames[a].depth, t + 1.0, q, 99,
+                                        (0.01,) + tuple(node.settings.state[1:]))
+    made = node.state_unit.make(frames[a].depth, q, node.settings.state)
+    naming_b = sw.encode_state(b, 99, t + 1.0, q, tuple(made.options), False, made.free, made.kind)
+    ghost = sw.encode_state("ghost", 99, t + 1.0, q, tuple(made.options), False, made.free, made.kind)
+    old = bytearray(good)
+    old[3] = 0
+    s, keys = node.client.session, node.keys
+    s.put(keys.states(a), good[:-100])
+    s.put(keys.states(a), bytes(old))
+    s.put(keys.states(a), naming_b)
+    s.put("depthguard/states/ghost", ghost)
+    assert wait_until(lambda: sum(units.states_refused.values()) == 4, 10.0), units.states_refused
+    assert units.states_refused == {"malformed": 2, "wrong_camera": 2}, units.states_last_refusal
+    assert units.states_until(float("inf")) == []                    # nothing of them reaches the monitor
+    s.put(keys.states(a), other_opts)
+    got = wait_until(lambda: units.states_until(float("inf")), 10.0)
+    assert len(got) == 1 and not monitor.push_state(got[0])
+    w = monitor._workers[a]
+    assert w.refusals == {"options": 1} and "options" in w.last_refusal
+
+
 @pytest.mark.multiprocess
+@pytest.mark.slow
 @pytest.mark.timeout(120)
 def test_four_units_equal_the_centralised_fusion():
     cell = load_cell("ur3-cell")
@@ -67,7 +100,7 @@ def test_four_units_equal_the_centralised_fusion():
         t0 = float(cell.situations[next(iter(cell.situations))].time) if cell.situations else 0.0
         tj = t0 - 0.1
         compared = 0
-        for k in range(5):
+        for k in range(K):
             t = t0 + k / 15.0
             while tj <= t + 0.004:                          # joints at 500 Hz past the frame
                 q = cell.scene.robot_q(tj)
@@ -103,8 +136,9 @@ def test_four_units_equal_the_centralised_fusion():
         assert compared > 0, "no finite distance compared: the scene must put something within rho"
         assert units.states_refused == {}
         st = distributed.stats()
-        assert all(c["refused"] == {} and c["frames"] == 5 for c in st["cameras"].values())
+        assert all(c["refused"] == {} and c["frames"] == K for c in st["cameras"].values())
         assert st["fusion_errors"] == 0 and central.stats()["fusion_errors"] == 0
+        _bad_messages(nodes[ids[0]], ids, units, distributed, frames, t, q)
     finally:
         for m in (central, distributed):
             if m is not None:

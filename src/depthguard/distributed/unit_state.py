@@ -93,6 +93,10 @@ def publish_state(node, depth, stamp: float, q) -> bool:
     signer = getattr(node.client, "_signer", None)
     if signer is not None:
         msg, _ = signer.seal(msg, key)
-    node.client.session.put(key, msg)
+    import zenoh
+
+    # BLOCK: a 1.5 MB state is many Zenoh fragments, which the default (DROP) loses under load; the
+    # unit then waits for the link instead (its next frame is later, the monitor sees its age, R27)
+    node.client.session.put(key, msg, congestion_control=zenoh.CongestionControl.BLOCK)
     node.sent_bytes += len(msg)
     return True
