@@ -10,6 +10,8 @@ of one camera along the robot's path, the robot in view, are rendered before any
   (:meth:`~depthguard.runtime.unit_states.UnitWorker.accept`). Goal <= 1 ms. Peer, in the same
   run: what a local camera's worker does for the same frame (render the robot, make the state:
   ``ExpectedDepth.robot`` + ``StateMaker.make``) — what the unit saves the monitor.
+* ``units.combine_cpu_ms`` — the same in CPU seconds of the thread; ``units.combine_f64_ms`` with
+  codec ``f64`` (the decode makes no array: 1.8x the bytes, less CPU).
 * ``units.bytes_per_frame`` — one message of a 640x480 frame (codec ``f32``); peer: codec ``f64``.
 * ``units.net_mb_s_per_camera`` — at 30 Hz, codec ``f32``.
 
@@ -17,6 +19,8 @@ Times are wall-clock medians over the frames (the machine's other load included)
 """
 
 from __future__ import annotations
+
+import time
 
 import numpy as np
 
@@ -73,6 +77,18 @@ def bench_units(ctx: BenchContext) -> list[BenchRow]:
         stamp[0] += 1.0                       # every state newer than the one in use
         worker.accept(st._replace(stamp=stamp[0]), 0.0)
     combine_s = time_call(combine, reps * n)
+    cpu = []
+    for _ in range(reps * n):                  # the same, CPU of this thread (robust to other load)
+        c0 = time.thread_time()
+        combine()
+        cpu.append(time.thread_time() - c0)
+    msg64 = msgs64[0]
+
+    def combine64():
+        st = sw.decode_state(msg64)
+        stamp[0] += 1.0
+        worker.accept(st._replace(stamp=stamp[0]), 0.0)
+    combine64_s = time_call(combine64, reps * n)
     if worker.refused:
         raise RuntimeError(f"units bench: states refused: {worker.last_refusal}")
     nbytes = float(np.median([len(m) for m in msgs]))
@@ -84,6 +100,12 @@ def bench_units(ctx: BenchContext) -> list[BenchRow]:
                  peer_value=float(np.median(local_s) * 1e3),
                  note=f"decode + hand to the fusion per remote frame (goal <= 1 ms); p90 "
                       f"{np.percentile(combine_s, 90) * 1e3:.2f} ms; {note}"),
+        BenchRow("units.combine_cpu_ms", float(np.median(cpu) * 1e3), "ms",
+                 note="the same, CPU seconds of the thread (time.thread_time; 1 ms resolution on some kernels: "
+                      "a median)"),
+        BenchRow("units.combine_f64_ms", float(np.median(combine64_s) * 1e3), "ms",
+                 note="decode + hand over with codec f64 (no float64 array made: a view of the message), "
+                      "1.8x the bytes"),
         BenchRow("units.bytes_per_frame", nbytes, "B", peer="codec f64", peer_value=float(len(msgs64[0])),
                  note=f"one state message, codec f32 (bit-exact); {note}"),
         BenchRow("units.net_mb_s_per_camera", nbytes * 30 / 1e6, "MB/s", note="codec f32 at 30 Hz"),
