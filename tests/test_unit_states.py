@@ -134,3 +134,76 @@ def test_the_monitor_refuses_states_it_would_not_have_made(made):
         assert not m.push_state(good) and w.refusals["out_of_order"] == 1
         other = rig.cameras[0].id                                   # a camera with frames at the monitor
         assert not m.push_state(good._replace(camera=other)) and m.unit_states_unmonitored == 1
+
+
+class _Recorded:
+    """Items (frames or unit states) recorded beforehand, served by stamp."""
+
+    first_stamp = None
+
+    def __init__(self, items):
+        self.items = sorted(items, key=lambda x: x.stamp)
+
+    def _until(self, t):
+        out = [x for x in self.items if x.stamp <= t]
+        self.items = self.items[len(out):]
+        return out
+
+    @property
+    def done(self):
+        return not self.items
+
+
+class _Frames(_Recorded):
+    def frames_until(self, t):
+        return self._until(t)
+
+
+class _States(_Recorded):
+    def frames_until(self, t):
+        return []
+
+    def states_until(self, t):
+        return self._until(t)
+
+
+class _JointStates(_Recorded):
+    def states_until(self, t):
+        return [(x.stamp, x.q) for x in self._until(t)]
+
+
+@pytest.mark.slow
+def test_a_run_fed_unit_states_reacts_as_one_fed_the_frames():
+    """The runner hands a source's unit states to the monitor (fast mode): every reaction of a run
+    fed the units' states equals that of a run fed the same frames."""
+    from collections import namedtuple
+
+    from depthguard.runtime.runner import run
+
+    cell = load_cell("ur3-cell")
+    rig = cell.rig
+    J = namedtuple("J", "stamp q")
+    joints = [J(0.45 + k * 0.002, cell.scene.robot_q(0.45 + k * 0.002)) for k in range(120)]
+    frames, states = [], []
+    sim = SimSource(cell, seed=2)
+    settings = state_settings_of(rig)
+    units = {c.id: StateUnit(c, rig.robot) for c in rig.cameras}
+    for i, t in enumerate((0.5, 0.5 + 1 / 30, 0.5 + 2 / 30)):
+        t = min(joints, key=lambda j: abs(j.stamp - t)).stamp     # on a joint stamp: the joints the monitor uses
+        for cid, f in sim.frames(t).items():
+            frames.append(f)
+            states.append(sw.decode_state(units[cid].encode(f.depth, t, cell.scene.robot_q(t), i, settings)))
+    got = {}
+    for name, src, cfg in (("frames", _Frames(frames), rig.monitor),
+                           ("states", _States(states), rig.monitor.with_changes(state_cameras=tuple(rig.camera_ids)))):
+        out = got[name] = []
+        with Monitor(rig, cfg) as m:
+            run(m, [src], _JointStates(joints), fast=True, on_reaction=lambda r: out.append(r))
+            assert m.stats()["fusion_errors"] == 0
+            assert all(c["frames"] == 3 and not c["refused"] for c in m.stats()["cameras"].values())
+    assert len(got["frames"]) == len(got["states"]) > 50
+    for a, b in zip(got["frames"], got["states"]):
+        assert a.t == b.t and a.frame_stamps == b.frame_stamps
+        np.testing.assert_array_equal(a.distance, b.distance)
+        np.testing.assert_array_equal(a.observed, b.observed)
+    assert any(np.isfinite(r.distance).any() for r in got["frames"])
