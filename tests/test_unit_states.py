@@ -207,3 +207,17 @@ def test_a_run_fed_unit_states_reacts_as_one_fed_the_frames():
         np.testing.assert_array_equal(a.distance, b.distance)
         np.testing.assert_array_equal(a.observed, b.observed)
     assert any(np.isfinite(r.distance).any() for r in got["frames"])
+
+
+@pytest.mark.slow
+def test_bench_units_rows_in_quick_mode():
+    """``depthguard bench --only units`` gives its rows, finite, the combine beside its peer (no speed
+    asserted: the bench's), and the bytes of a 640x480 message as the format says."""
+    from depthguard.evaluation.bench import BenchContext, run
+
+    rows = {r.name: r for r in run(["units"], BenchContext(quick=True))}
+    assert {"units.unit_ms", "units.combine_ms", "units.combine_cpu_ms", "units.combine_f64_ms",
+            "units.bytes_per_frame", "units.net_mb_s_per_camera"} <= set(rows)
+    assert all(np.isfinite(r.value) and r.value > 0 for r in rows.values())
+    assert rows["units.combine_ms"].peer_value > 0
+    assert sw.state_bytes(480, 640) < rows["units.bytes_per_frame"].value < sw.state_bytes(480, 640) + 200
