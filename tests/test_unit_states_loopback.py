@@ -13,6 +13,7 @@ import pytest
 
 from depthguard.distributed.node import CameraNode
 from depthguard.distributed.server import FusionServer
+from depthguard.distributed.state_relay import StateRelay
 from depthguard.distributed.unit_state import state_settings_of
 from depthguard.runtime.monitor import Monitor
 from depthguard.sim import load_cell
@@ -40,7 +41,7 @@ class _Joints:
 K = 4                # cycles compared
 
 
-def _bad_messages(node, ids, units, monitor, frames, t, q):
+def _bad_messages(node, ids, units, relay, monitor, frames, t, q):
     """Bad network messages: refused and counted by the source (truncated, another version, another
     camera than the key's, a camera not in the rig), or by the monitor (other options), never combined."""
     from depthguard.transport import state_wire as sw
@@ -55,11 +56,18 @@ def _bad_messages(node, ids, units, monitor, frames, t, q):
     old = bytearray(good)
     old[3] = 0
     s, keys = node.client.session, node.keys
-    s.put(keys.states(a), good[:-100])
-    s.put(keys.states(a), bytes(old))
-    s.put(keys.states(a), naming_b)
-    s.put("depthguard/states/ghost", ghost)
-    assert wait_until(lambda: sum(units.states_refused.values()) == 4, 10.0), units.states_refused
+
+    def put(key, msg, reason):
+        n = units.states_refused.get(reason, 0)
+        s.put(key, msg)
+        assert wait_until(lambda: units.states_refused.get(reason, 0) == n + 1, 10.0), units.states_refused
+
+    put(keys.states(a), good[:-100], "malformed")             # truncated
+    put(keys.states(a), bytes(old), "malformed")              # another wire version
+    put(keys.states(a), naming_b, "wrong_camera")             # not the key's camera
+    put(keys.state_relay("ghost"), ghost, "wrong_camera")     # not in the rig (straight to the source)
+    s.put(keys.states("ghost"), ghost)                        # ... which the server does not pass on
+    assert wait_until(lambda: relay.refused == 1, 10.0)
     assert units.states_refused == {"malformed": 2, "wrong_camera": 2}, units.states_last_refusal
     assert units.states_until(float("inf")) == []                    # nothing of them reaches the monitor
     s.put(keys.states(a), other_opts)
@@ -81,6 +89,7 @@ def test_four_units_equal_the_centralised_fusion():
     cfg_units = cfg.with_changes(state_cameras=tuple(ids))
     ep = f"tcp/127.0.0.1:{free_port()}"
     server = FusionServer(ids, wire.Settings(stale_s=5.0, state=state_settings_of(rig)), listen=[ep]).start()
+    relay = StateRelay(server).start()                    # the server passes the states on
     current, joints, nodes = {}, {}, {}
     units = central = distributed = None
     try:
@@ -138,7 +147,7 @@ def test_four_units_equal_the_centralised_fusion():
         st = distributed.stats()
         assert all(c["refused"] == {} and c["frames"] == K for c in st["cameras"].values())
         assert st["fusion_errors"] == 0 and central.stats()["fusion_errors"] == 0
-        _bad_messages(nodes[ids[0]], ids, units, distributed, frames, t, q)
+        _bad_messages(nodes[ids[0]], ids, units, relay, distributed, frames, t, q)
     finally:
         for m in (central, distributed):
             if m is not None:
@@ -147,4 +156,5 @@ def test_four_units_equal_the_centralised_fusion():
             units.close()
         for n in nodes.values():
             n.close()
+        relay.close()
         server.close()

@@ -109,6 +109,9 @@ def server_cmd(
     srv = FusionServer(r.camera_ids, settings, listen=listen, connect=connect, prefix=prefix,
                        multicast=multicast, log=log, identity=identity, insecure=insecure, registry=registry)
     srv.start()
+    from depthguard.distributed.state_relay import StateRelay
+
+    relay = StateRelay(srv, log=log).start()          # units' states on to the monitor (issue 29)
     if identity is not None:
         log(f"mutual TLS with the authority of {identity.ca_path}; signed messages required (R35)")
     log(f"server on {', '.join(listen)} for cameras {', '.join(r.camera_ids)}")
@@ -153,6 +156,7 @@ def server_cmd(
         stop.set()
         if central is not None:
             central.join(5)
+        relay.close()
         srv.close()
 
 

@@ -35,8 +35,9 @@ TLS and the status request is signed, for a server started with ``--keys``; the
 endpoint is then ``tls/HOST:PORT``, R35).
 
 States (issue 29): units started with ``--states`` publish each frame's depth grid state on
-``<prefix>/states/<camera>`` (:mod:`depthguard.transport.state_wire`); the source subscribes to
-them, decodes each on arrival (in Zenoh's callback: the decode is the monitor's share of a
+``<prefix>/states/<camera>`` (:mod:`depthguard.transport.state_wire`), which the fusion server
+passes on to ``<prefix>/relay/states/<camera>`` (:mod:`depthguard.distributed.state_relay`); the
+source subscribes to those, decodes each on arrival (in Zenoh's callback: the decode is the monitor's share of a
 remote frame) and ``states_until(t) -> [UnitState]`` returns per camera the newest state
 captured at or before ``t`` not returned yet (an older one not taken in time is counted in
 ``states_replaced``). A message that cannot be decoded (truncated, another wire version, a
@@ -110,7 +111,7 @@ class UnitsSource:
         self.states_last_refusal: str | None = None
         self.decode_s: list[float] = []  # seconds per decoded state (the bench's units.combine_ms)
         self._verifier = getattr(self._client, "_verifier", None)
-        self._state_sub = self._client.session.declare_subscriber(self.keys.states("*"), self._on_state)
+        self._state_sub = self._client.session.declare_subscriber(self.keys.state_relay("*"), self._on_state)
         self._thread = threading.Thread(target=self._run, name=f"depthguard-units-{endpoint}", daemon=True)
         self._thread.start()
 
@@ -127,6 +128,7 @@ class UnitsSource:
 
         t0 = time.perf_counter()
         cam_key = key.rsplit("/", 1)[-1]
+        key = self.keys.states(cam_key) if key == self.keys.state_relay(cam_key) else key   # the unit's key
         if self._verifier is not None:
             from depthguard.transport.auth import AuthError
             try:
