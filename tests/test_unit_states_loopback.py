@@ -158,3 +158,27 @@ def test_four_units_equal_the_centralised_fusion():
             n.close()
         relay.close()
         server.close()
+
+
+@pytest.mark.multiprocess
+@pytest.mark.timeout(60)
+def test_a_unit_sends_no_state_without_the_monitors_options(tmp_path):
+    """A server whose settings carry no state options (not started with the monitor's rig): the unit
+    sends nothing, and says why once (counted in ``skipped["no_options"]``)."""
+    from depthguard.distributed.node import build_node
+    from small_rigs import write_rig
+
+    rig_path = write_rig(tmp_path / "rig.yaml")
+    ep = f"tcp/127.0.0.1:{free_port()}"
+    server = FusionServer(["cam0", "cam1"], wire.Settings(stale_s=5.0), listen=[ep]).start()
+    said = []
+    node = build_node(str(rig_path), "cam0", "pattern", connect=[ep], states=True, log=said.append)
+    try:
+        node.initialize(timeout=10.0)
+        assert node.settings.state == ()
+        assert node.step() is None and node.step() is None
+        assert node.skipped == {"no_options": 2} and node.sent_bytes == 0
+        assert sum("no state options" in m for m in said) == 1
+    finally:
+        node.close()
+        server.close()
