@@ -79,7 +79,7 @@ def _bad_messages(node, ids, units, relay, monitor, frames, t, q):
 
 @pytest.mark.multiprocess
 @pytest.mark.slow
-@pytest.mark.timeout(120)
+@pytest.mark.timeout(360)
 def test_four_units_equal_the_centralised_fusion():
     cell = load_cell("ur3-cell")
     rig = cell.rig
@@ -132,7 +132,7 @@ def test_four_units_equal_the_centralised_fusion():
             for st in got.values():
                 assert st.stamp == t
                 assert distributed.push_state(st), distributed.stats()["cameras"][st.camera]
-            central.flush(60.0)                            # the first: numba's compile of a fresh checkout
+            central.flush(240.0)           # the first: numba's compile in a fresh checkout (minutes under load)
             distributed.flush(60.0)
             for dt in (0.0, 0.01):
                 tq = t + 0.004 + dt
