@@ -369,3 +369,48 @@ def test_the_monitors_units_source_reads_a_tls_server_with_an_admin_certificate(
             src.close()
         node.close()
         srv.close()
+
+
+def test_unit_states_are_signed_by_their_cameras_certificate(pki, tmp_path):
+    """Issue 29: with keys a unit's depth grid state goes out sealed by its certificate; the monitor's
+    ``units:`` source takes it, and refuses (counted, ``auth``) a state on camA's key sealed by camB's
+    certificate, or not sealed at all."""
+    from depthguard.distributed.node import build_node
+    from depthguard.distributed.server import FusionServer
+    from depthguard.distributed.state_relay import StateRelay
+    from depthguard.distributed.unit_state import state_settings_of
+    from depthguard.rig import Rig
+    from depthguard.sources.base import open_source
+    from depthguard.transport.auth import Signer
+
+    rig_path = write_rig(tmp_path / "rig.yaml")
+    rig = Rig.load(rig_path)
+    ep = f"tls/127.0.0.1:{free_port()}"
+    srv = FusionServer(["camA", "camB", "camC"], wire.Settings(stale_s=30.0, state=state_settings_of(rig)),
+                       listen=[ep], identity=load_identity(pki / "ca")).start()
+    relay = StateRelay(srv).start()
+    node = build_node(str(rig_path), "camA", "pattern", connect=[ep], identity=load_identity(pki / "camA"),
+                      states=True)
+    src = None
+    try:
+        node.declare_token()
+        node.initialize(timeout=20)
+        src = open_source(f"units:{ep}", rig, {"units_keys": pki / "admin", "units_timeout_s": 20.0})
+        time.sleep(0.5)                                   # the source's subscriber reaches the node
+        assert node.step() == 0                           # no voxels: the state went out instead
+        assert wait_until(lambda: src.states_received >= 1, 10.0), src.states_refused
+        (st,) = src.states_until(1e18)
+        assert st.camera == "camA" and st.free.shape == rig.camera("camA").shape
+        key = node.keys.states("camA")
+        raw = node.state_unit.encode(*node.source(), node.q, 5, node.settings.state)
+        forged, _ = Signer(load_identity(pki / "camB")).seal(raw, key)
+        node.client.session.put(key, forged)
+        node.client.session.put(key, raw)
+        assert wait_until(lambda: src.states_refused.get("auth", 0) == 2, 10.0), src.states_refused
+        assert src.states_until(1e18) == []
+    finally:
+        if src is not None:
+            src.close()
+        node.close()
+        relay.close()
+        srv.close()

@@ -111,6 +111,10 @@ class MonitorConfig(BaseModel):
     distance to a voxel's box counts (R25) and a unit's staleness is its
     camera's (R27). A unit drops invalid pixels (R17), so its camera clears
     nothing and judges nothing: only cameras with frames make a point observed.
+    ``state_cameras``: rig cameras whose units send their frames' depth grid state instead
+    (issue 29, ``depthguard node --states``, ``Monitor.push_state``): they join the depth grid like
+    cameras with frames and the distances are those of the centralised fusion; the monitor
+    renders nothing for them (:mod:`depthguard.runtime.unit_states`).
 
     ``reaction`` (R33): ``"repulsion"`` (R13, R14, the default), ``"ssm"`` speed and separation
     monitoring (ISO/TS 15066: a speed scale and a protective stop, no repulsion, the joint
@@ -159,6 +163,7 @@ class MonitorConfig(BaseModel):
     stop_time: float = Field(0.5, gt=0.0, le=10.0)
     resume_time: float = Field(1.0, gt=0.0, le=60.0)
     remote_cameras: tuple[str, ...] = ()
+    state_cameras: tuple[str, ...] = ()
     watch_points: tuple[WatchPoint, ...] = ()
     cell: Optional[str] = None
     zenoh_listen: str = "tcp/127.0.0.1:0"
@@ -193,13 +198,13 @@ class MonitorConfig(BaseModel):
                 raise ValueError(f"cameras repeats an id: {list(v)}")
         return v
 
-    @field_validator("remote_cameras")
+    @field_validator("remote_cameras", "state_cameras")
     @classmethod
     def _remote(cls, v):
         for c in v:
             check_camera_id(c)
         if len(set(v)) != len(v):
-            raise ValueError(f"remote_cameras repeats an id: {list(v)}")
+            raise ValueError(f"a camera list repeats an id: {list(v)}")
         return v
 
     @field_validator("zenoh_listen")

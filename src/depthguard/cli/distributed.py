@@ -94,7 +94,10 @@ def server_cmd(
     if r.robot is not None:
         q = c.scene.robot_q(sim_time) if (c is not None and sim_time is not None) else r.robot_q0
         joints = tuple(float(x) for x in (q if q is not None else []))
-    settings = wire.Settings(voxel_size=voxel_size, threshold=threshold, stale_s=stale, joints=joints)
+    from depthguard.distributed.unit_state import state_settings_of
+
+    settings = wire.Settings(voxel_size=voxel_size, threshold=threshold, stale_s=stale, joints=joints,
+                             state=state_settings_of(r))      # what units with --states make (issue 29)
     try:
         settings.check()
     except wire.WireError as exc:
@@ -106,6 +109,9 @@ def server_cmd(
     srv = FusionServer(r.camera_ids, settings, listen=listen, connect=connect, prefix=prefix,
                        multicast=multicast, log=log, identity=identity, insecure=insecure, registry=registry)
     srv.start()
+    from depthguard.distributed.state_relay import StateRelay
+
+    relay = StateRelay(srv, log=log).start()          # units' states on to the monitor (issue 29)
     if identity is not None:
         log(f"mutual TLS with the authority of {identity.ca_path}; signed messages required (R35)")
     log(f"server on {', '.join(listen)} for cameras {', '.join(r.camera_ids)}")
@@ -150,6 +156,7 @@ def server_cmd(
         stop.set()
         if central is not None:
             central.join(5)
+        relay.close()
         srv.close()
 
 
@@ -178,6 +185,9 @@ def node_cmd(
                                          "joints of the server's settings."),
     joints_connect: list[str] = typer.Option([], "--joints-connect", help="Zenoh endpoint(s) of the joint "
                                              "publisher (default: the node's own session)."),
+    states: bool = typer.Option(False, "--states", help="Send each frame's depth grid state (the robot removed, "
+                                "made with the monitor's options from the server) instead of voxels: the monitor "
+                                "lists the camera in monitor: state_cameras (issue 29, docs/DISTRIBUTED.md)."),
 ) -> None:
     """Run one camera node: filter locally (R16-R19), send voxels to the server (R20).
 
@@ -194,7 +204,7 @@ def node_cmd(
                       resolution=_resolution(resolution), connect=_endpoints(connect, identity),
                       listen=list(listen) or None, identity=identity, insecure=insecure, init_timeout_s=wait,
                       prefix=prefix, fps=fps, trigger=trigger, multicast=multicast, log=log,
-                      joints=joints, joints_connect=joints_connect)
+                      joints=joints, joints_connect=joints_connect, states=states)
     stop = _stop_event()
     try:
         node.run(stop)

@@ -25,6 +25,13 @@ Without a joint stream the robot is removed at the joints of the server's settin
 joints): a **fixed pose** — a robot that moves away from it leaves voxels of
 itself in the node's output, and the space it moved into is not filtered.
 
+States (issue 29, ``states=True``, ``depthguard node --states``): instead of voxels the node
+publishes each frame's depth grid state on ``<prefix>/states/<camera>``, made with the monitor's
+options from the server's settings (:mod:`depthguard.distributed.unit_state`, wire format
+:mod:`depthguard.transport.state_wire`; signed with ``identity``); a frame is skipped (counted in
+``skipped["no_options"]``) while the server's settings carry none. Its update to the server
+then carries no voxels (freshness and settings only).
+
 Sources (``frame_source``): any callable returning ``(depth (H, W) float32 m, stamp s)``;
 :func:`pattern_source` (a synthetic patch, for tests) and :func:`sim_source`
 (the simulated camera of a built-in cell) are provided.
@@ -150,7 +157,7 @@ class CameraNode:
                  lease_ms: int = DEFAULT_LEASE_MS, log: Callable[[str], None] | None = None,
                  joint_source=None, joint_span_s: float = 1.0, joint_gap_s: float = math.inf,
                  joint_wait_s: float = 0.05, identity=None, insecure: bool = False,
-                 init_timeout_s: float = 30.0):
+                 init_timeout_s: float = 30.0, states: bool = False):
         from depthguard.transport.keys import ROLE_NODE
         from depthguard.transport.settings import check_exposure
 
@@ -185,6 +192,10 @@ class CameraNode:
         self.skipped: dict[str, int] = {}      # frames not sent: stamp outside the joint history, by reason
         self.last_skip: str | None = None
         self.q_used: np.ndarray | None = None  # the joints the last frame was filtered with
+        self.state_unit = None                 # states=True: the camera's share of the grid build
+        if states:
+            from depthguard.distributed.unit_state import StateUnit
+            self.state_unit = StateUnit(cam, robot)
         if joint_source is not None:
             self.attach_joints(joint_source, span_s=joint_span_s, max_gap_s=joint_gap_s)
 
@@ -288,11 +299,17 @@ class CameraNode:
                 return None
         else:
             q = self.q
-        vs = self.filter.filter(depth, q=q)
         self.q_used = None if q is None else np.array(q, dtype=float)
-        keys, counts, s = fit_to_wire(vs.keys, vs.counts, vs.voxel_size)
         self.seq = self._trigger_seq if self.trigger else self.seq + 1
-        invalid = vs.n_invalid / (self.cam.width * self.cam.height)
+        if self.state_unit is not None:
+            if not self._send_state(depth, stamp, q):
+                return None
+            keys, counts, s = np.zeros((0, 3), np.int32), np.zeros(0, np.int32), self.settings.voxel_size
+            invalid = float(np.count_nonzero(~(depth > 0))) / depth.size
+        else:
+            vs = self.filter.filter(depth, q=q)
+            keys, counts, s = fit_to_wire(vs.keys, vs.counts, vs.voxel_size)
+            invalid = vs.n_invalid / (self.cam.width * self.cam.height)
         msg = wire.update_request(self.unit_id, self.seq, stamp, s, keys, counts, invalid)
         self.sent_bytes += len(msg)
         try:
@@ -307,6 +324,10 @@ class CameraNode:
             self.declare_token()
         self._apply(rep.settings)
         return len(keys)
+
+    def _send_state(self, depth, stamp: float, q) -> bool:
+        from depthguard.distributed.unit_state import publish_state
+        return publish_state(self, depth, stamp, q)
 
     def run(self, stop: threading.Event | None = None, max_updates: int | None = None) -> None:
         """Token, initialise, then update at ``fps`` (or on each trigger) until ``stop``."""
@@ -365,6 +386,7 @@ class CameraNode:
 def build_node(rig_path: str | None, camera: str, source: str = "pattern", cell: str | None = None,
                sim_time: float = 0.0, seed: int = 0, resolution: tuple[int, int] | None = None,
                joints: str | None = None, joints_connect: Sequence[str] = (), **kw) -> CameraNode:
+    # kw: CameraNode's keywords (states=True: send depth grid states, issue 29)
     """A node from a rig file, or from a built-in cell with ``source='sim'``.
 
     ``joints``: a joint source spec (``zenoh:KEY``, or ``csv:FILE`` for a recording) — the

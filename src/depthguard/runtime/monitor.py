@@ -49,12 +49,13 @@ from depthguard.runtime.ingest import CameraWorker, FusionWorker
 from depthguard.robot.joint_history import JointHistory
 from depthguard.runtime.result import CameraStatus, Reaction
 from depthguard.runtime.refusals import explain_stale
+from depthguard.runtime.unit_states import UnitStateInput, UnitWorker
 from depthguard.runtime.warm_up import warm_up
 
 __all__ = ["Monitor", "warm_up"]
 
 
-class Monitor(MonitorDistances):
+class Monitor(MonitorDistances, UnitStateInput):
     """The runtime of one cell (module docstring).
 
     rig : a :class:`~depthguard.rig.Rig` with a robot and cameras.
@@ -152,6 +153,10 @@ class Monitor(MonitorDistances):
 
     def _start_worker(self, cid: str) -> None:
         cfg = self.config
+        if cid in cfg.state_cameras:                 # its unit makes its state (issue 29): push_state
+            self._workers[cid] = UnitWorker(self._cameras[cid], self.robot, lambda: self._unit_expected(cid),
+                                            self.fusion.notify)
+            return
         drift = (dict(k_sigma=cfg.drift_sigma, share=cfg.drift_share, frames=cfg.drift_frames)
                  if cfg.drift_watch else None)                       # R34
         self._workers[cid] = CameraWorker(self._cameras[cid], self.robot, self._static, self.joints,

@@ -236,6 +236,8 @@ def _run_fast(monitor, frame_sources, joint_source, duration, stop, emit, all_do
         for src in frame_sources:
             for cid, centres, size, stamp in getattr(src, "voxels_until", _none)(t):
                 monitor.push_voxels(cid, centres, size, stamp)
+            for st in getattr(src, "states_until", _none)(t):      # units' states (issue 29)
+                n += monitor.push_state(st)
         if n:
             monitor.flush()
         next_status = emit(monitor.step(t), next_status)
@@ -295,6 +297,9 @@ def _run_paced(monitor, frame_sources, joint_source, duration, stop, emit, all_d
     threads += [threading.Thread(target=pump, args=(s.voxels_until, lambda v: monitor.push_voxels(*v)),
                                  daemon=True, name=f"depthguard-units-{i}")
                 for i, s in enumerate(frame_sources) if hasattr(s, "voxels_until")]
+    threads += [threading.Thread(target=pump, args=(s.states_until, monitor.push_state), daemon=True,
+                                 name=f"depthguard-unit-states-{i}")
+                for i, s in enumerate(frame_sources) if hasattr(s, "states_until")]
     if joint_source is not None:
         threads.append(threading.Thread(target=pump, args=(joint_source.states_until,
                                                            lambda s: monitor.push_joints(*s)),

@@ -34,6 +34,19 @@ certificate directory of the cell, ``depthguard keys admin``: the link is Zenoh'
 TLS and the status request is signed, for a server started with ``--keys``; the
 endpoint is then ``tls/HOST:PORT``, R35).
 
+States (issue 29): units started with ``--states`` publish each frame's depth grid state on
+``<prefix>/states/<camera>`` (:mod:`depthguard.transport.state_wire`), which the fusion server
+passes on to ``<prefix>/relay/states/<camera>`` (:mod:`depthguard.distributed.state_relay`); the
+source subscribes to those, decodes each on arrival (in Zenoh's callback: the decode is the monitor's share of a
+remote frame) and ``states_until(t) -> [UnitState]`` returns per camera the newest state
+captured at or before ``t`` not returned yet (an older one not taken in time is counted in
+``states_replaced``). A message that cannot be decoded (truncated, another wire version, a
+corrupted head, values out of range), whose camera is not the one of its key or not in the
+server's rig, or (with keys) not signed by that camera's certificate, is refused: counted
+by reason in ``states_refused`` (``malformed``, ``wrong_camera``, ``auth``), the sentence in
+``states_last_refusal``. The monitor checks the rest (its options, the camera's role, the
+joints: :mod:`depthguard.runtime.unit_states`).
+
 Talks to the server through :mod:`depthguard.transport` (the client, wire format and
 keys the camera units use too), imported at open.
 """
@@ -91,8 +104,78 @@ class UnitsSource:
         self.polls = 0
         self._lost: str | None = None
         self._stop = threading.Event()
+        self._states: dict = {}          # camera -> newest UnitState not taken yet
+        self.states_received = 0
+        self.states_replaced = 0
+        self.states_refused: dict[str, int] = {}
+        self.states_last_refusal: str | None = None
+        self.decode_s: list[float] = []  # seconds per decoded state (the bench's units.combine_ms)
+        self._verifier = getattr(self._client, "_verifier", None)
+        self._state_sub = self._client.session.declare_subscriber(self.keys.state_relay("*"), self._on_state)
         self._thread = threading.Thread(target=self._run, name=f"depthguard-units-{endpoint}", daemon=True)
         self._thread.start()
+
+    # ------------------------------------------------------------ states (issue 29)
+    def _refuse_state(self, reason: str, text: str) -> None:
+        with self._lock:
+            self.states_refused[reason] = self.states_refused.get(reason, 0) + 1
+            self.states_last_refusal = text
+
+    def take_state(self, data: bytes, key: str):
+        """Decode and check one state message that came on ``key``: the UnitState, or None when
+        refused (counted, module docstring). Also the subscriber's callback body."""
+        from depthguard.transport.state_wire import StateWireError, decode_state
+
+        t0 = time.perf_counter()
+        cam_key = key.rsplit("/", 1)[-1]
+        key = self.keys.states(cam_key) if key == self.keys.state_relay(cam_key) else key   # the unit's key
+        if self._verifier is not None:
+            from depthguard.transport.auth import AuthError
+            try:
+                signed = self._verifier.open(data, key)
+            except AuthError as exc:
+                self._refuse_state("auth", f"state on {key}: {exc}")
+                return None
+            from depthguard.transport.keys import ROLE_NODE
+            if signed.role != ROLE_NODE or signed.name != cam_key:
+                self._refuse_state("auth", f"state on {key} signed by {signed.role}/{signed.name}, not by camera "
+                                           f"{cam_key!r}'s unit")
+                return None
+            data = signed.message
+        try:
+            st = decode_state(data)
+        except StateWireError as exc:
+            self._refuse_state("malformed", f"state on {key}: {exc}")
+            return None
+        if st.camera != cam_key or st.camera not in self.camera_ids:
+            self._refuse_state("wrong_camera", f"state on {key} names camera {st.camera!r}"
+                               + ("" if st.camera == cam_key else f", not {cam_key!r}")
+                               + ("" if st.camera in self.camera_ids else " (not in the server's rig)"))
+            return None
+        with self._lock:
+            if st.camera in self._states:
+                self.states_replaced += 1
+            self._states[st.camera] = st
+            self.states_received += 1
+            self.decode_s.append(time.perf_counter() - t0)
+            if len(self.decode_s) > 4096:
+                del self.decode_s[:2048]
+        return st
+
+    def _on_state(self, sample) -> None:
+        try:
+            self.take_state(sample.payload.to_bytes(), str(sample.key_expr))
+        except Exception as exc:  # noqa: BLE001 - a callback must not raise; counted
+            self._refuse_state("error", f"state on {sample.key_expr}: {type(exc).__name__}: {exc}")
+
+    def states_until(self, t: float) -> list:
+        """Per unit camera its newest state (a :class:`~depthguard.transport.state_wire.UnitState`)
+        captured at or before ``t`` (s) not returned yet."""
+        with self._lock:
+            out = [st for st in self._states.values() if st.stamp <= t]
+            for st in out:
+                del self._states[st.camera]
+        return out
 
     # ------------------------------------------------------------ polling thread
     def poll_once(self, timeout: float = 1.0) -> int:
@@ -174,6 +257,10 @@ class UnitsSource:
             return
         self._stop.set()
         self._thread.join(5.0)
+        try:
+            self._state_sub.undeclare()
+        except Exception:  # noqa: BLE001 - closing anyway
+            pass
         self._client.close()
 
 

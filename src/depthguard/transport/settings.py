@@ -69,6 +69,21 @@ class Keys:
             raise ValueError(f"camera id {camera!r} cannot name a zenoh key: use letters, digits, '_', '-', '.'")
         return f"{self.prefix}/units/{camera}"
 
+    def states(self, camera: str = "*") -> str:
+        """``<prefix>/states/<camera>``: the depth grid state a camera unit publishes per frame
+        (issue 29, :mod:`depthguard.transport.state_wire`); ``*`` for all."""
+        if camera != "*" and not _CHUNK.match(camera):
+            raise ValueError(f"camera id {camera!r} cannot name a zenoh key: use letters, digits, '_', '-', '.'")
+        return f"{self.prefix}/states/{camera}"
+
+    def state_relay(self, camera: str = "*") -> str:
+        """``<prefix>/relay/states/<camera>``: the same states as the fusion server passes them on to
+        the monitor (:mod:`depthguard.distributed.state_relay`; the units and the monitor reach each
+        other only through it); ``*`` for all."""
+        if camera != "*" and not _CHUNK.match(camera):
+            raise ValueError(f"camera id {camera!r} cannot name a zenoh key: use letters, digits, '_', '-', '.'")
+        return f"{self.prefix}/relay/states/{camera}"
+
     def alive(self, camera: str = "*") -> str:
         if camera != "*" and not _CHUNK.match(camera):
             raise ValueError(f"camera id {camera!r} cannot name a zenoh key: use letters, digits, '_', '-', '.'")

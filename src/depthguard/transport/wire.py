@@ -27,7 +27,11 @@ UNITS_REP    (10)      cam_len u8, camera id, unit_id u32, version u32 (the serv
 =====================  ==========================================================
 
 settings = epoch u32, voxel_size f32, threshold f32, stale_s f32, offset_const f32,
-offset_k f32, n_joints u8, joints n×f64.
+offset_k f32, n_joints u8, joints n×f64, then optionally the monitor's state options (issue 29:
+what a unit that makes its camera's depth grid state must make it with, ``Settings.state``):
+"SO" | robot_offset f64 (m) | invalid u8 | robot_in_others u8 (0 unknown, 1 free) |
+silhouette_px u8 | gap_px u8 | principal camera id (len u8 + utf-8). A settings block without
+it (an older server) decodes with ``state = ()``.
 
 Every message is at most :data:`MAX_MESSAGE_BYTES`; :func:`decode` checks size,
 magic, version, type, lengths, CRC and value ranges, and raises :class:`WireError`
@@ -95,6 +99,10 @@ class Settings:
     offset_const: float = float("nan")   # NaN = node uses its sensor's default offset
     offset_k: float = float("nan")
     joints: tuple[float, ...] = ()
+    # issue 29: the monitor's StateOptions + principal camera id, () = none (units send voxels):
+    # (robot_offset m, invalid "unknown"|"free", robot_in_others "unknown"|"free", silhouette_px, gap_px,
+    # principal)
+    state: tuple = ()
 
     def check(self) -> "Settings":
         if not (0.01 - 1e-6 <= self.voxel_size <= 0.1 + 1e-6):
@@ -111,7 +119,29 @@ class Settings:
             raise WireError(f"settings: joints must be at most {MAX_JOINTS} finite values")
         if not (0 <= self.epoch < 2 ** 32):
             raise WireError(f"settings: epoch {self.epoch} out of range")
+        if self.state:
+            _check_state(self.state)
         return self
+
+
+_STATE = struct.Struct("<2sdBBBB")
+_POLICIES = ("unknown", "free")
+
+
+def _check_state(st) -> None:
+    """The state options of :class:`Settings` (issue 29), or :class:`WireError` naming the problem."""
+    if len(st) != 6:
+        raise WireError(f"settings: state options need 6 values (got {len(st)})")
+    off, inv, rio, sil, gap, principal = st
+    if not (isinstance(off, float) and math.isfinite(off) and 0.0 <= off <= 1.0):
+        raise WireError(f"settings: state robot_offset {off!r} outside [0, 1] m")
+    if inv not in _POLICIES or rio not in _POLICIES:
+        raise WireError(f"settings: state invalid / robot_in_others must be 'unknown' or 'free' (got {inv!r}, {rio!r})")
+    for name, v in (("silhouette_px", sil), ("gap_px", gap)):
+        if not (isinstance(v, int) and 0 <= v <= 255):
+            raise WireError(f"settings: state {name} {v!r} outside 0-255")
+    if not isinstance(principal, str) or not principal or len(principal.encode("utf-8")) > MAX_ID_BYTES:
+        raise WireError(f"settings: state principal camera id {principal!r} is empty or too long")
 
 
 @dataclass
@@ -145,8 +175,13 @@ def _frame(mtype: MsgType, body: bytes, flags: int = 0) -> bytes:
 
 def _settings_bytes(s: Settings) -> bytes:
     s.check()
-    return _SET.pack(s.epoch, s.voxel_size, s.threshold, s.stale_s, s.offset_const, s.offset_k,
-                     len(s.joints)) + np.asarray(s.joints, dtype="<f8").tobytes()
+    out = _SET.pack(s.epoch, s.voxel_size, s.threshold, s.stale_s, s.offset_const, s.offset_k,
+                    len(s.joints)) + np.asarray(s.joints, dtype="<f8").tobytes()
+    if s.state:
+        off, inv, rio, sil, gap, principal = s.state
+        out += (_STATE.pack(b"SO", off, _POLICIES.index(inv), _POLICIES.index(rio), sil, gap)
+                + _short_str("principal camera id", principal, MAX_ID_BYTES))
+    return out
 
 
 def _short_str(what: str, s: str, limit: int) -> bytes:
@@ -309,7 +344,13 @@ def _read_settings(r: _Reader) -> Settings:
     if nj > MAX_JOINTS:
         raise WireError(f"{r.what}: {nj} joints exceed the limit of {MAX_JOINTS}")
     joints = tuple(float(q) for q in np.frombuffer(r.take(8 * nj, "joints"), dtype="<f8"))
-    return Settings(epoch, _r6(vs), _r6(thr), _r6(stale), _r6(oc), _r6(ok), joints).check()
+    state = ()
+    if r.i < len(r.b):                       # the monitor's state options (issue 29)
+        tag, off, inv, rio, sil, gap = r.unpack(_STATE, "state options")
+        if tag != b"SO" or inv > 1 or rio > 1:
+            raise WireError(f"{r.what}: malformed state options")
+        state = (float(off), _POLICIES[inv], _POLICIES[rio], int(sil), int(gap), r.text("principal camera id"))
+    return Settings(epoch, _r6(vs), _r6(thr), _r6(stale), _r6(oc), _r6(ok), joints, state).check()
 
 
 def _r6(x: float) -> float:

@@ -36,6 +36,7 @@ _MODULES = [
     "depthguard.evaluation.bench.bag",
     "depthguard.evaluation.bench.soak",
     "depthguard.evaluation.bench.calibrate",
+    "depthguard.evaluation.bench.units",
 ]
 
 
