@@ -9,6 +9,7 @@ hand-written snippets whose imports are known.
 from __future__ import annotations
 
 import ast
+import re
 from pathlib import Path
 
 import depthguard
@@ -53,6 +54,17 @@ def imported_modules(source: str, module: str, is_init: bool = False) -> list[tu
     return [(name, line) for name, line in found if name.split(".")[0] == "depthguard"]
 
 
+_MODULE_PATH = re.compile(r"depthguard(\.\w+)+(:\w+)?")
+
+
+def string_imports(source: str) -> list[tuple[str, int]]:
+    """Module paths given as a whole string (``"depthguard.viz.live:open_view"``,
+    ``"depthguard.sources.images"``): a registry's entry points, imported later with
+    ``importlib``; they count as imports of that module, ``(dotted name, line)``."""
+    return [(node.value.partition(":")[0], node.lineno) for node in ast.walk(ast.parse(source))
+            if isinstance(node, ast.Constant) and isinstance(node.value, str) and _MODULE_PATH.fullmatch(node.value)]
+
+
 def room_of(dotted: str) -> str | None:
     """The room of a ``depthguard`` module: its top-level module or sub-package; None for the
     package root."""
@@ -80,7 +92,8 @@ def back_up_imports() -> list[tuple[str, int, str]]:
         here = room_of(module)
         if here is None:
             continue
-        for target, line in imported_modules(path.read_text(encoding="utf-8"), module, is_init):
+        text = path.read_text(encoding="utf-8")
+        for target, line in imported_modules(text, module, is_init) + string_imports(text):
             there = room_of(target)
             if there is None or there == here or there not in rank or here not in rank:
                 continue
@@ -115,6 +128,18 @@ def test_walker_finds_every_form_of_import():
     assert imported_modules("from . import base\n", "depthguard.sources", is_init=True) == [
         ("depthguard.sources.base", 1)]
     assert room_of("depthguard") is None
+
+
+def test_walker_counts_module_paths_given_as_strings():
+    """A registry's entry point named by string (imported later by importlib) is an import too;
+    a docstring that mentions a module is not."""
+    source = (
+        '"""Sinks: :mod:`depthguard.viz.live` is the view."""\n'
+        'SCHEMES = {"jsonl": "depthguard.runtime.sinks:open_jsonl", "view": "depthguard.viz.live:open_view"}\n'
+        'MODULES = ["depthguard.sources.images"]\n'
+    )
+    assert string_imports(source) == [("depthguard.runtime.sinks", 2), ("depthguard.viz.live", 2),
+                                      ("depthguard.sources.images", 3)]
 
 
 def test_walker_sees_a_lazy_import_of_the_real_tree():

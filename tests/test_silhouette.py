@@ -10,6 +10,7 @@ import numpy as np
 import pytest
 
 import depthguard as dg
+from depthguard.config import PRODUCT_ROBOT_OFFSET
 from depthguard.distance import depth_space_distance
 from depthguard.distance import kernels as DK
 from depthguard.distance.api import DistanceWorkspace
@@ -152,7 +153,7 @@ def test_frame_state_and_start_depth_equal_twins(rng):
     np.testing.assert_array_equal(ws0.d0[valid], ws4.d0[valid])
     d0 = np.empty((H, W))
     DK.obstacle_start_depth(depth, robot, True, cam.min_range, cam.max_range, DK.INVALID_UNKNOWN,
-                            DK.ROBOT_DROP, 0.03, d0)
+                            DK.ROBOT_DROP, PRODUCT_ROBOT_OFFSET, d0)        # set_depth's default offset (R9)
     np.testing.assert_array_equal(ws0.d0, d0)
 
 

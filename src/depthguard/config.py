@@ -23,7 +23,7 @@ from pydantic import BaseModel, ConfigDict, Field, field_validator, model_valida
 
 from depthguard.control.ssm_config import SSMConfig
 
-__all__ = ["MonitorConfig", "WatchPoint", "CAMERA_ID_PATTERN", "check_camera_id", "PRODUCT_RHO"]
+__all__ = ["MonitorConfig", "WatchPoint", "CAMERA_ID_PATTERN", "check_camera_id", "PRODUCT_RHO", "PRODUCT_ROBOT_OFFSET"]
 
 _Vec3 = tuple[float, float, float]
 
@@ -43,6 +43,15 @@ class WatchPoint(BaseModel):
     model_config = ConfigDict(extra="forbid", frozen=True)
     name: str = Field(min_length=1)
     position: _Vec3
+
+
+#: R9 self removal: a pixel is the robot's where ``measured >= robot_depth - offset`` (m); the offset
+#: "covers sensor noise" (SPEC R9, R17). For the Kinect v1 of the papers' cells (sigma_z = 1.2 mm z^2,
+#: disparity quantised to 1/8 px, f = 585 px, baseline 7.5 cm) at 3 m: 3 sigma = 3.2 cm plus one
+#: disparity step 2.6 cm, and the robot's motion during the exposure: 8 cm. (The library's distance
+#: functions once said 3 cm, 1 sigma at 5 m: too small for a noisy far pixel, which then showed the
+#: robot as its own obstacle.) The default of MonitorConfig and of every library function, once.
+PRODUCT_ROBOT_OFFSET: float = 0.08
 
 
 class MonitorConfig(BaseModel):
@@ -139,7 +148,7 @@ class MonitorConfig(BaseModel):
     principal: Optional[str] = None
     principal_bin: int = Field(2, ge=1, le=8)
     cameras: Optional[tuple[str, ...]] = None
-    robot_offset: float = Field(0.08, ge=0.0, le=1.0)
+    robot_offset: float = Field(PRODUCT_ROBOT_OFFSET, ge=0.0, le=1.0)
     robot_padding: float = Field(0.07, ge=0.0, le=0.5)
     robot_in_others: Literal["unknown", "free"] = "unknown"
     invalid: Literal["unknown", "free"] = "unknown"

@@ -109,6 +109,7 @@ def monitor(
     from depthguard.runtime.monitor import Monitor, warm_up
     from depthguard.runtime.runner import open_run_sinks, reaction_subscribers, run, summarise
     from depthguard.runtime.sink_specs import check_sink_spec, shorthand_specs
+    import depthguard.viz.sinks  # noqa: F401  (the rooms above the runtime register their sinks: view:)
     from depthguard.runtime.sinks import SinkFanout
     from depthguard.sources.base import check_source_spec, open_joints, open_source
 

@@ -16,7 +16,8 @@ from dataclasses import dataclass
 import numba
 import numpy as np
 
-from depthguard.config import PRODUCT_RHO as RHO   # the product default, defined once in MonitorConfig
+from depthguard.config import PRODUCT_RHO as RHO   # the product defaults, defined once in config
+from depthguard.config import PRODUCT_ROBOT_OFFSET
 from depthguard.camera import Camera, check_depth_image
 from depthguard.distance import kernels
 from depthguard.distance.gaps import GapBuffers, check_gap_px
@@ -144,7 +145,7 @@ class DistanceWorkspace:
 
     def set_depth(self, depth: np.ndarray, robot_depth: np.ndarray | None = None,
                   invalid: str = "unknown", robot_mode: str = "drop",
-                  robot_offset: float = 0.03, silhouette_px: int = 0, gap_px: int = 0) -> None:
+                  robot_offset: float = PRODUCT_ROBOT_OFFSET, silhouette_px: int = 0, gap_px: int = 0) -> None:
         """Load one frame: compute each pixel's obstacle start depth (R1, R9, R28, R32).
 
         depth : (H, W) float metres; valid in ``[min_range, max_range]``; a finite value
@@ -256,7 +257,7 @@ def workspace_for(cam: Camera) -> DistanceWorkspace:
 def depth_space_distance(cam: Camera, depth: np.ndarray, points: np.ndarray, rho: float = RHO,
                          method: str = "hybrid", robot_depth: np.ndarray | None = None,
                          invalid: str = "unknown", robot_mode: str = "drop",
-                         robot_offset: float = 0.03, silhouette_px: int = 0,
+                         robot_offset: float = PRODUCT_ROBOT_OFFSET, silhouette_px: int = 0,
                          gap_px: int = 0) -> DistanceResult:
     """Distance from control points to everything one depth camera sees (SPEC §2, R3–R9, R28).
 

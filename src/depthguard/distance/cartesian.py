@@ -19,7 +19,8 @@ from __future__ import annotations
 import numpy as np
 from scipy.spatial import cKDTree
 
-from depthguard.config import PRODUCT_RHO as RHO   # the product default, defined once in MonitorConfig
+from depthguard.config import PRODUCT_RHO as RHO   # the product defaults, defined once in config
+from depthguard.config import PRODUCT_ROBOT_OFFSET
 from depthguard.camera import Camera, check_depth_image
 from depthguard.distance.api import DistanceResult, check_points, check_rho
 from depthguard.distance.window import surveillance_window
@@ -41,7 +42,7 @@ class CartesianBaseline:
         self.has_depth = False
 
     def set_depth(self, depth: np.ndarray, robot_depth: np.ndarray | None = None,
-                  robot_offset: float = 0.03) -> None:
+                  robot_offset: float = PRODUCT_ROBOT_OFFSET) -> None:
         """Back-project the valid, non-robot pixels of one frame (R8, R9)."""
         cam = self.cam
         d = np.asarray(check_depth_image(cam, depth), dtype=np.float64)

@@ -47,43 +47,20 @@ import json
 import threading
 import time
 from collections import deque
-from dataclasses import dataclass, field, replace
+from dataclasses import replace
 from typing import Callable, Sequence
 
 import numpy as np
 
-from depthguard.fusion.voxels import VoxelSet, regrid, union
+from depthguard.distributed.server_units import (ERR_AUTH, ERR_BAD_SETTINGS, ERR_MALFORMED,  # noqa: F401
+                                                  ERR_REFUSED, ERR_UNKNOWN_UNIT, RATE_WINDOW_S, Unit,
+                                                  clean_setting_changes, fit_one_reply)
+from depthguard.fusion.voxels import VoxelSet, union
 from depthguard.transport import wire
 from depthguard.transport.settings import DEFAULT_ENDPOINT, DEFAULT_LEASE_MS, Keys, check_exposure, zenoh_config
 
 __all__ = ["FusionServer", "Unit", "ERR_REFUSED", "ERR_MALFORMED", "ERR_UNKNOWN_UNIT", "ERR_BAD_SETTINGS",
            "ERR_AUTH"]
-
-ERR_MALFORMED = 1
-ERR_REFUSED = 2
-ERR_UNKNOWN_UNIT = 3
-ERR_BAD_SETTINGS = 4
-ERR_AUTH = 5
-_RATE_WINDOW_S = 5.0
-
-
-@dataclass
-class Unit:
-    """Storage of one processing unit (one camera)."""
-    id: int
-    camera: str
-    address: str
-    alive: bool = False
-    keys: np.ndarray = field(default_factory=lambda: np.zeros((0, 3), np.int32))
-    counts: np.ndarray = field(default_factory=lambda: np.zeros(0, np.int32))
-    voxel_size: float = 0.02
-    stamp: float = float("nan")      # capture time sent by the node (its clock)
-    t_update: float | None = None    # server monotonic receive time
-    seq: int = 0
-    invalid_frac: float = float("nan")   # share of the node's pixels without a valid measurement (R28)
-    updates: int = 0
-    inits: int = 1
-    lost: int = 0            # updates missing from the node's sequence numbers (gaps), since the first
 
 
 class FusionServer:
@@ -187,25 +164,7 @@ class FusionServer:
     def set_settings(self, **changes) -> wire.Settings:
         """Change settings (voxel_size, threshold, stale_s, offset_const, offset_k, joints);
         the epoch increases and the new values go out with every following reply."""
-        allowed = {"voxel_size", "threshold", "stale_s", "offset_const", "offset_k", "joints"}
-        bad = set(changes) - allowed
-        if bad:
-            raise ValueError(f"unknown settings {sorted(bad)}; allowed: {sorted(allowed)}")
-        clean = {}
-        for name, v in changes.items():
-            if name == "joints":
-                if isinstance(v, np.ndarray) and v.ndim == 1 and v.dtype.kind in "fiu":
-                    v = v.tolist()                 # a joint vector from Python code
-                if not isinstance(v, (list, tuple)) or not all(
-                        isinstance(q, (int, float)) and not isinstance(q, bool) for q in v):
-                    raise ValueError(f"setting joints must be a list of numbers (got {str(v)[:60]})")
-                clean[name] = tuple(float(q) for q in v)
-            else:
-                if isinstance(v, np.generic) and v.dtype.kind in "fiu":
-                    v = v.item()
-                if isinstance(v, bool) or not isinstance(v, (int, float)):
-                    raise ValueError(f"setting {name} must be a number (got {v!r})")
-                clean[name] = float(v)
+        clean = clean_setting_changes(changes)
         with self._lock:
             new = replace(self.settings, epoch=self.settings.epoch + 1, **clean)
             try:
@@ -331,7 +290,7 @@ class FusionServer:
             u.invalid_frac = m.invalid_frac
             u.updates += 1
             self._bytes.append((now, len(data)))
-            while now - self._bytes[0][0] > _RATE_WINDOW_S:     # bounded without status queries
+            while now - self._bytes[0][0] > RATE_WINDOW_S:     # bounded without status queries
                 self._bytes.popleft()
             token_missing = not u.alive
             reply = wire.update_reply(self.settings, token_missing=token_missing)
@@ -398,10 +357,8 @@ class FusionServer:
         out = []
         for cam, uid, version, seq, stamp, vs, keys, inv in units:
             same = known.get(cam) == (version & 0xFFFFFFFF, stamp)
-            if not same and len(keys) > wire.MAX_UNIT_VOXELS:
-                while len(keys) > wire.MAX_UNIT_VOXELS:          # conservative: every old voxel covered
-                    keys = regrid(keys, vs, 2 * vs)
-                    vs *= 2
+            if not same:
+                keys, vs = fit_one_reply(keys, vs)
             try:
                 out.append((cam, wire.units_reply(cam, uid, version, seq, stamp, vs, keys,
                                                inv if inv == inv else 0.0, unchanged=same)))
@@ -486,9 +443,9 @@ class FusionServer:
     def bytes_per_s(self, now: float | None = None) -> float:
         now = time.monotonic() if now is None else now
         with self._lock:
-            while self._bytes and now - self._bytes[0][0] > _RATE_WINDOW_S:
+            while self._bytes and now - self._bytes[0][0] > RATE_WINDOW_S:
                 self._bytes.popleft()
-            return sum(b for _, b in self._bytes) / _RATE_WINDOW_S
+            return sum(b for _, b in self._bytes) / RATE_WINDOW_S
 
     def status(self) -> dict:
         """The server's view: ``{"cameras": [rig camera ids], "missing": [rig cameras that never

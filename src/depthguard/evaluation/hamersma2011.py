@@ -44,249 +44,28 @@ Choices (the paper does not give them):
 
 from __future__ import annotations
 
-import dataclasses
 import json
 import math
 import time
-from dataclasses import dataclass, field
 from pathlib import Path
 
 import numpy as np
 
-from depthguard.camera import Camera
-from depthguard.control.motion_check import (Motion, braking_distance, check_motion,
-                                             compare_verdicts)
+from depthguard.control.motion_check import check_motion, compare_verdicts
 from depthguard.evaluation.accuracy import Confusion, cases, confusion, plot_case_slices
-from depthguard.evaluation.hamersma2011_paper import (AXES, AXIS_LABEL, FRAME_PERIOD, GOALS, MARGIN,
-                                                      MARGIN_SWEEP, PAPER, PRODUCT, REACTION_TIME,
-                                                      SHELL_TOLERANCE)
+from depthguard.evaluation.hamersma2011_paper import GOALS, MARGIN_SWEEP, PAPER, PRODUCT, SHELL_TOLERANCE
+from depthguard.evaluation.hamersma2011_placement import placement_check
 from depthguard.evaluation.hamersma2011_report import jsonable, report_markdown
+from depthguard.evaluation.hamersma2011_room import (  # noqa: F401 (re-exported: the reproduction's API)
+    Room, braking_distances, carm_pose, clamped_motion, ideal_frames, load_room, measured_frames, motion_specs,
+    object_masks, perturbed_cameras, product_map, product_margins, reconstruct, setup_frames, shell_backgrounds,
+    shell_map, shell_primitives, still_frame_list, still_frames, still_fusion)
 from depthguard.fusion.free_space import FreeSpaceMap
-from depthguard.fusion.free_space_product import STILL_FRAMES, FreeSpaceProduct, fuse_still
-from depthguard.fusion.free_space_product import product_margins as _fused_margins
-from depthguard.fusion.free_space_product import shell_backgrounds as _shell_depths
-from depthguard.transforms import pose, rot_x, rot_y, rot_z
+from depthguard.fusion.free_space_product import STILL_FRAMES
+from depthguard.transforms import pose
 
 __all__ = ["Room", "load_room", "setup_frames", "braking_distances", "run", "PAPER",
            "perturbed_cameras", "GOALS", "shell_primitives", "shell_backgrounds"]
-
-
-
-def braking_distances() -> dict[str, float]:
-    """S per C-arm axis (rad or m): top speed, reaction 0.2 s, stop from top speed in 1 s."""
-    from depthguard.sim.carm import CARM_SPEEDS
-    return {a: braking_distance(CARM_SPEEDS[a], CARM_SPEEDS[a], REACTION_TIME) for a in AXES}
-
-
-@dataclass
-class Room:
-    cell: object
-    cameras: list[Camera]
-    lo: np.ndarray
-    hi: np.ndarray
-    scene: object
-    carm: object
-    setups: list[str]
-    times: dict[str, float]
-    margin: float = MARGIN
-    _sims: dict = field(default_factory=dict)
-
-
-def _situation_time(v) -> float:
-    if isinstance(v, (int, float)):
-        return float(v)
-    for attr in ("t", "time"):
-        if hasattr(v, attr):
-            return float(getattr(v, attr))
-    raise ValueError(f"c-arm-room situation {v!r} has no time")
-
-
-def load_room() -> Room:
-    """The ``c-arm-room`` cell as used here: cameras, box, scene, C-arm, setups (in order)."""
-    from depthguard.sim import load_cell
-
-    cell = load_cell("c-arm-room")
-    rig, scene = cell.rig, cell.scene
-    times = {name: _situation_time(v) for name, v in cell.situations.items()}
-    setups = list(times)
-    carm = scene.robot
-    if carm is None or not hasattr(carm, "primitives"):
-        raise ValueError("c-arm-room: the scene's machine is not a C-arm")
-    return Room(cell, list(rig.cameras), np.asarray(rig.workspace.lo, float),
-                np.asarray(rig.workspace.hi, float), scene, carm, setups, times)
-
-
-def carm_pose(room: Room, setup: str):
-    from depthguard.sim.carm import CArmPose
-    return CArmPose.from_array(room.scene.robot_q(room.times[setup]))
-
-
-def _sim(room: Room, cam: Camera, seed: int, noiseless: bool):
-    from depthguard.sources import SimulatedCamera
-    key = (cam.id, seed, noiseless)
-    if key not in room._sims:
-        room._sims[key] = SimulatedCamera(cam, seed=seed, noiseless=noiseless)
-    return room._sims[key]
-
-
-def scene_meshes(room: Room, setup: str, carm_q=None) -> list:
-    """World meshes of a setup with the C-arm at ``carm_q`` (default: the setup's pose)."""
-    t = room.times[setup]
-    meshes, _ = room.scene.meshes_at(t, robot=False)
-    q = carm_pose(room, setup) if carm_q is None else carm_q
-    return list(meshes) + list(room.carm.link_meshes(q))
-
-
-def ideal_frames(room: Room, setup: str, carm_q=None, cameras=None) -> dict[str, np.ndarray]:
-    """Noiseless rendered depth per camera (float32, 0 = nothing); default: the cell's cameras."""
-    meshes = scene_meshes(room, setup, carm_q)
-    out = {}
-    for cam in (room.cameras if cameras is None else cameras):
-        depth, _ = _sim(room, cam, 0, True).renderer.render(meshes)
-        out[cam.id] = np.array(depth, copy=True)
-    return out
-
-
-def measured_frames(room: Room, setup: str, ideal: dict, seed: int = 0, noiseless: bool = False, cameras=None,
-                    frame: int = 0):
-    """Measured frames from ideal ones through each camera's sensor model (deterministic);
-    ``frame`` k is the camera's k-th frame of the still setup (its own noise)."""
-    t = room.times[setup]
-    by_id = {c.id: c for c in (room.cameras if cameras is None else cameras)}
-    out = {}
-    for cid, img in ideal.items():
-        sim = _sim(room, by_id[cid], seed, noiseless)
-        out[cid] = np.array(sim.measure(img, stamp=t + frame * FRAME_PERIOD), copy=True)
-    return out
-
-
-def still_fusion(room: Room, cameras=None):
-    """The product's fusion of ``STILL_FRAMES`` frames per camera (one sensor model for all)."""
-    from depthguard.fusion.temporal import StillFusion
-    models = {_sim(room, c, 0, False).model for c in (room.cameras if cameras is None else cameras)}
-    if len(models) != 1:
-        raise ValueError("the still fusion needs one sensor model for all cameras")
-    return StillFusion.for_sensor(models.pop(), STILL_FRAMES)
-
-
-def still_frame_list(room: Room, setup: str, ideal: dict, seed: int = 0, cameras=None,
-                     first: dict | None = None) -> list[dict[str, np.ndarray]]:
-    """``STILL_FRAMES`` consecutive measured frames (dicts id -> (H, W) float32) of the still
-    setup, frame 0 first, as :meth:`FreeSpaceProduct.update` takes them; ``first``: frame 0 if
-    already measured."""
-    frames = [first if first is not None else measured_frames(room, setup, ideal, seed, cameras=cameras)]
-    frames += [measured_frames(room, setup, ideal, seed, cameras=cameras, frame=k) for k in range(1, STILL_FRAMES)]
-    return frames
-
-
-def still_frames(room: Room, setup: str, ideal: dict, seed: int = 0, cameras=None,
-                 first: dict | None = None) -> dict[str, np.ndarray]:
-    """``STILL_FRAMES`` consecutive measured frames per camera of the still setup, fused
-    (:class:`~depthguard.fusion.temporal.StillFusion`); ``first``: frame 0 if already measured."""
-    return fuse_still(still_fusion(room, cameras), still_frame_list(room, setup, ideal, seed, cameras, first),
-                      ids=list(ideal))
-
-
-def setup_frames(room: Room, setup: str, seed: int = 0, carm_q=None, noiseless: bool = False, cameras=None):
-    """Measured depth images (dict id -> (H, W) float32) of a setup."""
-    return measured_frames(room, setup, ideal_frames(room, setup, carm_q, cameras), seed, noiseless, cameras)
-
-
-def perturbed_cameras(cameras, rng: np.random.Generator, rot_deg: float = 0.0, trans_m: float = 0.0):
-    """Cameras whose poses are disturbed: each of three rotation angles (about the camera's
-    own axes) uniform in ±``rot_deg``, each translation component uniform in ±``trans_m``."""
-    out = []
-    for c in cameras:
-        a, b, g = np.deg2rad(rng.uniform(-rot_deg, rot_deg, 3)) if rot_deg else (0.0, 0.0, 0.0)
-        T = c.world_from_camera @ pose(rot_z(g) @ rot_y(b) @ rot_x(a))
-        if trans_m:
-            T = T.copy()
-            T[:3, 3] += rng.uniform(-trans_m, trans_m, 3)
-        out.append(c.with_pose(T))
-    return out
-
-
-def shell_primitives(room: Room) -> list:
-    """The room's fixed shell (floor, ceiling, walls): static primitives outside the box."""
-    return [p for p in room.scene.static if _outside_box(p, room.lo, room.hi)]
-
-
-def shell_meshes(room: Room) -> list:
-    """World meshes of the room's fixed shell (:func:`shell_primitives`)."""
-    return [p.mesh() for p in shell_primitives(room)]
-
-
-def shell_backgrounds(room: Room, cameras) -> dict[str, np.ndarray]:
-    """Expected depth (float32, 0 = nothing) of the room's shell per camera, as the map's
-    cameras believe they are placed (:func:`depthguard.fusion.free_space_product.shell_backgrounds`)."""
-    return _shell_depths(cameras, shell_meshes(room))
-
-
-def _shell_map(room: Room, cams, vs) -> FreeSpaceMap:
-    """The ``single`` variant: the product's rule on one frame (margin ``room.margin`` = 2 sigma
-    of one frame, the shell as background with tolerance ``SHELL_TOLERANCE``)."""
-    fs = FreeSpaceMap(cams, (room.lo, room.hi), vs, margin=room.margin)
-    fs.set_background(shell_backgrounds(room, cams), tolerance=SHELL_TOLERANCE)
-    return fs
-
-
-def product_margins(room: Room, cams=None) -> tuple[float, float]:
-    """``(margin, shell tolerance)`` of the product: 2 and 2 + 3 sigma of the fused depth
-    (:func:`depthguard.fusion.free_space_product.product_margins`)."""
-    return _fused_margins(still_fusion(room, cams))
-
-
-def _product(room: Room, cams, vs) -> FreeSpaceProduct:
-    """The product's map (:class:`~depthguard.fusion.free_space_product.FreeSpaceProduct`) of
-    the room with cameras ``cams`` at voxel size ``vs``."""
-    return FreeSpaceProduct(cams, (room.lo, room.hi), vs, still_fusion(room, cams), shell_meshes(room))
-
-
-# ------------------------------------------------------------------- pieces
-def _reconstruct(fs, depths, machine, self_padding):
-    """``fs``: a FreeSpaceMap (``depths`` one dict id -> image) or a FreeSpaceProduct
-    (``depths`` its list of still frames)."""
-    fs.update(depths)
-    fs.add_free_volume(machine, padding=self_padding)
-    return fs.occupied.copy(), fs.machine.copy()
-
-
-def _object_masks(room: Room, setup: str, lo, hi, s):
-    from depthguard.sim.ground_truth import occupancy
-    t = room.times[setup]
-    out = {}
-    for prim in room.scene.obstacles_at(t):
-        m = occupancy([prim], lo, hi, s, mode="centre")
-        if m.any():
-            ext = np.asarray(prim.bounds())
-            out[prim.name or type(prim).__name__] = (m, float(np.min(ext[1] - ext[0])))
-    return out
-
-
-def _clamped_motion(room: Room, q0, axes: dict[str, float], S: dict[str, float], name: str, offset: float = 0.0):
-    """A C-arm motion clamped at the axis limits; ``offset`` (in S) advances the start pose."""
-    from depthguard.sim.carm import CARM_LIMITS
-
-    def q_at(u):
-        kw = {}
-        for f, m in axes.items():
-            lo, hi = CARM_LIMITS[f]
-            kw[f] = float(np.clip(getattr(q0, f) + (u + offset) * m * S[f], lo, hi))
-        return dataclasses.replace(q0, **kw)
-
-    return Motion(name, lambda u: room.carm.primitives(q_at(u)),
-                  ", ".join(f"{f} {m:+g} x S={S[f]:.4g}" for f, m in axes.items())), q_at
-
-
-def _motion_specs():
-    specs = []
-    for a in AXES:
-        for sgn in (+1, -1):
-            specs.append((f"{AXIS_LABEL[a]} {'+' if sgn > 0 else '-'}", {a: float(sgn)}))
-    for sl in (+1, -1):
-        for b in ("propeller", "larm"):
-            specs.append((f"Long{'+' if sl > 0 else '-'} & {AXIS_LABEL[b]}+", {"longitudinal": float(sl), b: 1.0}))
-    return specs
 
 
 # ----------------------------------------------------------------------- run
@@ -317,7 +96,7 @@ def run(out_dir, voxels=(0.05, 0.10), seed: int = 0, quick: bool = False, log=pr
         f"setups {setups}")
     rigs = {"cell": room.cameras}
     if placement:
-        res["placement"] = _placement(room, vs=0.10 if not quick else 0.20, out=out, log=log)
+        res["placement"] = placement_check(room, vs=0.10 if not quick else 0.20, out=out, log=log)
         if improved_rig:
             rigs["improved"] = res["placement"]["regions"]["interior"].pop("improver")
         else:
@@ -348,12 +127,12 @@ def _evaluate(room: Room, cams, label, voxels, setups, seed, quick, out, log, ca
     p_margin, _ = product_margins(room, cams)
     for vs in voxels:
         self_pad = 0.5 * vs
-        make = {PRODUCT: lambda: _product(room, cams, vs),
-                "single": lambda: _shell_map(room, cams, vs),
+        make = {PRODUCT: lambda: product_map(room, cams, vs),
+                "single": lambda: shell_map(room, cams, vs),
                 "paper": lambda: FreeSpaceMap(cams, (room.lo, room.hi), vs, margin=room.margin),
                 "full": lambda: FreeSpaceMap(cams, (room.lo, room.hi), vs, margin=room.margin, footprint="full"),
                 "bound": lambda: FreeSpaceMap(cams, (room.lo, room.hi), vs, margin=0.0, footprint="full"),
-                "noiseless": lambda: _product(room, cams, vs).map}
+                "noiseless": lambda: product_map(room, cams, vs).map}
         maps = {k: make[k]() for k in variants}
         # the margin trade-off of the product (same frames, same background), cell rig only
         sweep = {}
@@ -380,7 +159,7 @@ def _evaluate(room: Room, cams, label, voxels, setups, seed, quick, out, log, ca
             for k, fs in maps.items():
                 depths = (ideal[setup] if k in ("bound", "noiseless") else still[setup] if k == PRODUCT
                           else noisy[setup])
-                occ, mach = _reconstruct(fs, depths, machine, self_pad)
+                occ, mach = reconstruct(fs, depths, machine, self_pad)
                 acc[k][setup] = confusion(occ, truth, mask=~mach)
                 if k == PRODUCT:
                     recon[setup] = (occ, truth, mach)
@@ -415,11 +194,11 @@ def _evaluate(room: Room, cams, label, voxels, setups, seed, quick, out, log, ca
                               <= 0.5 * vs + room.margin + 1e-9).sum())
             acc.setdefault("near_surface_missed_paper", {})[setup] = near_p
             for mg, fs_m in sweep.items():
-                occ_m, mach_m = _reconstruct(fs_m, noisy[setup], machine, self_pad)
+                occ_m, mach_m = reconstruct(fs_m, noisy[setup], machine, self_pad)
                 sweep_acc[mg] = sweep_acc[mg] + confusion(occ_m, truth_, mask=~mach)
                 sweep_occ[mg][setup] = (occ_m, mach_m)
             per = {}
-            for name, (m, thin) in _object_masks(room, setup, room.lo, room.hi, vs).items():
+            for name, (m, thin) in object_masks(room, setup, room.lo, room.hi, vs).items():
                 n = int((m & ~mach).sum())
                 if n:
                     per[name] = {"voxels": n, "seen_as_free": int((m & ~mach & ~occ).sum()), "smallest_extent_m": thin}
@@ -446,8 +225,8 @@ def _evaluate(room: Room, cams, label, voxels, setups, seed, quick, out, log, ca
             occ, truth, mach = recon[setup]
             q0 = carm_pose(room, setup)
             rows = []
-            for name, axes in _motion_specs():
-                m, _ = _clamped_motion(room, q0, axes, S, name)
+            for name, axes in motion_specs():
+                m, _ = clamped_motion(room, q0, axes, S, name)
                 rows.append(_verdict_row(setup, m, occ, truth, grid, mach, recon_paper[setup]))
                 for mg, per in sweep_occ.items():       # the margin trade-off: base motions only
                     occ_m, mach_m = per[setup]
@@ -460,15 +239,15 @@ def _evaluate(room: Room, cams, label, voxels, setups, seed, quick, out, log, ca
                 cand = [x for x in rows if 1.0 < (x["u_truth"] or math.inf) <= 5.0]
                 if cand:
                     best = max(cand, key=lambda x: x["u_truth"])
-                    axes = dict(_motion_specs())[best["motion"]]
+                    axes = dict(motion_specs())[best["motion"]]
                     for k in range(2, 7):
-                        m, q_at = _clamped_motion(room, q0, axes, S, f"{k} x {best['motion']}", offset=float(k - 1))
+                        m, q_at = clamped_motion(room, q0, axes, S, f"{k} x {best['motion']}", offset=float(k - 1))
                         qk = q_at(0.0)
                         ideal_k = ideal_frames(room, setup, carm_q=qk, cameras=cams)
                         one_k = measured_frames(room, setup, ideal_k, seed, cameras=cams)
                         still_k = still_frame_list(room, setup, ideal_k, seed, cameras=cams, first=one_k)
-                        occ_k, mach_k = _reconstruct(fs, still_k, room.carm.primitives(qk), self_pad)
-                        occ_kp, _ = _reconstruct(fs_paper, one_k, room.carm.primitives(qk), self_pad)
+                        occ_k, mach_k = reconstruct(fs, still_k, room.carm.primitives(qk), self_pad)
+                        occ_kp, _ = reconstruct(fs_paper, one_k, room.carm.primitives(qk), self_pad)
                         row = _verdict_row(setup, m, occ_k, truth, grid, mach_k, occ_kp)
                         verdicts.append(row)
                         if row["truth"] == "S":
@@ -505,14 +284,14 @@ def _accuracy_with(room: Room, cams, vs, setups, recon, still, noisy, self_pad) 
     """Pooled confusion (``shell`` and ``paper``) of every setup reconstructed with the map's
     cameras ``cams`` (the images are the true cameras')."""
     # the product renders its background with the cameras it believes in
-    fss = {PRODUCT: _product(room, cams, vs),
+    fss = {PRODUCT: product_map(room, cams, vs),
            "paper": FreeSpaceMap(cams, (room.lo, room.hi), vs, margin=room.margin)}
     out = {}
     for k, fsp in fss.items():
         tot = Confusion(0, 0, 0, 0)
         for setup in setups:
             _, truth, _ = recon[setup]
-            occ, mach = _reconstruct(fsp, still[setup] if k == PRODUCT else noisy[setup],
+            occ, mach = reconstruct(fsp, still[setup] if k == PRODUCT else noisy[setup],
                                      room.carm.primitives(carm_pose(room, setup)), self_pad)
             tot = tot + confusion(occ, truth, mask=~mach)
         out[k] = tot.as_dict()
@@ -554,77 +333,3 @@ def _verdict_row(setup, motion, occ, truth, grid, mach, occ_paper=None) -> dict:
         vp = check_motion(occ_paper, grid, motion, exclude=mach)
         row.update(paper_reconstruction=vp.level, paper_verdict=compare_verdicts(vp.level, vt.level))
     return row
-
-
-PLACEMENT_RINGS = [(2.35, (0.0, 0.0, 0.6)), (0.6, (0.0, 0.0, 1.8))]   # wall rings: height, target
-WALL_CLEARANCE = 0.8            # interior (working volume): 0.8 m from the walls ...
-INTERIOR_Z = (0.3, 2.2)         # ... from 0.3 m above the floor to 0.3 m below the ceiling
-
-
-def _placement(room: Room, vs: float, out: Path, log=print) -> dict:
-    """R23 on the empty room: the criterion over the whole box and over its interior
-    (``WALL_CLEARANCE`` from the walls, heights ``INTERIOR_Z``); the greedy improver over
-    wall rings + ceiling, aiming at 99.5 % of what all candidates together reach."""
-    from depthguard.evaluation.placement import (azimuths, candidate_cameras, greedy_placement,
-                                                 passes_criterion, share_vs_cameras, visibility)
-    from depthguard.geometry.voxel_grid import VoxelGrid
-
-    shell = shell_primitives(room)
-    meshes = [p.mesh() for p in shell]
-    cands = candidate_cameras(room.lo, room.hi, target=(0.0, 0.0, 0.9), template=room.cameras[0],
-                              spacing=0.5, rings=PLACEMENT_RINGS)
-    # a camera cannot hang inside (or right against) the room's fixed furniture (cabinets ...)
-    furniture = [p for p in room.scene.static if not _outside_box(p, room.lo, room.hi)]
-    if furniture:
-        from depthguard.geometry import sdf_union
-        free = sdf_union(furniture, np.stack([c.position for c in cands])) > 0.10
-        cands = [c for c, ok in zip(cands, free) if ok]
-    res = {"voxel": vs, "rig_cameras": len(room.cameras), "candidates": len(cands),
-           "shell": [p.name for p in shell], "rings": PLACEMENT_RINGS, "regions": {}}
-    clear = np.array([WALL_CLEARANCE, WALL_CLEARANCE, 0.0])
-    ilo = room.lo + clear
-    ihi = room.hi - clear
-    ilo[2], ihi[2] = INTERIOR_Z
-    for region, (lo, hi) in (("box", (room.lo, room.hi)), ("interior", (ilo, ihi))):
-        grid = VoxelGrid(lo, hi, vs)
-        pts = grid.centres()
-        seen, az = visibility(room.cameras, pts, meshes), azimuths(room.cameras, pts)
-        ok = passes_criterion(seen, az)
-        g_rig = greedy_placement(seen, az, room.cameras, target_share=1.0, max_cameras=len(room.cameras), prune=False)
-        curve_rig = share_vs_cameras(seen, az, g_rig.chosen)
-        sc, ac = visibility(cands, pts, meshes), azimuths(cands, pts)
-        reach = float(passes_criterion(sc, ac).mean())
-        g = greedy_placement(sc, ac, cands, target_share=0.995 * reach, max_cameras=40)
-        curve = share_vs_cameras(sc, ac, g.chosen)
-        by_z = ok.reshape(grid.shape).mean(axis=(0, 1))
-        res["regions"][region] = {
-            "lo": np.asarray(lo).tolist(), "hi": np.asarray(hi).tolist(), "rig_share": float(ok.mean()),
-            "rig_share_by_z": by_z.tolist(), "rig_curve": curve_rig.tolist(),
-            "candidates_all_share": reach, "improver_cameras": len(g.chosen), "improver_share": g.final_share,
-            "improver_curve": curve.tolist(), "improver_positions": [c.position.round(3).tolist() for c in g.cameras],
-            "improver": g.cameras}
-        log(f"placement {region}: rig {100 * ok.mean():.1f} %, improver {len(g.chosen)} cameras -> "
-            f"{100 * g.final_share:.1f} % (all candidates {100 * reach:.1f} %)")
-    r = res["regions"]
-    _plot_fig4(out / "fig4_placement.png", r["interior"]["rig_curve"], r["interior"]["improver_curve"],
-               len(room.cameras))
-    return res
-
-
-def _outside_box(prim, lo, hi, tol=0.01) -> bool:
-    b = np.asarray(prim.bounds())
-    return bool(np.any(b[1] <= lo + tol) or np.any(b[0] >= hi - tol))
-
-
-def _plot_fig4(path, curve_rig, curve_imp, n_rig):
-    import matplotlib
-    matplotlib.use("Agg")
-    import matplotlib.pyplot as plt
-    fig, ax = plt.subplots(figsize=(6, 4))
-    ax.plot(np.arange(1, len(curve_rig) + 1), 100 * np.asarray(curve_rig), "o-", label=f"the cell's {n_rig} cameras, best first")
-    ax.plot(np.arange(1, len(curve_imp) + 1), 100 * np.asarray(curve_imp), "s-", label="greedy improver (walls + ceiling)")
-    ax.axvline(21, color="gray", ls=":", label="paper: 21 cameras")
-    ax.set_xlabel("number of cameras"); ax.set_ylabel("voxels passing [%]")
-    ax.set_title("R23: >= 3 views pairwise >= 100° apart (empty room, interior)")
-    ax.grid(alpha=0.3); ax.legend(fontsize=8)
-    fig.tight_layout(); fig.savefig(path, dpi=110); plt.close(fig)

@@ -9,7 +9,7 @@ and every run writes ``jsonl:`` and ``mcap:`` into its folder. Built-in schemes:
 ``mcap:[FILE]``   the results as MCAP for Foxglove (default ``OUT/results.mcap``)   :mod:`depthguard.runtime.mcap_results`
 ``zenoh:[CELL]``  reaction, distances, health under ``depthguard/<cell>/``; settings in  :mod:`depthguard.runtime.sink_zenoh`
 ``ros2:[NS]``     ``NS/override``, ``reaction``, ``markers`` over rmw_zenoh (default ``/depthguard``)  :mod:`depthguard.runtime.ros2_sink`
-``view:[[HOST:]PORT]``  the live 3-D view in the browser (default 127.0.0.1:8080)  :mod:`depthguard.viz.live`
+``view:[[HOST:]PORT]``  the live 3-D view in the browser (default 127.0.0.1:8080)  :mod:`depthguard.viz.sinks`
 ``ur-rtde:HOST``  a Universal Robots arm's speed slider (needs ``depthguard[ur]``)  :mod:`depthguard.runtime.ur_sink`
 ``franky:HOST,path=FILE``  a Franka FR3 runs a joint path, slowed and stopped by the reaction  :mod:`depthguard.runtime.franky_sink`
 ==============  ==============================================================  =======================================
@@ -31,8 +31,9 @@ shared with the sources (``out``: the run's folder, ``fast``, the Zenoh and ROS 
 A new sink is one module with a factory and one :func:`register_sink` call (in the module
 itself for a plug-in, or a line of :data:`SINK_SCHEMES` here); a scheme's module is imported
 only when asked for. Every argument is checked (``ValueError``, one sentence) before a run
-starts. ``view:`` names a module of a room above this one (:mod:`depthguard.viz`) by string:
-it is imported only when a run asks for it, as the sources' registry does.
+starts. The table below names modules of this room and below only (``tests/test_layers.py``
+checks its strings as imports); a room above registers its own schemes when imported, as
+``view:`` does (:mod:`depthguard.viz.sinks`, imported by the CLI that composes a run).
 """
 
 from __future__ import annotations
@@ -40,8 +41,7 @@ from __future__ import annotations
 import importlib
 from typing import Callable
 
-__all__ = ["SINK_SCHEMES", "register_sink", "open_sink", "sink_schemes", "shorthand_specs", "check_sink_spec",
-           "view_address"]
+__all__ = ["SINK_SCHEMES", "register_sink", "open_sink", "sink_schemes", "shorthand_specs", "check_sink_spec"]
 
 #: scheme -> factory or "module:factory"
 SINK_SCHEMES: dict[str, str | Callable] = {
@@ -49,26 +49,13 @@ SINK_SCHEMES: dict[str, str | Callable] = {
     "mcap": "depthguard.runtime.mcap_results:open_mcap",
     "zenoh": "depthguard.runtime.sink_zenoh:open_zenoh",
     "ros2": "depthguard.runtime.ros2_sink:open_ros2",
-    "view": "depthguard.viz.live:open_view",
     "ur-rtde": "depthguard.runtime.ur_sink:open_ur_sink",
     "franky": "depthguard.runtime.franky_sink:open_franky_sink",
 }
 
 
-def view_address(argument: str) -> tuple[str, int]:
-    """``(host, port)`` of ``view:[[HOST:]PORT]`` (default 127.0.0.1:8080); ``ValueError`` in one sentence."""
-    host, _, port = argument.rpartition(":") if ":" in argument else ("", "", argument)
-    try:
-        port_n = 8080 if not port else int(port)
-    except ValueError:
-        raise ValueError(f"--sink view:{argument}: the port must be a number, 0 to 65535 (got {port!r})") from None
-    if not 0 <= port_n <= 65535:
-        raise ValueError(f"--sink view:{argument}: the port must be 0 to 65535 (got {port_n})")
-    return host or "127.0.0.1", port_n
-
-
 #: scheme -> ``check(argument)`` run before anything opens (ValueError in one sentence)
-SINK_CHECKS: dict[str, Callable[[str], object]] = {"view": view_address}
+SINK_CHECKS: dict[str, Callable[[str], object]] = {}
 
 
 def register_sink(scheme: str, factory: str | Callable, check: Callable[[str], object] | None = None) -> None:

@@ -183,13 +183,26 @@ class Scene:
         ``q`` overrides the robot's scripted joint values."""
         meshes = list(self._static_meshes)
         names = list(self._static_names)
-        for prim in self.dynamic_at(t):
-            meshes.append(self._local_mesh(prim).transformed(prim.world_from_local))
-            names.append(prim.name)
+        moving, moving_names = self.moving_meshes_at(t)
+        meshes += moving
+        names += moving_names
         if robot and self.robot is not None:
             q = self._q(t, q)
             meshes.extend(self.robot.link_meshes(q))
             names.extend(f"robot/{n}" for n in self.robot.link_mesh_names)
+        return meshes, names
+
+    @property
+    def static_meshes(self) -> list[Mesh]:
+        """World meshes of the static obstacles (made once)."""
+        return list(self._static_meshes)
+
+    def moving_meshes_at(self, t: float) -> tuple[list[Mesh], list[str]]:
+        """World meshes of the people and props at ``t`` and their names (as :meth:`meshes_at`)."""
+        meshes, names = [], []
+        for prim in self.dynamic_at(t):
+            meshes.append(self._local_mesh(prim).transformed(prim.world_from_local))
+            names.append(prim.name)
         return meshes, names
 
     def _local_mesh(self, prim: Primitive) -> Mesh:

@@ -45,13 +45,10 @@ from collections import deque
 
 import numpy as np
 
-from depthguard.filtering.expected import ExpectedDepth
-from depthguard.render import Renderer
-from depthguard.render.composite import nearest_depth
 from depthguard.robot.joint_history import JointHistory
 from depthguard.sources.base import register_joints, register_source
+from depthguard.sources.camera_sim import CameraSchedule, CameraSim
 from depthguard.sources.frame import Frame
-from depthguard.sources.simulated import returns_beyond_the_model
 
 __all__ = ["SimWorld", "SimFrames", "SimJoints", "parse_sim_spec", "sim_world"]
 
@@ -229,24 +226,16 @@ class SimFrames:
     """Frame source ``sim:...``: every rig camera's frames, rendered at their capture times."""
 
     def __init__(self, world: SimWorld, cameras=None):
-        from depthguard.sources import SimulatedCamera
-
         self.world = world
         self.on_reaction = world.on_reaction     # the robot obeys: the runner subscribes it to the reactions
         rig = world.rig
         cams = [rig.camera(c) for c in cameras] if cameras else list(rig.cameras)
         self.camera_ids = [c.id for c in cams]
         self._cams = cams
-        static = rig.static_meshes()
-        self._expected = {c.id: ExpectedDepth(c, world.robot, static) for c in cams}
-        self._dyn = {c.id: Renderer(c) for c in cams}
-        self._sims = {c.id: SimulatedCamera(c, seed=world.seed, noiseless=world.noiseless) for c in cams}
-        period = 1.0 / world.camera_hz
-        self._period = period
-        # every camera's first frame at 0 (the cameras run before the robot moves), then each on
-        # its own phase: not synchronised
-        self._phase = {c.id: i * 0.37 * period for i, c in enumerate(cams)}
-        self._next = {c.id: 0.0 for c in cams}
+        # the package's one camera simulator and camera timing (camera_sim.py)
+        self.sim = CameraSim(cams, robot=world.robot, static_meshes=rig.static_meshes(), seed=world.seed,
+                             noiseless=world.noiseless, invalid="unknown")
+        self.schedule = CameraSchedule(len(cams), world.camera_hz)
         self._stopped: dict[str, float] = {}
         self.skip_behind = False        # set by a real-time run: frames a slow machine cannot render are dropped
         self.skipped = 0
@@ -264,9 +253,7 @@ class SimFrames:
         function of the seed alone."""
         from depthguard.sources.noise import NormalBank
 
-        bank = NormalBank(self.world.seed)
-        for sim in self._sims.values():
-            sim.bank = bank
+        self.sim.use_noise_bank(NormalBank(self.world.seed))
 
     def warm_up(self) -> None:
         """Render one frame per camera and throw it away (set by a real-time run before its clock
@@ -296,18 +283,8 @@ class SimFrames:
 
     def render(self, camera_id: str, t: float, q: np.ndarray) -> np.ndarray:
         """The measured (H, W) float32 depth of camera ``camera_id`` at run time ``t``, robot at ``q``."""
-        ex = self._expected[camera_id]
-        ideal = ex.known(q)             # the expected depth's own buffer, reused: made anew per call
-        dyn = self.world.dynamic(t)
-        person = None
-        if dyn:
-            person = self._dyn[camera_id].render([p.mesh() for p in dyn])[0]   # the renderer's buffer
-            nearest_depth(ideal, person)
-        d = self._sims[camera_id].measure(ideal, stamp=t)
-        returns_beyond_the_model(d, ideal, self._sims[camera_id].cam)       # a rig without walls (R28)
-        if self.world.dark and person is not None:
-            d[(person > 0) & (person <= ideal + 1e-6)] = 0.0      # dark clothing: no return
-        return d
+        moving = [p.mesh() for p in self.world.dynamic(t)]
+        return self.sim.depth(camera_id, t, q, moving, dark=self.world.dark)
 
     def frames_until(self, t: float) -> list[Frame]:
         """The frames captured by ``t`` (s, the run's clock) not returned yet, stamped on that clock."""
@@ -315,18 +292,15 @@ class SimFrames:
         origin = self.world.origin
         t = min(t, self.world.history.newest_stamp) - origin   # a frame needs the robot's pose at its capture
         out = []
-        for cid in self.camera_ids:
-            if self.skip_behind and self._next[cid] + self._period <= t + 1e-12:
+        sched = self.schedule
+        for i, cid in enumerate(self.camera_ids):
+            if self.skip_behind and sched.next[i] + sched.period <= t + 1e-12:
                 # behind by more than a period (real time, a slow machine): a camera drops the
                 # frames it could not deliver rather than queue them; the latest due is captured
-                ph = self._phase[cid]
-                newest = ph + math.floor((t - ph) / self._period + 1e-9) * self._period
-                self.skipped += int(round((newest - self._next[cid]) / self._period))   # frames not rendered
-                self._next[cid] = newest
-            while self._next[cid] <= t + 1e-12:
-                tc = self._next[cid]
-                ph = self._phase[cid]
-                self._next[cid] = ph + (math.floor((tc - ph) / self._period + 1e-9) + 1) * self._period
+                self.skipped += sched.skip_to_latest(i, t)        # frames not rendered
+            while sched.due(i, t, tol=1e-12):
+                tc = sched.next[i]
+                sched.take(i, tc)
                 if cid in self._stopped and tc >= self._stopped[cid]:
                     continue
                 q = self.world.history.at(origin + min(tc, t))         # tc <= t up to rounding

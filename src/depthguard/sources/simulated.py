@@ -105,18 +105,25 @@ class SimSource:
 
     ``SimSource(cell)`` or ``SimSource(rig=rig, scene=scene)``. ``frames(t)``
     returns ``{camera id: Frame}`` for scene time ``t``; the noise is a pure
-    function of ``(seed, camera, t)``.
+    function of ``(seed, camera, t)``. The frames are the package's one camera
+    simulator's (:class:`~depthguard.sources.camera_sim.CameraSim`: the static scene
+    rendered once, the robot and the people per frame; the raw sensor, 0 where nothing
+    returns); with ``labels`` the whole scene is rendered at once, for its labels.
     """
 
     def __init__(self, cell=None, *, rig=None, scene=None, seed: int = 0, noiseless: bool = False,
                  cameras: Sequence[str] | None = None):
+        from depthguard.sources.camera_sim import CameraSim
+
         if cell is not None:
             rig, scene = cell.rig, cell.scene
         if rig is None or scene is None:
             raise ValueError("SimSource needs a cell, or both rig= and scene=")
         self.rig, self.scene = rig, scene
         cams = rig.cameras if cameras is None else [rig.camera(c) for c in cameras]
-        self.cameras = {c.id: SimulatedCamera(c, seed=seed, noiseless=noiseless) for c in cams}
+        self.sim = CameraSim(cams, robot=scene.robot, static_meshes=scene.static_meshes, seed=seed,
+                             noiseless=noiseless, invalid=None)
+        self.cameras = self.sim.sims            # {camera id: SimulatedCamera}
 
     def frames(self, t: float, labels: bool = False, robot: bool = True) -> dict[str, Frame]:
         """``{camera id: Frame}`` at scene time ``t`` (robot included unless ``robot=False``).
@@ -124,12 +131,13 @@ class SimSource:
         With ``labels=True`` each frame carries the (H, W) int32 ground-truth
         labels, indices into ``scene.meshes_at(t)[1]`` (the mesh names).
         """
-        meshes, _names = self.scene.meshes_at(t, robot=robot)
-        out = {}
-        for cid, sc in self.cameras.items():
-            if labels:
+        if labels:
+            meshes, _names = self.scene.meshes_at(t, robot=robot)
+            out = {}
+            for cid, sc in self.cameras.items():
                 d, lab = sc.capture_with_labels(meshes, stamp=t)
                 out[cid] = Frame(cid, d, float(t), lab)
-            else:
-                out[cid] = Frame(cid, sc.capture(meshes, stamp=t), float(t))
-        return out
+            return out
+        moving, _names = self.scene.moving_meshes_at(t)
+        q = self.scene.robot_q(t) if (robot and self.scene.robot is not None) else None
+        return {cid: Frame(cid, self.sim.depth(cid, t, q, moving), float(t)) for cid in self.cameras}

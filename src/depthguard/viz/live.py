@@ -412,7 +412,7 @@ class LiveView:
 def open_view(argument: str, rig, context: dict) -> LiveView:
     """``view:[[HOST:]PORT]`` (:mod:`depthguard.runtime.sink_specs`): default 127.0.0.1:8080 (a busy
     port: the next free); anyone who reaches it can change rho. Direct: it keeps the newest reaction."""
-    from depthguard.runtime.sink_specs import view_address
+    from depthguard.viz.sinks import view_address
 
     host, port = view_address(argument)
     view = LiveView(rig, host=host, port=port)

@@ -54,10 +54,8 @@ from depthguard.evaluation.closed_loop.loop_truth import LoopTruth
 from depthguard.control.sns import SNSWorkspace, sns_velocity
 from depthguard.control.supervisor import SafetySupervisor, stop_reasons
 from depthguard.evaluation.closed_loop.trajectory import Hexagon
-from depthguard.filtering.expected import ExpectedDepth
-from depthguard.render.composite import nearest_depth
+from depthguard.sources.camera_sim import CameraSchedule, CameraSim
 from depthguard.sources.frame import Frame
-from depthguard.sources.simulated import returns_beyond_the_model
 
 __all__ = ["LoopConfig", "LoopResult", "ClosedLoop", "SafetySupervisor", "solve_ik", "stop_reasons"]
 
@@ -194,8 +192,6 @@ class ClosedLoop:
     def __init__(self, cell, config: LoopConfig | None = None,
                  extra_obstacles: Callable[[float], list] | None = None,
                  dropout: dict[str, float] | None = None, seed: int = 0, cell_dynamic: bool = False):
-        from depthguard.sources import SimulatedCamera
-
         self.cfg = cfg = config or LoopConfig()
         self.cell = cell
         rig = cell.rig
@@ -222,18 +218,13 @@ class ClosedLoop:
         for cid in self.dropout:
             if cid not in [c.id for c in cams]:
                 raise ValueError(f"dropout names unknown camera {cid!r}")
-        self.sims = {c.id: SimulatedCamera(c, seed=seed, noiseless=not cfg.noise) for c in cams}
-        from depthguard.render import Renderer
         import numba
         self.threads = max(1, min(int(cfg.threads or numba.config.NUMBA_NUM_THREADS), numba.config.NUMBA_NUM_THREADS))
-        par = self.threads > 1
-        # camera simulation: the static scene is rendered once per camera; per frame only the
-        # robot (also the self-removal image, R9) and the moving obstacles are rendered and
-        # combined with it per pixel (the same image as rendering everything, render/composite.py)
-        # the one expected depth of the known scene (static once, robot per frame) makes the images
-        self.expected = {c.id: ExpectedDepth(c, self.robot, self._static_meshes, parallel=par) for c in cams}
-        self.dyn_renderers = {c.id: Renderer(c, parallel=par) for c in cams}
-        self._ideal = {c.id: np.zeros(c.shape, dtype=np.float32) for c in cams}
+        # the package's one camera simulator (sources/camera_sim.py): the static scene rendered once
+        # per camera, the robot (also the self-removal image, R9) and the moving obstacles per frame
+        self.camera_sim = CameraSim(cams, robot=self.robot, static_meshes=self._static_meshes, seed=seed,
+                                    noiseless=not cfg.noise, invalid=cfg.invalid, parallel=self.threads > 1)
+        self.sims = self.camera_sim.sims
         self.data = self.robot.create_data()
         self.sns_ws = SNSWorkspace(3, self.robot.dof)
         self.hexagon = cfg.hexagon
@@ -294,23 +285,7 @@ class ClosedLoop:
         scene seconds)``, new arrays. The robot alone is rendered for self removal (R9) and
         combined with the static scene (rendered once) and the moving obstacles; the camera's
         noise model turns the ideal image into the measured one."""
-        cam = self.cams[i]
-        cid = cam.id
-        t0 = time.perf_counter()
-        rd = np.array(self.expected[cid].robot(q), copy=True)
-        t1 = time.perf_counter()
-        ideal = self._ideal[cid]
-        np.copyto(ideal, self.expected[cid].static)
-        dyn = self._dynamic_meshes(t)
-        if dyn:
-            nearest_depth(ideal, self.dyn_renderers[cid].render(dyn)[0])
-        nearest_depth(ideal, rd)                       # the robot occludes, as on a real cell
-        d = self.sims[cid].measure(ideal, stamp=t)
-        if self.cfg.invalid == "free":
-            d = np.where(d > 0, d, np.float32(cam.max_range - 1e-3)).astype(np.float32)
-        else:
-            returns_beyond_the_model(d, ideal, cam)     # a user's rig without walls (R28)
-        return d, rd, t1 - t0, time.perf_counter() - t1
+        return tuple(self.camera_sim.shot(self.cams[i].id, t, q, self._dynamic_meshes(t), keep_robot=True))
 
     def _dynamic_meshes(self, t: float) -> list:
         """Meshes of everything but the static scene and the robot at ``t``."""
@@ -353,9 +328,8 @@ class ClosedLoop:
         n, m = robot.dof, len(self.cp_names)
         cam_ids = [c.id for c in self.cams]
         nc = len(cam_ids)
-        period = 1.0 / cfg.camera_hz
-        next_frame = np.zeros(nc)          # every camera delivers at t = 0, then unsynchronised:
-        phase = np.array([i * 0.37 * period for i in range(nc)])   # camera i at phase_i + j * period
+        schedule = CameraSchedule(nc, cfg.camera_hz)     # the cameras' timing, the sim: source's
+        period = schedule.period
         stamps = np.full(nc, -np.inf)
         depths: dict[str, np.ndarray] = {}
         n_frames = {c: 0 for c in cam_ids}
@@ -391,9 +365,9 @@ class ClosedLoop:
             t = k * dt
             # 1. vision: capture the frames due now, deliver those whose latency has passed
             for i, cid in enumerate(cam_ids):
-                if t + 1e-9 < next_frame[i]:
+                if not schedule.due(i, t):
                     continue
-                next_frame[i] = phase[i] + (np.floor((t - phase[i]) / period + 1e-9) + 1) * period
+                schedule.take(i, t)
                 if cid in self.dropout and t >= self.dropout[cid]:
                     continue
                 cams_sim.capture(i, t, q)

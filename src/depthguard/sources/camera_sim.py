@@ -1,0 +1,157 @@
+"""The one camera simulator: a rig's depth cameras seeing a scene at a time and joints (R16, R28).
+
+Every simulated depth frame of the package is made here — the ``sim:`` source
+(:mod:`depthguard.sources.sim_source`), the closed loop of ``depthguard run`` / ``make demo``
+(:mod:`depthguard.evaluation.closed_loop.loop`) and :class:`~depthguard.sources.simulated.SimSource`.
+
+Model and data apart: :class:`CameraSim` is built once per rig (per camera the static scene
+rendered once, a renderer for what moves, the sensor's noise model); a frame is a function of
+``(camera, capture time, joints, moving meshes)`` and the seed:
+
+1. the robot alone at ``q`` (also the self-removal image, R9) and the moving obstacles are
+   rendered and combined per pixel with the static scene — the same image, bit for bit, as
+   rendering everything (:mod:`depthguard.render.composite`);
+2. the camera's noise model turns the ideal image into the measured one, its noise drawn from
+   the frame's own generator (``seed``, camera, capture stamp: ``simulated.frame_rng``);
+3. the invalid pixels follow one vocabulary, the monitor's (``MonitorConfig.invalid``, R28):
+   ``"unknown"`` — no return stays 0, and a ray that meets nothing the scene models returns
+   from beyond the rated range, as a real cell's walls would; ``"free"`` — every invalid
+   pixel reads as the far end of the range; ``None`` — the raw sensor (0 where nothing);
+4. ``dark``: pixels that see a moving obstacle return nothing (dark clothing).
+
+:class:`CameraSchedule` is the cameras' timing, also once: ``hz`` per camera, every camera's
+first frame at 0, then camera ``i`` on its own phase ``0.37 i`` periods (not synchronised).
+"""
+
+from __future__ import annotations
+
+import math
+import time
+from typing import NamedTuple, Sequence
+
+import numpy as np
+
+from depthguard.filtering.expected import ExpectedDepth
+from depthguard.render import Renderer
+from depthguard.render.composite import nearest_depth
+from depthguard.sources.simulated import SimulatedCamera, returns_beyond_the_model
+
+__all__ = ["CameraSim", "CameraSchedule", "Shot", "INVALID_POLICIES"]
+
+#: what an invalid pixel of a simulated frame becomes (module docstring, step 3)
+INVALID_POLICIES = ("unknown", "free", None)
+
+
+class Shot(NamedTuple):
+    """One simulated frame: ``depth`` (H, W) float32 m (new array, 0 = no return), ``robot_depth``
+    (H, W) float32 m of the robot alone (a copy, or None when not asked), and the wall seconds
+    of rendering the robot and of the rest (scene, noise)."""
+    depth: np.ndarray
+    robot_depth: np.ndarray | None
+    robot_s: float
+    scene_s: float
+
+
+class CameraSim:
+    """The depth cameras ``cams`` of a cell (module docstring).
+
+    robot : the :class:`~depthguard.robot.RobotModel` the frames show (None: no robot).
+    static_meshes : world meshes that never move, rendered once per camera.
+    seed, noiseless : the noise (:class:`~depthguard.sources.simulated.SimulatedCamera`).
+    invalid : ``"unknown"`` | ``"free"`` | None (module docstring, step 3).
+    parallel : the renderers' numba threads (False: one, e.g. on a camera thread).
+
+    One object per thread: each camera's buffers are reused from frame to frame.
+    """
+
+    def __init__(self, cams: Sequence, robot=None, static_meshes=(), seed: int = 0, noiseless: bool = False,
+                 invalid: str | None = "unknown", parallel: bool = False):
+        if invalid not in INVALID_POLICIES:
+            raise ValueError(f"invalid must be 'unknown', 'free' or None, got {invalid!r}")
+        static = list(static_meshes)
+        self.cams = {c.id: c for c in cams}
+        self.robot = robot
+        self.invalid = invalid
+        self.seed = int(seed)
+        self.expected = {c.id: ExpectedDepth(c, robot, static, parallel=parallel) for c in cams}
+        self.sims = {c.id: SimulatedCamera(c, seed=seed, noiseless=noiseless) for c in cams}
+        self._moving = {c.id: Renderer(c, parallel=parallel) for c in cams}
+        self._ideal = {c.id: np.zeros(c.shape, dtype=np.float32) for c in cams}
+
+    @property
+    def camera_ids(self) -> list[str]:
+        return list(self.cams)
+
+    def use_noise_bank(self, bank) -> None:
+        """Every camera draws its noise's normals from ``bank`` (a
+        :class:`~depthguard.sources.noise.NormalBank`: real-time runs)."""
+        for sim in self.sims.values():
+            sim.bank = bank
+
+    def shot(self, camera_id: str, t: float, q, moving: Sequence = (), dark: bool = False,
+             keep_robot: bool = False) -> Shot:
+        """Camera ``camera_id``'s frame captured at ``t`` (s, the noise's stamp) with the robot at
+        ``q`` (dof,) rad (None: no robot in the image) and the moving obstacles' world meshes
+        ``moving`` (module docstring)."""
+        cam = self.cams[camera_id]
+        ex = self.expected[camera_id]
+        t0 = time.perf_counter()
+        rd = ex.robot(q) if (self.robot is not None and q is not None) else None      # ExpectedDepth's reused buffer
+        robot_depth = np.array(rd, copy=True) if keep_robot and rd is not None else None
+        t1 = time.perf_counter()
+        ideal = self._ideal[camera_id]
+        np.copyto(ideal, ex.static)
+        person = None
+        if moving:
+            person = self._moving[camera_id].render(list(moving))[0]   # the renderer's buffer
+            nearest_depth(ideal, person)
+        if rd is not None:
+            nearest_depth(ideal, rd)                   # the robot occludes, as on a real cell
+        d = self.sims[camera_id].measure(ideal, stamp=t)
+        if self.invalid == "free":
+            d = np.where(d > 0, d, np.float32(cam.max_range - 1e-3)).astype(np.float32)
+        elif self.invalid == "unknown":
+            returns_beyond_the_model(d, ideal, cam)    # a user's rig without walls (R28)
+        if dark and person is not None:
+            d[(person > 0) & (person <= ideal + 1e-6)] = 0.0      # dark clothing: no return
+        return Shot(d, robot_depth, t1 - t0, time.perf_counter() - t1)
+
+    def depth(self, camera_id: str, t: float, q, moving: Sequence = (), dark: bool = False) -> np.ndarray:
+        """The measured (H, W) float32 depth alone (:meth:`shot`)."""
+        return self.shot(camera_id, t, q, moving, dark).depth
+
+
+class CameraSchedule:
+    """When ``n`` cameras at ``hz`` capture (module docstring): ``next[i]`` is camera ``i``'s next
+    capture time (s from the simulator's 0)."""
+
+    PHASE = 0.37        # camera i's phase: 0.37 i periods
+
+    def __init__(self, n: int, hz: float):
+        if not (math.isfinite(hz) and hz > 0):
+            raise ValueError(f"camera rate must be > 0 Hz, got {hz!r}")
+        self.period = 1.0 / float(hz)
+        self.phase = [i * self.PHASE * self.period for i in range(n)]
+        self.next = [0.0] * n           # every camera's first frame at 0 (they run before the robot moves)
+
+    def due(self, i: int, t: float, tol: float = 1e-9) -> bool:
+        """Whether camera ``i`` has a capture due at or before ``t`` (within ``tol`` s)."""
+        return self.next[i] <= t + tol
+
+    def after(self, i: int, t: float) -> float:
+        """Camera ``i``'s first capture time after ``t``."""
+        ph = self.phase[i]
+        return ph + (math.floor((t - ph) / self.period + 1e-9) + 1) * self.period
+
+    def take(self, i: int, t: float) -> None:
+        """Camera ``i`` captured at ``t``: its next capture is the first of its phase after ``t``."""
+        self.next[i] = self.after(i, t)
+
+    def skip_to_latest(self, i: int, t: float) -> int:
+        """Camera ``i`` behind by more than a period: its next capture becomes the latest due at
+        ``t``; returns the number of captures skipped."""
+        ph = self.phase[i]
+        newest = ph + math.floor((t - ph) / self.period + 1e-9) * self.period
+        skipped = int(round((newest - self.next[i]) / self.period))
+        self.next[i] = newest
+        return skipped
