@@ -507,7 +507,7 @@ def test_only_real_time_runs_draw_the_simulated_noise_from_a_bank(rig):
         js = open_joints("sim", rig, ctx)
         with Monitor(rig, free_cfg(rig), sinks=[sim_world(ctx).on_reaction]) as mon:
             runner.run(mon, [src], js, duration=0.2, fast=fast)
-        banks = {cid: sim.bank for cid, sim in src._sims.items()}
+        banks = {cid: sim.bank for cid, sim in src.sim.sims.items()}
         assert all((b is None) == fast for b in banks.values()), (fast, banks)
 
 

@@ -276,3 +276,20 @@ def test_closed_loop_reach_with_ssm_keeps_the_separation():
     assert res.tau[-1] < 0.9 * res.t[-1]
     moving = ~res.protective_stop & (np.abs(res.qd).max(axis=1) > 1e-9)
     assert np.all(res.ssm_margin[moving] >= 0.0)
+
+
+def test_z_d_uses_the_grids_cell_width():
+    """With the depth grid's principal binned (``principal_bin`` b), a cell is b pixels wide:
+    ``Z_d``'s footprint uses ``f / b``; the sensor's disparity step does not change."""
+    from depthguard.control.ssm import SSMCameras, z_d
+    from depthguard.control.ssm_config import SSMConfig
+    from depthguard.sim.cells import load_cell
+
+    cam = load_cell("flacco-cell").rig.cameras[0]
+    one, two = SSMCameras.of([cam], SSMConfig(), 1), SSMCameras.of([cam], SSMConfig(), 2)
+    assert two.f[0] == pytest.approx(one.f[0] / 2) and two.q[0] == one.q[0]
+    z = 2.5
+    w1, w2 = z / one.f[0], z / two.f[0]
+    grow = 0.5 * (np.sqrt(2 * w2 ** 2 + 0.01 ** 2) - np.sqrt(2 * w1 ** 2 + 0.01 ** 2))
+    assert (z_d(z, two.f[0], two.sigma_a[0], two.sigma_z2[0], two.q[0], 0.01, 3.0)
+            - z_d(z, one.f[0], one.sigma_a[0], one.sigma_z2[0], one.q[0], 0.01, 3.0)) == pytest.approx(grow)

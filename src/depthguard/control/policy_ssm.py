@@ -31,7 +31,7 @@ class SpeedSeparationPolicy:
         dof = setup.robot.dof
         self._cp_names = setup.cp_names
         self.ssm = SpeedSeparation(cfg.ssm, list(setup.cameras), len(setup.cp_names), dof, cfg.delta_d,
-                                   cfg.gap_px, cfg.dt)
+                                   cfg.gap_px, cfg.dt, cfg.principal_bin)
         self._qd_meas = np.zeros(dof)          # qd not given: from the joints of two cycles
         self._robot = setup.robot
         self._muted = setup.ssm_obstacles      # issue 31: the separation from what is not the known scene

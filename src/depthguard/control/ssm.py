@@ -63,9 +63,11 @@ class SSMCameras:
     q: np.ndarray
 
     @classmethod
-    def of(cls, cameras, cfg: SSMConfig) -> "SSMCameras":
+    def of(cls, cameras, cfg: SSMConfig, pixel_bin: int = 1) -> "SSMCameras":
         """From :class:`~depthguard.camera.Camera` objects: the noise of their ``sensor`` model
-        (:mod:`depthguard.sensors`), ``cfg.default_sigma_*`` for a camera without one."""
+        (:mod:`depthguard.sensors`), ``cfg.default_sigma_*`` for a camera without one.
+        ``pixel_bin``: the grid's cell is that many pixels wide (``principal_bin``), so ``f`` is
+        the focal length over it (the disparity step stays the sensor's)."""
         from depthguard.sensors import SENSOR_MODELS
 
         R, t, f, sa, sz, q = [], [], [], [], [], []
@@ -73,7 +75,7 @@ class SSMCameras:
             T = np.linalg.inv(np.asarray(cam.world_from_camera, dtype=np.float64))
             R.append(T[:3, :3])
             t.append(T[:3, 3])
-            f.append(min(cam.fx, cam.fy))
+            f.append(min(cam.fx, cam.fy) / max(int(pixel_bin), 1))
             model = SENSOR_MODELS.get(cam.sensor) if cam.sensor else None
             if model is None:
                 sa.append(cfg.default_sigma_a)

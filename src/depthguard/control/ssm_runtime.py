@@ -34,13 +34,15 @@ class SpeedSeparation:
     cfg : :class:`~depthguard.control.ssm_config.SSMConfig`.
     cameras : the monitored :class:`~depthguard.camera.Camera` objects (``Z_d``).
     dof : joints; delta_d : m, the grid's depth slice; gap_px : the monitor's gap filling
-    (for the derived detection capability); control_dt : s, one control period (part of T_r).
+    (for the derived detection capability); control_dt : s, one control period (part of T_r);
+    pixel_bin : the depth grid's principal pixels per column side (``principal_bin``: its cell
+    is that many pixels wide, part of ``Z_d``).
     """
 
     def __init__(self, cfg: SSMConfig, cameras, n_points: int, dof: int, delta_d: float, gap_px: int,
-                 control_dt: float):
+                 control_dt: float, pixel_bin: int = 1):
         self.cfg = cfg
-        self.cams = SSMCameras.of(cameras, cfg)
+        self.cams = SSMCameras.of(cameras, cfg, pixel_bin)
         self.detection_capability = (float(cfg.detection_capability) if cfg.detection_capability is not None
                                      else derived_detection_capability(cameras, gap_px))
         self.C = intrusion_distance(self.detection_capability)
