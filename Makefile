@@ -5,7 +5,7 @@ PY     := $(VENV)/bin/python
 STAMP  := $(VENV)/.installed
 OUT    ?= out
 
-.PHONY: venv demo test test-fast bench clean
+.PHONY: venv demo test test-fast soak bench clean
 
 venv: $(STAMP)
 
@@ -26,6 +26,10 @@ test: $(STAMP)
 ## Everything but the tests marked slow.
 test-fast: $(STAMP)
 	$(PY) -m pytest -q -m "not slow" -p no:cacheprovider
+
+## The long runs kept out of `make test` (its tests keep a short slice of each property).
+soak: $(STAMP)
+	$(PY) -m pytest -q -p no:cacheprovider --soak -m soak --durations=0
 
 ## Benchmarks: a table beside the papers' numbers and a peer measured in the same run.
 bench: $(STAMP)

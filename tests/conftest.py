@@ -56,6 +56,24 @@ def prismatic_urdf():
     return PRISMATIC_URDF
 
 
+# ---------------------------------------------------------------- soaks: `make soak`, not `make test`
+# A test marked ``soak`` runs for a long wall time (a whole scene at 30 Hz through the monitor...):
+# the suite keeps a short slice of its property and leaves the soak out unless ``--soak`` is given
+# (`make soak` runs them all). Left out = deselected, not skipped: nothing is hidden in -ra.
+def pytest_addoption(parser):
+    parser.addoption("--soak", action="store_true", default=False,
+                     help="also run the tests marked soak (long runs; make soak)")
+
+
+def pytest_collection_modifyitems(config, items):
+    if config.getoption("--soak"):
+        return
+    kept = [it for it in items if it.get_closest_marker("soak") is None]
+    if len(kept) != len(items):
+        config.hook.pytest_deselected(items=[it for it in items if it.get_closest_marker("soak") is not None])
+        items[:] = kept
+
+
 # ---------------------------------------------------------------- CI: no silent skips
 # `.ci/run` installs the system packages some tests need (Chromium, the RealSense SDK's libusb) and
 # names them in DEPTHGUARD_CI_REQUIRES; a test that still skips for want of one of them fails the
