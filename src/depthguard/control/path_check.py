@@ -122,7 +122,7 @@ def validate_path(stamps, q, robot) -> tuple[np.ndarray, np.ndarray]:
     if bad.any():
         i = int(np.argmax(bad))
         if bad_t[i]:
-            raise ValueError(f"waypoint {i}: stamp {t[i]!r} is not finite")
+            raise ValueError(f"waypoint {i}: stamp {float(t[i])} is not finite")
         if bad_q[i]:
             raise ValueError(f"waypoint {i}: joints {Q[i].tolist()} are not all finite")
         if bad_order[i]:
