@@ -11,8 +11,11 @@ model of the SSM settings (:func:`depthguard.control.ssm.stopping`, R33):
   (:func:`segment_travel`) pro rata within the current segment;
 - at point speed ``v`` (m/s, at scale 1) the robot needs ``v T_r + S_s(v)`` to stop (``T_r`` the
   reaction time: map period + latencies; ``S_s`` the SSM stopping distance); the limit is the
-  largest scale ``s`` in [0, 1] with ``s v T_r + S_s(s v) <= L - margin`` — 1 far away, falling as
-  the robot nears the blocked segment, 0 when it can no longer stop short of it plus ``margin``;
+  largest scale ``s`` in [0, 1] with ``v T_r + S_s(s v) <= L - margin`` — the reaction term at
+  full speed, since until the limit applies the robot may still run at ``v`` (with ``s v`` there,
+  a robot braking along the limit overshoots by its lag) — 1 far away, falling along a braking
+  curve as the robot nears the blocked segment, 0 when it can no longer stop short of it plus
+  ``margin``;
 - nothing ahead blocked (it cleared): 1, so the robot resumes by itself.
 
 Self-contained: the lead plugs it into the reaction policies (issue 28; the most restrictive of
@@ -99,7 +102,8 @@ class PathWatch:
         L = float(frac * travel[i] + np.sum(travel[i + 1:k]))
         room = L - self.margin
         v = max(float(v), 0.0)
-        if room <= 0.0:
+        brake_room = room - v * self.reaction_time     # until the limit applies: still at up to v
+        if brake_room <= 0.0:
             s = 0.0
         elif self.needed(v) <= room:
             s = 1.0
@@ -107,7 +111,7 @@ class PathWatch:
             lo, hi = 0.0, 1.0
             for _ in range(40):
                 mid = 0.5 * (lo + hi)
-                if self.needed(mid * v) <= room:
+                if stopping(mid * v, self.ssm)[0] <= brake_room:
                     lo = mid
                 else:
                     hi = mid
