@@ -10,7 +10,6 @@ the CLI's verdict codes are 0/3/4.
 
 from __future__ import annotations
 
-import subprocess
 import sys
 
 import numpy as np
@@ -127,23 +126,35 @@ def test_monitor_check_path_through_the_person_is_unsafe_and_clear_path_is_not(c
         assert still.verdict != "unsafe"
 
 
-def test_cli_bad_path_exit_2_names_the_waypoint(cell, tmp_path):
+def _cli(args, capsys, monkeypatch):
+    """``depthguard ARGS`` in this process (the entry point's own error handling): (status, stderr)."""
+    from depthguard.cli import main
+
+    monkeypatch.setattr(sys, "argv", ["depthguard", *args])
+    with pytest.raises(SystemExit) as exc:
+        main()
+    return exc.value.code, capsys.readouterr().err
+
+
+def test_cli_bad_path_exit_2_names_the_waypoint(cell, tmp_path, capsys, monkeypatch):
     rig = cell.rig
     q0 = np.asarray(rig.robot_q0, float)
     p = tmp_path / "path.csv"
     rows = ["stamp," + ",".join(rig.robot.joint_names)]
-    for i, s in enumerate([0.0, 0.1, 0.1]):
+    for s in [0.0, 0.1, 0.1]:
         rows.append(f"{s}," + ",".join(str(x) for x in q0))
     p.write_text("\n".join(rows) + "\n")
-    r = subprocess.run([sys.executable, "-m", "depthguard", "check-path", "--cell", "ur3-cell", "--path", str(p)],
-                       capture_output=True, text=True, timeout=120)
-    assert r.returncode == 2, r.stderr
-    lines = [ln for ln in r.stderr.splitlines() if ln.strip()]
-    assert len(lines) == 1 and "waypoint 2" in lines[0] and "Traceback" not in r.stderr
-    p.write_text("\n".join(rows[:2] + [f"0.2," + ",".join(str(x) for x in q0[:5])]) + "\n")
-    r = subprocess.run([sys.executable, "-m", "depthguard", "check-path", "--cell", "ur3-cell", "--path", str(p)],
-                       capture_output=True, text=True, timeout=120)
-    assert r.returncode == 2 and "waypoint 1" in r.stderr and "5 joints" in r.stderr
+    code, err = _cli(["check-path", "--cell", "ur3-cell", "--path", str(p)], capsys, monkeypatch)
+    lines = [ln for ln in err.splitlines() if ln.strip()]
+    assert code == 2 and len(lines) == 1 and "waypoint 2" in lines[0] and "Traceback" not in err, err
+    p.write_text("\n".join(rows[:2] + ["0.2," + ",".join(str(x) for x in q0[:5])]) + "\n")
+    code, err = _cli(["check-path", "--cell", "ur3-cell", "--path", str(p)], capsys, monkeypatch)
+    assert code == 2 and "waypoint 1" in err and "5 joints" in err
+    bad = q0.copy()
+    bad[1] = 99.0
+    p.write_text("\n".join(rows[:2] + ["0.2," + ",".join(str(x) for x in bad)]) + "\n")
+    code, err = _cli(["check-path", "--cell", "ur3-cell", "--path", str(p)], capsys, monkeypatch)
+    assert code == 2 and "waypoint 1: joint 1" in err and "limits" in err
 
 
 def test_cli_verdict_codes_differ_from_usage_error():
