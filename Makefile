@@ -12,16 +12,16 @@ venv: $(STAMP)
 $(STAMP): pyproject.toml
 	test -x $(PY) || $(PYTHON) -m venv $(VENV)
 	$(PY) -m pip install --quiet --upgrade pip
-	$(PY) -m pip install --quiet -e '.[test,bench,realsense,ur]'
+	$(PY) -m pip install --quiet -e '.[test,bench,realsense,ur,franka]'
 	touch $(STAMP)
 
 ## The main job on the built-in simulated cell.
 demo: $(STAMP)
 	$(VENV)/bin/depthguard demo --out $(OUT)/demo
 
-## Every test (slow and multi-process ones included).
+## Every test (slow and multi-process ones included); the 40 slowest are listed at the end (the suite must stay well under 15 min).
 test: $(STAMP)
-	$(PY) -m pytest -q -p no:cacheprovider
+	$(PY) -m pytest -q -p no:cacheprovider --durations=40
 
 ## Everything but the tests marked slow.
 test-fast: $(STAMP)

@@ -211,10 +211,20 @@ def test_a_bag_with_wall_clock_stamps_plays_in_real_time_on_its_own_clock(rig, t
         stats, wall = run(mon, [open_source(f"bag:{path}", rig, ctx)], open_joints(f"bag:{path}", rig, ctx), fast=False)
     finally:
         mon.close()
-    assert records[0].t == pytest.approx(epoch, abs=0.01)                  # the first stamp (a joint state at +0)
+    # the run's clock is the bag's: it starts at the first stamp (a joint state at +0). A cycle
+    # comes when the control thread gets the core: on a loaded machine the first one is late,
+    # so it is judged on the bag's own span (0.39 s), not against a few milliseconds
+    ts = np.array([r.t for r in records])
+    assert epoch <= ts[0] < epoch + 1.0                                   # the bag's clock, not 0 nor now
+    assert np.all(np.diff(ts) > 0)                                        # in order
     # the last joint state is at +0.39 s: the run reaches it, and ends after the bag does (how
     # soon depends on the machine's load: the sources' threads see the end of the bag; the upper
     # bounds only say that it ends, a loaded machine must not fail them)
-    assert 0.34 <= records[-1].t - records[0].t <= 0.39 + 1.0
+    assert 0.34 <= ts[-1] - epoch <= 0.39 + 1.0
     assert 0.34 <= wall <= 0.39 + 1.5                                     # real time, not as fast as possible
+    # paced: never a cycle ahead of the bag's clock, so no more cycles than dt allows; a fast
+    # run would step at every dt of bag time in a few ms of wall time
+    dt = rig.monitor.dt
+    assert len(ts) <= (ts[-1] - epoch) / dt + 1.01
+    assert wall >= (ts[-1] - ts[0]) - 0.02                                # the bag's span took its time
     assert max(r.cameras["cam0"].frames for r in records[-5:]) >= 1       # frames reached the monitor

@@ -11,6 +11,8 @@ import math
 import numpy as np
 import pytest
 
+from depthguard.sources.sim_source import sim_world
+
 from depthguard.calibration.refine import so3_exp
 from depthguard.filtering.expected import ExpectedDepth
 from depthguard.runtime.drift import DriftWatch
@@ -151,8 +153,11 @@ def test_drift_statistic_two_degrees_flagged_a_fifth_not_about_each_axis(cell_na
                     assert np.all(shares > dw.share_limit), (cam.id, axis, shares)
 
 
-@pytest.mark.slow          # 60 s of the simulated cell through the monitor (about 3 min on a shared 2-core machine)
-def test_sixty_seconds_of_people_moving_raise_no_false_alarm():
+@pytest.mark.slow          # the cell's whole 32 s scene through the monitor (about 1.5 min on a shared 2-core machine)
+def test_the_whole_scene_of_people_moving_raises_no_false_alarm():
+    """Every situation of flacco-cell's scene once (reach, carry, shadow, hidden hand: 32 s), at
+    30 Hz with noise: no camera is flagged. (It ran 60 s: the second half replays the same
+    motions with other noise, at twice the suite's time.)"""
     from depthguard.runtime import runner
     from depthguard.sources.base import open_joints, open_source
 
@@ -160,13 +165,14 @@ def test_sixty_seconds_of_people_moving_raise_no_false_alarm():
     ctx: dict = {}
     src = open_source("sim:flacco-cell:seed=3", c.rig, ctx)
     js = open_joints("sim", c.rig, ctx)
-    world = ctx["sim_world"]
+    world = sim_world(ctx)
     untrusted = []
     cfg = c.rig.monitor.with_changes(control_hz=100.0)     # the drift watch runs on the frames, not the cycles
     with Monitor(c.rig, cfg, sinks=[world.on_reaction,
                                      lambda r: untrusted.extend(k for k in r.reasons if k.startswith("untrusted"))]
                  ) as mon:
-        runner.run(mon, [src], js, duration=60.0, fast=True)
+        runner.run(mon, [src], js, duration=c.scene.duration + 0.5, fast=True)
         drift = mon.drift()
+    assert c.scene.duration == 32.0
     assert untrusted == []
-    assert all(d["judged"] > 1500 for d in drift.values()), drift        # 60 s x 30 Hz, judged
+    assert all(d["judged"] > 800 for d in drift.values()), drift         # 32.5 s x 30 Hz, judged

@@ -105,7 +105,7 @@ def test_a_commands_text_reads_as_paragraphs_not_as_its_docstrings_lines():
 def test_ports_and_the_ros2_domain_outside_their_range_are_usage_errors_naming_the_option():
     runner = CliRunner()
     for args, opt, rng in ((["monitor", "--ros2-domain", "233"], "--ros2-domain", "0 to 232"),
-                           (["monitor", "--view-port", "-1"], "--view-port", "0 to 65535"),
+                           (["monitor", "--sink", "view:-1"], "--sink", "0 to 65535"),
                            (["view", "--port", "65536"], "--port", "0 to 65535")):
         res = runner.invoke(app, args, env={"COLUMNS": "200"})
         assert res.exit_code == 2 and opt in res.output and rng in res.output, (args, res.output)

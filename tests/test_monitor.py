@@ -20,6 +20,8 @@ import math
 import numpy as np
 import pytest
 
+from depthguard.sources.sim_source import sim_world
+
 from depthguard.filtering.expected import ExpectedDepth
 from depthguard.runtime.monitor import Monitor, warm_up
 from depthguard.sim import load_cell
@@ -486,7 +488,7 @@ def fast_sim_log(rig, path, spec, duration, cfg):
     ctx = {}
     src = open_source(spec, rig, ctx)
     js = open_joints("sim", rig, ctx)
-    world = ctx["sim_world"]
+    world = sim_world(ctx)
     with Monitor(rig, cfg, sinks=[world.on_reaction, JsonlLog(path)]) as mon:     # the robot obeys
         stats, _ = runner.run(mon, [src], js, duration=duration, fast=True)
     return stats
@@ -503,7 +505,7 @@ def test_only_real_time_runs_draw_the_simulated_noise_from_a_bank(rig):
         ctx = {}
         src = open_source("sim:flacco-cell:alone", rig, ctx)
         js = open_joints("sim", rig, ctx)
-        with Monitor(rig, free_cfg(rig), sinks=[ctx["sim_world"].on_reaction]) as mon:
+        with Monitor(rig, free_cfg(rig), sinks=[sim_world(ctx).on_reaction]) as mon:
             runner.run(mon, [src], js, duration=0.2, fast=fast)
         banks = {cid: sim.bank for cid, sim in src._sims.items()}
         assert all((b is None) == fast for b in banks.values()), (fast, banks)
@@ -536,7 +538,7 @@ def reach_run(rig, spec, cfg, duration):
     ctx = {}
     src = open_source(spec, rig, ctx)
     js = open_joints("sim", rig, ctx)
-    world = ctx["sim_world"]
+    world = sim_world(ctx)
     rs = []
     with Monitor(rig, cfg, sinks=[world.on_reaction, rs.append]) as mon:
         runner.run(mon, [src], js, duration=duration, fast=True)

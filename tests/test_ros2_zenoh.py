@@ -13,6 +13,7 @@ No ROS 2 can be installed here: nothing is tried against real ROS 2 nodes (docs/
 from __future__ import annotations
 
 import json
+import math
 import struct
 import time
 
@@ -95,7 +96,10 @@ def test_sink_keys_tokens_attachment_and_payloads_through_a_router(router):
         f"@ros2_lv/3/{zid}/0/2/MP/%/%/depthguard/%depthguard%reaction/depthguard_msgs::msg::dds_::Reaction_/"
         f"{h['depthguard_msgs/msg/Reaction']}/::,10:,:,:,,",
         f"@ros2_lv/3/{zid}/0/3/MP/%/%/depthguard/%depthguard%markers/visualization_msgs::msg::dds_::MarkerArray_/"
-        f"{h['visualization_msgs/msg/MarkerArray']}/::,10:,:,:,,"}
+        f"{h['visualization_msgs/msg/MarkerArray']}/::,10:,:,:,,",
+        # the joint_trajectory_controller's speed scaling: reliable, TRANSIENT_LOCAL (durability 1), depth 1
+        f"@ros2_lv/3/{zid}/0/4/MP/%/%/depthguard/%joint_trajectory_controller%speed_scaling_input/"
+        f"control_msgs::msg::dds_::SpeedScalingFactor_/{rz.type_hash('control_msgs/msg/SpeedScalingFactor')}/:1:,1:,:,:,,"}
     assert wait_for(lambda: tokens(spy, 3) == expected), tokens(spy, 3)
     time.sleep(0.2)
     reactions = _reactions(rig)
@@ -253,3 +257,30 @@ def test_ros2_frame_source_argument_and_fast_mode_are_refused(router, tmp_path):
     res = CliRunner().invoke(app, ["monitor", "--cell", "flacco-cell", "--source", "ros2:", "--fast",
                                    "--ros2-router", router, "--out", str(tmp_path / "x"), "--quiet"])
     assert res.exit_code == 2 and "without --fast" in res.output
+
+
+def test_joint_states_waiting_are_bounded_to_the_newest(router):
+    """A live run starts with the states received while the monitor started: the source keeps
+    the newest MAX_PENDING_STATES (R27: never a backlog of old joints), the rest counted."""
+    from depthguard.sim import load_cell
+    from depthguard.sources.base import open_joints
+    from depthguard.sources.ros2_source import MAX_PENDING_STATES
+
+    rig = load_cell("flacco-cell").rig
+    joints = open_joints("ros2:", rig, {"ros2_router": router, "ros2_domain": 0})
+    ros = ForeignNode(router)
+    try:
+        assert wait_for(lambda: any("/MS/" in k and "joint_states" in k for k in tokens(ros.session)))
+        n = MAX_PENDING_STATES + 500
+        q0 = np.asarray(rig.robot_q0, dtype=np.float64)
+        for k in range(n):
+            ros.joints(100.0 + 0.005 * k, rig.robot.joint_names, q0)
+        assert wait_for(lambda: joints.states == n, 20.0), joints.states
+        got = joints.states_until(math.inf)
+        assert len(got) == MAX_PENDING_STATES <= 1000
+        assert got[0][0] == pytest.approx(100.0 + 0.005 * (n - MAX_PENDING_STATES), abs=1e-6)   # the newest kept
+        assert got[-1][0] == pytest.approx(100.0 + 0.005 * (n - 1), abs=1e-6)
+        assert joints.counters().get("joints_overflow") == n - MAX_PENDING_STATES
+    finally:
+        joints.close()
+        ros.close()

@@ -19,7 +19,8 @@ import time
 import numpy as np
 import pytest
 
-from ros2_peer import REACTION_DEF, FLOAT64_DEF, ForeignNode, client, decoder, router, tokens, wait_for  # noqa: F401
+from ros2_peer import (REACTION_DEF, FLOAT64_DEF, ForeignNode, check_frames_used_live, client, decoder,  # noqa: F401
+                       router, tokens, wait_for)
 
 from depthguard.runtime.monitor import Monitor
 from depthguard.runtime.runner import run
@@ -185,11 +186,11 @@ def _check_cli_run(res, out, overrides, seen_tokens):
     summary = json.loads((out / "summary.json").read_text())
     assert summary["sources"] == {"frames": ["ros2:"], "joints": "ros2:"}
     counts = summary["source_counts"]["ros2:"]
-    assert set(counts) <= {"no_camera_info:cam0", "no_camera_info:cam1", "overflow:cam0", "overflow:cam1"}, counts
+    # what came in while the monitor started waits in bounded queues, the oldest dropped
+    assert set(counts) <= {"no_camera_info:cam0", "no_camera_info:cam1", "overflow:cam0", "overflow:cam1",
+                           "joints_overflow"}, counts
     assert log[-1]["cameras"]["cam0"]["frames"] > 10 and log[-1]["cameras"]["cam1"]["frames"] > 10
-    # the frames are used as they come: fresh in the run's last half second (a frame every ~33 ms
-    # against a limit of 100 ms; at the very last cycle it can be a loaded machine's late frame)
-    assert any(r["cameras"]["cam0"]["state"] == "fresh" for r in log[-250:])
+    check_frames_used_live(log, summary)               # as they come, to the end (not "fresh": see there)
     # the ROS graph saw the monitor's node, its subscriptions and its publishers
     assert any(k.endswith("/NN/%/%/depthguard") for k in seen_tokens)
     assert any("/MS/%/%/depthguard/%cam0%depth%image_rect_raw/sensor_msgs::msg::dds_::Image_/" in k for k in seen_tokens)

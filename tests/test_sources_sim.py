@@ -5,6 +5,8 @@ import math
 import numpy as np
 import pytest
 
+from depthguard.sources.sim_source import sim_world
+
 from depthguard.camera import Camera
 from depthguard.geometry.primitives import Box, Sphere
 from depthguard.render import render_depth
@@ -142,7 +144,7 @@ def test_a_simulator_behind_real_time_skips_frames_and_counts_them():
         first = src.frames_until(0.0)
         joints.states_until(0.25)
         late = src.frames_until(0.25)                 # 0.25 s late: 7 or 8 periods per camera
-        period = 1.0 / ctx["sim_world"].camera_hz
+        period = 1.0 / sim_world(ctx).camera_hz
         assert [f.stamp for f in first] == [0.0, 0.0]
         per_camera = {c: [f.stamp for f in late if f.camera_id == c] for c in src.camera_ids}
         if behind:
@@ -170,7 +172,7 @@ def test_sim_joint_states_come_once_each_in_order_whoever_moves_the_robot():
     rig = load_cell("ur3-cell").rig
     frames = open_source("sim:ur3-cell:alone:noiseless", rig, ctx)
     joints = open_joints("sim", rig, ctx)
-    world = ctx["sim_world"]
+    world = sim_world(ctx)
     hz = world.joint_hz
     rng = np.random.default_rng(3)
     got, t = [], 0.0

@@ -180,7 +180,8 @@ def _on_path(q, q0, amplitude):
 def test_the_slider_follows_the_monitors_override_as_a_person_reaches_in_and_leaves(server):
     """flacco-cell from ``reach`` (the hand 7 cm from the end effector, withdrawn 10-11.5 s), the
     monitor in ``ssm`` mode: its speed scale drops to a stop and comes back; the slider the
-    server received follows it."""
+    server received follows it. The fast run is deterministic: stopped until 2.0 s, a resume cut
+    short at 2.04 s, then back to 1.0 at 2.77 s; 3 s of it show all of that (4 s did, in 113 s)."""
     from depthguard.runtime.monitor import Monitor
     from depthguard.runtime.runner import run
     from depthguard.runtime.ur_sink import UrSpeedSlider
@@ -199,7 +200,7 @@ def test_the_slider_follows_the_monitors_override_as_a_person_reaches_in_and_lea
         log.append((time.monotonic(), float(r.speed_scale)))
     mon = Monitor(rig, cfg, sinks=[record, sink])
     try:
-        run(mon, [frames], joints, duration=4.0, fast=True)
+        run(mon, [frames], joints, duration=3.0, fast=True)
         time.sleep(0.2)
         received = [v for _, v in server.sliders]
     finally:
@@ -256,7 +257,7 @@ def test_the_monitor_runs_on_the_robots_joints_and_a_lost_robot_stops_it_with_a_
 
 @pytest.mark.slow
 @pytest.mark.parametrize("args, words", [
-    (["--sink", "franka:1.2.3.4"], "the scheme must be one of ur-rtde"),
+    (["--sink", "franka:1.2.3.4"], "the scheme must be one of"),
     (["--sink", "ur-rtde:{host}"], "cannot reach the robot at"),
     (["--joints", "ur-rtde:{host}"], "cannot drive the simulated cameras"),
     (["--sink", "ur-rtde:{host}", "--fast"], "run in real time"),

@@ -166,7 +166,7 @@ def run_dir(tmp_path_factory):
 
     out = tmp_path_factory.mktemp("view") / "run"
     res = CliRunner().invoke(app, ["monitor", "--fast", "--duration", "0.6", "-q", "--out", str(out),
-                                   "--view", "--view-port", "0"])
+                                   "--sink", "view:0"])
     assert res.exit_code == 0, res.output
     return out
 

@@ -23,7 +23,7 @@ from pydantic import BaseModel, ConfigDict, Field, field_validator, model_valida
 
 from depthguard.control.ssm_config import SSMConfig
 
-__all__ = ["MonitorConfig", "WatchPoint", "CAMERA_ID_PATTERN", "check_camera_id"]
+__all__ = ["MonitorConfig", "WatchPoint", "CAMERA_ID_PATTERN", "check_camera_id", "PRODUCT_RHO"]
 
 _Vec3 = tuple[float, float, float]
 
@@ -112,7 +112,10 @@ class MonitorConfig(BaseModel):
     ``reaction`` (R33): ``"repulsion"`` (R13, R14, the default), ``"ssm"`` speed and separation
     monitoring (ISO/TS 15066: a speed scale and a protective stop, no repulsion, the joint
     box from the joint limits only), ``"both"``; ``ssm`` its settings
-    (:class:`~depthguard.control.ssm_config.SSMConfig`, docs/SSM.md).
+    (:class:`~depthguard.control.ssm_config.SSMConfig`, docs/SSM.md). ``reactions``: the
+    reaction policies by registered name (:mod:`depthguard.control.policy`, e.g.
+    ``[repulsion, ssm]``: the most restrictive wins); when given it replaces ``reaction``,
+    which is the shorthand for ``[repulsion]``, ``[ssm]``, ``[repulsion, ssm]``.
 
     ``watch_points``: fixed points reported like control points (distance,
     direction, observed); they do not change the reaction. ``cell``: the
@@ -165,6 +168,22 @@ class MonitorConfig(BaseModel):
     free_space: bool = False
     free_space_hz: float = Field(10.0, gt=0.0, le=100.0)
     free_space_voxel: float = Field(0.05, ge=0.01, le=0.5)
+    reactions: Optional[tuple[str, ...]] = None
+
+    @field_validator("reactions")
+    @classmethod
+    def _reactions(cls, v):
+        if v is not None:
+            from depthguard.control.policy import reaction_names
+
+            if not v:
+                raise ValueError("reactions must name at least one reaction policy (or be left out: reaction)")
+            unknown = [n for n in v if n not in reaction_names()]
+            if unknown:
+                raise ValueError(f"unknown reaction {unknown[0]!r}; known: {', '.join(reaction_names())}")
+            if len(set(v)) != len(v):
+                raise ValueError(f"reactions repeats a name: {list(v)}")
+        return v
 
     @field_validator("cameras")
     @classmethod
@@ -221,10 +240,27 @@ class MonitorConfig(BaseModel):
         return 1.0 / self.control_hz
 
     @property
+    def policies(self) -> tuple[str, ...]:
+        """The reaction policies that run (:mod:`depthguard.control.policy`): ``reactions``, else
+        the ``reaction`` shorthand's."""
+        from depthguard.control.policy import LEGACY_MODES
+
+        return self.reactions if self.reactions is not None else LEGACY_MODES[self.reaction]
+
+    @property
+    def reaction_mode(self) -> str:
+        """The result's ``reaction`` field: ``repulsion``, ``ssm``, ``both``, or the names joined by '+'."""
+        from depthguard.control.policy import mode_name
+
+        return mode_name(self.policies)
+
+    @property
     def query_rho(self) -> float:
-        """Radius (m) the distances are looked for in: ``rho``, or ``max(rho, ssm.range)`` when
-        speed and separation monitoring runs (R33)."""
-        return self.rho if self.reaction == "repulsion" else max(self.rho, self.ssm.range)
+        """Radius (m) the distances are looked for in: the largest reach of the policies that run
+        (``rho``; ``max(rho, ssm.range)`` with speed and separation monitoring, R33)."""
+        from depthguard.control.policy import policy_reach
+
+        return max([self.rho] + [policy_reach(n, self) for n in self.policies])
 
     @property
     def camera_stale_limit(self) -> float:
@@ -242,3 +278,7 @@ class MonitorConfig(BaseModel):
         except ValidationError as exc:
             raise ValueError("; ".join(f"{'.'.join(str(p) for p in e['loc']) or 'monitor'}: "
                                        f"{e['msg'].removeprefix('Value error, ')}" for e in exc.errors())) from None
+
+
+#: the product's radius of surveillance (m): the default of the library's distance queries too
+PRODUCT_RHO: float = MonitorConfig.model_fields["rho"].default

@@ -31,9 +31,11 @@ LAYERS: tuple[str, ...] = (
     "render",
     "sensors",        # depth sensor presets (R1)
     "depth_io",
+    "learned_scene",  # the static scene learned from the cameras: model, storage, the per-pixel median (issue 31)
     "control",        # reaction kernels and their settings (R13-R15, R22, R27, R33)
     "config",         # MonitorConfig (R26-R32)
     "rig_checks",     # sanity checks of a rig's numbers (a mesh's unit, a robot inside its table)
+    "rig_schema",     # the rig file's pydantic models (R2)
     "rig",
     "transport",      # Zenoh settings, the fusion server's wire format and client, ROS 2 over Zenoh
     "filtering",

@@ -24,7 +24,13 @@ from __future__ import annotations
 import math
 from dataclasses import dataclass
 
-__all__ = ["SensorModel", "SENSOR_MODELS", "sensor_model", "intrinsics_for"]
+__all__ = ["SensorModel", "SENSOR_MODELS", "sensor_model", "intrinsics_for", "depth_sigma", "SIGMA_FLOOR",
+           "GENERIC_NOISE"]
+
+#: no surface of the CAD is known better than this (m): the noise floor of every camera
+SIGMA_FLOOR = 0.002
+#: ``(sigma_a, sigma_z2)`` of a camera that names no sensor model (a D435-like stereo camera)
+GENERIC_NOISE = (0.001, 0.0025)
 
 
 @dataclass(frozen=True)
@@ -132,3 +138,23 @@ def intrinsics_for(name: str, width: int | None = None, height: int | None = Non
         f = (width / 2) / math.tan(math.radians(m.hfov_deg) / 2)
     return dict(width=width, height=height, fx=f, fy=f, cx=(width - 1) / 2, cy=(height - 1) / 2,
                 min_range=m.min_range, max_range=m.max_range)
+
+
+def depth_sigma(cam, z):
+    """Standard deviation (m) of camera ``cam``'s depth at ``z`` (m), same shape as ``z`` (R1, R34):
+    ``sigma_a + sigma_z2 z^2`` of its sensor model, with the disparity quantisation step
+    ``z^2 / (f b 2^bits)`` added as a uniform error (``step / sqrt(12)``), never below
+    :data:`SIGMA_FLOOR`; :data:`GENERIC_NOISE` for a camera without a sensor model."""
+    import numpy as np
+
+    z = np.asarray(z, dtype=np.float64)
+    model = SENSOR_MODELS.get(getattr(cam, "sensor", None) or "")
+    if model is None:
+        a, b = GENERIC_NOISE
+        s = a + b * z * z
+    else:
+        s = model.sigma_a + model.sigma_z2 * z * z
+        if model.disparity_bits and model.baseline > 0:
+            step = z * z / (float(cam.fx) * model.baseline * 2.0 ** model.disparity_bits)
+            s = np.sqrt(s * s + step * step / 12.0)
+    return np.maximum(s, SIGMA_FLOOR)

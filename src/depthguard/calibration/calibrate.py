@@ -116,12 +116,17 @@ def _robot_fn(robot, qs):
     return robot_depth
 
 
-def calibrate_camera(cam, frames, scene: StaticScene, robot=None, qs=None, refine: bool = True,
-                     stride: int | None = None) -> CameraCalibration:
+def calibrate_camera(cam, frames, scene: StaticScene | None, robot=None, qs=None, refine: bool = True,
+                     stride: int | None = None, learned=None) -> CameraCalibration:
     """Check (and refine) camera ``cam`` from ``frames`` (list of (H, W) float32 m) of the static
     scene ``scene``; ``robot`` and ``qs`` (one joint vector per frame, or fewer: the robot stood
     at each) remove the robot. ``stride``: sample every stride-th pixel (default 2 for images
-    wider than 400 pixels, else 1)."""
+    wider than 400 pixels, else 1).
+
+    ``learned`` ((H, W) float32 m, 0 = unknown; issue 31): the camera's learned static scene,
+    learned at the pose given. The check compares with the nearer of it and the CAD; the fit
+    needs the CAD's planes: with a learned scene alone (``scene`` None) the pose is checked, not
+    refined (a moved camera is relearned, ``depthguard rig learn-scene --replace``)."""
     from depthguard.camera import check_depth_image
 
     frames = list(frames)
@@ -132,7 +137,14 @@ def calibrate_camera(cam, frames, scene: StaticScene, robot=None, qs=None, refin
     measured = fuse_frames(frames)
     robot_depth = _robot_fn(robot, list(qs) if qs is not None else [])
     rd0 = robot_depth(cam) if robot_depth is not None else None
-    before = residual_stats(cam, measured, scene.view(cam).depth, rd0)
+    expected = scene.view(cam).depth if scene is not None else np.zeros(cam.shape, dtype=np.float32)
+    if learned is not None:
+        from depthguard.render.composite import nearest_depth
+        nearest_depth(expected, np.ascontiguousarray(learned, dtype=np.float32))
+    before = residual_stats(cam, measured, expected, rd0)
+    if scene is None:                      # a learned scene alone: no planes to fit, the check is the verdict
+        ref = Refinement(np.array(cam.world_from_camera), 0, False, 0, 0, math.nan)
+        return CameraCalibration(cam, cam, before, before, ref, applied=False, fit_offset=(0.0, 0.0))
     if stride is None:
         stride = 2 if cam.width > 400 else 1
     no_fit = None
@@ -153,11 +165,14 @@ def calibrate_camera(cam, frames, scene: StaticScene, robot=None, qs=None, refin
 def calibrate_rig(rig, frames: dict, qs: dict | None = None, refine: bool = True, log=None) -> dict:
     """``{camera id: CameraCalibration}`` for the cameras of ``rig`` that have frames in ``frames``
     (``{camera id: [depth, ...]}``); ``qs``: ``{camera id: [q, ...]}`` the joints at each frame."""
-    scene = StaticScene(rig.static_meshes())
+    learned = getattr(rig, "learned", {})           # issue 31: the learned scene checks too
+    scene = StaticScene(rig.static_meshes()) if (rig.static_meshes() or not learned) else None
     out = {}
     for cid, fr in frames.items():
         cam = rig.camera(cid)
-        out[cid] = calibrate_camera(cam, fr, scene, rig.robot, (qs or {}).get(cid), refine=refine)
+        ls = learned.get(cid)
+        out[cid] = calibrate_camera(cam, fr, scene, rig.robot, (qs or {}).get(cid), refine=refine,
+                                    learned=None if ls is None else ls.depth)
         if log is not None:
             log(f"calibrate: camera {cid} done ({out[cid].before.verdict} -> {out[cid].after.verdict})")
     return out

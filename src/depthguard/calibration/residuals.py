@@ -36,13 +36,13 @@ from dataclasses import dataclass
 
 import numpy as np
 
+# the noise law sigma(z) lives with the sensor models (the learned scene's band uses it too)
+from depthguard.sensors import GENERIC_NOISE, SIGMA_FLOOR
+from depthguard.sensors import depth_sigma as depth_sigma_of
+
 __all__ = ["depth_sigma_of", "ResidualStats", "residual_stats", "comparable_mask", "edge_mask",
            "VERDICTS", "SIGMA_FLOOR", "GENERIC_NOISE", "K_SIGMA", "MIN_PIXELS"]
 
-#: no surface of the CAD is known better than this (m): the noise floor of every camera
-SIGMA_FLOOR = 0.002
-#: ``(sigma_a, sigma_z2)`` of a camera that names no sensor model (a D435-like stereo camera)
-GENERIC_NOISE = (0.001, 0.0025)
 #: a pixel off by more than this many sigma is "off"
 K_SIGMA = 3.0
 #: fewer comparable pixels than this: the camera cannot be judged
@@ -56,27 +56,6 @@ GOOD_MEDIAN = 1.0        # ... and |median| at most 1 sigma (of the median depth
 WRONG_FAR = 0.10         # more than 10 % farther than 3 sigma
 WRONG_NEAR = 0.60        # or more than 60 % nearer (the camera moved towards the scene)
 BOTH_NEAR = 0.25         # or more than 3 % farther together with more than 25 % nearer
-
-
-def depth_sigma_of(cam, z) -> np.ndarray:
-    """Standard deviation (m) of camera ``cam``'s depth at ``z`` (m), same shape as ``z``."""
-    z = np.asarray(z, dtype=np.float64)
-    model = None
-    if getattr(cam, "sensor", None):
-        from depthguard.sensors import sensor_model
-        try:
-            model = sensor_model(cam.sensor)
-        except ValueError:
-            model = None
-    if model is None:
-        a, b = GENERIC_NOISE
-        s = a + b * z * z
-    else:
-        s = model.sigma_a + model.sigma_z2 * z * z
-        if model.disparity_bits and model.baseline > 0:
-            step = z * z / (float(cam.fx) * model.baseline * 2.0 ** model.disparity_bits)
-            s = np.sqrt(s * s + step * step / 12.0)
-    return np.maximum(s, SIGMA_FLOOR)
 
 
 def edge_mask(expected: np.ndarray, jump_abs: float = 0.03, jump_rel: float = 0.02) -> np.ndarray:

@@ -25,6 +25,7 @@ _COMMAND_MODULES = [
     "depthguard.cli.bag",
     "depthguard.cli.realsense",
     "depthguard.cli.calibrate",
+    "depthguard.cli.learn_scene",
 ]
 
 for _m in _COMMAND_MODULES:

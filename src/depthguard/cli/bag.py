@@ -42,7 +42,9 @@ def record(
         raise typer.BadParameter("the simulator never ends: give --duration S", param_hint="--duration")
     context: dict = {}
     sources = [open_source(s, the_rig, context) for s in specs]
-    joint_spec = joints or ("sim" if "sim_world" in context else None) \
+    from depthguard.sources.sim_source import sim_world
+
+    joint_spec = joints or ("sim" if sim_world(context) is not None else None) \
         or next((s for s in specs if s.startswith("bag:")), None)      # a bag holds its joint states too
     joint_source = open_joints(joint_spec, the_rig, context) if joint_spec else None
     stop = threading.Event()

@@ -46,7 +46,9 @@ def _collect(spec: str, rig, frames: int, joints: Optional[str], timeout_s: floa
     context: dict = {}
     world_rig = None if (scheme == "sim" and arg.split(":")[0]) else rig
     src = open_source(spec, world_rig, context)
-    jspec = joints or ("sim" if "sim_world" in context else (spec if scheme == "bag" else None))
+    from depthguard.sources.sim_source import sim_world
+
+    jspec = joints or ("sim" if sim_world(context) is not None else (spec if scheme == "bag" else None))
     jsrc = open_joints(jspec, world_rig, context) if (jspec and rig.robot is not None) else None
     hist = JointHistory(rig.robot.dof, 60.0) if jsrc is not None else None
     want = [c for c in src.camera_ids if c in rig.camera_ids]

@@ -80,23 +80,21 @@ def monitor(
     rig: Optional[Path] = typer.Option(None, "--rig", help="Rig file (YAML) of your cell; its monitor: section sets the runtime."),
     cell: Optional[str] = typer.Option(None, "--cell", help="A built-in cell (default flacco-cell when no --rig)."),
     source: List[str] = typer.Option([], "--source", help="Frame source SCHEME:ARG, repeatable: sim[:CELL[:SITUATION]] (then any of :alone :dark :noiseless), images:DIR, bag:PATH (a ROS 2 bag, docs/BAGS.md), realsense[:CAM=SERIAL,...] and realsense-file:PATH (docs/REALSENSE.md), ros2: (live ROS 2 topics through rmw_zenoh, docs/ROS2.md), units:ENDPOINT (the camera units of a fusion server; list their cameras in the rig's monitor: remote_cameras). Default: the simulator of the cell (or of the rig's own scene)."),
-    joints: Optional[str] = typer.Option(None, "--joints", help="Joint source: sim (the simulated robot, which obeys the reaction), csv:FILE, zenoh:KEY, bag:PATH, ros2:[TOPIC] (default /joint_states). Default: sim with a sim source, the bag with a bag: source, ros2: with a ros2: source."),
+    joints: Optional[str] = typer.Option(None, "--joints", help="Joint source: sim (the simulated robot, which obeys the reaction), csv:FILE, zenoh:KEY, bag:PATH, ros2:[TOPIC] (default /joint_states), ur-rtde:HOST, franky:HOST. Default: sim with a sim source, the bag with a bag: source, ros2: with a ros2: source."),
     out: Optional[Path] = typer.Option(None, "--out", "-o", help="Folder for log.jsonl (one line per control cycle) and summary.json (default: out/monitor/<UTC time>)."),
     duration: Optional[float] = typer.Option(None, "--duration", help="Seconds of run time (default: until Ctrl-C or the end of the sources)."),
     fast: bool = typer.Option(False, "--fast", help="As fast as possible and deterministic (recordings, simulation), not in real time."),
-    zenoh: bool = typer.Option(False, "--zenoh", help="Publish reactions, distances and health under depthguard/<cell>/... (loopback unless --zenoh-listen)."),
+    zenoh: bool = typer.Option(False, "--zenoh", help="Shorthand of --sink zenoh: (publish reactions, distances and health under depthguard/<cell>/..., loopback unless --zenoh-listen)."),
     zenoh_listen: Optional[str] = typer.Option(None, "--zenoh-listen", help="Zenoh endpoint the monitor listens on (default: the rig's monitor: zenoh_listen, loopback)."),
     zenoh_connect: List[str] = typer.Option([], "--zenoh-connect", help="Zenoh endpoints to connect to (repeatable)."),
-    ros2: bool = typer.Option(False, "--ros2", help="Publish the reaction as ROS 2 topics through rmw_zenoh: <ns>/override (std_msgs/Float64), <ns>/reaction, <ns>/markers (docs/ROS2.md)."),
+    ros2: bool = typer.Option(False, "--ros2", help="Shorthand of --sink ros2: (the reaction as ROS 2 topics through rmw_zenoh: /depthguard/override (std_msgs/Float64), reaction, markers, and the speed scaling of a joint_trajectory_controller on --ros2-scaling-topic; docs/ROS2.md)."),
     ros2_domain: Optional[int] = typer.Option(None, "--ros2-domain", callback=in_range(0, 232), help="ROS 2 domain id (0 to 232) of ros2: sources and --ros2 (default: ROS_DOMAIN_ID, else 0)."),
     ros2_router: Optional[str] = typer.Option(None, "--ros2-router", help="Zenoh router of the ROS 2 cell (default tcp/127.0.0.1:7447, where rmw_zenohd listens)."),
-    ros2_namespace: str = typer.Option("/depthguard", "--ros2-namespace", help="Namespace of the topics --ros2 publishes."),
+    ros2_scaling_topic: str = typer.Option("/joint_trajectory_controller/speed_scaling_input", "--ros2-scaling-topic", show_default=False, help="Where --ros2 publishes control_msgs/SpeedScalingFactor (transient local) for a ros2_control joint_trajectory_controller: its ~/speed_scaling_input (by default the one of the controller named joint_trajectory_controller); 'none' for no scaling topic (docs/ROS2.md)."),
     quiet: bool = typer.Option(False, "--quiet", "-q", help="No status line."),
     units_keys: Optional[Path] = typer.Option(None, "--units-keys", help="Certificate directory (depthguard keys admin) for a units:tls/HOST:PORT source of a server started with --keys (docs/THREAT_MODEL.md)."),
-    view: bool = typer.Option(False, "--view", help="A live 3-D view in the browser (docs/VIEW.md)."),
-    view_host: str = typer.Option("127.0.0.1", "--view-host", help="Address the view listens on (anyone who reaches it can change rho)."),
-    view_port: int = typer.Option(8080, "--view-port", callback=in_range(0, 65535), help="Port of the view, 0 to 65535 (a busy one: the next free)."),
-    sink: List[str] = typer.Option([], "--sink", help="Send the reaction to a robot, SCHEME:ARG, repeatable: ur-rtde:HOST (a Universal Robots arm's speed slider through RTDE; needs depthguard[ur]; docs/ROBOTS.md)."),
+    view: bool = typer.Option(False, "--view", help="Shorthand of --sink view: (a live 3-D view in the browser at 127.0.0.1:8080; docs/VIEW.md)."),
+    sink: List[str] = typer.Option([], "--sink", help="Where the reaction goes besides OUT/log.jsonl and OUT/results.mcap, SCHEME:ARG, repeatable: zenoh:[CELL], ros2:[NAMESPACE] (default /depthguard; docs/ROS2.md), view:[[HOST:]PORT] (the live view, default 127.0.0.1:8080, anyone who reaches it can change rho; docs/VIEW.md), ur-rtde:HOST (a Universal Robots arm's speed slider through RTDE; needs depthguard[ur]), franky:HOST,path=FILE (a Franka FR3 runs the joint path of FILE through franky, slowed and stopped by the reaction; needs depthguard[franka]) (docs/ROBOTS.md), jsonl:FILE, mcap:FILE, or a registered plug-in's scheme (docs/ARCHITECTURE.md)."),
 ) -> None:
     """Run the monitor: frames and joint states in, the robot's reaction out (R29).
 
@@ -109,8 +107,9 @@ def monitor(
     """
     from depthguard.progress import is_terminal, log
     from depthguard.runtime.monitor import Monitor, warm_up
-    from depthguard.runtime.runner import run, summarise
-    from depthguard.runtime.sinks import JsonlLog, SinkFanout, ZenohPublisher
+    from depthguard.runtime.runner import open_run_sinks, reaction_subscribers, run, summarise
+    from depthguard.runtime.sink_specs import check_sink_spec, shorthand_specs
+    from depthguard.runtime.sinks import SinkFanout
     from depthguard.sources.base import check_source_spec, open_joints, open_source
 
     if duration is not None and not duration > 0:
@@ -127,7 +126,14 @@ def monitor(
     context: dict = {"zenoh_listen": (zenoh_listen,), "zenoh_connect": tuple(zenoh_connect)}
     if units_keys is not None:
         context["units_keys"] = units_keys
-    context.update(ros2_domain=ros2_domain, ros2_router=ros2_router)     # ros2: sources and --ros2 (docs/ROS2.md)
+    context.update(ros2_domain=ros2_domain, ros2_router=ros2_router)     # ros2: sources and sinks (docs/ROS2.md)
+    context.update(out=out, fast=fast, ros2_scaling_topic=ros2_scaling_topic)
+    sink_specs = ["jsonl:", "mcap:"] + shorthand_specs(zenoh=zenoh, ros2=ros2, view=view) + list(sink)
+    for x in sink_specs:
+        try:
+            check_sink_spec(x)
+        except ValueError as exc:
+            raise typer.BadParameter(str(exc), param_hint="--sink") from None
     if fast and any(s.startswith("ros2:") for s in [*specs, joints or ""]):
         raise typer.BadParameter("ros2: sources are live (stamped on the wall clock): run in real time, without --fast",
                                  param_hint="--fast")
@@ -135,58 +141,35 @@ def monitor(
     joint_spec = joints or ("sim" if "sim" in schemes else None) \
         or next((s for s in specs if s.startswith("bag:")), None) \
         or ("ros2:" if any(s.startswith("ros2:") for s in specs) else None)   # a bag / a ROS cell has joints too
-    if sink and fast:
+    if fast and any(x.startswith(("ur-rtde:", "franky:")) for x in sink):
         raise typer.BadParameter("a robot sink is live: run in real time, without --fast", param_hint="--sink")
     if joint_spec is None:
         raise typer.BadParameter("a non-simulated source needs --joints (csv:FILE or zenoh:KEY)", param_hint="--joints")
     sources: list = []                  # every source opened is closed, whatever fails next: an SDK
     joint_source = mon = None           # recording left playing at exit aborted the process (exit 134)
-    robot_sinks: list = []
+    direct: list = []
+    queued: list = []
     try:
         for s in specs:
             sources.append(open_source(s, the_rig, context))
         joint_source = open_joints(joint_spec, the_rig, context)
         from depthguard.sources.realsense_clock import check_joint_clock      # one clock for frames and joints (R30)
         check_joint_clock(sources, joint_source, joint_spec)
-        from depthguard.runtime.sink_specs import open_sink
-        for x in sink:                  # --sink ur-rtde:HOST (docs/ROBOTS.md)
-            robot_sinks.append(open_sink(x))
         cfg = the_rig.monitor
         log("monitor: compiling kernels (once; cached on disk) ...")
         seconds = warm_up(the_rig, cfg)
         log(f"monitor: ready in {seconds:.1f} s; cameras {', '.join(c.id for c in the_rig.cameras)}; "
             f"sources {', '.join(specs)}; joints {joint_spec}; {'as fast as possible' if fast else 'real time'}"
             + ("" if duration else "; Ctrl-C stops"))
-        sinks = []
-        sinks.append(JsonlLog(out / "log.jsonl"))
-        from depthguard.runtime.mcap_results import McapResults      # results.mcap beside the input (R31)
-        sinks.append(McapResults(out / "results.mcap", the_rig.robot, [(w.name, w.position) for w in cfg.watch_points]))
-        session = listener = None
-        cell_key = cfg.cell or the_rig.name
-        if zenoh:
-            import zenoh as zenoh_lib
-
-            from depthguard.transport.settings import zenoh_config
-            session = zenoh_lib.open(zenoh_config([zenoh_listen], list(zenoh_connect)))
-            sinks.append(ZenohPublisher(cell_key, session=session))
-        if ros2:
-            from depthguard.runtime.ros2_sink import open_ros2_sink
-            sinks.append(open_ros2_sink(context, the_rig.robot, [(w.name, w.position) for w in cfg.watch_points],
-                                        ros2_namespace))
-            log(f"monitor: publishing {ros2_namespace}/override, reaction and markers as ROS 2 topics (rmw_zenoh)")
-        fanout = SinkFanout(sinks, block=fast)
-        direct = [context["sim_world"].on_reaction] if "sim_world" in context else []
-        direct += robot_sinks           # called by the control thread: they only keep the newest reaction
-        mon = Monitor(the_rig, cfg, sinks=direct + [fanout])
-        if view:                            # a sink that keeps the newest reaction; drawn on its own thread
-            from depthguard.viz.live import LiveView
-            mon.sinks.append(LiveView(the_rig, host=view_host, port=view_port, monitor=mon))
-            log(f"monitor: live view at {mon.sinks[-1].url}")
-        if session is not None:
-            from depthguard.runtime.remote import SettingsListener
-            listener = SettingsListener(mon, session, cell_key)
-            log(f"monitor: publishing under depthguard/{cell_key}/ (reaction, distances, health); "
-                f"settings on depthguard/{cell_key}/settings")
+        direct, queued = open_run_sinks(sink_specs, the_rig, context, fast)     # runtime.sink_specs
+        fanout = SinkFanout(queued, block=fast)
+        # called by the control thread: the robot that obeys, and sinks that only keep the newest reaction
+        mon = Monitor(the_rig, cfg, sinks=reaction_subscribers(*sources, joint_source) + direct + [fanout])
+        for x in [*direct, *queued]:
+            if hasattr(x, "attach"):
+                x.attach(mon)
+            if getattr(x, "describe", None):
+                log(f"monitor: {x.describe}")
         tty = is_terminal() and not quiet
 
         told: dict[str, str] = {}
@@ -200,7 +183,21 @@ def monitor(
                         told[k] = why
                         log(f"monitor: camera {k.split(':', 1)[1]} refuses its frames: {why}")
 
+        changes_told: set = set()
+
+        def tell_changes():
+            """A changed cell (issue 31): each region that newly changed, once, as a log line."""
+            from depthguard.runtime.scene_change import SceneChangeWatch
+            now = mon.scene_changes() if mon is not None else []
+            for ch in now:
+                key = (ch["camera"], ch["kind"], ch["region"])
+                if key not in changes_told:
+                    changes_told.add(key)
+                    log("monitor: " + SceneChangeWatch.sentence(ch))
+            changes_told.intersection_update({(c["camera"], c["kind"], c["region"]) for c in now})
+
         def status(r):
+            tell_changes()
             line = _status_line(r)
             behind = _skipped_behind(sources)
             if behind:                      # so that stale-camera stops are not read as the monitor's fault
@@ -214,8 +211,9 @@ def monitor(
         if mon is not None:
             mon.close()                 # its sinks too
         else:
-            for rs in robot_sinks:
-                rs.close()
+            for x in [*direct, *queued]:
+                if hasattr(x, "close"):
+                    x.close()
         for s in [*sources, joint_source]:
             if s is not None:
                 s.close()
@@ -239,11 +237,7 @@ def monitor(
     finally:
         for sig, handler in previous.items():
             signal.signal(sig, handler)
-        if listener is not None:
-            listener.close()
         mon.close()                     # closes the fan-out: the log is complete
-        if session is not None:
-            session.close()
         for s in sources:
             s.close()
         joint_source.close()
@@ -253,6 +247,7 @@ def monitor(
                         {"interrupted": stats.interrupted, "fast": fast,
                          "sinks_dropped": fanout.dropped, "sink_errors": fanout.errors,
                          "source_counts": {sp: s.counters() for sp, s in zip(specs, sources) if hasattr(s, "counters")}})
+    summary["scene_changes"] = mon.scene_changes()       # issue 31: where the cell no longer matches its learned scene
     (out / "summary.json").write_text(json.dumps(summary, indent=1, allow_nan=False) + "\n")
     near = summary["nearest_distance_m"]
     if near is not None:

@@ -17,6 +17,7 @@ def ssm_cmd(
     scenario: Optional[list[str]] = typer.Option(None, "--scenario", "-s", help="A scenario (repeatable; default: every built-in one)."),
     reaction: Optional[list[str]] = typer.Option(None, "--reaction", help="repulsion, ssm or both (repeatable; default: all three)."),
     ssm_range: float = typer.Option(0.8, "--range", help="How far (m) the distances are looked for in ssm and both modes (ssm.range)."),
+    known_scene: str = typer.Option("obstacle", "--known-scene", help="obstacle (default) or muted: SSM measures the separation from what is not the known static scene (ssm.known_scene, docs/SSM.md)."),
     seed: int = typer.Option(0, "--seed", help="Seed of the cameras' noise."),
     quiet: bool = typer.Option(False, "--quiet", "-q", help="No progress output."),
 ) -> None:
@@ -33,6 +34,8 @@ def ssm_cmd(
     for md in modes:
         if md not in MODES:
             raise typer.BadParameter(f"must be one of {', '.join(MODES)} (got {md!r})", param_hint="--reaction")
+    if known_scene not in ("obstacle", "muted"):
+        raise typer.BadParameter(f"must be obstacle or muted (got {known_scene!r})", param_hint="--known-scene")
     if not (0.0 < ssm_range <= 10.0):
         raise typer.BadParameter("must be > 0 and <= 10 m", param_hint="--range")
     if out.exists() and not out.is_dir():
@@ -41,7 +44,7 @@ def ssm_cmd(
     def progress(it, total, label):
         return track(it, label, total=total, quiet=quiet)
 
-    rows = compare(scenarios=scenario or None, modes=modes, ssm=SSMConfig(range=ssm_range), progress=progress,
+    rows = compare(scenarios=scenario or None, modes=modes, ssm=SSMConfig(range=ssm_range, known_scene=known_scene), progress=progress,
                    seed=seed, out=out)
     md_text = table(rows)
     (out / "table.md").write_text(md_text)

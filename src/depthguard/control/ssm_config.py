@@ -84,6 +84,13 @@ class SSMConfig(BaseModel):
     ``range``. Protective stop when the largest scale is ``<= stop_scale``;
     released after the scale stayed ``>= resume_scale`` for ``resume_hold_s``;
     the scale rises at most by ``1 / ramp_up_s`` per second (falls at once).
+
+    ``known_scene`` (issue 31): ``"obstacle"`` (default) measures the separation from
+    everything the cameras see, the known static scene included; ``"muted"`` from what is
+    not the known scene (CAD or learned) nor the robot: each camera's frame filtered like a
+    camera unit's (R17, :class:`~depthguard.fusion.voxels.VoxelFilter`), voxels of
+    ``muted_voxel_size`` m. The known scene stays an obstacle for the motion checks and the
+    repulsion; ``docs/SSM.md`` says what muting trades.
     """
     model_config = ConfigDict(extra="forbid", frozen=True)
 
@@ -108,6 +115,8 @@ class SSMConfig(BaseModel):
     resume_scale: float = Field(0.1, gt=0.0, le=1.0)
     resume_hold_s: float = Field(0.2, ge=0.0, le=10.0)
     ramp_up_s: float = Field(0.5, gt=0.0, le=60.0)
+    known_scene: Literal["obstacle", "muted"] = "obstacle"
+    muted_voxel_size: float = Field(0.03, ge=0.01, le=0.1)
 
     @model_validator(mode="after")
     def _check(self) -> "SSMConfig":

@@ -16,6 +16,7 @@ from dataclasses import dataclass
 import numba
 import numpy as np
 
+from depthguard.config import PRODUCT_RHO as RHO   # the product default, defined once in MonitorConfig
 from depthguard.camera import Camera, check_depth_image
 from depthguard.distance import kernels
 from depthguard.distance.gaps import GapBuffers, check_gap_px
@@ -213,7 +214,7 @@ class DistanceWorkspace:
         kernels.obstacle_start_depth(d, rd, use, cam.min_range, cam.max_range, pol, mode, off, self.d0, sil, gaps)
         self.has_depth = True
 
-    def query(self, points: np.ndarray, rho: float = 0.4, method: str = "hybrid") -> DistanceResult:
+    def query(self, points: np.ndarray, rho: float = RHO, method: str = "hybrid") -> DistanceResult:
         """Distances of ``points`` (N, 3) world metres to the current frame (R3–R7).
 
         The arrays of the result are views of the workspace's buffers,
@@ -252,7 +253,7 @@ def workspace_for(cam: Camera) -> DistanceWorkspace:
         return ws
 
 
-def depth_space_distance(cam: Camera, depth: np.ndarray, points: np.ndarray, rho: float = 0.4,
+def depth_space_distance(cam: Camera, depth: np.ndarray, points: np.ndarray, rho: float = RHO,
                          method: str = "hybrid", robot_depth: np.ndarray | None = None,
                          invalid: str = "unknown", robot_mode: str = "drop",
                          robot_offset: float = 0.03, silhouette_px: int = 0,

@@ -19,6 +19,7 @@ from __future__ import annotations
 import numpy as np
 from scipy.spatial import cKDTree
 
+from depthguard.config import PRODUCT_RHO as RHO   # the product default, defined once in MonitorConfig
 from depthguard.camera import Camera, check_depth_image
 from depthguard.distance.api import DistanceResult, check_points, check_rho
 from depthguard.distance.window import surveillance_window
@@ -56,7 +57,7 @@ class CartesianBaseline:
         self.xyz[v, u] = pts
         self.has_depth = True
 
-    def query(self, points: np.ndarray, rho: float = 0.4, search: str = "kdtree") -> DistanceResult:
+    def query(self, points: np.ndarray, rho: float = RHO, search: str = "kdtree") -> DistanceResult:
         """Nearest back-projected point within ``rho`` of each control point.
 
         Returns a :class:`DistanceResult` (direction = unit vector to the
@@ -106,7 +107,7 @@ class CartesianBaseline:
         return DistanceResult(dist, direc, observed, count)
 
 
-def cartesian_distance(cam: Camera, depth: np.ndarray, points: np.ndarray, rho: float = 0.4,
+def cartesian_distance(cam: Camera, depth: np.ndarray, points: np.ndarray, rho: float = RHO,
                        search: str = "kdtree", robot_depth: np.ndarray | None = None) -> DistanceResult:
     """One-shot Cartesian baseline (R8); see :class:`CartesianBaseline`."""
     cb = CartesianBaseline(cam)

@@ -38,7 +38,7 @@ def _run(rig, spec: str, duration: float, config, every: int):
     ctx: dict = {}
     src = open_source(spec, rig, ctx)
     joints = open_joints("sim", rig, ctx)
-    world = ctx["sim_world"]
+    world = src.world
     kept = []
 
     def keep(r):

@@ -7,6 +7,10 @@ into a preallocated image. Both are the same z-buffer renderer
 known scene is the per-pixel nearest of the two
 (:func:`depthguard.render.composite.nearest_depth`).
 
+A cell without CAD (issue 31) has a static scene learned from its own cameras
+(:mod:`depthguard.learned_scene`): ``learned`` joins the CAD, and where both
+say something the nearer surface wins (what is nearer is what the camera sees).
+
 One object per camera and per thread: the renderer's buffers are reused.
 """
 
@@ -26,19 +30,26 @@ class ExpectedDepth:
     robot : a :class:`~depthguard.robot.RobotModel` or None.
     static_meshes : list of world :class:`~depthguard.geometry.Mesh` (the rig's objects).
     parallel : the renderer's numba threads (False: one thread, for worker threads).
+    learned : (H, W) float32 m, the camera's learned static scene (0 = unknown) or None
+        (:meth:`depthguard.rig.Rig.learned_depth`); the nearer of it and the CAD is ``static``.
 
     ``static`` is the (H, W) float32 static scene in metres (0 = nothing);
     :meth:`robot` renders the robot at ``q`` and returns a reused (H, W) float32
     image (copy it to keep it); :meth:`known` the nearest of both.
     """
 
-    def __init__(self, cam, robot=None, static_meshes=(), parallel: bool = False):
+    def __init__(self, cam, robot=None, static_meshes=(), parallel: bool = False, learned=None):
         self.camera = cam
         self.robot_model = robot
         self._renderer = Renderer(cam, parallel=parallel)
         meshes = list(static_meshes)
         self.static = (np.array(self._renderer.render(meshes)[0], dtype=np.float32, copy=True) if meshes
                        else np.zeros(cam.shape, dtype=np.float32))
+        if learned is not None:
+            ld = np.asarray(learned, dtype=np.float32)
+            if ld.shape != tuple(cam.shape):
+                raise ValueError(f"camera {cam.id}: learned scene is {ld.shape}, the camera {tuple(cam.shape)}")
+            nearest_depth(self.static, np.ascontiguousarray(ld))
         self._robot = np.zeros(cam.shape, dtype=np.float32)
         self._known = np.zeros(cam.shape, dtype=np.float32)
 

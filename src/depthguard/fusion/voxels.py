@@ -116,13 +116,15 @@ class VoxelFilter:
     offset : :class:`FilterOffset` (default from the camera's sensor model).
     static_meshes : known static CAD (list of Mesh, world frame).
     robot : RobotModel or None — rendered at the joints given to :meth:`filter`.
+    learned : (H, W) float32 m, the camera's learned static scene (issue 31, 0 = unknown) or None;
+        with the CAD, the nearer surface wins (:class:`~depthguard.filtering.expected.ExpectedDepth`).
 
     The workspace arrays (count grid, scratch, outputs) are allocated here and on
     :meth:`configure`, never per frame.
     """
 
     def __init__(self, cam: Camera, workspace, *, voxel_size: float = 0.02, threshold: float = 0.55,
-                 offset: FilterOffset | None = None, static_meshes: Sequence = (), robot=None):
+                 offset: FilterOffset | None = None, static_meshes: Sequence = (), robot=None, learned=None):
         self.cam = cam
         lo, hi = (np.asarray(w, dtype=np.float64).reshape(3) for w in workspace)
         if not np.all(np.isfinite(lo) & np.isfinite(hi)) or np.any(hi <= lo):
@@ -130,6 +132,7 @@ class VoxelFilter:
         self.lo, self.hi = lo, hi
         self.offset = offset if offset is not None else offset_for_camera(cam)
         self.static_meshes = list(static_meshes)
+        self.learned = learned
         self.robot = robot
         self._expected = None             # ExpectedDepth, made on first use (the expected= path never renders)
         self._empty_expected = np.zeros(cam.shape, dtype=np.float32)
@@ -173,12 +176,12 @@ class VoxelFilter:
         """The camera's :class:`~depthguard.filtering.expected.ExpectedDepth` (static scene
         rendered once, here; the robot per joints), made on first use."""
         if self._expected is None:
-            self._expected = ExpectedDepth(self.cam, self.robot, self.static_meshes)
+            self._expected = ExpectedDepth(self.cam, self.robot, self.static_meshes, learned=self.learned)
         return self._expected
 
     def _static_depth(self) -> np.ndarray:
         """(H, W) float32 static CAD (0 = nothing): :attr:`ExpectedDepth.static`, rendered once."""
-        if not self.static_meshes:
+        if not self.static_meshes and self.learned is None:
             return self._empty_expected
         return self._expected_depth().static
 

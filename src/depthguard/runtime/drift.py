@@ -52,7 +52,9 @@ class DriftWatch:
 
     cam : the :class:`~depthguard.camera.Camera` (rig pose); static : (H, W) float32 m, the
     expected depth of the static scene (0 = nothing); k_sigma, share, frames : the monitor's
-    ``drift_sigma``, ``drift_share``, ``drift_frames``; stride : 0 = chosen for about 10000 samples.
+    ``drift_sigma``, ``drift_share``, ``drift_frames``; stride : 0 = chosen for about 10000 samples;
+    sigma : (H, W) float32 m or None, a per-pixel noise that floors the sensor model's (a learned
+    scene's observed spread, issue 31).
 
     ``update(depth, stamp)`` per frame (worker thread); ``untrusted``, ``message``, ``share``
     (last judged statistic), ``flagged_at`` (stamp of the frame that flagged) are read by the
@@ -60,7 +62,7 @@ class DriftWatch:
     """
 
     def __init__(self, cam, static: np.ndarray, k_sigma: float = 3.0, share: float = 0.02, frames: int = 3,
-                 stride: int = 0):
+                 stride: int = 0, sigma=None):
         H, W = cam.shape
         if stride <= 0:
             stride = max(1, int(round(np.sqrt(H * W / 10000.0))))
@@ -76,7 +78,10 @@ class DriftWatch:
         self.index = np.flatnonzero(ok & grid)
         z = s.ravel()[self.index].astype(np.float64)
         self.expected = z.astype(np.float32)
-        tol = k_sigma * depth_sigma_of(cam, z) + ABS_MARGIN
+        sig = depth_sigma_of(cam, z)
+        if sigma is not None:
+            sig = np.maximum(sig, np.asarray(sigma, dtype=np.float64).ravel()[self.index])
+        tol = k_sigma * sig + ABS_MARGIN
         self.far_limit = (z + tol).astype(np.float32)
         self.near_limit = (z - tol).astype(np.float32)
         self.k_sigma, self.share_limit, self.frames_needed = float(k_sigma), float(share), int(frames)

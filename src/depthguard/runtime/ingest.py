@@ -97,16 +97,30 @@ class CameraWorker:
     """
 
     def __init__(self, cam, robot, static_meshes, joints: JointHistory, joint_wait_s: float,
-                 on_product, name: str | None = None, drift: dict | None = None, state_options=None):
+                 on_product, name: str | None = None, drift: dict | None = None, state_options=None,
+                 learned=None, scene_change: dict | None = None, ssm_muted=None):
         self.camera = cam
         # the camera's share of the grid build (R36): state_options() -> (StateOptions, robot_free,
         # pyramids) or None (no state made here; the build works it out)
         self.state_options = state_options
         self._state_maker = None
         self.id = cam.id
-        self.expected = ExpectedDepth(cam, robot, static_meshes)
-        # R34: the drift watch on the static scene (settings: DriftWatch's keywords), None = off
-        self.drift = DriftWatch(cam, self.expected.static, **drift) if drift is not None else None
+        # the known static scene: the CAD and the learned scene (issue 31: a LearnedScene or None), nearer wins
+        self.expected = ExpectedDepth(cam, robot, static_meshes,
+                                      learned=None if learned is None else learned.depth)
+        # R34: the drift watch on the static scene (settings: DriftWatch's keywords), None = off; a
+        # learned surface's observed spread widens its tolerance where it exceeds the sensor's
+        self.drift = (DriftWatch(cam, self.expected.static, sigma=None if learned is None else learned.sigma,
+                                 **drift) if drift is not None else None)
+        # issue 31 point 3: SSM from what is not the known scene: ssm_muted = (VoxelFilter, push(cid,
+        # centres, size, stamp)) or None; the frame's unknown objects are pushed after each frame
+        self.ssm_muted = ssm_muted
+        self._known = np.zeros(cam.shape, dtype=np.float32) if ssm_muted is not None else None
+        # issue 31 point 4: where the cell no longer matches its learned scene, said per region
+        self.scene_change = None
+        if learned is not None:
+            from depthguard.runtime.scene_change import SceneChangeWatch
+            self.scene_change = SceneChangeWatch(cam, learned, **(scene_change or {}))
         self.joints = joints
         self.joint_wait_s = float(joint_wait_s)
         self.on_product = on_product
@@ -203,6 +217,15 @@ class CameraWorker:
                                          f"({newest:.6f} s)")
             return
         rd = np.array(self.expected.robot(q), copy=True)
+        if self.scene_change is not None:
+            self.scene_change.update(depth, rd, stamp)
+        if self.ssm_muted is not None:            # R17's filter: the known scene and the robot removed
+            from depthguard.render.composite import nearest_depth
+            vfilter, push = self.ssm_muted
+            np.copyto(self._known, self.expected.static)
+            nearest_depth(self._known, rd)
+            vs = vfilter.filter(depth, expected=self._known)
+            push(self.id, vs.centres(), vs.voxel_size, stamp)
         d = np.array(depth, dtype=np.float32, copy=True)
         state = self._state(d, rd)
         with self.lock:

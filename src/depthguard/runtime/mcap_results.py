@@ -204,3 +204,11 @@ class McapResults:
             raise ValueError(f"{self.path} appeared during the run; the results stay in {inner}")
         os.replace(inner, self.path)
         shutil.rmtree(self._tmp, ignore_errors=True)
+
+
+def open_mcap(argument: str, rig, context: dict) -> McapResults:
+    """``mcap:[FILE]`` (:mod:`depthguard.runtime.sink_specs`): default ``OUT/results.mcap``."""
+    from depthguard.runtime.sinks import run_file
+
+    return McapResults(run_file(argument, context, "results.mcap", "mcap"), rig.robot,
+                       [(w.name, w.position) for w in rig.monitor.watch_points])

@@ -19,12 +19,13 @@ frame:
 3. supervision: a stale or missing camera frame, stale joints, an
    unobserved control point, a control point inside an obstacle frustum
    → the override ramps to 0 (R26, R27), with the reasons;
-4. reaction: repulsion at the end effector (R13), joint-velocity limits
-   from the other control points and the joint limits (R14), both times the
-   override; or (``reaction: ssm | both``) speed and separation monitoring
-   (R33, :mod:`depthguard.control.ssm_runtime`): a speed scale for the
-   commanded motion and a protective stop, distances looked for within
-   ``max(rho, ssm.range)``.
+4. reaction: the reaction policies of ``cfg.policies`` (:mod:`depthguard.control.policy`),
+   each given the cycle's distances, joints and override: repulsion at the end effector
+   (R13) with joint-velocity limits from the other control points and the joint limits
+   (R14), both times the override; speed and separation monitoring (R33,
+   :mod:`depthguard.control.policy_ssm`): a speed scale and a protective stop, distances
+   looked for within ``max(rho, ssm.range)``. The most restrictive wins: the speed scale
+   is the override times the smallest policy scale, the boxes are intersected.
 
 Every clock is the caller's: stamps of frames and joints and the ``t`` of
 ``step`` are seconds on one clock (``time.monotonic()`` for a live cell,
@@ -36,23 +37,24 @@ from __future__ import annotations
 import math
 import threading
 import time
-from contextlib import contextmanager
 
 import numpy as np
 
 from depthguard.config import MonitorConfig
+from depthguard.control.policy import Cycle, PolicySetup, make_policies
 from depthguard.control.reaction import reaction as reaction_of
 from depthguard.control.supervisor import SafetySupervisor, stop_reasons
-from depthguard.runtime.distances import DistanceWorker, bound_distances
+from depthguard.runtime.monitor_distances import MonitorDistances
 from depthguard.runtime.ingest import CameraWorker, FusionWorker
 from depthguard.robot.joint_history import JointHistory
 from depthguard.runtime.result import CameraStatus, Reaction
 from depthguard.runtime.refusals import explain_stale
+from depthguard.runtime.warm_up import warm_up
 
-__all__ = ["Monitor"]
+__all__ = ["Monitor", "warm_up"]
 
 
-class Monitor:
+class Monitor(MonitorDistances):
     """The runtime of one cell (module docstring).
 
     rig : a :class:`~depthguard.rig.Rig` with a robot and cameras.
@@ -91,6 +93,12 @@ class Monitor:
         self.joints = JointHistory(self.robot.dof, cfg.joint_history_s, q_min=self.robot.q_min,
                                    q_max=self.robot.q_max, max_gap_s=cfg.joints_stale_s)
         self._static = rig.static_meshes()
+        # issue 31 point 3: SSM from what is not the known scene (ssm.known_scene: muted): the
+        # cameras' unknown objects as voxels, like the camera units' (R17, R25)
+        self._ssm_voxels = None
+        if cfg.reaction != "repulsion" and cfg.ssm.known_scene == "muted":
+            from depthguard.runtime.voxel_input import VoxelObstacles
+            self._ssm_voxels = VoxelObstacles()
         self._workers: dict[str, CameraWorker] = {}
         self.fusion = FusionWorker(self._workers, self._make_grid, self._fusion_settings, self.robot)
         self.fusion.prepare(self._camera_ids)      # the grid made now, not by the first frames
@@ -110,19 +118,15 @@ class Monitor:
         self._is_watch = np.arange(m) >= len(self._cp_names)
         self._q_min, self._q_max, self._qd_max = (np.ascontiguousarray(a, dtype=np.float64) for a in
                                                   (self.robot.q_min, self.robot.q_max, self.robot.qd_max))
-        self._react_buf = (np.empty(3), np.empty(self.robot.dof), np.empty(self.robot.dof))
         self._sup = SafetySupervisor(cfg.dt, cfg.stop_time, cfg.resume_time)
-        # speed and separation monitoring (R33): the mode is fixed for the monitor's life
+        # the reaction policies (control.policy, R13, R14, R33): fixed for the monitor's life
         m_cp = len(self._cp_names)
-        self._ssm = None
-        if cfg.reaction != "repulsion":
-            from depthguard.control.ssm_runtime import SpeedSeparation
-            self._ssm = SpeedSeparation(cfg.ssm, [self._cameras[c] for c in self._camera_ids], m_cp,
-                                        self.robot.dof, cfg.delta_d, cfg.gap_px, cfg.dt)
-        self._D_none = np.full(m_cp, np.inf)          # ssm mode: no repulsion, the joint box alone
-        self._D_rep = np.empty(m_cp)                  # both: the repulsion sees only what is within rho
-        self._qd_meas = np.zeros(self.robot.dof)      # qd not given: from the joints of two cycles
-        self._q_ssm_prev: tuple[float, np.ndarray] | None = None
+        setup = PolicySetup(cfg, self.robot, tuple(self._cameras[c] for c in self._camera_ids), self._cp_names,
+                            ssm_obstacles=self._ssm_voxels)
+        self._policies = make_policies(cfg.policies, setup)
+        self._mode = cfg.reaction_mode
+        self._D_none = np.full(m_cp, np.inf)          # no policy gives a box: the joint limits' alone
+        self._box_buf = (np.empty(3), np.empty(self.robot.dof), np.empty(self.robot.dof))
         self._t_last: float | None = None
         self._last_q: np.ndarray | None = None
         self._seen: dict[str, int] = {}          # camera -> version already used by a cycle
@@ -155,7 +159,18 @@ class Monitor:
                  if cfg.drift_watch else None)                       # R34
         self._workers[cid] = CameraWorker(self._cameras[cid], self.robot, self._static, self.joints,
                                           cfg.joint_wait_s, self.fusion.notify, drift=drift,
-                                          state_options=lambda: self._state_options(cid))
+                                          state_options=lambda: self._state_options(cid),
+                                          learned=getattr(self.rig, "learned", {}).get(cid),   # issue 31
+                                          ssm_muted=self._ssm_muted(cid))
+
+    def _ssm_muted(self, cid: str):
+        """``(VoxelFilter, push)`` for camera ``cid`` when SSM mutes the known scene, else None."""
+        if self._ssm_voxels is None:
+            return None
+        from depthguard.fusion.voxels import VoxelFilter
+        ws = self.rig.workspace
+        return (VoxelFilter(self._cameras[cid], (ws.lo, ws.hi), voxel_size=self.config.ssm.muted_voxel_size),
+                self._ssm_voxels.push)
 
     def _state_options(self, cid: str):
         """``(StateOptions, robot_free, pyramids)`` for camera ``cid``'s frames as the depth grid will
@@ -288,6 +303,17 @@ class Monitor:
                           "message": d.message}
         return out
 
+    def scene_changes(self) -> list[dict]:
+        """Where the cell no longer matches its learned scene (issue 31): per camera and region,
+        ``kind`` new (something stayed in front of it) or gone, the tile's ``box`` (u0, v0, u1, v1 px),
+        ``share`` and ``since`` (s); [] without a learned scene
+        (:class:`~depthguard.runtime.scene_change.SceneChangeWatch`). Never learned into the scene."""
+        out = []
+        for w in list(self._workers.values()):
+            if getattr(w, "scene_change", None) is not None:
+                out.extend(w.scene_change.changes())
+        return out
+
     def remove_camera(self, camera_id: str) -> None:
         """Stop monitoring a camera: its frames are no longer awaited nor used. The principal
         can be removed: the next camera becomes principal."""
@@ -366,175 +392,57 @@ class Monitor:
         dt = cfg.dt if self._t_last is None else min(max(t - self._t_last, 0.0), 1.0)
         self._t_last = t
         k = self._sup.update(t, reasons, dt=dt)
-        D_rep = D[:m_cp]
-        scale, pstop, ssm_table, s_ssm = float(k), False, None, 1.0
-        if self._ssm is not None:                      # R33: speed scale and protective stop
-            if cfg.reaction == "ssm":
-                D_rep = self._D_none
-            else:
-                np.copyto(self._D_rep, D_rep)
-                self._D_rep[self._D_rep > cfg.rho] = np.inf
-                D_rep = self._D_rep
-            if qd is None:
-                prev = self._q_ssm_prev
-                if prev is not None and t > prev[0]:
-                    np.subtract(q, prev[1], out=self._qd_meas)
-                    self._qd_meas /= t - prev[0]
-                self._q_ssm_prev = (t, q.copy())
-            age = t - min(stamps.values()) if stamps else cfg.camera_stale_limit   # none: nothing observed
-            s_ssm, pstop = self._ssm.update(t, dt, D[:m_cp], V[:m_cp], data.cp_positions, data.cp_jacobians,
-                                            self._qd_meas if qd is None else np.asarray(qd, dtype=np.float64),
-                                            obs[:m_cp], age)
-            scale = float(k) * s_ssm
-            ssm_table = self._ssm.table.copy()
-            if pstop:
-                reasons = {**reasons, **self._ssm.reason(self._cp_names)}
-        rep, lo, hi = reaction_of(D_rep, V[:m_cp], data.cp_jacobians, q, self._q_min, self._q_max,
-                                  self._qd_max, cfg.dt, cfg.rho, cfg.v_max, cfg.alpha, k, out=self._react_buf)
+        age = t - min(stamps.values()) if stamps else cfg.camera_stale_limit   # none: nothing observed
+        cycle = Cycle(float(t), dt, q, None if qd is None else np.asarray(qd, dtype=np.float64), D[:m_cp],
+                      V[:m_cp], obs[:m_cp], data.cp_positions, data.cp_jacobians, age, float(k), reasons, cfg)
+        rep, lo, hi, s_pol, pstop, parts = self._react(cycle)
+        for part in parts.values():
+            if part.reasons:
+                reasons = {**reasons, **part.reasons}
+        scale = float(k) * s_pol
+        ssm = parts.get("ssm")
         step_s = time.perf_counter() - t_wall
         self.cycles += 1
         self.step_s.append(step_s)
         if len(self.step_s) > 100_000:
             del self.step_s[:50_000]
-        r = Reaction(t=float(t), override=float(k), repulsion=rep.copy(), qd_min=lo.copy(), qd_max=hi.copy(),
+        r = Reaction(t=float(t), override=float(k), repulsion=rep, qd_min=lo, qd_max=hi,
                      names=self._names, distance=D, direction=V, observed=obs, is_watch=self._is_watch,
                      reasons=reasons, cameras=cams, joints_age_s=float(joints_age), q=q.copy(),
-                     frame_stamps=stamps, step_s=step_s, reaction=cfg.reaction, speed_scale=scale,
-                     protective_stop=pstop, ssm=ssm_table, ssm_scale=float(s_ssm))
+                     frame_stamps=stamps, step_s=step_s, reaction=self._mode, speed_scale=scale,
+                     protective_stop=pstop, ssm=None if ssm is None else ssm.terms,
+                     ssm_scale=1.0 if ssm is None else float(ssm.scale), parts=parts)
         for s in self.sinks:
             s(r)
         return r
 
-    def _distances(self, cfg, q, D, V, obs) -> dict[str, float]:
-        """Distances of ``self._P`` into ``D``, ``V``, ``obs``; returns the capture stamps of the
-        frames used. With the distance worker (:meth:`real_time`): its newest answer bounded at
-        ``self._P``; when that answer is older than the worker's ``max_age_s`` (the worker
-        starved or failed) or a point moved beyond the margin, a query of the grid here — unless
-        the one grid is being built or the worker's last query took more than half a control
-        period: then the bound of the newest answer however old (its frames' stamps say how
-        old), points it cannot decide unobserved
-        (:mod:`depthguard.runtime.distances`). Without the worker: a query of the front grid."""
-        worker = self._dist_worker
-        if worker is None:
-            return self._query_front(cfg, D, V, obs)
-        worker.request(q.copy())
-        snap = worker.newest()
-        usable = snap is not None and snap.rho == cfg.query_rho and snap.method == cfg.method
-        if not usable:
-            why = "no_answer" if snap is None else "settings_changed"
-        elif time.perf_counter() - snap.wall > worker.max_age_s:
-            why = "answer_too_old"
-        elif bound_distances(snap, self._P, cfg.query_rho, D, V, obs):
-            self._count_frames(snap.versions, snap.pushed_at)
-            return dict(snap.stamps)
-        else:
-            why = "moved_beyond_margin"
-        if worker.last_query_s > 0.5 * cfg.dt:  # a query here would take the cycle: never
-            stamps, busy = None, "_query_too_slow"
-        else:
-            stamps, busy = self._query_front(cfg, D, V, obs, wait=not self.fusion.single), "_grid_busy"
-        if stamps is None:                      # the one grid is being built: never wait
-            if not usable:
-                return {}                       # nothing to bound: unobserved, no frame in use
-            why += busy
-            if not bound_distances(snap, self._P, cfg.query_rho, D, V, obs):
-                bound_distances(snap, self._P, cfg.query_rho, D, V, obs, strict=False)
-                why += "_some_points_unjudged"
-            self._count_frames(snap.versions, snap.pushed_at)
-            stamps = dict(snap.stamps)
-        if stamps:                              # a grid answered (not: no frame yet)
-            self.distance_fallbacks[why] = self.distance_fallbacks.get(why, 0) + 1
-        return stamps
-
-    def _query_front(self, cfg, D, V, obs, wait: bool = True) -> dict[str, float] | None:
-        """Query the front grid on this thread (the cycle's own query). ``wait`` False: None
-        when the grid is locked (a build into the one grid, or another reader)."""
-        stamps: dict[str, float] = {}
-        with self.fusion.swap_lock:
-            buf = self.fusion.front
-            if buf is not None and not buf.lock.acquire(blocking=wait):
-                return None
-        if buf is not None:
-            try:
-                if buf.loaded:
-                    res = buf.grid.query(self._P, rho=cfg.query_rho, method=cfg.method, threads=1)
-                    D[:] = res.distance
-                    V[:] = res.direction
-                    obs[:] = res.observed
-                    stamps = dict(buf.stamps)
-                    self._count_frames(buf.versions, buf.pushed_at)
-            finally:
-                buf.lock.release()
-        return stamps
-
-    def _count_frames(self, versions, pushed_at) -> None:
-        """Frame-to-reaction times of the frames a cycle uses for the first time."""
-        now = time.perf_counter()
-        for c, v in versions.items():
-            if self._seen.get(c) != v:
-                self._seen[c] = v
-                self.frame_to_reaction_s.append(now - pushed_at[c])
-
-    @contextmanager
-    def real_time(self):
-        """``with monitor.real_time(): ...`` around a real-time run's control loop, entered on
-        the control thread (after its SCHED_FIFO, :mod:`depthguard.runtime.realtime`): the grid
-        is queried on a thread of its own at ``distance_hz`` and each cycle bounds the newest
-        answer (:mod:`depthguard.runtime.distances`). ``distance_hz`` 0 or the ``mean`` method
-        (not a bound under motion): nothing changes. Fast runs do not use it: their logs do not
-        depend on thread timing."""
-        cfg = self.config
-        if cfg.distance_hz <= 0 or cfg.method == "mean" or self._dist_worker is not None:
-            single = self.fusion.single
-            if self._dist_worker is None:
-                self.fusion.set_single(False)    # the cycles read the grid: two, never wait
-            try:
-                yield self
-            finally:
-                self.fusion.set_single(single)
-            return
-        worker = DistanceWorker(self.fusion, self._points_at, self._distance_settings, cfg.distance_hz,
-                                cfg.distance_margin)
-        self.fusion.ahead_margin = cfg.distance_margin
-        single = self.fusion.single
-        self.fusion.set_single(True)             # no cycle reads the grid: one grid, half the builds' work
-        self._dist_worker = worker
-        self.fusion.answer = worker.offer        # a build's own query is the newest answer at once
-        worker.start()
-        try:
-            yield self
-        finally:
-            self._dist_worker = None
-            self.fusion.answer = None
-            self.fusion.set_single(single)
-            self.fusion.ahead_margin = 0.0
-            worker.close()
-            self.distance_queries += worker.queries
-            self.distance_answers_from_builds += worker.offered
-
-    @contextmanager
-    def replay(self):
-        """``with monitor.replay(): ...`` for runs that ``flush()`` before every ``step`` (the
-        simulated closed loop, fast replays): one grid instead of two
-        (:meth:`~depthguard.runtime.ingest.FusionWorker.set_single` — the same answers at half
-        the work per frame when cameras take turns); a cycle then waits for a build in progress,
-        which a real-time loop must never do."""
-        single = self.fusion.single
-        self.fusion.set_single(True)
-        try:
-            yield self
-        finally:
-            self.fusion.set_single(single)
-
-    def _points_at(self, q) -> np.ndarray:
-        """(m, 3) the control points at ``q`` then the watch points (the distance worker's thread)."""
-        data = self._worker_data
-        self.robot.forward(q, data)
-        return np.concatenate([data.cp_positions, self._watch]) if len(self._watch) else data.cp_positions.copy()
-
-    def _distance_settings(self):
-        with self._settings_lock:
-            return self.config.query_rho, self.config.method
+    def _react(self, c: Cycle):
+        """The policies' parts composed (:mod:`depthguard.control.policy`): ``(repulsion (3,),
+        qd_min, qd_max (dof,), scale, stop, parts)`` — the repulsions summed, the boxes
+        intersected (none: the joint limits' box times the override), the smallest scale (0
+        when one stops)."""
+        parts = {}
+        rep = lo = hi = None
+        scale, stop = 1.0, False
+        for name, pol in self._policies:         # a part's arrays are its own (fresh): kept, not copied
+            part = pol.update(c)
+            parts[name] = part
+            if part.scale < scale:
+                scale = float(part.scale)
+            if part.stop:
+                stop, scale = True, 0.0
+            if part.repulsion is not None:
+                rep = part.repulsion if rep is None else rep + part.repulsion
+            if part.qd_min is not None:
+                lo = part.qd_min if lo is None else np.maximum(lo, part.qd_min)
+                hi = part.qd_max if hi is None else np.minimum(hi, part.qd_max)
+        if lo is None:
+            cfg = c.config
+            _, lo, hi = reaction_of(self._D_none, c.direction, c.jacobians, c.q, self._q_min, self._q_max,
+                                    self._qd_max, cfg.dt, cfg.rho, cfg.v_max, cfg.alpha, c.override,
+                                    out=self._box_buf)
+            lo, hi = lo.copy(), hi.copy()
+        return np.zeros(3) if rep is None else rep, lo, hi, scale, stop, parts
 
     # ------------------------------------------------------------ state
     @property
@@ -628,41 +536,3 @@ class Monitor:
 
     def __exit__(self, *exc) -> None:
         self.close()
-
-
-def warm_up(rig, config: MonitorConfig | None = None) -> float:
-    """Compile every kernel of the monitor's path (numba, ``cache=True``: from the disk cache
-    after the first time) on a throwaway monitor fed with the known scene's expected depth, so
-    that no clock of a run includes compilation. Returns the seconds it took."""
-    from depthguard.filtering.expected import ExpectedDepth
-    from depthguard.sources.frame import Frame
-
-    t0 = time.perf_counter()
-    q0 = np.asarray(rig.robot_q0, dtype=np.float64)
-    with Monitor(rig, config) as mon:
-        mon.push_joints(0.0, q0)
-        mon.push_joints(0.001, q0)
-        for cid in mon.camera_ids:
-            cam = rig.camera(cid)
-            mon.push_frame(Frame(cid, np.array(ExpectedDepth(cam, rig.robot, rig.static_meshes()).known(q0)),
-                                 0.0005))
-        mon.flush(timeout=600.0)
-        mon.step(0.001)
-        # the distance thread's band query and the cycles' bound of its answer (real_time())
-        from depthguard.runtime.distances import DistanceSnapshot, bound_distances
-
-        cfg = mon.config
-        grid = mon.fusion.front.grid
-        P = mon._P.copy()
-        res = grid.query(P, rho=cfg.query_rho + cfg.distance_margin, method=cfg.method, threads=1,
-                         rho_core=cfg.query_rho)
-        snap = DistanceSnapshot(P, res.distance.copy(), res.direction.copy(), res.observed.copy(), cfg.query_rho,
-                                cfg.distance_margin, cfg.method, {}, {}, {}, grid.principal_view(), 0.0)
-        m = len(P)
-        bound_distances(snap, P, cfg.query_rho, np.empty(m), np.empty((m, 3)), np.empty(m, dtype=bool))
-    from depthguard.runtime.voxel_input import VoxelObstacles
-    units = VoxelObstacles()                      # the remote units' kernel
-    units.push("warm-up", np.zeros((1, 3)), 0.05, 0.0)
-    units.nearest(np.ones((2, 3)), 0.4, np.full(2, np.inf), np.zeros((2, 3)),
-                  robot_capsules=rig.robot.collision_segments(q0, 0.05))
-    return time.perf_counter() - t0

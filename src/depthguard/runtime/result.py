@@ -69,6 +69,11 @@ class Reaction:
     ssm : (m_cp, 13) float64 or None, one row per control point (not the watch points), the
         columns :data:`depthguard.control.ssm.TERMS` (``D v_h v_r T_r T_s S_h S_r S_s C Z_d Z_r
         S_p limit``) at the SSM scale commanded: ``S_p = S_h + S_r + S_s + C + Z_d + Z_r``.
+    parts : policy name -> its :class:`~depthguard.control.policy.Part` this cycle (the
+        reaction policies that ran, :mod:`depthguard.control.policy`); ``ssm``, ``ssm_scale``,
+        ``repulsion`` and the box above are composed from them. A part's ``record`` is logged
+        under ``policies.<name>``, its ``terms`` per point under ``points[i].<name>`` (the
+        built-in repulsion and ssm parts have their own fields above).
     """
     t: float
     override: float
@@ -91,6 +96,7 @@ class Reaction:
     protective_stop: bool = False
     ssm: np.ndarray | None = None
     ssm_scale: float = 1.0
+    parts: dict = field(default_factory=dict)
 
     @property
     def stopped(self) -> bool:
@@ -119,7 +125,10 @@ class Reaction:
                         "observed": bool(self.observed[i])})
             if self.ssm is not None and i < len(self.ssm):
                 pts[-1]["ssm"] = {k: round(float(v), 6) for k, v in zip(_SSM_TERMS, self.ssm[i])}
-        return {"t": round(float(self.t), 6), "override": round(float(self.override), 6),
+            for name, part in self.parts.items():
+                if name != "ssm" and part.terms is not None and i < len(part.terms):
+                    pts[-1][name] = {k: round(float(v), 6) for k, v in zip(part.term_names, part.terms[i])}
+        rec = {"t": round(float(self.t), 6), "override": round(float(self.override), 6),
                 "repulsion": [round(float(x), 6) for x in self.repulsion],
                 "points": pts, "reasons": dict(self.reasons),
                 "cameras": {c: {"age_s": (round(s.age_s, 6) if math.isfinite(s.age_s) else None),
@@ -129,3 +138,8 @@ class Reaction:
                 "q": [round(float(x), 6) for x in self.q],
                 "reaction": self.reaction, "speed_scale": round(float(self.speed_scale), 6),
                 "protective_stop": bool(self.protective_stop), "ssm_scale": round(float(self.ssm_scale), 6)}
+        own = {n: dict(p.record, scale=round(float(p.scale), 6), stop=bool(p.stop))
+               for n, p in self.parts.items() if p.record}
+        if own:
+            rec["policies"] = own
+        return rec

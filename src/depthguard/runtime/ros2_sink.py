@@ -14,6 +14,13 @@ namespace (default ``/depthguard``):
 - ``<ns>/markers`` — ``visualization_msgs/msg/MarkerArray`` at most ``marker_hz`` times per
   second of run time, the markers of ``results.mcap`` (green / orange / grey spheres, arrows
   to the nearest obstacles) for RViz or Foxglove.
+- ``scaling_topic`` (default ``/joint_trajectory_controller/speed_scaling_input``, ``None``: not
+  published) — ``control_msgs/msg/SpeedScalingFactor`` (``float64 factor``, the definition kept
+  here: :data:`SCALING_MSG`), every cycle: the reaction's ``speed_scale`` in [0, 1] (the
+  override, times the SSM scale in ``ssm``/``both`` modes), the speed scaling input of the
+  ros2_control ``joint_trajectory_controller`` (Kilted and later: its ``~/speed_scaling_input``,
+  0 = the trajectory halts on its path). Reliable, TRANSIENT_LOCAL, depth 1, as the controller
+  subscribes to it: a controller that (re)starts gets the newest factor at once.
 
 Header stamps are the reaction time ``t`` (the wall clock in a live run). The messages are
 built by :class:`~depthguard.runtime.mcap_results.McapResults`' own functions, so the live
@@ -26,9 +33,14 @@ import math
 
 from depthguard.transport.ros2_zenoh import WIRE, Ros2Error, check_topic
 
-__all__ = ["Ros2Sink", "open_ros2_sink", "DEFAULT_NAMESPACE"]
+__all__ = ["Ros2Sink", "open_ros2_sink", "DEFAULT_NAMESPACE", "DEFAULT_SCALING_TOPIC", "SCALING_TYPE", "SCALING_MSG"]
 
 DEFAULT_NAMESPACE = "/depthguard"
+#: ``~/speed_scaling_input`` of a joint_trajectory_controller named ``joint_trajectory_controller``
+DEFAULT_SCALING_TOPIC = "/joint_trajectory_controller/speed_scaling_input"
+SCALING_TYPE = "control_msgs/msg/SpeedScalingFactor"
+#: control_msgs' SpeedScalingFactor.msg (ros-controls/control_msgs, Kilted and later)
+SCALING_MSG = "float64 factor\n"
 
 
 class _Messages:
@@ -54,10 +66,14 @@ def _register_wire() -> None:
         from rosbags.typesys import get_types_from_msg
 
         WIRE.register(get_types_from_msg(REACTION_MSG, REACTION_TYPE))
+    if SCALING_TYPE not in WIRE.fielddefs:
+        from rosbags.typesys import get_types_from_msg
+
+        WIRE.register(get_types_from_msg(SCALING_MSG, SCALING_TYPE))
 
 
 class Ros2Sink:
-    """Publishes reactions on ``<namespace>/{override,reaction,markers}`` (module docstring).
+    """Publishes reactions on ``<namespace>/{override,reaction,markers}`` and ``scaling_topic`` (module docstring).
 
     ``node``: an acquired :class:`~depthguard.transport.ros2_zenoh.Ros2Node` (released at
     :meth:`close`); ``robot`` places the control points; ``watch_points``: ``(name, (3,) m)``.
@@ -67,7 +83,7 @@ class Ros2Sink:
     name = "ros2"
 
     def __init__(self, node, robot, watch_points=(), namespace: str = DEFAULT_NAMESPACE, marker_hz: float = 30.0,
-                 frame_id: str = "world"):
+                 frame_id: str = "world", scaling_topic: str | None = DEFAULT_SCALING_TOPIC):
         from depthguard.runtime.mcap_results import REACTION_TYPE
         from depthguard.transport import ros_messages as rosmsg
 
@@ -80,11 +96,17 @@ class Ros2Sink:
             self._msgs = _Messages(robot, watch_points, frame_id)
             self.topics = {"override": f"{ns}/override", "reaction": f"{ns}/reaction", "markers": f"{ns}/markers"}
             types = {"override": rosmsg.MSG["Float64"], "reaction": REACTION_TYPE, "markers": rosmsg.MSG["MarkerArray"]}
-            self._pubs = {k: node.publisher(t, types[k]) for k, t in self.topics.items()}
+            if scaling_topic is not None:
+                self.topics["scaling"] = check_topic(scaling_topic)
+                types["scaling"] = SCALING_TYPE
+            self._pubs = {k: node.publisher(t, types[k], **({"depth": 1, "transient_local": True} if k == "scaling"
+                                                             else {}))
+                          for k, t in self.topics.items()}
         except Exception:
             node.release()
             raise
         self._float64 = rosmsg.TYPESTORE.types[rosmsg.MSG["Float64"]]
+        self._scaling = WIRE.types[SCALING_TYPE]
         self.period = 1.0 / float(marker_hz)
         self._next_marker = -math.inf
         self.published = 0
@@ -96,6 +118,8 @@ class Ros2Sink:
             return                                  # a ROS time cannot hold it (never on the monitor's clocks)
         self._pubs["override"].publish(self._float64(data=float(r.override)))
         self._pubs["reaction"].publish(self._msgs.reaction(r))
+        if "scaling" in self._pubs:
+            self._pubs["scaling"].publish(self._scaling(factor=min(max(float(r.speed_scale), 0.0), 1.0)))
         if r.t >= self._next_marker:
             self._pubs["markers"].publish(self._msgs.markers(r))
             self._next_marker = r.t + self.period - 1e-9
@@ -110,8 +134,21 @@ class Ros2Sink:
         self.node.release()
 
 
-def open_ros2_sink(context: dict, robot, watch_points=(), namespace: str = DEFAULT_NAMESPACE) -> Ros2Sink:
+def open_ros2_sink(context: dict, robot, watch_points=(), namespace: str = DEFAULT_NAMESPACE,
+                   scaling_topic: str | None = DEFAULT_SCALING_TOPIC) -> Ros2Sink:
     """The sink on the run's node (shared with ``ros2:`` sources through ``context``)."""
     from depthguard.transport.ros2_zenoh import node_for
 
-    return Ros2Sink(node_for(context), robot, watch_points, namespace)
+    return Ros2Sink(node_for(context), robot, watch_points, namespace, scaling_topic=scaling_topic)
+
+
+def open_ros2(argument: str, rig, context: dict) -> Ros2Sink:
+    """``ros2:[NAMESPACE]`` (:mod:`depthguard.runtime.sink_specs`): default ``/depthguard``; the
+    node is the run's (``context``: ``ros2_domain``, ``ros2_router``, shared with ``ros2:`` sources)."""
+    ns = argument or DEFAULT_NAMESPACE
+    scaling = context.get("ros2_scaling_topic", DEFAULT_SCALING_TOPIC)
+    scaling = None if scaling is None or scaling.lower() == "none" else scaling
+    sink = open_ros2_sink(context, rig.robot, [(w.name, w.position) for w in rig.monitor.watch_points], ns, scaling)
+    sink.describe = (f"publishing {ns.rstrip('/')}/override, reaction and markers as ROS 2 topics (rmw_zenoh)"
+                     + ("" if scaling is None else f", the speed scaling on {scaling}"))
+    return sink

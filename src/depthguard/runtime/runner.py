@@ -29,7 +29,44 @@ from typing import Callable
 
 import numpy as np
 
-__all__ = ["run", "summarise", "RunStats"]
+__all__ = ["run", "summarise", "RunStats", "reaction_subscribers", "open_run_sinks"]
+
+
+def reaction_subscribers(*sources) -> list:
+    """The sources that obey the reaction (a simulated robot: its ``on_reaction``), each once: the
+    runner calls them on the control thread with every reaction."""
+    out: list = []
+    for s in sources:
+        f = getattr(s, "on_reaction", None)
+        if f is not None and f not in out:
+            out.append(f)
+    return out
+
+
+def open_run_sinks(specs, rig, context: dict, fast: bool):
+    """``(direct, queued)``: the sinks of ``specs`` (:mod:`depthguard.runtime.sink_specs`), those
+    called on the control thread and those for the fan-out thread; every spec is checked before
+    any opens, and what opened is closed when a later one fails. A ``live`` sink (a real robot)
+    refuses a run as fast as possible (``ValueError``)."""
+    from depthguard.runtime.sink_specs import check_sink_spec, open_sink
+
+    for s in specs:
+        check_sink_spec(s)
+    opened: list = []
+    try:
+        for s in specs:
+            sink = open_sink(s, rig, context)
+            opened.append(sink)
+            if fast and getattr(sink, "live", False):
+                raise ValueError(f"--sink {s}: drives a robot, which is live: run in real time, without --fast")
+    except BaseException:
+        for sink in opened:
+            close = getattr(sink, "close", None)
+            if close is not None:
+                close()
+        raise
+    direct = [s for s in opened if getattr(s, "direct", False)]
+    return direct, [s for s in opened if not getattr(s, "direct", False)]
 
 
 class RunStats:

@@ -13,6 +13,7 @@ from __future__ import annotations
 
 import numpy as np
 
+from depthguard.config import PRODUCT_RHO as RHO   # the product default, defined once in MonitorConfig
 from depthguard.distance.api import DistanceResult, DistanceWorkspace
 
 __all__ = ["OneCameraMap"]
@@ -35,7 +36,7 @@ class OneCameraMap:
         self.ws.set_depth(depths[cid], robot_depth=rd, invalid=invalid, robot_mode="drop",
                           robot_offset=robot_offset, silhouette_px=silhouette_px, gap_px=gap_px)
 
-    def query(self, points, rho: float = 0.4, method: str = "hybrid", threads: int | None = None,
+    def query(self, points, rho: float = RHO, method: str = "hybrid", threads: int | None = None,
               rho_core: float | None = None) -> DistanceResult:
         """Distances of the points (N, 3) world m to what the camera sees (views of reused buffers).
         ``rho_core < rho``: the answer of radius ``rho_core`` where it finds something, else the

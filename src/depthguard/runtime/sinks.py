@@ -19,7 +19,8 @@ from typing import Callable, Sequence
 from depthguard.progress import log
 from depthguard.runtime.result import Reaction
 
-__all__ = ["SinkError", "JsonlLog", "CallbackSink", "ZenohPublisher", "SinkFanout", "reaction_keys"]
+__all__ = ["SinkError", "JsonlLog", "CallbackSink", "ZenohPublisher", "SinkFanout", "reaction_keys", "open_jsonl",
+           "run_file"]
 
 _CELL = re.compile(r"^[A-Za-z0-9_\-.]+$")
 
@@ -59,6 +60,20 @@ class JsonlLog:
         if self._fh is not None:
             self._fh.close()
             self._fh = None
+
+
+def run_file(argument: str, context: dict, default: str, scheme: str) -> Path:
+    """The file of a file sink: ``argument``, else ``default`` in the run's folder ``context["out"]``."""
+    if argument:
+        return Path(argument)
+    if context.get("out") is None:
+        raise SinkError(f"--sink {scheme}: needs a file ({scheme}:FILE) when the run has no --out folder")
+    return Path(context["out"]) / default
+
+
+def open_jsonl(argument: str, rig, context: dict) -> JsonlLog:
+    """``jsonl:[FILE]`` (:mod:`depthguard.runtime.sink_specs`): default ``OUT/log.jsonl``."""
+    return JsonlLog(run_file(argument, context, "log.jsonl", "jsonl"))
 
 
 class CallbackSink:

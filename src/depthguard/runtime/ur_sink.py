@@ -57,6 +57,8 @@ class UrSpeedSlider:
     """
 
     name = "ur-rtde"
+    direct = True                  # keeps the newest reaction; its own thread sends (sink_specs)
+    live = True                    # drives a robot: never a run as fast as possible
 
     def __init__(self, host: str, *, floor: float = 0.01, rate_hz: float = 125.0, keepalive_s: float = 0.5,
                  stale_s: float = 0.1, resume_hold_s: float = 0.1, retry_s: float = 1.0,
@@ -211,6 +213,6 @@ class UrSpeedSlider:
         self._worker.close()
 
 
-def open_ur_sink(argument: str) -> UrSpeedSlider:
-    """The sink of ``ur-rtde:HOST[:30004]``."""
+def open_ur_sink(argument: str, rig=None, context: dict | None = None) -> UrSpeedSlider:
+    """The sink of ``ur-rtde:HOST[:30004]`` (:mod:`depthguard.runtime.sink_specs`): live, direct."""
     return UrSpeedSlider(parse_address(argument, "--sink ur-rtde"))

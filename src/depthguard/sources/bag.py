@@ -10,7 +10,8 @@
 ``/joint_states`` (or the bag's only JointState topic), matched to the rig robot's
 joints **by name** (extra joints are ignored). Depth decoding: :mod:`depthguard.transport.ros_messages`;
 16-bit depth is ``value x depth_scale`` metres, the camera's ``depth_scale:`` in the rig
-(default 0.001: millimetres; a RealSense D405 records 0.0001).
+(default 0.001: millimetres; a RealSense D405 records 0.0001). The drivers' layouts (realsense-ros,
+Orbbec, Azure Kinect; which topics are depth, ``P`` for an ``image_rect`` topic): :mod:`depthguard.sources.bag_layouts`.
 
 **Time.** The header stamp is the capture time; the bag's own log time (when the
 recorder received the message) is not used. Frames and joint states are served in
@@ -162,7 +163,8 @@ class BagFrames(BagConsumer):
         except Exception:  # noqa: BLE001 - counted; frames wait for a CameraInfo that decodes
             self.counts[f"undecodable:{con.topic}"] += 1
             return
-        check_camera_info(self.replay.path, self._cams[cid], con.topic, rosmsg.stamp_s(msg.header.stamp), msg)
+        check_camera_info(self.replay.path, self._cams[cid], con.topic, rosmsg.stamp_s(msg.header.stamp), msg,
+                          image_topic=self._topics[cid])
         self._info_ok[cid] = True
 
     @staticmethod

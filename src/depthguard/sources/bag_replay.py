@@ -65,10 +65,13 @@ def open_bag(path: str | Path):
     return reader
 
 
-def check_camera_info(path, cam, itopic: str, stamp: float, msg) -> None:
-    """A CameraInfo of rig camera ``cam`` must be usable and agree with the rig (else :class:`BagError`)."""
+def check_camera_info(path, cam, itopic: str, stamp: float, msg, image_topic: str | None = None) -> None:
+    """A CameraInfo of rig camera ``cam`` must be usable and agree with the rig (else :class:`BagError`);
+    for a rectified ``image_topic`` its ``P`` is what must agree (:mod:`~depthguard.sources.bag_layouts`)."""
+    from depthguard.sources.bag_layouts import camera_intrinsics
+
     try:
-        k = rosmsg.intrinsics_from_camera_info(msg)
+        k = camera_intrinsics(image_topic, msg)
     except rosmsg.RosMessageError as exc:
         raise BagError(f"bag {path}: {itopic} at stamp {stamp:.9f}: {exc}") from None
     rig_k = {"width": cam.width, "height": cam.height, "fx": cam.fx, "fy": cam.fy, "cx": cam.cx, "cy": cam.cy}

@@ -76,7 +76,8 @@ _JOINTS: dict[str, Callable] = {}
 # modules that register schemes; imported on first use (optional extras stay unimported until asked for)
 _SOURCE_MODULES = ["depthguard.sources.sim_source", "depthguard.sources.images", "depthguard.sources.joints",
                    "depthguard.sources.units", "depthguard.sources.bag", "depthguard.sources.realsense",
-                   "depthguard.sources.ros2_source", "depthguard.sources.ur_rtde"]
+                   "depthguard.sources.ros2_source", "depthguard.sources.ur_rtde",
+                   "depthguard.sources.franky_joints"]
 _loaded = False
 
 

@@ -28,6 +28,7 @@ from pathlib import Path
 
 import numpy as np
 
+from depthguard.sources import bag_layouts as layouts
 from depthguard.sources.bag import BagError, BagReplay, info_topic
 from depthguard.transport import ros_messages as rosmsg
 
@@ -35,6 +36,9 @@ __all__ = ["draft_rig", "tf_tree", "chain"]
 
 #: encodings whose units an Image does not say (the rig's ``depth_scale``)
 _SIXTEEN_BIT = {"16UC1", "mono16"}
+#: frames that are optical frames (z forward, x right, y down) without the name: the Azure Kinect
+#: driver's camera frames are its SDK's camera coordinates
+_OPTICAL = {"depth_camera_link", "rgb_camera_link"}
 
 
 def tf_tree(replay: BagReplay) -> dict[str, tuple[str, np.ndarray]]:
@@ -66,14 +70,8 @@ def chain(edges, frame: str, base: str | None) -> tuple[str, np.ndarray] | None:
     return None
 
 
-def _camera_id(topic: str, taken: set[str]) -> str:
-    parts = [p for p in topic.split("/") if p]
-    base = re.sub(r"[^A-Za-z0-9_\-.]", "_", parts[0] if len(parts) > 1 else "_".join(parts)) or "camera"
-    cid, k = base, 1
-    while cid in taken:
-        k += 1
-        cid = f"{base}_{k}"
-    return cid
+def _listing(images: dict) -> str:
+    return ", ".join(f"{t} ({'/'.join(sorted(e))})" for t, e in sorted(images.items()))
 
 
 def _num(v: float) -> str:
@@ -103,23 +101,36 @@ def _draft(replay: BagReplay, out: Path, urdf, base_frame) -> tuple[str, list[st
     edges = tf_tree(replay)
     cams = []
     taken: set[str] = set()
-    for topic in sorted(replay.images):
-        infos = replay.infos.get(info_topic(topic))
-        if not infos:
-            notes.append(f"{topic}: no CameraInfo on {info_topic(topic)}; not a camera of the draft")
-            continue
-        try:
-            k = rosmsg.intrinsics_from_camera_info(infos[0][1])
-        except rosmsg.RosMessageError as exc:
-            notes.append(f"{topic}: {exc}; not a camera of the draft")
-            continue
-        cid = _camera_id(topic, taken)
-        taken.add(cid)
-        encodings = {e.encoding for e in replay.images[topic]}
-        cams.append((cid, topic, k, bool(encodings & _SIXTEEN_BIT)))
+    images = {t: {e.encoding for e in entries} for t, entries in replay.images.items()}
+    groups, others = layouts.depth_streams(images)
+    if others:
+        notes.append(f"not depth (encoding or stream): {', '.join(others)}; not cameras of the draft")
+    for _ns, topics in sorted(groups.items()):
+        drafted = None
+        for topic in topics:
+            infos = replay.infos.get(info_topic(topic))
+            if not infos:
+                notes.append(f"{topic}: no CameraInfo on {info_topic(topic)}; not a camera of the draft")
+                continue
+            try:
+                k = layouts.camera_intrinsics(topic, infos[0][1])
+            except rosmsg.RosMessageError as exc:
+                notes.append(f"{topic}: {exc}; not a camera of the draft")
+                continue
+            if drafted is not None:
+                notes.append(f"{topic}: the depth of camera {drafted} again (re-projected); not drafted - "
+                             f"give it as that camera's topic: (with its intrinsics) to read it instead")
+                continue
+            cid, base_id, n = layouts.camera_id(topic), layouts.camera_id(topic), 1
+            while cid in taken:
+                n += 1
+                cid = f"{base_id}_{n}"
+            taken.add(cid)
+            drafted = cid
+            cams.append((cid, topic, k, bool(images[topic] & _SIXTEEN_BIT)))
     if not cams:
         raise BagError(f"bag {replay.path}: no depth Image topic with a usable CameraInfo beside it "
-                       f"(image topics: {', '.join(sorted(replay.images)) or 'none'})")
+                       f"(image topics: {_listing(images) or 'none'}{'; ' + notes[-1] if notes else ''})")
     sixteen_bit = [cid for cid, _t, _k, sixteen in cams if sixteen]
     if sixteen_bit:
         notes.append(f"camera {', '.join(sixteen_bit)}: 16-bit depth, read as millimetres unless you give its "
@@ -148,7 +159,7 @@ def _draft(replay: BagReplay, out: Path, urdf, base_frame) -> tuple[str, list[st
                       "bag's TF; give it (translation + quaternion, matrix or look_at)"]
             notes.append(f"camera {cid}: no TF chain from {base} to {k['frame_id']!r}; its pose is left to fill in")
         else:
-            if not k["frame_id"].endswith("optical_frame"):
+            if not k["frame_id"].endswith("optical_frame") and k["frame_id"].lstrip("/") not in _OPTICAL:
                 lines.append(f"    # frame {k['frame_id']} is taken as an optical frame (z forward, x right, y down): check")
             lines += ["    pose:"] + _matrix_lines(found[1], "      ")
     lines += _robot_lines(replay, out, urdf, edges, base, notes)

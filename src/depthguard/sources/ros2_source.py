@@ -49,8 +49,10 @@ __all__ = ["Ros2Frames", "Ros2Joints", "MAX_PENDING_FRAMES", "MAX_PENDING_STATES
 
 #: frames per camera waiting to be taken (a monitor takes them every few ms)
 MAX_PENDING_FRAMES = 8
-#: joint states waiting to be taken
-MAX_PENDING_STATES = 8192
+#: joint states waiting to be taken: 1 s of a 1 kHz driver, 5 s at 200 Hz. A live run starts
+#: with what came in while the monitor started (seconds of states): a deeper queue made the
+#: run's first cycles drain a backlog of old states and refuse the new frames as "future"
+MAX_PENDING_STATES = 1000
 
 
 class Ros2Frames:

@@ -53,7 +53,7 @@ from depthguard.sources.base import register_joints, register_source
 from depthguard.sources.frame import Frame
 from depthguard.sources.simulated import returns_beyond_the_model
 
-__all__ = ["SimWorld", "SimFrames", "SimJoints", "parse_sim_spec"]
+__all__ = ["SimWorld", "SimFrames", "SimJoints", "parse_sim_spec", "sim_world"]
 
 _FLAGS = ("alone", "dark", "noiseless")
 
@@ -196,6 +196,7 @@ class SimJoints:
 
     def __init__(self, world: SimWorld):
         self.world = world
+        self.on_reaction = world.on_reaction     # the robot obeys: the runner subscribes it to the reactions
         self.done = False
         self.lost = None
         self._last = -math.inf          # stamp of the newest state returned
@@ -231,6 +232,7 @@ class SimFrames:
         from depthguard.sources import SimulatedCamera
 
         self.world = world
+        self.on_reaction = world.on_reaction     # the robot obeys: the runner subscribes it to the reactions
         rig = world.rig
         cams = [rig.camera(c) for c in cameras] if cameras else list(rig.cameras)
         self.camera_ids = [c.id for c in cams]
@@ -336,14 +338,22 @@ class SimFrames:
         pass
 
 
+_WORLD = "sim_world"      # the context key the sim: sources share their world under (this module's)
+
+
+def sim_world(context: dict) -> SimWorld | None:
+    """The simulated world that the ``sim:`` sources opened with ``context`` share, or None."""
+    return context.get(_WORLD)
+
+
 def _world(arg: str, rig, context: dict) -> SimWorld:
-    world = context.get("sim_world")
+    world = context.get(_WORLD)
     if world is None:
         spec = parse_sim_spec(arg or context.get("sim_spec", ""))
         cell = spec["cell"] if (arg or rig is None) else ""
         world = SimWorld(cell, rig=rig, situation=spec["situation"], alone=spec["alone"], dark=spec["dark"],
                          noiseless=spec["noiseless"], seed=spec["seed"])
-        context["sim_world"] = world
+        context[_WORLD] = world
     return world
 
 

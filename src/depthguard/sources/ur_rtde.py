@@ -29,7 +29,7 @@ import numpy as np
 from depthguard.progress import log
 from depthguard.transport.ur_rtde_worker import UrError, Worker, check_reachable, missing_package, parse_address
 from depthguard.sources.base import register_joints
-from depthguard.sources.joints import JointSourceError, _robot, check_joint_state
+from depthguard.sources.joints import JointSourceError, _robot, check_joint_state, refuse_beside_simulator
 from depthguard.sources.stamped_queue import StampedQueue
 
 __all__ = ["UrRtdeJoints"]
@@ -39,7 +39,7 @@ UR_DOF = 6
 
 class UrRtdeJoints:
     """Live joint states of a UR robot (module docstring). ``received``, ``rejected``,
-    ``out_of_order``: counters; ``first_stamp`` is ``None``; ``done`` only once closed."""
+    ``out_of_order``, ``overflow``: counters; ``first_stamp`` is ``None``; ``done`` only once closed."""
 
     live = True
     first_stamp = None
@@ -55,7 +55,7 @@ class UrRtdeJoints:
         if missing:
             raise JointSourceError(missing)
         self.host, self.frequency, self.retry_s = host, float(frequency), float(retry_s)
-        self.received = self.rejected = self.out_of_order = 0
+        self.received = self.rejected = self.out_of_order = self.overflow = 0
         self.last_error: str | None = None
         self.robot_stamps: deque[tuple[float, float]] = deque(maxlen=10000)
         self._lost: str | None = None
@@ -93,8 +93,11 @@ class UrRtdeJoints:
             return
         self.received += 1
         self.robot_stamps.append((stamp, float(robot_stamp)))
-        if self._queue.offer(stamp, (stamp, arr)) == "out_of_order":
+        what = self._queue.offer(stamp, (stamp, arr))
+        if what == "out_of_order":
             self.out_of_order += 1
+        elif what is not None:
+            self.overflow += 1              # the oldest waiting state dropped (a run that does not read them)
         self._first.set()
 
     def _on_end(self, reason: str) -> None:
@@ -145,10 +148,5 @@ def open_ur_rtde_joints(argument: str, rig, context: dict) -> UrRtdeJoints:
         host = parse_address(argument, "--joints ur-rtde")
     except UrError as exc:
         raise JointSourceError(str(exc)) from None
-    if "sim_world" in context:
-        # a live source puts the run on the wall clock; the simulator's frames count from 0 and
-        # would be simulated up to the wall clock's time (the run never starts)
-        raise JointSourceError(f"--joints ur-rtde:{host} is live (stamped on the wall clock) and cannot drive "
-                               f"the simulated cameras (their clock starts at 0): use it with live cameras "
-                               f"(realsense:, ros2:, units:)")
+    refuse_beside_simulator(f"ur-rtde:{host}", context)
     return UrRtdeJoints(host, rig)

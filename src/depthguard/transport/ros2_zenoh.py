@@ -237,8 +237,8 @@ class Ros2Node:
         with self._lock:
             return dict(sorted(self.counts.items()))
 
-    def publisher(self, topic: str, msgtype: str, depth: int = 10) -> "Ros2Publisher":
-        return Ros2Publisher(self, topic, msgtype, depth)
+    def publisher(self, topic: str, msgtype: str, depth: int = 10, transient_local: bool = False) -> "Ros2Publisher":
+        return Ros2Publisher(self, topic, msgtype, depth, transient_local)
 
     def subscribe(self, topic: str, msgtype: str, fn: Callable, depth: int = 10) -> "Ros2Subscription":
         return Ros2Subscription(self, topic, msgtype, fn, depth)
@@ -293,18 +293,38 @@ def _open_client(router: str, timeout_s: float):
                         "router (`ros2 run rmw_zenoh_cpp rmw_zenohd`) or give --ros2-router") from None
 
 
+#: the sporadic heartbeat of a reliable transient-local publisher (s), as rmw_zenoh's
+#: ``SAMPLE_MISS_DETECTION_HEARTBEAT_PERIOD``
+HEARTBEAT_S = 1.0
+
+
 class Ros2Publisher:
     """A publisher (``MP`` token) of ``msgtype`` on ``topic``; :meth:`publish` sends a message with
-    the attachment (sequence from 1, the wall time in ns, the GID)."""
+    the attachment (sequence from 1, the wall time in ns, the GID).
 
-    def __init__(self, node: Ros2Node, topic: str, msgtype: str, depth: int = 10):
+    ``transient_local``: durability TRANSIENT_LOCAL as rmw_zenoh makes it
+    (``rmw_publisher_data.cpp``): a zenoh-ext *advanced* publisher with publisher detection, a
+    cache of the last ``depth`` samples (a late subscriber queries
+    ``<key>/@adv/pub/<zid>/<eid>/...`` and gets them) and sample-miss detection by a sporadic
+    heartbeat of :data:`HEARTBEAT_S`; the token's QoS chunk says durability ``1``.
+    """
+
+    def __init__(self, node: Ros2Node, topic: str, msgtype: str, depth: int = 10, transient_local: bool = False):
         self.node, self.topic, self.msgtype = node, check_topic(topic), msgtype
+        self.transient_local = bool(transient_local)
         self.key = topic_key(node.domain, topic, msgtype)
         self.token_key = entity_token(node.domain, node.zid, node.nid, node._take_id(), "MP", node.name, topic,
-                                      msgtype, qos_chunk(True, False, depth), node.namespace)
+                                      msgtype, qos_chunk(True, self.transient_local, depth), node.namespace)
         self.gid = entity_gid(self.token_key)
         self.sequence = 0
-        self._pub = node.session.declare_publisher(self.key)
+        if self.transient_local:
+            import zenoh.ext as zext
+
+            self._pub = zext.declare_advanced_publisher(
+                node.session, self.key, cache=zext.CacheConfig(int(depth)), publisher_detection=True,
+                sample_miss_detection=zext.MissDetectionConfig(heartbeat=None, sporadic_heartbeat=HEARTBEAT_S))
+        else:
+            self._pub = node.session.declare_publisher(self.key)
         self._token = node.session.liveliness().declare_token(self.token_key)
         node._entities.append(self)
 

@@ -90,6 +90,8 @@ class LiveView:
     monitor : a :class:`~depthguard.runtime.Monitor` to read frames from and set rho on (or :meth:`attach`).
     """
 
+    direct = True                    # keeps the newest reaction; drawn on its own thread (sink_specs)
+
     def __init__(self, rig, *, host: str = "127.0.0.1", port: int = 8080, rate_hz: float = 15.0,
                  stride: int = 8, monitor=None, title: str | None = None, start: bool = True):
         import viser
@@ -405,3 +407,14 @@ class LiveView:
 
     def __exit__(self, *exc) -> None:
         self.close()
+
+
+def open_view(argument: str, rig, context: dict) -> LiveView:
+    """``view:[[HOST:]PORT]`` (:mod:`depthguard.runtime.sink_specs`): default 127.0.0.1:8080 (a busy
+    port: the next free); anyone who reaches it can change rho. Direct: it keeps the newest reaction."""
+    from depthguard.runtime.sink_specs import view_address
+
+    host, port = view_address(argument)
+    view = LiveView(rig, host=host, port=port)
+    view.describe = f"live view at {view.url}"
+    return view

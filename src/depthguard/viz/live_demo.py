@@ -37,7 +37,7 @@ def live_monitor(during: Callable, cell: str = "flacco-cell", *, source: str | N
     log("view: compiling the monitor's kernels (once; cached on disk) ...")
     warm_up(rig, rig.monitor)
     view = LiveView(rig, host=host, port=port, rate_hz=rate_hz)
-    mon = Monitor(rig, rig.monitor, sinks=[context["sim_world"].on_reaction, view])
+    mon = Monitor(rig, rig.monitor, sinks=[joints.on_reaction, view])
     view.attach(mon)
     stop = threading.Event()
     box: dict = {}

@@ -136,8 +136,9 @@ class BagDepth:
                     found[cam_of_topic[con.topic]].setdefault(stamp, (int(log_ns), con.id))   # repeated: the first
                 elif con.msgtype == rosmsg.MSG["CameraInfo"]:
                     msg = rosmsg.deserialize(raw, con.msgtype)
-                    bag_source.check_camera_info(self.path, self._cams[cam_of_info[con.topic]], con.topic,
-                                                 rosmsg.stamp_s(msg.header.stamp), msg)
+                    cid = cam_of_info[con.topic]
+                    bag_source.check_camera_info(self.path, self._cams[cid], con.topic, rosmsg.stamp_s(msg.header.stamp),
+                                                 msg, image_topic=next(t for t, c in cam_of_topic.items() if c == cid))
                 else:
                     msg = rosmsg.deserialize(raw, con.msgtype)
                     try:

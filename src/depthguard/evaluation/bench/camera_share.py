@@ -14,6 +14,9 @@ monitor's fusion worker does.
   the camera's worker does) and copied in (the monitor's split). Peer: the same builds working the states out
   themselves (the build before the camera's share moved out), alternated run by run; the
   figures are the least median of five runs each.
+* ``share.rebuild_cpu_ms.<cell>`` — the same build done again with no camera changed (every
+  other camera's clearing memoised): what the design pays per build whatever its frame changed,
+  beside the build after a new frame.
 * ``share.state_cpu_ms.<cell>`` — what the camera's worker pays per frame for its share (the
   state; the pyramids stay with the build, as in the monitor: made into fresh memory per frame
   they cost the worker several ms of page faults).
@@ -62,8 +65,9 @@ def _frames(cell_name: str, t0: float, n: int):
     return cell, out, state_s
 
 
-def _builds(grid, cell, frames, with_states: bool) -> float:
-    """Median CPU seconds of the builds over ``frames`` (module docstring)."""
+def _builds(grid, cell, frames, with_states: bool, unchanged: bool = False) -> float:
+    """Median CPU seconds of the builds over ``frames`` (module docstring); ``unchanged``: each
+    build is done a second time with no camera changed, and that one is timed."""
     from depthguard.robot.volume import robot_volume
 
     rig, cfg = cell.rig, cell.rig.monitor
@@ -75,15 +79,18 @@ def _builds(grid, cell, frames, with_states: bool) -> float:
         depths[cid], rds[cid], qs[cid], states[cid] = d, rd, q, st
         if len(depths) < n_cams:
             continue
-        c0 = time.thread_time()
-        caps = robot_volume(robot, list(qs.values()), cfg.robot_padding)
-        grid.set_frames(depths, rds, robot_offset=cfg.robot_offset, robot_capsules=caps, invalid=cfg.invalid,
-                        robot_in_others=cfg.robot_in_others, changed={cid} if i >= n_cams else None,
-                        silhouette_px=cfg.silhouette_px, gap_px=cfg.gap_px,
-                        states=states if with_states else None)
-        robot.forward(q, data)
-        grid.query(data.cp_positions, rho=cfg.query_rho + cfg.distance_margin, method=cfg.method)
-        cpu.append(time.thread_time() - c0)
+        for again in ((False, True) if unchanged else (False,)):
+            c0 = time.thread_time()
+            caps = robot_volume(robot, list(qs.values()), cfg.robot_padding)
+            grid.set_frames(depths, rds, robot_offset=cfg.robot_offset, robot_capsules=caps, invalid=cfg.invalid,
+                            robot_in_others=cfg.robot_in_others,
+                            changed=set() if again else ({cid} if i >= n_cams else None),
+                            silhouette_px=cfg.silhouette_px, gap_px=cfg.gap_px,
+                            states=states if with_states else None)
+            robot.forward(q, data)
+            grid.query(data.cp_positions, rho=cfg.query_rho + cfg.distance_margin, method=cfg.method)
+            if again or not unchanged:
+                cpu.append(time.thread_time() - c0)
     return float(np.median(cpu))
 
 
@@ -116,6 +123,12 @@ def bench_share(ctx: BenchContext) -> list[BenchRow]:
                                  note=f"{len(cams)} cameras 640x480, one build per frame, one numba thread, CPU "
                                       f"(thread_time); least median of {len(shared)} alternated runs; goal: the "
                                       f"build near 1 ms (R36)"))
+            again = min(_builds(grid, cell, seq, True, unchanged=True) for _ in range(2 if ctx.quick else 5))
+            rows.append(BenchRow(f"share.rebuild_cpu_ms.{name}", 1e3 * again, "ms",
+                                 peer="a build after a new frame (share.build_cpu_ms)", peer_value=1e3 * min(shared),
+                                 note="the same build again with no camera changed: what every build pays whatever "
+                                      "its frame changed (capsule intervals, finding and re-classifying the cells "
+                                      "from the memo, the lookup); one numba thread, CPU, least median"))
             rows.append(BenchRow(f"share.state_cpu_ms.{name}", 1e3 * float(np.median(state_s)), "ms",
                                  note="a frame's state on its camera's worker, one numba thread"))
     finally:

@@ -48,6 +48,7 @@ from typing import Callable
 import numpy as np
 
 from depthguard.config import MonitorConfig
+from depthguard.control.policy import LEGACY_MODES
 from depthguard.evaluation.closed_loop.camera_pipeline import CameraPipeline, threadsafe_numba
 from depthguard.evaluation.closed_loop.loop_truth import LoopTruth
 from depthguard.control.sns import SNSWorkspace, sns_velocity
@@ -61,24 +62,28 @@ from depthguard.sources.simulated import returns_beyond_the_model
 __all__ = ["LoopConfig", "LoopResult", "ClosedLoop", "SafetySupervisor", "solve_ik", "stop_reasons"]
 
 
-_PRODUCT = {name: MonitorConfig.model_fields[name].default for name in ("robot_offset", "robot_padding")}
+#: the settings the loop shares with the runtime take the product's defaults, defined once in MonitorConfig
+_PRODUCT = {name: MonitorConfig.model_fields[name].default
+            for name in ("rho", "v_max", "alpha", "control_hz", "camera_hz", "stop_time", "resume_time", "method",
+                         "delta_d", "robot_offset", "robot_padding", "invalid", "reaction")}
 
 
 @dataclass(frozen=True)
 class LoopConfig:
-    """Parameters of the closed loop (defaults: Flacco 2014 §5.3, 2015 §VIII)."""
-    rho: float = 0.4                 # m, radius of surveillance
-    v_max: float = 1.5               # m/s, largest repulsive speed (R13)
-    alpha: float = 5.0               # shape factor (R13, R14)
-    control_hz: float = 500.0
-    camera_hz: float = 30.0
+    """Parameters of the closed loop (the runtime's: MonitorConfig's defaults, which are Flacco 2014
+    §5.3, 2015 §VIII; the loop's own below)."""
+    rho: float = _PRODUCT["rho"]                 # m, radius of surveillance
+    v_max: float = _PRODUCT["v_max"]             # m/s, largest repulsive speed (R13)
+    alpha: float = _PRODUCT["alpha"]             # shape factor (R13, R14)
+    control_hz: float = _PRODUCT["control_hz"]
+    camera_hz: float = _PRODUCT["camera_hz"]
     camera_latency: float | None = None   # s from capture to delivery (None: one camera period); camera_pipeline.py
     stale_periods: float = 3.0       # R27: frame age limit in camera periods
-    stop_time: float = 0.5           # s, override ramp 1 -> 0
-    resume_time: float = 1.0         # s, override ramp 0 -> 1
+    stop_time: float = _PRODUCT["stop_time"]     # s, override ramp 1 -> 0
+    resume_time: float = _PRODUCT["resume_time"]  # s, override ramp 0 -> 1
     k_p: float = 5.0                 # 1/s, CLIK gain on the EE position error
     k_posture: float = 1.0           # 1/s, null-space pull to the start posture
-    method: str = "hybrid"
+    method: str = _PRODUCT["method"]
     fusion: str = "grid"             # "grid" (all cameras, R12) | "single" (principal camera only)
     principal: str | None = None     # default: the rig's first camera
     cameras: tuple[str, ...] | None = None   # subset of the rig's cameras (default all)
@@ -86,17 +91,17 @@ class LoopConfig:
     # self removal and invalid pixels: the product's defaults (MonitorConfig, R9, R12, R28, R32)
     robot_offset: float = _PRODUCT["robot_offset"]    # m, R9 self-removal margin
     robot_padding: float = _PRODUCT["robot_padding"]  # m, robot volume: grid cells inside are never obstacles
-    invalid: str = "unknown"         # R28: "unknown" (the product's) | "far" (an invalid pixel is free)
+    invalid: str = _PRODUCT["invalid"]   # R28: "unknown" (the product's) | "free" (as MonitorConfig.invalid)
     threads: int | None = None       # numba threads of the loop (None: all, but one for the camera thread)
     distance_hz: float | None = None  # None: distances at every control cycle (R15); else this rate
-    grid_delta_d: float = 0.01       # m, depth slice of the grid (R10)
+    grid_delta_d: float = _PRODUCT["delta_d"]    # m, depth slice of the grid (R10)
     gt_step: float = 0.01            # m, ground-truth sampling along capsule axes
     hexagon: Hexagon = field(default_factory=Hexagon)
-    reaction: str = "repulsion"     # R33: "repulsion" | "ssm" | "both" (the monitor's mode)
+    reaction: str = _PRODUCT["reaction"]  # R33: "repulsion" | "ssm" | "both" (the monitor's mode)
     ssm: object = None               # SSMConfig (None: its defaults); the robot brakes by its stopping model
 
     def __post_init__(self):
-        if self.reaction not in ("repulsion", "ssm", "both"):
+        if self.reaction not in LEGACY_MODES:
             raise ValueError(f"LoopConfig.reaction must be repulsion, ssm or both, got {self.reaction!r}")
         for name in ("rho", "v_max", "alpha", "control_hz", "camera_hz", "stale_periods",
                      "stop_time", "resume_time", "gt_step", "grid_delta_d"):
@@ -107,8 +112,8 @@ class LoopConfig:
             raise ValueError(f"LoopConfig.camera_latency must be >= 0 s or None, got {self.camera_latency!r}")
         if self.threads is not None and not (isinstance(self.threads, int) and self.threads >= 1):
             raise ValueError(f"LoopConfig.threads must be an integer >= 1 or None (all), got {self.threads!r}")
-        if self.invalid not in ("far", "unknown"):
-            raise ValueError(f"LoopConfig.invalid must be 'far' or 'unknown', got {self.invalid!r}")
+        if self.invalid not in ("free", "unknown"):
+            raise ValueError(f"LoopConfig.invalid must be 'free' or 'unknown', got {self.invalid!r}")
         if self.fusion not in ("grid", "single"):
             raise ValueError(f"LoopConfig.fusion must be 'grid' or 'single', got {self.fusion!r}")
         if self.method not in ("min", "mean", "hybrid"):
@@ -247,12 +252,12 @@ class ClosedLoop:
     def monitor_config(self):
         """The runtime's settings for this loop (:class:`~depthguard.config.MonitorConfig`): the
         loop's rho, reaction and supervision parameters; self removal, the robot volume and the
-        invalid-pixel rules the product's (``invalid="far"`` is the runtime's ``"free"``, R28)."""
+        invalid-pixel rules the product's (R28)."""
         cfg = self.cfg
         return MonitorConfig(
             rho=cfg.rho, method=cfg.method, delta_d=cfg.grid_delta_d, principal=self.principal,
             cameras=tuple(c.id for c in self.cams), robot_offset=cfg.robot_offset,
-            robot_padding=cfg.robot_padding, invalid="free" if cfg.invalid == "far" else "unknown",
+            robot_padding=cfg.robot_padding, invalid=cfg.invalid,
             camera_hz=cfg.camera_hz, camera_stale_s=cfg.stale_periods / cfg.camera_hz,
             joints_stale_s=max(10.0 * cfg.dt, 0.01), joint_history_s=max(1.0, 3.0 * cfg.latency + 0.5),
             joint_wait_s=0.0, control_hz=cfg.control_hz, v_max=cfg.v_max, alpha=cfg.alpha,
@@ -301,7 +306,7 @@ class ClosedLoop:
             nearest_depth(ideal, self.dyn_renderers[cid].render(dyn)[0])
         nearest_depth(ideal, rd)                       # the robot occludes, as on a real cell
         d = self.sims[cid].measure(ideal, stamp=t)
-        if self.cfg.invalid == "far":
+        if self.cfg.invalid == "free":
             d = np.where(d > 0, d, np.float32(cam.max_range - 1e-3)).astype(np.float32)
         else:
             returns_beyond_the_model(d, ideal, cam)     # a user's rig without walls (R28)

@@ -1,0 +1,186 @@
+"""``--sink franky:`` and ``--joints franky:`` against franky-sim (PyPI ``franky-sim``, written by
+others: an FR3 simulated in MuJoCo behind a server that speaks the libfranka network protocol),
+driven by franky (PyPI ``franky-control``) as on a real robot (R27, R30, R31).
+
+The truth is the simulator's own joint state (``robot.inner_state``, read after every physics
+step), not what franky says. Under load the simulator runs slower than real time (measured
+180-250 steps/s of its 1 kHz here); the checks use its velocities, not wall-clock durations.
+"""
+
+from __future__ import annotations
+
+import copy
+import subprocess
+import sys
+import threading
+import time
+import types
+
+import numpy as np
+import pytest
+
+pytest.importorskip("franky", reason="franky-control (extra depthguard[franka]) drives the robot")
+pytest.importorskip("franky_sim", reason="franky-sim (test extra) is the simulated FR3")
+
+from depthguard.runtime.franky_sink import FrankySink, open_franky_sink  # noqa: E402
+from depthguard.sim import load_cell  # noqa: E402
+from depthguard.sources.base import open_joints  # noqa: E402
+from depthguard.sources.joints import JointSourceError  # noqa: E402
+from depthguard.transport.franky_link import FrankyError  # noqa: E402
+
+
+@pytest.fixture(scope="module")
+def fr3():
+    """A franky-sim FR3 on a free loopback address; ``truth``: (monotonic s, q, dq) after each step."""
+    from franky_sim import SimulationServer
+    from franky_sim.mujoco_simulator import MujocoSimulator
+
+    with MujocoSimulator(enable_visualization=False) as sim:
+        robot = sim.add_robot()
+        truth: list = []
+        lock = threading.Lock()
+
+        def record(_sim):
+            st = robot.inner_state
+            with lock:
+                truth.append((time.monotonic(), np.array(st.q, dtype=float), np.array(st.dq, dtype=float)))
+
+        sim.register_post_step_callback(record)
+        with SimulationServer(sim) as server:
+            server.run_async()
+            yield types.SimpleNamespace(host=robot.hostname, truth=truth, lock=lock, robot=robot)
+
+
+def _window(fr3, a, b):
+    with fr3.lock:
+        rows = [x for x in fr3.truth if a <= x[0] < b]
+    return np.array([x[1] for x in rows]), np.array([np.abs(x[2]).max() for x in rows])
+
+
+def _drive(sink, scale, seconds):
+    """The monitor's side: a reaction every 10 ms with ``speed_scale`` for ``seconds``; (start, end) monotonic."""
+    start = time.monotonic()
+    while time.monotonic() - start < seconds:
+        sink(types.SimpleNamespace(speed_scale=scale))
+        time.sleep(0.01)
+    return start, time.monotonic()
+
+
+@pytest.mark.slow
+def test_sink_slows_stops_and_resumes_the_path_as_franky_sim_reports(fr3):
+    home = np.array(fr3.robot.inner_state.q, dtype=float)
+    far = home + np.array([0.5, 0.0, 0.0, 0.0, 0.0, 0.0, 0.0])
+    sink = FrankySink(fr3.host, np.array([home, far]))
+    try:
+        full = _drive(sink, 1.0, 1.5)
+        slow = _drive(sink, 0.3, 1.5)
+        stop = _drive(sink, 0.0, 1.5)
+        q_stop = _window(fr3, stop[1] - 0.5, stop[1])[0]
+        resume = _drive(sink, 1.0, 1.5)
+        _, v_full = _window(fr3, full[0], full[1])
+        _, v_slow = _window(fr3, slow[0] + 0.75, slow[1])          # after slowing down from full speed
+        _, v_stop = _window(fr3, stop[1] - 0.5, stop[1])
+        _, v_res = _window(fr3, resume[0], resume[1])
+        # franky-sim's joint velocities: moving, slower at 0.3, zero when stopped, moving again
+        assert v_full.max() > 0.5, v_full.max()
+        assert 0.05 < v_slow.max() < 0.45 * v_full.max(), (v_slow.max(), v_full.max())
+        assert v_stop.max() < 2e-3, v_stop.max()
+        assert np.ptp(q_stop, axis=0).max() < 1e-3                  # standing: the joints do not move
+        assert v_res.max() > 0.5, v_res.max()
+        kinds = [k for _t, k, _i, _f in sink.legs]
+        assert "stop" in kinds and kinds[kinds.index("stop") + 1] == "leg"
+        assert {round(f, 2) for _t, k, _i, f in sink.legs if k == "leg"} >= {1.0, 0.3}
+        # the monitor goes silent: no reaction for more than 0.1 s stops the robot (R27)
+        silent = time.monotonic()
+        end = silent + 30.0
+        while len(_window(fr3, silent, end)[1]) < 1500 and time.monotonic() < end:   # 1.5 s of the simulator's time
+            time.sleep(0.1)
+        _, v_silent = _window(fr3, silent, end)
+        assert len(v_silent) >= 1500 and v_silent[-100:].max() < 2e-3, (len(v_silent), v_silent[-100:].max())
+        assert any("no reaction from the monitor" in e and "R27" in e for _t, e in sink.events)
+        assert sink.lost is None
+    finally:
+        sink.close()
+
+
+def test_joints_are_franky_sims_stamped_on_arrival_with_the_robot_time(fr3):
+    rig = load_cell("flacco-cell").rig                  # 7 joints, limits that hold the FR3's home
+    t0 = time.time()
+    src = open_joints(f"franky:{fr3.host}", rig, {})
+    try:
+        time.sleep(1.0)
+        states = src.states_until(time.time())
+        t1 = time.time()
+        q_true = _window(fr3, time.monotonic() - 0.5, time.monotonic() + 1)[0]
+    finally:
+        src.close()
+    assert len(states) > 20 and src.rejected == 0
+    stamps = np.array([s for s, _q in states])
+    assert np.all(np.diff(stamps) > 0) and t0 <= stamps[0] and stamps[-1] <= t1      # host clock, on arrival
+    robot_t = np.array([r for _h, r in src.robot_stamps])
+    assert np.all(np.diff(robot_t) > 0)                                             # the robot's own clock, kept
+    assert np.abs(states[-1][1] - q_true[-1]).max() < 1e-3                          # what the simulator holds
+
+
+def test_bad_robots_are_refused_in_one_sentence(fr3, tmp_path):
+    rig = load_cell("flacco-cell").rig
+    with pytest.raises(JointSourceError, match=r"the rig's robot .* has 6"):          # another joint count
+        open_joints(f"franky:{fr3.host}", load_cell("ur3-cell").rig, {})
+    narrow = copy.deepcopy(rig)
+    narrow.robot.q_max[3] = -1.7                                                     # the FR3 stands at -1.57
+    with pytest.raises(JointSourceError, match=r"do not fit the rig: joint 4 = -1.57.* outside its limits"):
+        open_joints(f"franky:{fr3.host}", narrow, {})
+    path = tmp_path / "path.csv"
+    path.write_text("0,0,0,-1.5,0,1.5,0.7\n0,0,0,-1.5,0,1.5,3.5\n")
+    with pytest.raises(FrankyError, match=r"waypoint 2, joint 7 = 3.5 is outside the rig's limits"):
+        open_franky_sink(f"{fr3.host},path={path}", rig=rig)
+    with pytest.raises(FrankyError, match=r"give the path"):
+        open_franky_sink(fr3.host, rig=rig)
+    with pytest.raises(FrankyError, match=r"no Franka robot answers at 127.0.0.3:1337"):
+        open_franky_sink(f"127.0.0.3,path={path}")
+
+
+@pytest.mark.slow
+@pytest.mark.parametrize("args, words", [
+    (["--sink", "franky:127.0.0.3,path={path}"], "no Franka robot answers at 127.0.0.3:1337"),
+    (["--sink", "franky:127.0.0.3"], "give the path the robot runs"),
+    (["--joints", "franky:127.0.0.3"], "cannot drive the simulated cameras"),
+])
+def test_monitor_refuses_a_bad_franka_in_one_line(tmp_path, args, words):
+    path = tmp_path / "path.csv"
+    path.write_text("0,0,0,-1.5,0,1.5,0.7\n0.2,0,0,-1.5,0,1.5,0.7\n")
+    res = subprocess.run([sys.executable, "-m", "depthguard.cli", "monitor", "--cell", "flacco-cell", "--out",
+                          str(tmp_path / "o"), *[a.format(path=path) for a in args]],
+                         capture_output=True, text=True, timeout=300)
+    assert res.returncode == 2, (res.stdout, res.stderr)
+    assert words in res.stderr and "Traceback" not in res.stderr
+
+
+@pytest.mark.slow
+def test_a_lost_robot_is_said_and_the_joints_go_stale(fr3):
+    """The simulator's server goes away while the path runs: the sink says so (R27) and the
+    joint source stops giving states (the monitor then stops on stale joints)."""
+    from franky_sim import SimulationServer
+    from franky_sim.mujoco_simulator import MujocoSimulator
+
+    rig = load_cell("flacco-cell").rig
+    with MujocoSimulator(enable_visualization=False) as sim:
+        robot = sim.add_robot()
+        server = SimulationServer(sim)
+        server.__enter__()
+        server.run_async()
+        home = np.array(robot.inner_state.q, dtype=float)
+        sink = FrankySink(robot.hostname, np.array([home, home + [0.5, 0, 0, 0, 0, 0, 0]]))
+        src = open_joints(f"franky:{robot.hostname}", rig, {})
+        try:
+            _drive(sink, 1.0, 1.0)
+            assert src.received > 0 and sink.lost is None
+            server.__exit__(None, None, None)
+            _drive(sink, 1.0, 3.0)
+            n = src.received
+            time.sleep(0.5)
+            assert sink.lost is not None and "R27" in sink.lost, sink.events
+            assert src.received == n                                   # no state comes any more
+        finally:
+            src.close()
+            sink.close()

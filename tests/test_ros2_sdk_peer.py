@@ -1,0 +1,205 @@
+"""depthguard against a ROS 2 node written by others: ``zenoh-ros2-sdk`` (PyPI, a pure-Python
+rmw_zenoh; its own key expressions, liveliness tokens, attachments, RIHS01 hashes and QoS
+strings), through a real Zenoh router (``ros2_peer.router``: an eclipse-zenoh session in router
+mode, what ``rmw_zenohd`` runs; no ``zenohd`` binary is installed here) (R29, R31).
+
+The SDK resolves message types from ``.msg`` files, and clones ros2/common_interfaces from
+GitHub for any it does not find: its definitions are given locally (``tests/ros2_msgs``,
+written by hand) and its download function is replaced by one that fails the test, so
+nothing is fetched at run time.
+"""
+
+from __future__ import annotations
+
+import dataclasses
+import json
+import subprocess
+import sys
+import threading
+import time
+from pathlib import Path
+
+import numpy as np
+import pytest
+
+sdk = pytest.importorskip("zenoh_ros2_sdk", reason="zenoh-ros2-sdk (test extra) is the independent ROS 2 node")
+
+from ros2_peer import check_frames_used_live, router, wait_for  # noqa: E402,F401
+
+from depthguard.sim import load_cell  # noqa: E402
+
+MSGS = Path(__file__).parent / "ros2_msgs"
+SCALING = "control_msgs/msg/SpeedScalingFactor"
+TOPIC = "/speed_scaling_input"       # one chunk: see test_speed_scaling_reaches_a_late_subscriber
+
+
+@pytest.fixture(scope="module")
+def peer(router):  # noqa: F811
+    """The SDK on this module's router, with the local message definitions and no downloads."""
+    from zenoh_ros2_sdk import message_registry, session
+    from zenoh_ros2_sdk.qos import QosDurability, QosProfile
+
+    def no_download(msg_type, *_a, **_k):
+        raise AssertionError(f"zenoh-ros2-sdk tried to download the definition of {msg_type}")
+
+    saved = message_registry._registry, message_registry.get_message_file_path, message_registry.clone_to_cache
+    message_registry._registry = None
+    message_registry.get_message_file_path = no_download
+    message_registry.clone_to_cache = no_download
+    assert session.ZenohSession._instance is None
+    reg = sdk.get_registry(str(MSGS))
+    host, port = router.removeprefix("tcp/").rsplit(":", 1)
+    sess = session.ZenohSession.get_instance(host, int(port))
+    ns = dict(sdk=sdk, reg=reg, kw=dict(router_ip=host, router_port=int(port)),
+              tl=QosProfile(durability=QosDurability.TRANSIENT_LOCAL, history_depth=1), QosProfile=QosProfile)
+    yield ns
+    sess.session.close()
+    session.ZenohSession._instance = None
+    message_registry._registry, message_registry.get_message_file_path, message_registry.clone_to_cache = saved
+
+
+def test_sdk_hashes_of_the_local_definitions_equal_depthguards(peer):
+    """The two implementations of RIHS01 agree on every type exchanged (else no sample would match)."""
+    from zenoh_ros2_sdk.utils import get_type_hash, load_dependencies_recursive
+
+    from depthguard.runtime.ros2_sink import _register_wire
+    from depthguard.transport.ros2_zenoh import type_hash
+
+    _register_wire()
+    for t in ("std_msgs/msg/Float64", "sensor_msgs/msg/Image", "sensor_msgs/msg/CameraInfo",
+              "sensor_msgs/msg/JointState", SCALING, "depthguard_msgs/msg/Reaction"):
+        text = peer["reg"].get_msg_file_path(t).read_text()
+        assert get_type_hash(t, text, load_dependencies_recursive(t, text, peer["reg"])) == type_hash(t), t
+
+
+def test_speed_scaling_reaches_a_late_subscriber(peer, router):  # noqa: F811
+    """SpeedScalingFactor is TRANSIENT_LOCAL as the joint_trajectory_controller subscribes to it:
+    a subscriber that comes after the reactions gets the newest factor at once — from the SDK
+    (its history query) and from zenoh-ext's advanced subscriber (what rmw_zenoh's
+    transient-local subscription is) — and the SDK's graph reads durability 1, depth 1."""
+    import zenoh
+    import zenoh.ext as zext
+
+    from depthguard.runtime.ros2_sink import Ros2Sink
+    from depthguard.transport import ros2_zenoh as rz
+    from test_runtime_sinks import reaction
+
+    rig = load_cell("flacco-cell").rig
+    node = rz.Ros2Node(router=router).acquire()
+    sink = Ros2Sink(node, rig.robot, scaling_topic=TOPIC)
+    reactions = [reaction(t=0.002 * k, override=1.0 - 0.05 * k) for k in range(10)]
+    reactions = [dataclasses.replace(r, speed_scale=0.5 * r.override) for r in reactions[:-1]] + \
+        [dataclasses.replace(reactions[-1], speed_scale=0.37)]
+    for r in reactions:
+        sink(r)
+    time.sleep(0.3)
+    got: list[float] = []
+    sub = peer["sdk"].ROS2Subscriber(TOPIC, SCALING, lambda m: got.append(m.factor), qos=peer["tl"], **peer["kw"])
+    assert got == [pytest.approx(0.37)]                  # the history query, during the constructor
+    adv: list[bytes] = []
+    spy = zenoh.open(zenoh.Config.from_json5(json.dumps({"mode": "client", "connect": {"endpoints": [router]},
+                                                         "scouting": {"multicast": {"enabled": False}}})))
+    asub = zext.declare_advanced_subscriber(spy, f"0/{TOPIC[1:]}/*/*", lambda s: adv.append(s.payload.to_bytes()),
+                                            history=zext.HistoryConfig(detect_late_publishers=True, max_samples=1))
+    assert wait_for(lambda: len(adv) >= 1, 3.0)
+    assert len(adv) == 1 and rz.WIRE.deserialize_cdr(adv[0], SCALING).factor == pytest.approx(0.37)
+    tokens = [str(r.ok.key_expr) for r in spy.liveliness().get("@ros2_lv/0/**", timeout=2.0) if r.ok]
+    mine = [k for k in tokens if "/MP/" in k and "%speed_scaling_input/" in k]
+    assert len(mine) == 1
+    qos = peer["QosProfile"].decode(mine[0].rsplit("/", 1)[1])       # the SDK's reading of our QoS chunk
+    assert qos.durability.name == "TRANSIENT_LOCAL" and qos.history_depth == 1 and qos.reliability.name == "RELIABLE"
+    sink(dataclasses.replace(reactions[-1], speed_scale=0.0))       # a stop reaches both live
+    assert wait_for(lambda: got[-1] == 0.0 and len(adv) == 2, 3.0), (got, len(adv))
+    asub.undeclare()
+    spy.close()
+    sub.close()
+    sink.close()
+
+
+@pytest.mark.slow
+def test_cli_monitor_exchanges_every_topic_with_a_zenoh_ros2_sdk_node(peer, router, tmp_path):  # noqa: F811
+    """The SDK node publishes /joint_states, depth Image and CameraInfo of both cameras; the
+    monitor (``--source ros2: --ros2``) runs 3 s on them; what the SDK node receives on
+    override, reaction and the speed scaling equals the monitor's log.jsonl, cycle by cycle."""
+    from depthguard.filtering.expected import ExpectedDepth
+
+    s = peer["sdk"]
+    rig = load_cell("flacco-cell").rig
+    q0 = np.asarray(rig.robot_q0, dtype=np.float64)
+    views = {c.id: np.rint(np.asarray(ExpectedDepth(c, rig.robot, rig.static_meshes()).known(q0)) * 1000).astype("<u2")
+             for c in rig.cameras}
+    Header, Time, Roi = (s.get_message_class(t) for t in ("std_msgs/msg/Header", "builtin_interfaces/msg/Time",
+                                                           "sensor_msgs/msg/RegionOfInterest"))
+    kw = dict(node_name="fake_cell", **peer["kw"])
+    pj = s.ROS2Publisher("/joint_states", "sensor_msgs/msg/JointState", **kw)
+    pimg = {c.id: s.ROS2Publisher(f"/{c.id}/depth/image_rect_raw", "sensor_msgs/msg/Image", **kw) for c in rig.cameras}
+    pinf = {c.id: s.ROS2Publisher(f"/{c.id}/depth/camera_info", "sensor_msgs/msg/CameraInfo", **kw) for c in rig.cameras}
+    got: dict[str, list] = {"override": [], "reaction": [], "scaling": []}
+    subs = [s.ROS2Subscriber("/depthguard/override", "std_msgs/msg/Float64", lambda m: got["override"].append(m.data), **kw),
+            s.ROS2Subscriber("/depthguard/reaction", "depthguard_msgs/msg/Reaction", got["reaction"].append, **kw),
+            s.ROS2Subscriber(TOPIC, SCALING, lambda m: got["scaling"].append(m.factor), qos=peer["tl"], **kw)]
+
+    def header(now, frame):
+        ns = int(round(now * 1e9))
+        return Header(stamp=Time(sec=ns // 10**9, nanosec=ns % 10**9), frame_id=frame)
+
+    stop = threading.Event()
+
+    def cell():                                         # the robot driver and the camera drivers, live
+        k = 0
+        while not stop.is_set():
+            now = time.time()
+            pj.publish(header=header(now, ""), name=list(rig.robot.joint_names), position=q0.copy(),
+                       velocity=np.zeros(0), effort=np.zeros(0))
+            if k % 6 == 0:
+                for c in rig.cameras:
+                    pinf[c.id].publish(
+                        header=header(now, f"{c.id}_optical"), height=c.height, width=c.width, distortion_model="plumb_bob",
+                        d=np.zeros(5), k=np.array([c.fx, 0, c.cx, 0, c.fy, c.cy, 0, 0, 1.0]), r=np.eye(3).ravel(),
+                        p=np.array([c.fx, 0, c.cx, 0, 0, c.fy, c.cy, 0, 0, 0, 1.0, 0]), binning_x=0, binning_y=0,
+                        roi=Roi(x_offset=0, y_offset=0, height=0, width=0, do_rectify=False))
+                    v = views[c.id]
+                    pimg[c.id].publish(header=header(now, f"{c.id}_optical"), height=v.shape[0], width=v.shape[1],
+                                       encoding="16UC1", is_bigendian=0, step=v.shape[1] * 2,
+                                       data=np.frombuffer(v.tobytes(), dtype=np.uint8))
+            k += 1
+            time.sleep(0.005)
+
+    th = threading.Thread(target=cell, daemon=True)
+    th.start()
+    out = tmp_path / "run"
+    try:
+        try:
+            res = subprocess.run([sys.executable, "-m", "depthguard.cli", "monitor", "--cell", "flacco-cell",
+                                  "--source", "ros2:", "--ros2", "--ros2-router", router, "--ros2-scaling-topic", TOPIC,
+                                  "--duration", "3", "--quiet", "--out", str(out)],
+                                 capture_output=True, text=True, timeout=240)
+        finally:
+            stop.set()
+            th.join(5)
+        assert res.returncode == 0, res.stderr
+        log = [json.loads(x) for x in (out / "log.jsonl").read_text().splitlines()]
+        summary = json.loads((out / "summary.json").read_text())
+        assert log[-1]["cameras"]["cam0"]["frames"] > 10 and log[-1]["cameras"]["cam1"]["frames"] > 10
+        check_frames_used_live(log, summary)           # as they come, to the end (not "fresh": see there)
+        assert set(summary["source_counts"]["ros2:"]) <= {"no_camera_info:cam0", "no_camera_info:cam1",
+                                                          "overflow:cam0", "overflow:cam1", "joints_overflow"}, \
+            summary["source_counts"]
+        assert wait_for(lambda: min(len(v) for v in got.values()) >= len(log), 5.0), \
+            ({k: len(v) for k, v in got.items()}, len(log))
+        assert got["override"] == pytest.approx([r["override"] for r in log], abs=1e-6)
+        assert got["scaling"] == pytest.approx([r["speed_scale"] for r in log], abs=1e-6)
+        assert {r["speed_scale"] for r in log} >= {0.0}                                     # the start's stop
+        if any(not r["reasons"] for r in log[:-1]):    # and go, once nothing stops it (a loaded machine's
+            assert max(r["speed_scale"] for r in log) > 0.0   # cameras can be stale the whole run: then no go)
+        for msg, r in zip(got["reaction"], log):
+            assert msg.header.stamp.sec + msg.header.stamp.nanosec * 1e-9 == pytest.approx(r["t"], abs=1e-6)
+            assert msg.override == pytest.approx(r["override"], abs=1e-6)
+            assert list(msg.q) == pytest.approx(r["q"], abs=1e-6)
+            assert list(msg.names) == [p["name"] for p in r["points"]]
+            assert list(msg.observed) == [p["observed"] for p in r["points"]]
+            assert list(msg.within_rho) == [p["distance"] is not None for p in r["points"]]
+            assert list(msg.reason_keys) == list(r["reasons"])
+    finally:                                            # a failed check must not leave sessions that hang pytest
+        for x in [*subs, pj, *pimg.values(), *pinf.values()]:
+            x.close()
