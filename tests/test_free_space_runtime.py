@@ -73,8 +73,10 @@ def test_the_person_is_not_free_and_unknown_is_not_occupied(cell, reaching):
     # a voxel whose centre is inside the person by more than half a voxel + margin is never free
     assert np.mean(snap.state[inside] != FREE) > 0.9
     assert np.count_nonzero(snap.state == UNKNOWN) > 0 and np.count_nonzero(snap.state == OCCUPIED) > 0
-    # the robot's own current volume is free (R21)
-    assert snap.machine.any() and np.all(snap.state[snap.machine] == FREE)
+    # the robot's own current volume is not freed (issue 30): no camera sees inside the robot,
+    # so most of its body is unknown (a voxel whose centre is inside a capsule but outside the
+    # rendered links can still be seen free or occupied)
+    assert snap.machine.any() and np.mean(snap.state[snap.machine] == UNKNOWN) > 0.7
 
 
 def test_robot_pixels_say_nothing(cell, reaching):

@@ -19,9 +19,14 @@ bound is ``sum_j |dq_j| * 2 E`` with ``E`` the robot's largest reach from its ba
 samples (every joint axis and every point lie within ``E`` of the base), and ``pad_k`` = half
 that move (x 1.05), so every pose between two samples is covered by one of them.
 
-The voxels of the robot's own volume at the path's start (``exclude``) are never a contact:
-the map cannot tell what is inside the robot (the price, as in
-:func:`~depthguard.control.motion_check.check_motion`).
+A capsule whose axis stays put along the whole path (:data:`STILL`: the base on its mount, a
+column turning about its own axis) sweeps nothing it does not already cover and is left out: what
+touches it now (the mount) is not the motion's. Only the robot's body when the map was taken (``exclude``: the voxels whose centre lies inside
+its unpadded capsules, :func:`body_mask`) is left out: nothing else can be there. The padded
+shell around the robot is not: a hand on the robot, or behind it, is in voxels no camera can
+judge (the robot is in the way), and they stay unknown — a path through them is ``maybe``,
+never ``safe`` (issue 30: leaving out the padded start volume judged 18 colliding segments safe
+on flacco-cell).
 
 :func:`sweep_states` is the numba kernel (``cache=True``), :func:`sweep_states_numpy` its plain
 numpy twin (the tests hold them equal).
@@ -38,11 +43,12 @@ import numpy as np
 from depthguard.robot.chain import forward_kernel
 
 __all__ = ["FREE", "UNKNOWN", "OCCUPIED", "VERDICTS", "SegmentVerdict", "PathVerdict", "check_path_states",
-           "validate_path", "sweep_states", "sweep_states_numpy", "sample_path", "capsule_ends", "touched_mask"]
+           "validate_path", "sweep_states", "sweep_states_numpy", "sample_path", "capsule_ends", "touched_mask", "body_mask"]
 
 FREE, UNKNOWN, OCCUPIED = 0, 1, 2
 VERDICTS = ("safe", "maybe", "unsafe")      # index = the worst state touched
 _HALF_DIAG = math.sqrt(3.0) / 2.0
+STILL = 1e-6        # m: a capsule whose axis ends move less than this along a path stays put
 
 
 @dataclass(frozen=True)
@@ -309,7 +315,8 @@ def check_path_states(state, lo, voxel_size: float, robot, stamps, q, padding: f
     ``(0, 0, 0)`` starts at ``lo`` (3,) m, cubes of ``voxel_size`` m.
 
     ``padding`` m is added to the robot's capsules; ``exclude`` (nx, ny, nz) bool voxels never
-    count (default: those the robot touches at the first waypoint, padded by one voxel);
+    count (default: the robot's body at the first waypoint, :func:`body_mask` — the map taken
+    there);
     ``max_move`` m between samples (default a quarter voxel); ``twin`` uses the numpy twin.
     A bad path raises ``ValueError`` naming the waypoint (:func:`validate_path`)."""
     t, Q = validate_path(stamps, q, robot)
@@ -317,12 +324,17 @@ def check_path_states(state, lo, voxel_size: float, robot, stamps, q, padding: f
     lo = np.ascontiguousarray(lo, dtype=np.float64)
     s = float(voxel_size)
     if exclude is None:
-        exclude = touched_mask(st.shape, lo, s, robot, Q[0], padding + s)
+        exclude = body_mask(st.shape, lo, s, robot, Q[0])
     ex = np.ascontiguousarray(exclude, dtype=np.bool_)
     if ex.shape != st.shape:
         raise ValueError(f"exclude has shape {ex.shape}, the map {st.shape}")
     mm = 0.25 * s if max_move is None else float(max_move)
     A, B, R, seg = sample_path(robot, Q, mm, float(padding))
+    # a capsule whose axis stays put along the whole path (the base on its mount, a column turning
+    # about its own axis) sweeps nothing it does not cover now: it is left out
+    moving = np.max(np.abs(np.concatenate([A - A[:1], B - B[:1]], axis=0)), axis=(0, 2)) > STILL
+    if not moving.all():
+        A, B, R = A[:, moving], B[:, moving], R[:, moving]
     n = len(Q) - 1
     if twin:
         worst, first, outside = sweep_states_numpy(st, ex, lo, s, A, B, R, seg, n)
@@ -338,6 +350,13 @@ def check_path_states(state, lo, voxel_size: float, robot, stamps, q, padding: f
         vox = tuple(int(x) for x in np.unravel_index(int(first[i]), st.shape)) if first[i] >= 0 else None
         segs.append(SegmentVerdict(i, float(t[i]), float(t[i + 1]), VERDICTS[w], vox, bool(outside[i])))
     return PathVerdict(tuple(segs), float(map_stamp), len(A))
+
+
+def body_mask(shape, lo, s, robot, q) -> np.ndarray:
+    """(nx, ny, nz) bool voxels whose centre lies inside the robot's own capsules (no padding) at
+    ``q`` (dof,) rad: the robot's body, where nothing else can be (the map's centre convention,
+    R21). The only voxels a path check may leave out; the padded shell around them is not."""
+    return touched_mask(shape, lo, s, robot, q, -float(s) * _HALF_DIAG)
 
 
 def touched_mask(shape, lo, s, robot, q, padding) -> np.ndarray:

@@ -25,9 +25,9 @@ import sys
 
 import numpy as np
 
-from depthguard.control.path_check import capsule_ends, check_path_states
+from depthguard.control.path_check import capsule_ends
 from depthguard.filtering.expected import ExpectedDepth
-from depthguard.runtime.free_space_map import RuntimeFreeSpace
+from depthguard.runtime.free_space_map import RuntimeFreeSpace, check_path_in
 from depthguard.sim import list_cells, load_cell
 from depthguard.sim.ground_truth import true_distance
 from depthguard.sources.simulated import SimSource
@@ -46,6 +46,25 @@ def random_paths(robot, q0, n: int, rng, spread: float = 1.2, segments: int = 20
     return out
 
 
+def _distance_within(obstacles, points, reach: float) -> np.ndarray:
+    """:func:`true_distance` of ``points`` (N, 3), exact wherever it is <= ``reach`` m: a mesh
+    solid's own (slow) ``sdf`` is evaluated only at the points inside its bounds grown by ``reach``
+    (elsewhere it is farther than ``reach``; its lower bound, the distance to the bounds, stands)."""
+    from depthguard.geometry.packed import PackedSolids
+
+    packed, rest = PackedSolids.split(obstacles)
+    d = true_distance([o for o in obstacles if o not in rest], points) if len(rest) < len(obstacles) \
+        else np.full(len(points), np.inf)
+    for prim in rest:
+        lo, hi = prim.bounds()
+        gap = np.linalg.norm(np.maximum(np.maximum(lo - points, points - hi), 0.0), axis=1)
+        near = gap <= reach
+        if near.any():
+            gap[near] = np.maximum(prim.sdf(points[near]), 0.0)
+        np.minimum(d, gap, out=d)
+    return d
+
+
 def true_collisions(robot, q, obstacles, per_segment: int = 10, step: float = 0.01) -> np.ndarray:
     """(n-1,) bool: segment ``i`` of the path ``q`` (n, dof) truly brings the robot (capsules, no
     padding) into an obstacle (module docstring)."""
@@ -60,7 +79,7 @@ def true_collisions(robot, q, obstacles, per_segment: int = 10, step: float = 0.
     L = np.linalg.norm(B - A, axis=2).max()
     u = np.linspace(0.0, 1.0, max(2, int(np.ceil(L / step)) + 1))
     pts = A[:, :, None, :] + u[None, None, :, None] * (B - A)[:, :, None, :]     # (P, K, U, 3)
-    d = true_distance(obstacles, pts.reshape(-1, 3)).reshape(pts.shape[:3])
+    d = _distance_within(obstacles, pts.reshape(-1, 3), float(radii.max())).reshape(pts.shape[:3])
     # capsules whose axis does not move along the path (the base, a column turning about its own
     # axis) sweep nothing new: their contact with the mount they stand on is not the motion's
     moving = np.max(np.linalg.norm(np.concatenate([A - A[:1], B - B[:1]], axis=0), axis=2), axis=0) > 1e-3
@@ -87,8 +106,7 @@ def evaluate_situation(cell, situation: str, paths: int = 20, seed: int = 0) -> 
               "free_judged_maybe": 0, "free_judged_unsafe": 0, "colliding_judged_safe": 0,
               "colliding_judged_maybe": 0, "colliding_judged_unsafe": 0}
     for stamps, q in random_paths(rig.robot, q_now, paths, rng):
-        v = check_path_states(snap.state, snap.grid.lo, snap.grid.voxel_size, rig.robot, stamps, q,
-                              padding=cfg.robot_padding)
+        v = check_path_in(snap, rig.robot, stamps, q, cfg.robot_padding)
         truth = true_collisions(rig.robot, q, obstacles)
         for s, hit in zip(v.segments, truth):
             counts["segments"] += 1

@@ -7,7 +7,8 @@ capture joints (R9, R30) — the same frames the distances use:
 
 - **robot removed at capture joints:** a pixel whose depth is at or behind the robot's rendered
   depth less ``robot_offset`` (the monitor's setting) sees the robot, or something touching it:
-  the camera says nothing there (it neither frees nor blocks a voxel on that ray);
+  it frees the voxels in front of its depth but marks no surface (``FreeSpaceMap.update(...,
+  robot=)``), so the robot's surface, a hand on it and the robot's shadow stay unknown;
 - **the known scene as background:** the rig's static meshes, rendered once per camera, are the
   map's background (:meth:`FreeSpaceMap.set_background`): a measurement of the known scene frees
   the voxels in front of it and marks no surface, while the voxels inside it keep their surface;
@@ -16,8 +17,11 @@ capture joints (R9, R30) — the same frames the distances use:
   snapshot starts again from "all unknown" (no voxel stays free from an earlier update: space a
   person enters is not free in the next snapshot, space they leave is free in the next one the
   cameras see it free);
-- **the robot's own current volume** (capsules + ``robot_padding`` at the newest joints) is free
-  (R21) and kept as ``machine``.
+- **the robot's own current volume is not freed** (issue 30): the voxels whose centre lies
+  inside its unpadded capsules at the newest joints are kept as ``machine`` (the body, which a
+  path check leaves out: nothing else can be there) and keep the state the cameras gave them
+  (unknown: no camera sees inside the robot). The padded shell around the body is judged like
+  any other voxel — what the cameras cannot see because the robot is in the way is unknown.
 
 Margin and shell tolerance: 2 and 5 sigma of the cameras' noise model at the far end of the
 workspace (``sigma_a + sigma_z2 d_max^2``, the largest over the cameras; 1 cm when a camera names
@@ -39,7 +43,7 @@ from dataclasses import dataclass
 
 import numpy as np
 
-from depthguard.control.path_check import FREE, OCCUPIED, UNKNOWN, check_path_states, touched_mask
+from depthguard.control.path_check import FREE, OCCUPIED, UNKNOWN, body_mask, check_path_states
 from depthguard.fusion.free_space import FreeSpaceMap
 from depthguard.geometry.voxel_grid import VoxelGrid
 
@@ -51,8 +55,8 @@ DEFAULT_SIGMA = 0.01     # m: noise of a camera that names no sensor model
 @dataclass(frozen=True)
 class FreeSpaceSnapshot:
     """One built map: ``state`` (nx, ny, nz) uint8 FREE / UNKNOWN / OCCUPIED (never written after
-    the swap), ``grid`` its :class:`VoxelGrid`, ``machine`` (nx, ny, nz) bool the robot's volume
-    freed at ``q`` (dof,) rad, ``stamp`` s the newest capture stamp used (NaN: no frame),
+    the swap), ``grid`` its :class:`VoxelGrid`, ``machine`` (nx, ny, nz) bool the robot's body at
+    ``q`` (dof,) rad (voxel centres inside its capsules; not freed), ``stamp`` s the newest capture stamp used (NaN: no frame),
     ``stamps`` per camera the capture stamp used, ``build_s`` the wall seconds the build took."""
     state: np.ndarray
     grid: VoxelGrid
@@ -119,6 +123,7 @@ class RuntimeFreeSpace:
         self.robot_offset = float(robot_offset)
         self.robot_padding = float(robot_padding)
         self._depth = {c.id: np.zeros((c.height, c.width), np.float32) for c in self.cameras}
+        self._robot_px = {c.id: np.zeros((c.height, c.width), bool) for c in self.cameras}
 
     @property
     def grid(self) -> VoxelGrid:
@@ -127,21 +132,22 @@ class RuntimeFreeSpace:
     def build(self, depths: dict, robot_depths: dict, q_now=None, stamps: dict | None = None) -> FreeSpaceSnapshot:
         """One map from ``depths`` (camera id -> (H, W) m, 0/NaN invalid) and ``robot_depths``
         (camera id -> (H, W) m, the robot rendered at that frame's capture joints, 0 = no robot);
-        the robot's current volume at ``q_now`` (dof,) rad is freed (None: nothing freed).
+        ``machine`` is the robot's body at ``q_now`` (dof,) rad (None: no body), never freed.
         Cameras left out say nothing."""
         t0 = time.perf_counter()
-        use = {}
+        use, robot = {}, {}
         for cid, d in depths.items():
-            buf = self._depth.get(cid)
-            if buf is None:
+            if cid not in self._depth:
                 continue
-            np.copyto(buf, d, casting="unsafe")
+            use[cid] = d
             rd = robot_depths.get(cid)
             if rd is not None:
-                robot_px = (rd > 0) & (buf >= rd - self.robot_offset)
-                buf[robot_px] = 0.0                     # the robot (or what touches it): say nothing
-            use[cid] = buf
-        self.map.update(use)
+                m = self._robot_px[cid]
+                np.subtract(rd, self.robot_offset, out=self._depth[cid], casting="unsafe")
+                np.greater_equal(d, self._depth[cid], out=m)
+                m &= rd > 0                             # the robot (or what touches it): no surface
+                robot[cid] = m
+        self.map.update(use, robot=robot)
         nf, ns = self.map.counts()
         occ = self.map.occupied
         state = np.where(occ, np.where(ns > 0, OCCUPIED, UNKNOWN), FREE).astype(np.uint8)
@@ -149,9 +155,7 @@ class RuntimeFreeSpace:
         q = None
         if q_now is not None and self.robot is not None:
             q = np.asarray(q_now, dtype=np.float64).copy()
-            machine = touched_mask(self.grid.shape, self.grid.lo, self.grid.voxel_size, self.robot, q,
-                                   self.robot_padding)
-            state[machine] = FREE
+            machine = body_mask(self.grid.shape, self.grid.lo, self.grid.voxel_size, self.robot, q)
         st = dict(stamps or {})
         stamp = max(st.values()) if st else float("nan")
         return FreeSpaceSnapshot(state, self.grid, machine, q, stamp, st, time.perf_counter() - t0)
@@ -175,8 +179,9 @@ class RuntimeFreeSpace:
 def check_path_in(snapshot: FreeSpaceSnapshot, robot, stamps, q, padding: float, twin: bool = False):
     """The verdict per segment of a path in ``snapshot`` (:func:`check_path_states`)."""
     g = snapshot.grid
+    exclude = snapshot.machine if snapshot.q is not None else None     # the body when the map was taken
     return check_path_states(snapshot.state, g.lo, g.voxel_size, robot, stamps, q, padding=padding,
-                             map_stamp=snapshot.stamp, twin=twin)
+                             exclude=exclude, map_stamp=snapshot.stamp, twin=twin)
 
 
 class FreeSpaceWorker:
