@@ -163,3 +163,41 @@ def test_cli_verdict_codes_differ_from_usage_error():
     from depthguard.cli.check_path import EXIT_MAYBE, EXIT_UNSAFE
 
     assert len({0, 2, EXIT_MAYBE, EXIT_UNSAFE}) == 4
+
+
+def test_monitor_watch_path_feeds_the_path_watch_policy(cell, reaching):
+    """``Monitor.watch_path`` (R37) with ``reactions: [repulsion, path_watch]``: the path into the
+    reaching person (as above) gets its verdict at the next map update and the policy's part holds
+    the robot at the path's last waypoint before the person (truth: the person's geometry via the
+    unsafe verdict of the map test above); without ``path_watch`` the call is refused."""
+    from depthguard.runtime.monitor import Monitor
+
+    t, q, _, _, frames, _ = reaching
+    rig = cell.rig
+    with Monitor(rig, rig.monitor.with_changes(free_space=False)) as mon:
+        with pytest.raises(ValueError, match="path_watch"):
+            mon.watch_path([0.0, 1.0], np.stack([q, q]))
+    hand = np.array([0.2, -0.15, 1.0])
+    pans = [p for p in np.linspace(-1.5, 1.5, 31) if rig.robot.q_min[0] <= q[0] + p <= rig.robot.q_max[0]]
+    tips = [np.linalg.norm(rig.robot.collision_capsules(q + np.r_[p, 0, 0, 0, 0, 0])[-1].segment()[1] - hand)
+            for p in pans]
+    Q = np.linspace(q, q + np.r_[pans[int(np.argmin(tips))], 0, 0, 0, 0, 0], 21)
+    stamps = np.linspace(0, 2, 21)
+    cfg = rig.monitor.with_changes(reactions=("repulsion", "path_watch"))
+    with Monitor(rig, cfg) as mon:
+        mon.push_joints(t - 0.01, q)
+        mon.push_joints(t + 0.01, q)
+        for f in frames.values():
+            mon.push_frame(f)
+        mon.flush(timeout=120)
+        mon.watch_path(stamps, Q)
+        mon.free_space.update_now()
+        v = mon.check_path(stamps, Q)
+        k = v.first_not_safe
+        assert v.verdict == "unsafe" and k is not None
+        first_unsafe = next(s.index for s in v.segments if s.verdict == "unsafe")
+        part = mon.step(t, Q[first_unsafe]).parts["path_watch"]     # at the unsafe segment's start
+        assert part.stop and part.scale == 0.0 and f"segment {first_unsafe}" in part.reasons["path_watch"]
+        assert part.record["verdict"] == "unsafe"
+        mon.watch_path(None, None)
+        assert mon.step(t + 0.002, Q[first_unsafe]).parts["path_watch"].scale == 1.0

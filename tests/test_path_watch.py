@@ -96,3 +96,47 @@ def test_segment_travel_is_the_fastest_capsule_end():
     tr = segment_travel(robot, Q)
     ends = lambda q: np.concatenate([np.stack(c.segment()) for c in robot.collision_capsules(q)])
     assert math.isclose(tr[0], np.max(np.linalg.norm(ends(Q[1]) - ends(Q[0]), axis=1)), rel_tol=1e-9)
+
+
+def test_the_registered_policy_stops_a_robot_short_of_the_blocked_segment_and_resumes():
+    """``path_watch`` from the registry (issue 28) on ur3-cell: the robot follows a 41-waypoint path
+    at the policy's scale (applied after the policy's own reaction time, braking at the SSM
+    deceleration); segment 30 turns unsafe. Truth: the fastest point's travel along the path
+    (capsule axis ends, :func:`segment_travel`) between where the robot rests and segment 30."""
+    from depthguard.control.policy import Cycle, PolicySetup, policy_class
+    from depthguard.sim import load_cell
+
+    rig = load_cell("ur3-cell").rig
+    cfg = rig.monitor.with_changes(reactions=("repulsion", "path_watch"))
+    pol = policy_class("path_watch")(PolicySetup(cfg, rig.robot, (), ("ee",)))
+    q0 = np.asarray(rig.robot_q0, float)
+    Q = np.linspace(q0, q0 + np.r_[1.0, 0, 0, 0, 0, 0], N)
+    path = pol.set_path(STAMPS, Q)
+    travel = segment_travel(rig.robot, Q)
+    pol.set_verdict(verdict({30: "unsafe"}), path)
+    dt, T_r = cfg.dt, pol.watch.reaction_time
+    tau, rate, pending, applied = 0.0, 1.0, [], 1.0     # path time, its rate (scale) and the applied limit
+    z = np.zeros(1)
+    parts = []
+    for k in range(int(6.0 / dt)):
+        t = k * dt
+        q = Q[0] + (tau / STAMPS[-1]) * (Q[-1] - Q[0])
+        part = pol.update(Cycle(t, dt, q, None, z, np.zeros((1, 3)), np.ones(1, bool), np.zeros((1, 3)),
+                                np.zeros((1, 3, 6)), 0.0, 1.0, {}, cfg))
+        parts.append(part)
+        pending.append((t + T_r, part.scale))
+        while pending and pending[0][0] <= t:
+            applied = pending.pop(0)[1]
+        v_full = float(np.max(path.speed))
+        rate = applied if applied >= rate else max(applied, rate - cfg.ssm.deceleration * dt / v_full)
+        tau = min(tau + rate * dt, STAMPS[-1])
+    i = int(np.searchsorted(STAMPS, tau, side="right")) - 1
+    left = (STAMPS[i + 1] - tau) / (STAMPS[i + 1] - STAMPS[i]) * travel[i] + travel[i + 1:30].sum()
+    assert tau < STAMPS[30] and left >= pol.watch.margin - 2e-3, (tau, left)
+    assert left < 0.3                                            # it did not stop needlessly early
+    assert parts[-1].stop and "segment 30" in parts[-1].reasons["path_watch"]
+    pol.set_verdict(verdict({}), path)                           # the segment clears: it resumes
+    q = Q[0] + (tau / STAMPS[-1]) * (Q[-1] - Q[0])
+    free = pol.update(Cycle(6.0, dt, q, None, z, np.zeros((1, 3)), np.ones(1, bool), np.zeros((1, 3)),
+                            np.zeros((1, 3, 6)), 0.0, 1.0, {}, cfg))
+    assert free.scale == 1.0 and not free.stop and not free.reasons

@@ -18,8 +18,10 @@ model of the SSM settings (:func:`depthguard.control.ssm.stopping`, R33):
   ``margin``;
 - nothing ahead blocked (it cleared): 1, so the robot resumes by itself.
 
-Self-contained: the lead plugs it into the reaction policies (issue 28; the most restrictive of
-all policies wins). No numba: one bisection per map update, not per control cycle.
+:class:`PathWatchPolicy` is the reaction policy ``path_watch`` (issue 28's registry; the most
+restrictive of all policies wins): ``monitor: reactions: [repulsion, path_watch]`` and
+``Monitor.watch_path(stamps, q)``. No numba: a bisection of 40 steps per cycle while a segment
+ahead is blocked, nothing otherwise.
 """
 
 from __future__ import annotations
@@ -32,7 +34,7 @@ import numpy as np
 from depthguard.control.path_check import capsule_ends
 from depthguard.control.ssm import stopping
 
-__all__ = ["PathWatch", "PathLimit", "segment_travel"]
+__all__ = ["PathWatch", "PathLimit", "segment_travel", "PathWatchPolicy", "WatchedPath"]
 
 
 def segment_travel(robot, q) -> np.ndarray:
@@ -119,3 +121,89 @@ class PathWatch:
         why = (f"path watch: segment {k} ahead ({seg.t0:.2f}-{seg.t1:.2f} s, {L:.2f} m away) is {seg.verdict}: "
                f"{seg.reason}")
         return PathLimit(s, why if s < 1.0 else "", k, L)
+
+
+@dataclass(frozen=True)
+class WatchedPath:
+    """The path being run: ``stamps`` (n,) s, ``q`` (n, dof) rad, ``travel`` (n-1,) m per segment
+    (:func:`segment_travel`), ``speed`` (n-1,) m/s its fastest point's speed per segment."""
+    stamps: np.ndarray
+    q: np.ndarray
+    travel: np.ndarray
+    speed: np.ndarray
+
+
+class PathWatchPolicy:
+    """The path watch as a reaction policy (:mod:`depthguard.control.policy`, R37): registered as
+    ``path_watch``; the most restrictive of the monitor's policies wins.
+
+    The monitor gives it the path the robot runs (:meth:`set_path`, from ``Monitor.watch_path``)
+    and, at every map update, the fresh verdict of that path (:meth:`set_verdict`, on the map's
+    thread). Each cycle: the robot's progress along the path from its joints (the nearest point of
+    the path in joint space, never more than one segment back), its fastest point's speed on the
+    path ahead at scale 1, and :meth:`PathWatch.limit` -> ``scale``; ``stop`` when it is 0 (the
+    supervisor ramps back up once the segment clears: the robot resumes by itself). The reaction
+    time is two map periods (a frame waits up to one for a build, the build and check take at
+    most another) + the SSM settings' camera and controller latencies + one control period; the
+    margin 5 cm. No path or no verdict yet: no limit.
+    """
+    name = "path_watch"
+
+    def __init__(self, setup):
+        cfg = setup.config
+        self.robot = setup.robot
+        t_r = 2.0 / cfg.free_space_hz + cfg.ssm.camera_latency_s + cfg.ssm.controller_latency_s + cfg.dt
+        self.watch = PathWatch(cfg.ssm, reaction_time=t_r, margin=0.05)
+        self.path: WatchedPath | None = None
+        self.verdict = None
+        self._seg = 0
+
+    def set_path(self, stamps, q) -> WatchedPath:
+        """Watch the path ``stamps`` (n,) s, ``q`` (n, dof) rad (validated by the caller); its
+        verdict is unknown until the next :meth:`set_verdict`."""
+        stamps = np.asarray(stamps, dtype=np.float64)
+        q = np.asarray(q, dtype=np.float64)
+        travel = segment_travel(self.robot, q)
+        path = WatchedPath(stamps, q, travel, travel / np.diff(stamps))
+        self.verdict = None
+        self._seg = 0
+        self.path = path
+        return path
+
+    def clear_path(self) -> None:
+        self.path = None
+        self.verdict = None
+
+    def set_verdict(self, verdict, path: WatchedPath | None = None) -> None:
+        """The verdict of ``path`` (default the current one) in a fresh map; dropped if the path
+        changed meanwhile."""
+        if path is None or path is self.path:
+            self.verdict = verdict
+
+    def progress(self, q) -> float:
+        """Path time (s) of the nearest point of the path to the joints ``q`` (dof,) rad."""
+        p = self.path
+        i0 = max(self._seg - 1, 0)
+        a = p.q[i0:-1]
+        d = p.q[i0 + 1:] - a
+        L2 = np.einsum("ij,ij->i", d, d)
+        u = np.clip(np.einsum("ij,ij->i", q - a, d) / np.where(L2 > 0, L2, 1.0), 0.0, 1.0)
+        e = q - (a + u[:, None] * d)
+        k = int(np.argmin(np.einsum("ij,ij->i", e, e)))
+        self._seg = i0 + k
+        return float(p.stamps[i0 + k] + u[k] * (p.stamps[i0 + k + 1] - p.stamps[i0 + k]))
+
+    def update(self, c):
+        from depthguard.control.policy import Part
+
+        p, verdict = self.path, self.verdict
+        if p is None or verdict is None:
+            return Part(record={"watching": p is not None, "verdict": None})
+        t = self.progress(np.asarray(c.q, dtype=np.float64))
+        v = float(np.max(p.speed[min(self._seg, len(p.speed) - 1):]))
+        lim = self.watch.limit(verdict, p.stamps, p.travel, t, v)
+        stop = lim.limit <= 0.0
+        return Part(scale=float(lim.limit), stop=stop, reasons={"path_watch": lim.reason} if lim.limit < 1.0 else {},
+                    record={"watching": True, "verdict": verdict.verdict, "path_t": t, "segment": lim.segment,
+                            "distance": lim.distance if math.isfinite(lim.distance) else None,
+                            "limit": float(lim.limit)})

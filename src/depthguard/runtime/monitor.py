@@ -491,8 +491,43 @@ class Monitor(MonitorDistances):
         cfg = self.config
         space = RuntimeFreeSpace(self.rig, self._camera_ids, voxel_size or cfg.free_space_voxel,
                                  cfg.robot_offset, cfg.robot_padding)
-        self.free_space = FreeSpaceWorker(space, self._workers, self._latest_q, hz or cfg.free_space_hz, on_snapshot)
+        self.free_space = FreeSpaceWorker(space, self._workers, self._latest_q, hz or cfg.free_space_hz,
+                                          lambda snap: self._on_snapshot(snap, on_snapshot))
         return self.free_space
+
+    def _path_policy(self):
+        return next((p for n, p in self._policies if n == "path_watch"), None)
+
+    def _on_snapshot(self, snap, user=None) -> None:
+        """After each map swap (the map's thread): the watched path's fresh verdict (R37), then ``user``."""
+        from depthguard.runtime.free_space_map import check_path_in
+
+        pol = self._path_policy()
+        path = None if pol is None else pol.path
+        if path is not None:
+            pol.set_verdict(check_path_in(snap, self.robot, path.stamps, path.q, self.config.robot_padding), path)
+        if user is not None:
+            user(snap)
+
+    def watch_path(self, stamps, q) -> None:
+        """R37: watch the path the robot runs — ``stamps`` (n,) s, ``q`` (n, dof) rad; ``None``
+        stops watching. Needs ``path_watch`` among ``config.reactions``; starts the map if it is
+        off. A bad path raises ``ValueError`` naming the waypoint."""
+        from depthguard.control.path_check import validate_path
+        from depthguard.runtime.free_space_map import check_path_in
+
+        pol = self._path_policy()
+        if pol is None:
+            raise ValueError("the path watch is not among the monitor's reactions "
+                             "(monitor: reactions: [repulsion, path_watch])")
+        if stamps is None:
+            pol.clear_path()
+            return
+        t, Q = validate_path(stamps, q, self.robot)
+        path = pol.set_path(t, Q)
+        snap = self.start_free_space().snapshot
+        if snap is not None:
+            pol.set_verdict(check_path_in(snap, self.robot, t, Q, self.config.robot_padding), path)
 
     def check_path(self, stamps, q, padding: float | None = None, fresh: bool = False):
         """R22, R37: a planned path — ``stamps`` (n,) s increasing, ``q`` (n, dof) rad — against the
