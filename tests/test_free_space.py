@@ -14,7 +14,8 @@ from trimesh.ray.ray_pyembree import RayMeshIntersector
 import depthguard as dg
 from depthguard.camera import Camera
 from depthguard.fusion.free_space import FreeSpaceMap
-from depthguard.fusion.free_space_kernels import free_space_update_numpy, voxel_counts_numpy
+from depthguard.fusion.free_space_kernels import (free_space_update_numpy, robot_pixels, robot_pixels_numpy,
+                                                  voxel_counts_numpy)
 from depthguard.geometry import Box, Capsule
 from depthguard.geometry.voxel_grid import VoxelGrid
 from depthguard.transforms import look_at
@@ -376,7 +377,8 @@ def test_robot_pixels_free_in_front_and_never_count_a_surface(full, background):
         d += rng.normal(0, 0.01, d.shape).astype(np.float32) * (d > 0)
         d[rng.random(d.shape) < 0.02] = 0.0
         robot = embree_depth(c, [BOX])
-        masks[c.id] = (robot > 0) & (d >= robot - 0.05)
+        masks[c.id] = robot_pixels(d, robot, 0.05, np.zeros(d.shape, bool))
+        assert np.array_equal(masks[c.id], robot_pixels_numpy(d, robot, 0.05))
         imgs.append(d)
     plain = fs.update({c.id: d for c, d in zip(cams, imgs)}).ravel().copy()
     nf0, ns0 = (a.ravel().copy() for a in fs.counts())

@@ -97,7 +97,7 @@ from typing import Mapping
 import numpy as np
 
 from depthguard.camera import Camera, check_depth_image
-from depthguard.fusion.free_space_kernels import free_space_update
+from depthguard.fusion.free_space_kernels import free_space_update, negate_where as _negate_where
 from depthguard.geometry.voxel_grid import VoxelGrid
 
 __all__ = ["FreeSpaceMap"]
@@ -311,7 +311,7 @@ class FreeSpaceMap:
                 raise ValueError(f"robot mask of camera {cam.id!r}: shape {m.shape} dtype {m.dtype}, expected bool "
                                  f"{(cam.height, cam.width)}")
             seg = self._depth[self.offs[ci]: self.offs[ci] + cam.width * cam.height].reshape(cam.height, cam.width)
-            np.negative(seg, out=seg, where=m)
+            _negate_where(seg, m)
 
     def set_background(self, backgrounds: Mapping[str, np.ndarray] | None, tolerance: float = 0.05) -> None:
         """Set (once; the shell never moves) the expected depth of the known static shell.

@@ -73,7 +73,8 @@ from __future__ import annotations
 import numba as nb
 import numpy as np
 
-__all__ = ["free_space_update", "free_space_update_numpy", "voxel_counts_numpy"]
+__all__ = ["free_space_update", "free_space_update_numpy", "voxel_counts_numpy", "robot_pixels",
+           "robot_pixels_numpy", "negate_where"]
 
 
 @nb.njit(cache=True, parallel=True, nogil=True)
@@ -258,3 +259,32 @@ def free_space_update_numpy(depths, n_voxels, rmin, rmax, start, vox, pix, offs,
     if previous_free is not None:
         free |= previous_free
     return ~free
+
+
+@nb.njit(cache=True, nogil=True)
+def robot_pixels(depth, robot_depth, offset, out):
+    """Issue 30, one pass: ``out`` (H, W) bool = the pixels that see the robot or something
+    touching it: ``robot_depth > 0`` and ``depth >= robot_depth - offset`` (m; NaN: not).
+    Twin: :func:`robot_pixels_numpy`."""
+    H, W = depth.shape
+    for v in range(H):
+        for u in range(W):
+            r = robot_depth[v, u]
+            out[v, u] = r > 0.0 and depth[v, u] >= r - offset
+    return out
+
+
+def robot_pixels_numpy(depth, robot_depth, offset):
+    """Plain numpy twin of :func:`robot_pixels`."""
+    with np.errstate(invalid="ignore"):
+        return (robot_depth > 0) & (depth >= robot_depth - offset)
+
+
+@nb.njit(cache=True, nogil=True)
+def negate_where(seg, mask):
+    """``seg[mask] = -seg[mask]`` in place, (H, W) float32 and bool (the robot pixels' encoding)."""
+    H, W = seg.shape
+    for v in range(H):
+        for u in range(W):
+            if mask[v, u]:
+                seg[v, u] = -seg[v, u]

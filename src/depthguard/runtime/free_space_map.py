@@ -45,6 +45,7 @@ import numpy as np
 
 from depthguard.control.path_check import FREE, OCCUPIED, UNKNOWN, body_mask, check_path_states
 from depthguard.fusion.free_space import FreeSpaceMap
+from depthguard.fusion.free_space_kernels import robot_pixels
 from depthguard.geometry.voxel_grid import VoxelGrid
 
 __all__ = ["FreeSpaceSnapshot", "RuntimeFreeSpace", "FreeSpaceWorker", "map_margins", "FREE", "UNKNOWN", "OCCUPIED"]
@@ -122,7 +123,6 @@ class RuntimeFreeSpace:
             self.map.set_background(self.backgrounds, tolerance=self.tolerance)
         self.robot_offset = float(robot_offset)
         self.robot_padding = float(robot_padding)
-        self._depth = {c.id: np.zeros((c.height, c.width), np.float32) for c in self.cameras}
         self._robot_px = {c.id: np.zeros((c.height, c.width), bool) for c in self.cameras}
 
     @property
@@ -137,16 +137,13 @@ class RuntimeFreeSpace:
         t0 = time.perf_counter()
         use, robot = {}, {}
         for cid, d in depths.items():
-            if cid not in self._depth:
+            if cid not in self._robot_px:
                 continue
             use[cid] = d
             rd = robot_depths.get(cid)
             if rd is not None:
-                m = self._robot_px[cid]
-                np.subtract(rd, self.robot_offset, out=self._depth[cid], casting="unsafe")
-                np.greater_equal(d, self._depth[cid], out=m)
-                m &= rd > 0                             # the robot (or what touches it): no surface
-                robot[cid] = m
+                # the robot (or what touches it): no surface (one numba pass, no allocation)
+                robot[cid] = robot_pixels(d, rd, self.robot_offset, self._robot_px[cid])
         self.map.update(use, robot=robot)
         nf, ns = self.map.counts()
         occ = self.map.occupied
@@ -164,7 +161,7 @@ class RuntimeFreeSpace:
         """:meth:`build` from the newest product of each camera worker (None: no product yet)."""
         depths, robot_depths, stamps = {}, {}, {}
         for cid, w in list(workers.items()):
-            if cid not in self._depth:
+            if cid not in self._robot_px:
                 continue
             with w.lock:
                 p = w.product
