@@ -228,6 +228,8 @@ def sweep_states(state, exclude, lo, s, A, B, R, seg, n_seg, worst, first, outsi
         worst[i] = 0
         first[i] = -1
         outside[i] = False
+    lo_i = np.empty(3, np.int64)
+    hi_i = np.empty(3, np.int64)
     for k in range(A.shape[0]):
         g = seg[k]
         for c in range(A.shape[1]):
@@ -237,8 +239,6 @@ def sweep_states(state, exclude, lo, s, A, B, R, seg, n_seg, worst, first, outsi
             reach = r + hd
             dx, dy, dz = bx - ax, by - ay, bz - az
             L2 = dx * dx + dy * dy + dz * dz
-            lo_i = np.empty(3, np.int64)
-            hi_i = np.empty(3, np.int64)
             pa = (ax, ay, az)
             pb = (bx, by, bz)
             for d in range(3):
