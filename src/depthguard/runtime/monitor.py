@@ -506,6 +506,10 @@ class Monitor(MonitorDistances):
         path = None if pol is None else pol.path
         if path is not None:
             pol.set_verdict(check_path_in(snap, self.robot, path.stamps, path.q, self.config.robot_padding), path)
+        for sink in self.sinks:                  # the map out (R37): sinks that take it, e.g. mcap:
+            write_map = getattr(sink, "write_map", None)
+            if write_map is not None:
+                write_map(snap)
         if user is not None:
             user(snap)
 
