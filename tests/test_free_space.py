@@ -14,7 +14,8 @@ from trimesh.ray.ray_pyembree import RayMeshIntersector
 import depthguard as dg
 from depthguard.camera import Camera
 from depthguard.fusion.free_space import FreeSpaceMap
-from depthguard.fusion.free_space_kernels import free_space_update_numpy, voxel_counts_numpy
+from depthguard.fusion.free_space_kernels import (free_space_update_numpy, robot_pixels, robot_pixels_numpy,
+                                                  voxel_counts_numpy)
 from depthguard.geometry import Box, Capsule
 from depthguard.geometry.voxel_grid import VoxelGrid
 from depthguard.transforms import look_at
@@ -357,3 +358,38 @@ def test_extent_depth_test_never_frees_a_voxel_holding_a_seen_surface():
     depths2 = {c.id: embree_depth(c, [plate2, FLOOR]) for c in cams}
     assert ext.update(depths2)[6:14, 6:14, 5].all()
     assert not cen.update(depths2)[6:14, 6:14, 5].any()
+
+
+@pytest.mark.parametrize("full, background", [(False, False), (False, True), (True, False)])
+def test_robot_pixels_free_in_front_and_never_count_a_surface(full, background):
+    """Issue 30: pixels that see the robot (here: the box, rendered alone) keep every free view
+    and count no surface; kernel == numpy twin (the twin reads a robot pixel's depth negated)."""
+    rng = np.random.default_rng(5)
+    cams = four_cams()
+    lo = LO - np.array([0.0, 0.0, 0.2]) if background else LO
+    fs = FreeSpaceMap(cams, bounds=(lo, HI), voxel_size=S, margin=0.02, footprint="full" if full else "centre")
+    if background:
+        fs.set_background({c.id: floor_background(c) for c in cams}, tolerance=0.05)
+    kw = fs.background_twin_args()
+    imgs, masks = [], {}
+    for c in cams:
+        d = embree_depth(c, [BOX, FLOOR])
+        d += rng.normal(0, 0.01, d.shape).astype(np.float32) * (d > 0)
+        d[rng.random(d.shape) < 0.02] = 0.0
+        robot = embree_depth(c, [BOX])
+        masks[c.id] = robot_pixels(d, robot, 0.05, np.zeros(d.shape, bool))
+        assert np.array_equal(masks[c.id], robot_pixels_numpy(d, robot, 0.05))
+        imgs.append(d)
+    plain = fs.update({c.id: d for c, d in zip(cams, imgs)}).ravel().copy()
+    nf0, ns0 = (a.ravel().copy() for a in fs.counts())
+    occ = fs.update({c.id: d for c, d in zip(cams, imgs)}, robot=masks).ravel().copy()
+    nf, ns = (a.ravel().copy() for a in fs.counts())
+    signed = [np.where(masks[c.id], -d, d) for c, d in zip(cams, imgs)]
+    ref = free_space_update_numpy(signed, fs.grid.size, *fs.twin_args(), fs.margin, fs.min_free_views,
+                                  full=full, **kw)
+    assert np.array_equal(occ, ref)
+    tnf, tns = voxel_counts_numpy(signed, fs.grid.size, *fs.twin_args(), fs.margin, full, **kw)
+    assert np.array_equal(nf, tnf) and np.array_equal(ns, tns)
+    assert np.array_equal(nf, nf0)                       # every free view kept
+    assert (ns <= ns0).all() and (ns < ns0).sum() > 20   # the box's surface is no longer counted
+    assert (occ <= plain).all()                          # nothing becomes occupied by it

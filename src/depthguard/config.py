@@ -138,6 +138,11 @@ class MonitorConfig(BaseModel):
     name under ``depthguard/<cell>/...`` of the Zenoh publications;
     ``zenoh_listen``: where the monitor's Zenoh session listens (loopback
     unless told otherwise).
+
+    Free space (R21, R37; :mod:`depthguard.runtime.free_space_map`): ``free_space`` keeps the
+    voxel map of free, unknown and occupied space of the workspace on its own thread (off by
+    default), rebuilt at ``free_space_hz`` from the newest frames, voxels of ``free_space_voxel``
+    m; :meth:`~depthguard.runtime.Monitor.check_path` judges planned paths in it.
     """
 
     model_config = ConfigDict(extra="forbid", frozen=True)
@@ -178,6 +183,9 @@ class MonitorConfig(BaseModel):
     zenoh_listen: str = "tcp/127.0.0.1:0"
     reaction: Literal["repulsion", "ssm", "both"] = "repulsion"
     ssm: SSMConfig = Field(default_factory=SSMConfig)
+    free_space: bool = False
+    free_space_hz: float = Field(10.0, gt=0.0, le=100.0)
+    free_space_voxel: float = Field(0.05, ge=0.01, le=0.5)
     reactions: Optional[tuple[str, ...]] = None
 
     @field_validator("reactions")

@@ -20,6 +20,7 @@ _COMMAND_MODULES = [
     "depthguard.cli.ssm",
     "depthguard.cli.freespace",
     "depthguard.cli.monitor",
+    "depthguard.cli.check_path",
     "depthguard.cli.view",
     "depthguard.cli.bag",
     "depthguard.cli.realsense",

@@ -44,6 +44,7 @@ _CELL, _DIST, _SIM, _DEV = ("Your cell", "Distributed mode (R20, R35)", "Simulat
 #: ``depthguard --help``: per top-level command its panel and one line, in the order listed
 OVERVIEW: dict[str, tuple[str, str]] = {
     "monitor": (_CELL, "Frames and joints in, the robot's reaction out (R29)."),
+    "check-path": (_CELL, "Is a planned path free? Verdict per segment (R22)."),
     "view": (_CELL, "A run or a recording in the browser, with a time slider."),
     "record": (_CELL, "Record what the sources deliver as a ROS 2 bag (R31)."),
     "rig": (_CELL, "Draft a rig file from a ROS 2 bag or a RealSense camera."),

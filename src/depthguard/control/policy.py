@@ -135,6 +135,7 @@ class _Entry:
 _BUILTIN: dict[str, str] = {
     "repulsion": "depthguard.control.policy_repulsion:Repulsion",    # R13, R14
     "ssm": "depthguard.control.policy_ssm:SpeedSeparationPolicy",    # R33
+    "path_watch": "depthguard.control.path_watch:PathWatchPolicy",   # R37: stop short of a blocked segment
 }
 
 _REGISTRY: dict[str, _Entry] = {n: _Entry(t) for n, t in _BUILTIN.items()}

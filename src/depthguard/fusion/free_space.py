@@ -97,7 +97,7 @@ from typing import Mapping
 import numpy as np
 
 from depthguard.camera import Camera, check_depth_image
-from depthguard.fusion.free_space_kernels import free_space_update
+from depthguard.fusion.free_space_kernels import free_space_update, negate_where as _negate_where
 from depthguard.geometry.voxel_grid import VoxelGrid
 
 __all__ = ["FreeSpaceMap"]
@@ -293,7 +293,25 @@ class FreeSpaceMap:
                 seg.fill(0.0)  # a missing camera says nothing
                 continue
             d = check_depth_image(cam, img)
-            np.copyto(seg.reshape(cam.height, cam.width), d, casting="unsafe")
+            # copied with negatives as 0 (invalid): a negative depth in the buffer is a robot pixel
+            np.maximum(d, np.float32(0.0), out=seg.reshape(cam.height, cam.width), casting="unsafe")
+
+    def _mark_robot(self, robot: Mapping[str, np.ndarray]) -> None:
+        """Negate the depth of the robot pixels in the map's buffer (after :meth:`_load_depths`,
+        which made a caller's negative depth 0: invalid)."""
+        unknown = set(robot) - set(self._ids)
+        if unknown:
+            raise ValueError(f"robot has masks for unknown camera ids {sorted(unknown)}; known: {self._ids}")
+        for ci, cam in enumerate(self.cameras):
+            m = robot.get(cam.id)
+            if m is None:
+                continue
+            m = np.asarray(m)
+            if m.shape != (cam.height, cam.width) or m.dtype != np.bool_:
+                raise ValueError(f"robot mask of camera {cam.id!r}: shape {m.shape} dtype {m.dtype}, expected bool "
+                                 f"{(cam.height, cam.width)}")
+            seg = self._depth[self.offs[ci]: self.offs[ci] + cam.width * cam.height].reshape(cam.height, cam.width)
+            _negate_where(seg, m)
 
     def set_background(self, backgrounds: Mapping[str, np.ndarray] | None, tolerance: float = 0.05) -> None:
         """Set (once; the shell never moves) the expected depth of the known static shell.
@@ -346,15 +364,20 @@ class FreeSpaceMap:
                 for ci, c in enumerate(self.cameras)]
         return {"background": imgs, "bg_tol": self.background_tolerance}
 
-    def update(self, depths: Mapping[str, np.ndarray], accumulate: bool = False) -> np.ndarray:
+    def update(self, depths: Mapping[str, np.ndarray], accumulate: bool = False,
+               robot: Mapping[str, np.ndarray] | None = None) -> np.ndarray:
         """R21: fuse one set of depth images into the map.
 
         Parameters
         ----------
-        depths : dict camera id -> (H, W) float depth image in metres (0 / NaN = invalid).
+        depths : dict camera id -> (H, W) float depth image in metres (0 / NaN / negative = invalid).
             Cameras left out say nothing (their voxels stay occupied unless other
             cameras free them).
         accumulate : keep the voxels that were free since :meth:`reset` (static scene only).
+        robot : optional dict camera id -> (H, W) bool, the pixels that see the robot (or
+            something touching it; R9, R30): they free the voxels in front of their depth
+            but never count a surface, so what the robot hides stays unknown
+            (:mod:`~depthguard.fusion.free_space_kernels`).
 
         With a background set (:meth:`set_background`) its rule applies.
 
@@ -363,6 +386,8 @@ class FreeSpaceMap:
         occupied : (nx, ny, nz) bool view of the map's buffer (valid until the next update).
         """
         self._load_depths(depths)
+        if robot:
+            self._mark_robot(robot)
         self.machine[...] = False  # the machine moves: add its current volume after each update
         free_space_update(self._depth, self.offs, self.widths, self.heights, self.rmin, self.rmax,
                           self.vstart, self.chunk, self.vox, self.pix, self.zc, self.ru, self.rv,

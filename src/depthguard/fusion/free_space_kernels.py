@@ -43,6 +43,16 @@ Everything else is unchanged; with ``use_bg=False`` (or ``B = 0``) the rules
 above are exactly those without a background. Only the centre-pixel mode
 (``full=False``) supports a background.
 
+**Pixels that see the robot** (R9, R30; issue 30): the map's own buffer holds
+such a pixel's depth negated, ``-d`` (:meth:`FreeSpaceMap.update` with
+``robot=``; a caller's negative depth is invalid and set to 0 first). The
+measurement still says that nothing lies in front of ``d``, so the free test
+applies to ``|d|`` as above; but the surface there is the robot *or something
+touching it* (a hand on the robot), so such a pixel never counts a **surface**:
+the voxels at and behind it stay unknown unless another camera sees them free.
+In the ``full`` window mode a window whose nearest depth is a robot pixel counts
+no surface either.
+
 Combination over the cameras of one update: the voxel is free when
 ``n_free >= min_free_views`` or when ``n_free >= 1`` and no camera sees a
 surface in it (free once is free, but a seen surface needs
@@ -63,7 +73,8 @@ from __future__ import annotations
 import numba as nb
 import numpy as np
 
-__all__ = ["free_space_update", "free_space_update_numpy", "voxel_counts_numpy"]
+__all__ = ["free_space_update", "free_space_update_numpy", "voxel_counts_numpy", "robot_pixels",
+           "robot_pixels_numpy", "negate_where"]
 
 
 @nb.njit(cache=True, parallel=True, nogil=True)
@@ -113,23 +124,29 @@ def free_space_update(depth, offs, widths, heights, rmin, rmax, vstart, chunk, v
                     for k in range(chunk[c, t], chunk[c, t + 1]):
                         p = pix[k]
                         d = depth[p]
+                        rob = d < 0.0                   # a robot pixel: free in front, never a surface
+                        if rob:
+                            d = -d
                         if d >= lo and d <= hi:
                             z = zc[k]
                             B = bg[p]
                             front = B <= 0.0 or z < B   # centre in front of the known shell
                             if d > z + f and front:
                                 n_free[vox[k]] += 1
-                            elif d >= z - h:
+                            elif d >= z - h and not rob:
                                 if not (B > 0.0 and front and abs(np.float64(d) - np.float64(B)) <= bg_tol):
                                     n_surf[vox[k]] += 1
                     continue
                 for k in range(chunk[c, t], chunk[c, t + 1]):
                     d = depth[pix[k]]
+                    rob = d < 0.0
+                    if rob:
+                        d = -d
                     if d >= lo and d <= hi:
                         z = zc[k]
                         if d > z + f:
                             n_free[vox[k]] += 1
-                        elif d >= z - h:
+                        elif d >= z - h and not rob:
                             n_surf[vox[k]] += 1
                 continue
             for k in range(chunk[c, t], chunk[c, t + 1]):
@@ -140,20 +157,25 @@ def free_space_update(depth, offs, widths, heights, rmin, rmax, vstart, chunk, v
                 b = np.int64(rv[k])
                 d = np.inf
                 bad = False
+                rob = False
                 for vv in range(max(v0 - b, 0), min(v0 + b + 1, H)):
                     base = off + vv * W
                     for uu in range(max(u0 - a, 0), min(u0 + a + 1, W)):
                         x = depth[base + uu]
+                        xr = x < 0.0
+                        if xr:
+                            x = -x
                         if not (x >= lo and x <= hi):
                             bad = True
                         elif x < d:
                             d = x
+                            rob = xr
                 if bad:
                     continue
                 z = zc[k]
                 if d > z + f:
                     n_free[vox[k]] += 1
-                elif d >= z - h:
+                elif d >= z - h and not rob:
                     n_surf[vox[k]] += 1
         for i in range(vstart[t], vstart[t + 1]):
             free = n_free[i] >= min_free_views or (n_free[i] >= 1 and n_surf[i] == 0)
@@ -168,7 +190,8 @@ def voxel_counts_numpy(depths, n_voxels, rmin, rmax, start, vox, pix, offs, zc, 
                        margin, full, background=None, bg_tol=0.0):
     """Plain-numpy twin of the per-camera tests: ``(n_free, n_surface)`` per voxel, (N,) each.
 
-    ``depths`` is a list of (H, W) images in camera order; the model as in the kernel.
+    ``depths`` is a list of (H, W) images in camera order, a robot pixel's depth negated (module
+    docstring); the model as in the kernel.
     ``background``: optional list of (H, W) expected shell depths (0 = none) in camera
     order, with the match tolerance ``bg_tol`` (centre-pixel mode only).
     """
@@ -178,6 +201,8 @@ def voxel_counts_numpy(depths, n_voxels, rmin, rmax, start, vox, pix, offs, zc, 
     n_surf = np.zeros(n_voxels, dtype=np.int64)
     for c, img in enumerate(depths):
         img = np.asarray(img, dtype=np.float32)
+        rob_px = img < 0                                         # robot pixels (module docstring)
+        img = np.abs(img)
         H, W = img.shape
         sl = slice(start[c], start[c + 1])
         v_idx = vox[sl]
@@ -186,6 +211,7 @@ def voxel_counts_numpy(depths, n_voxels, rmin, rmax, start, vox, pix, offs, zc, 
         if full:
             u0, v0 = q % W, q // W
             d = np.full(len(q), np.inf, dtype=np.float32)
+            rob = np.zeros(len(q), dtype=bool)
             ok = np.ones(len(q), dtype=bool)
             R = int(max(ru[sl].max(initial=0), rv[sl].max(initial=0)))
             for dv in range(-R, R + 1):
@@ -196,21 +222,24 @@ def voxel_counts_numpy(depths, n_voxels, rmin, rmax, start, vox, pix, offs, zc, 
                     uc, vc = np.clip(uu, 0, W - 1), np.clip(vv, 0, H - 1)
                     x, xv = img[vc, uc], valid_px[vc, uc]
                     ok &= ~use | xv
-                    d = np.where(use & xv, np.minimum(d, x), d)
+                    nearer = use & xv & (x < d)
+                    rob = np.where(nearer, rob_px[vc, uc], rob)
+                    d = np.where(nearer, x, d)
         else:
             d = img.ravel()[q]
             ok = valid_px.ravel()[q]
+            rob = rob_px.ravel()[q]
         z = zc[sl].astype(np.float64)
         d = d.astype(np.float64)
         if background is None:
             free = ok & (d > z + far[c] + margin)
-            surf = ok & ~free & (d >= z - half[c])
+            surf = ok & ~free & (d >= z - half[c]) & ~rob
         else:
             B = np.asarray(background[c], dtype=np.float32).ravel()[q].astype(np.float64)
             front = (B <= 0) | (z < B)
             shell = (B > 0) & front & (np.abs(np.float64(d) - np.float64(B)) <= bg_tol)
             free = ok & (d > z + far[c] + margin) & front
-            surf = ok & ~free & (d >= z - half[c]) & ~shell
+            surf = ok & ~free & (d >= z - half[c]) & ~shell & ~rob
         np.add.at(n_free, v_idx, free)
         np.add.at(n_surf, v_idx, surf)
     return n_free, n_surf
@@ -230,3 +259,32 @@ def free_space_update_numpy(depths, n_voxels, rmin, rmax, start, vox, pix, offs,
     if previous_free is not None:
         free |= previous_free
     return ~free
+
+
+@nb.njit(cache=True, nogil=True)
+def robot_pixels(depth, robot_depth, offset, out):
+    """Issue 30, one pass: ``out`` (H, W) bool = the pixels that see the robot or something
+    touching it: ``robot_depth > 0`` and ``depth >= robot_depth - offset`` (m; NaN: not).
+    Twin: :func:`robot_pixels_numpy`."""
+    H, W = depth.shape
+    for v in range(H):
+        for u in range(W):
+            r = robot_depth[v, u]
+            out[v, u] = r > 0.0 and depth[v, u] >= r - offset
+    return out
+
+
+def robot_pixels_numpy(depth, robot_depth, offset):
+    """Plain numpy twin of :func:`robot_pixels`."""
+    with np.errstate(invalid="ignore"):
+        return (robot_depth > 0) & (depth >= robot_depth - offset)
+
+
+@nb.njit(cache=True, nogil=True)
+def negate_where(seg, mask):
+    """``seg[mask] = -seg[mask]`` in place, (H, W) float32 and bool (the robot pixels' encoding)."""
+    H, W = seg.shape
+    for v in range(H):
+        for u in range(W):
+            if mask[v, u]:
+                seg[v, u] = -seg[v, u]

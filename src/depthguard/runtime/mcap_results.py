@@ -10,6 +10,9 @@ header stamp and the log time (the input's header stamps are on that clock too):
   cycle: the whole record of the log. "Nothing within rho" (``within_rho`` false, observed)
   and "cannot judge" (``observed`` false) are separate fields, never one number;
 - ``/depthguard/override`` — ``std_msgs/msg/Float64``, every cycle (0 = stop);
+- ``/depthguard/obstacles`` — ``sensor_msgs/msg/PointCloud2``, at every free-space map update
+  (``monitor: free_space: true``; :meth:`McapResults.write_map`): the occupied and unknown voxels,
+  the robot removed, with a ``state`` field (1 unknown, 2 occupied; :mod:`depthguard.runtime.map_cloud`);
 - ``/depthguard/markers`` — ``visualization_msgs/msg/MarkerArray`` in frame ``world``, at most
   ``marker_hz`` times per second of run time: a sphere per control point (green: nothing
   within rho; orange: an obstacle within rho; grey: cannot judge) and an arrow from the
@@ -25,6 +28,7 @@ from __future__ import annotations
 import math
 import os
 import shutil
+import threading
 from dataclasses import replace
 from pathlib import Path
 
@@ -55,7 +59,8 @@ float64[] camera_age_s
 float64 joints_age_s
 float64[] q
 """
-TOPICS = {"reaction": "/depthguard/reaction", "override": "/depthguard/override", "markers": "/depthguard/markers"}
+TOPICS = {"reaction": "/depthguard/reaction", "override": "/depthguard/override", "markers": "/depthguard/markers",
+          "obstacles": "/depthguard/obstacles"}
 
 _registered = False
 
@@ -99,8 +104,11 @@ class McapResults:
         ts = rosmsg.TYPESTORE
         self._con = {"reaction": self._writer.add_connection(TOPICS["reaction"], REACTION_TYPE, typestore=ts),
                      "override": self._writer.add_connection(TOPICS["override"], rosmsg.MSG["Float64"], typestore=ts),
-                     "markers": self._writer.add_connection(TOPICS["markers"], rosmsg.MSG["MarkerArray"], typestore=ts)}
+                     "markers": self._writer.add_connection(TOPICS["markers"], rosmsg.MSG["MarkerArray"], typestore=ts),
+                     "obstacles": self._writer.add_connection(TOPICS["obstacles"], "sensor_msgs/msg/PointCloud2",
+                                                              typestore=ts)}
         self.written = 0
+        self._lock = threading.Lock()      # the map's thread writes too (write_map)
         self._warm_up()
 
     def _warm_up(self) -> None:
@@ -186,19 +194,37 @@ class McapResults:
             return                                  # a ROS time cannot hold it (never on the monitor's clocks)
         ns = rosmsg.stamp_ns(r.t)
         T = rosmsg.TYPESTORE.types
-        self._writer.write(self._con["reaction"], ns, rosmsg.serialize(self.reaction_msg(r)))
-        self._writer.write(self._con["override"], ns, rosmsg.serialize(T[rosmsg.MSG["Float64"]](data=float(r.override))))
-        if r.t >= self._next_marker:
-            self._writer.write(self._con["markers"], ns, rosmsg.serialize(self.markers_msg(r)))
-            self._next_marker = r.t + self.period - 1e-9
+        with self._lock:
+            self._writer.write(self._con["reaction"], ns, rosmsg.serialize(self.reaction_msg(r)))
+            self._writer.write(self._con["override"], ns,
+                               rosmsg.serialize(T[rosmsg.MSG["Float64"]](data=float(r.override))))
+            if r.t >= self._next_marker:
+                self._writer.write(self._con["markers"], ns, rosmsg.serialize(self.markers_msg(r)))
+                self._next_marker = r.t + self.period - 1e-9
         self.written += 1
+
+    def write_map(self, snapshot) -> None:
+        """The free-space map's occupied and unknown voxels, the robot removed, as a
+        ``sensor_msgs/PointCloud2`` on ``/depthguard/obstacles`` at the map's newest capture
+        stamp (:mod:`depthguard.runtime.map_cloud`); a map without a stamp is not written."""
+        from depthguard.runtime.map_cloud import obstacle_cloud
+
+        if self._writer is None:
+            raise ValueError(f"{self.path}: closed")
+        if not (math.isfinite(snapshot.stamp) and snapshot.stamp >= 0):
+            return
+        data = rosmsg.serialize(obstacle_cloud(snapshot, snapshot.stamp, self.frame_id))
+        with self._lock:
+            if self._writer is not None:
+                self._writer.write(self._con["obstacles"], rosmsg.stamp_ns(snapshot.stamp), data)
 
     def close(self) -> None:
         """Finish the file and move it to ``path`` (the partial directory is removed)."""
-        if self._writer is None:
-            return
-        self._writer.close()
-        self._writer = None
+        with self._lock:
+            if self._writer is None:
+                return
+            self._writer.close()
+            self._writer = None
         inner = self._tmp / f"{self._tmp.name}.mcap"
         if self.path.exists():
             raise ValueError(f"{self.path} appeared during the run; the results stay in {inner}")

@@ -30,6 +30,7 @@ _MODULES = [
     "depthguard.evaluation.bench.voxels",
     "depthguard.evaluation.bench.sim",
     "depthguard.evaluation.bench.monitor",
+    "depthguard.evaluation.bench.monitor_paths",
     "depthguard.evaluation.bench.fusion_cells",
     "depthguard.evaluation.bench.view",
     "depthguard.evaluation.bench.realsense",

@@ -1,0 +1,398 @@
+"""Is my next motion free? A planned joint path against the free-space map, per segment (R22, R37).
+
+A path is waypoints ``(stamp_i, q_i)`` (s, rad), times strictly increasing; segment ``i`` runs from
+waypoint ``i`` to ``i + 1`` by linear interpolation in joint space (what a joint trajectory
+controller does between close waypoints). The robot's capsules padded by ``padding`` m are
+swept along each segment against a map whose voxels are each :data:`FREE`, :data:`UNKNOWN`
+(no camera judged it: hidden, out of view, invalid depth — R25) or :data:`OCCUPIED` (a camera
+saw a surface in it, or the known scene)::
+
+    safe    every voxel the swept padded robot touches is free
+    maybe   it touches unknown voxels (or leaves the mapped box), no occupied one
+    unsafe  it touches an occupied voxel
+
+Conservative sweep: a voxel is touched when its centre lies within ``r + padding + pad_k +
+s*sqrt(3)/2`` of a capsule's axis at a sample ``k`` (``s`` the voxel size; half the voxel's
+diagonal, so every voxel the padded capsule meets counts). Samples are spaced so that no point
+of the robot moves more than ``max_move`` (default a quarter voxel) between two of them; the
+bound is ``sum_j |dq_j| * 2 E`` with ``E`` the robot's largest reach from its base over the
+samples (every joint axis and every point lie within ``E`` of the base), and ``pad_k`` = half
+that move (x 1.05), so every pose between two samples is covered by one of them.
+
+A capsule whose axis stays put along the whole path (:data:`STILL`: the base on its mount, a
+column turning about its own axis) sweeps nothing it does not already cover and is left out: what
+touches it now (the mount) is not the motion's. Only the robot's body when the map was taken (``exclude``: the voxels whose centre lies inside
+its unpadded capsules, :func:`body_mask`) is left out: nothing else can be there. The padded
+shell around the robot is not: a hand on the robot, or behind it, is in voxels no camera can
+judge (the robot is in the way), and they stay unknown — a path through them is ``maybe``,
+never ``safe`` (issue 30: leaving out the padded start volume judged 18 colliding segments safe
+on flacco-cell).
+
+:func:`sweep_states` is the numba kernel (``cache=True``), :func:`sweep_states_numpy` its plain
+numpy twin (the tests hold them equal).
+"""
+
+from __future__ import annotations
+
+import math
+from dataclasses import dataclass, field
+
+import numba
+import numpy as np
+
+from depthguard.robot.chain import forward_kernel
+
+__all__ = ["FREE", "UNKNOWN", "OCCUPIED", "VERDICTS", "SegmentVerdict", "PathVerdict", "check_path_states",
+           "validate_path", "sweep_states", "sweep_states_numpy", "sample_path", "capsule_ends", "touched_mask", "body_mask"]
+
+FREE, UNKNOWN, OCCUPIED = 0, 1, 2
+VERDICTS = ("safe", "maybe", "unsafe")      # index = the worst state touched
+_HALF_DIAG = math.sqrt(3.0) / 2.0
+STILL = 1e-6        # m: a capsule whose axis ends move less than this along a path stays put
+
+
+@dataclass(frozen=True)
+class SegmentVerdict:
+    """Segment ``index`` (waypoint ``index`` to ``index + 1``, stamps ``t0``..``t1`` s): ``verdict``
+    one of :data:`VERDICTS`; ``voxel`` (i, j, k) the first voxel of the worst state met (None if
+    safe, or only outside the box); ``outside`` True when the swept robot leaves the mapped box."""
+    index: int
+    t0: float
+    t1: float
+    verdict: str
+    voxel: tuple | None = None
+    outside: bool = False
+    why: str = ""
+
+    @property
+    def reason(self) -> str:
+        if self.why:
+            return self.why
+        if self.verdict == "safe":
+            return "every voxel swept is free"
+        if self.verdict == "unsafe":
+            return f"the swept robot meets an occupied voxel {self.voxel}"
+        if self.voxel is not None:
+            return f"the swept robot meets unknown space (voxel {self.voxel}: no camera judged it)"
+        return "the swept robot leaves the mapped workspace (unknown space)"
+
+
+@dataclass(frozen=True)
+class PathVerdict:
+    """The verdict of a whole path: per segment, the worst overall, the first segment that is not
+    safe (None when all are) and the map's stamp (s) it was judged in."""
+    segments: tuple
+    map_stamp: float = float("nan")
+    samples: int = 0
+    verdict: str = field(init=False)
+    first_not_safe: int | None = field(init=False)
+
+    def __post_init__(self):
+        worst = max((VERDICTS.index(s.verdict) for s in self.segments), default=0)
+        object.__setattr__(self, "verdict", VERDICTS[worst])
+        first = next((s.index for s in self.segments if s.verdict != "safe"), None)
+        object.__setattr__(self, "first_not_safe", first)
+
+    def reasons(self) -> list[str]:
+        """One line per segment that is not safe."""
+        return [f"segment {s.index} ({s.t0:.3f}-{s.t1:.3f} s): {s.verdict}: {s.reason}"
+                for s in self.segments if s.verdict != "safe"]
+
+    def as_dict(self) -> dict:
+        return {"verdict": self.verdict, "first_not_safe": self.first_not_safe, "map_stamp": self.map_stamp,
+                "samples": self.samples, "reasons": self.reasons(),
+                "segments": [{"index": s.index, "t0": s.t0, "t1": s.t1, "verdict": s.verdict,
+                              "voxel": list(s.voxel) if s.voxel is not None else None, "outside": s.outside}
+                             for s in self.segments]}
+
+
+def validate_path(stamps, q, robot) -> tuple[np.ndarray, np.ndarray]:
+    """Check a path: ``stamps`` (n,) s strictly increasing, ``q`` (n, dof) rad within the robot's
+    limits, everything finite, n >= 2. Returns float64 copies; ``ValueError`` naming the first
+    bad waypoint (0-based) otherwise."""
+    t = np.asarray(stamps, dtype=np.float64).reshape(-1)
+    Q = np.asarray(q, dtype=np.float64)
+    if Q.ndim != 2 or Q.shape[0] != t.shape[0]:
+        raise ValueError(f"a path is n stamps and n joint vectors; got {t.shape[0]} stamps and joints of shape {Q.shape}")
+    if len(t) < 2:
+        raise ValueError(f"a path needs at least 2 waypoints, got {len(t)}")
+    if Q.shape[1] != robot.dof:
+        raise ValueError(f"waypoint 0: {Q.shape[1]} joints, the robot {robot.name!r} has {robot.dof}")
+    lo, hi = np.asarray(robot.q_min, float), np.asarray(robot.q_max, float)
+    with np.errstate(invalid="ignore"):
+        bad_t = ~np.isfinite(t)
+        bad_q = ~np.all(np.isfinite(Q), axis=1)
+        bad_order = np.concatenate([[False], ~(t[1:] > t[:-1])])
+        bad_lim = np.any((Q < lo - 1e-9) | (Q > hi + 1e-9), axis=1)
+    bad = bad_t | bad_q | bad_order | bad_lim
+    if bad.any():
+        i = int(np.argmax(bad))
+        if bad_t[i]:
+            raise ValueError(f"waypoint {i}: stamp {float(t[i])} is not finite")
+        if bad_q[i]:
+            raise ValueError(f"waypoint {i}: joints {Q[i].tolist()} are not all finite")
+        if bad_order[i]:
+            raise ValueError(f"waypoint {i}: stamp {t[i]:.6f} s does not increase (previous {t[i - 1]:.6f} s)")
+        j = int(np.argmax((Q[i] < lo - 1e-9) | (Q[i] > hi + 1e-9)))
+        raise ValueError(f"waypoint {i}: joint {j} = {Q[i, j]:.4f} rad is outside its limits "
+                         f"[{lo[j]:.4f}, {hi[j]:.4f}]")
+    return t, Q
+
+
+def _base(robot) -> np.ndarray:
+    b = getattr(robot, "base", None)
+    return np.asarray(b, dtype=np.float64)[:3, 3] if b is not None else np.zeros(3)
+
+
+def _axis_reach(A: np.ndarray, B: np.ndarray, base: np.ndarray) -> float:
+    """Largest distance (m) from ``base`` of a capsule axis end (axes are convex: of any axis point)."""
+    return float(max(np.max(np.linalg.norm(A - base, axis=-1)), np.max(np.linalg.norm(B - base, axis=-1))))
+
+
+def capsule_ends(robot, Qs: np.ndarray) -> tuple[np.ndarray, np.ndarray]:
+    """World capsule axis ends ``A``, ``B`` (S, K, 3) m of the robot at each row of ``Qs`` (S, dof)
+    rad, forward kinematics in one numba call (the rows must be finite)."""
+    Qs = np.ascontiguousarray(Qs, dtype=np.float64)
+    c = robot.chain
+    A = np.empty((len(Qs), len(robot._cap_link), 3))
+    B = np.empty_like(A)
+    _ends_kernel(Qs, np.ascontiguousarray(robot.base, dtype=np.float64), c.xf, c.ints, c.axis, c.support,
+                 robot._cap_link, robot._cap_ab, A, B)
+    return A, B
+
+
+@numba.njit(cache=True, nogil=True)
+def _ends_kernel(Qs, base, xf, ints, axis, support, cap_link, cap_ab, A, B):
+    L = ints.shape[0]
+    n = Qs.shape[1]
+    poses = np.empty((L, 4, 4))
+    jf = np.empty((L, 2, 3))
+    scratch = np.empty((3, 4, 4))
+    cp_link = np.empty(0, np.int64)
+    cp_off = np.empty((0, 3))
+    cp_pos = np.empty((0, 3))
+    cp_jac = np.empty((0, 3, n))
+    for s in range(Qs.shape[0]):
+        forward_kernel(Qs[s], base, xf, ints, axis, support, cp_link, cp_off, poses, jf, scratch, cp_pos, cp_jac)
+        for k in range(cap_link.shape[0]):
+            T = poses[cap_link[k]]
+            for r in range(3):
+                A[s, k, r] = T[r, 0] * cap_ab[k, 0, 0] + T[r, 1] * cap_ab[k, 0, 1] + T[r, 2] * cap_ab[k, 0, 2] + T[r, 3]
+                B[s, k, r] = T[r, 0] * cap_ab[k, 1, 0] + T[r, 1] * cap_ab[k, 1, 1] + T[r, 2] * cap_ab[k, 1, 2] + T[r, 3]
+
+
+def sample_path(robot, Q: np.ndarray, max_move: float, padding: float):
+    """Samples of the path ``Q`` (n, dof): capsule axis ends ``A``, ``B`` (S, K, 3) m, radii ``R``
+    (S, K) m (the capsule's + ``padding`` + the sample's own pad), the segment of each sample (S,)
+    int64. Each segment's samples include both its ends.
+
+    Speed bound: a point ``p`` moves at most ``sum_j |dq_j| |p - o_j|`` for revolute joint origins
+    ``o_j`` (``|dq_j|`` for a prismatic one); every axis point lies within ``E`` of the base and
+    every joint origin within ``E + r_max`` (it is inside a capsule), so the lever is at most
+    ``max(2 E + r_max, 1 m)``. ``E`` is taken over the waypoints first, then over the samples,
+    resampling while a sample reaches farther."""
+    base = _base(robot)
+    r0 = np.array([c.radius for c in robot.capsules], dtype=np.float64)
+    r_max = float(np.max(r0))
+    A, B = capsule_ends(robot, Q)
+    e = _axis_reach(A, B, base)
+    dq = np.diff(Q, axis=0)
+    l1 = np.sum(np.abs(dq), axis=1)
+    for _ in range(6):
+        lever = max(2.0 * e + r_max, 1.0)
+        move = l1 * lever
+        n = np.maximum(1, np.ceil(move / max_move).astype(np.int64))
+        seg = np.repeat(np.arange(len(dq), dtype=np.int64), n + 1)
+        frac = np.concatenate([np.arange(m + 1) / m for m in n])
+        Qs = Q[seg] + frac[:, None] * dq[seg]
+        A, B = capsule_ends(robot, Qs)
+        e_seen = _axis_reach(A, B, base)
+        if e_seen <= e + 0.5 * max_move:        # the rest is covered by the 5 % on the pad
+            break
+        e = e_seen                              # a pose between waypoints reaches farther: resample
+    pad = 0.5 * 1.05 * move / n
+    R = r0[None, :] + float(padding) + pad[seg][:, None]
+    return A, B, R, seg
+
+
+@numba.njit(cache=True, nogil=True)
+def sweep_states(state, exclude, lo, s, A, B, R, seg, n_seg, worst, first, outside):
+    """Numba kernel: per segment the worst state (0/1/2) of a voxel touched, the flat index of the
+    first such voxel (-1: none) and whether the swept robot leaves the box (module docstring).
+
+    state (nx, ny, nz) uint8, exclude (nx, ny, nz) bool, lo (3,) m, s m, A/B (S, K, 3) m, R (S, K)
+    m, seg (S,) int64; outputs worst (n_seg,) uint8, first (n_seg,) int64, outside (n_seg,) bool."""
+    nx, ny, nz = state.shape
+    hd = s * 0.8660254037844386
+    for i in range(n_seg):
+        worst[i] = 0
+        first[i] = -1
+        outside[i] = False
+    lo_i = np.empty(3, np.int64)
+    hi_i = np.empty(3, np.int64)
+    for k in range(A.shape[0]):
+        g = seg[k]
+        for c in range(A.shape[1]):
+            ax, ay, az = A[k, c, 0], A[k, c, 1], A[k, c, 2]
+            bx, by, bz = B[k, c, 0], B[k, c, 1], B[k, c, 2]
+            r = R[k, c]
+            reach = r + hd
+            dx, dy, dz = bx - ax, by - ay, bz - az
+            L2 = dx * dx + dy * dy + dz * dz
+            pa = (ax, ay, az)
+            pb = (bx, by, bz)
+            for d in range(3):
+                mn = min(pa[d], pb[d])
+                mx = max(pa[d], pb[d])
+                n_d = state.shape[d]
+                if mn - r < lo[d] or mx + r > lo[d] + n_d * s:
+                    outside[g] = True
+                a = int(math.floor((mn - reach - lo[d]) / s))
+                b = int(math.floor((mx + reach - lo[d]) / s)) + 1
+                lo_i[d] = min(max(a, 0), n_d)
+                hi_i[d] = min(max(b, 0), n_d)
+            r2 = reach * reach
+            for ii in range(lo_i[0], hi_i[0]):
+                cx = lo[0] + (ii + 0.5) * s
+                for jj in range(lo_i[1], hi_i[1]):
+                    cy = lo[1] + (jj + 0.5) * s
+                    for kk in range(lo_i[2], hi_i[2]):
+                        st = state[ii, jj, kk]
+                        if st <= worst[g] or exclude[ii, jj, kk]:
+                            continue
+                        cz = lo[2] + (kk + 0.5) * s
+                        u = 0.0
+                        if L2 > 0.0:
+                            u = ((cx - ax) * dx + (cy - ay) * dy + (cz - az) * dz) / L2
+                            u = min(max(u, 0.0), 1.0)
+                        ex, ey, ez = cx - ax - u * dx, cy - ay - u * dy, cz - az - u * dz
+                        if ex * ex + ey * ey + ez * ez <= r2:
+                            worst[g] = st
+                            first[g] = (ii * ny + jj) * nz + kk
+    return worst
+
+
+def sweep_states_numpy(state, exclude, lo, s, A, B, R, seg, n_seg):
+    """Plain numpy twin of :func:`sweep_states`: (worst, first, outside) per segment. ``first`` may
+    name another voxel of the same worst state than the kernel's; the tests compare states."""
+    worst = np.zeros(n_seg, np.uint8)
+    first = np.full(n_seg, -1, np.int64)
+    outside = np.zeros(n_seg, bool)
+    shape = np.array(state.shape)
+    hd = s * _HALF_DIAG
+    for k in range(len(A)):
+        g = seg[k]
+        for c in range(A.shape[1]):
+            a, b, r = A[k, c], B[k, c], R[k, c]
+            mn, mx = np.minimum(a, b), np.maximum(a, b)
+            if np.any(mn - r < lo) or np.any(mx + r > lo + shape * s):
+                outside[g] = True
+            i0 = np.clip(np.floor((mn - r - hd - lo) / s).astype(int), 0, shape)
+            i1 = np.clip(np.floor((mx + r + hd - lo) / s).astype(int) + 1, 0, shape)
+            if np.any(i1 <= i0):
+                continue
+            idx = np.stack(np.meshgrid(*[np.arange(i0[d], i1[d]) for d in range(3)], indexing="ij"), -1).reshape(-1, 3)
+            cen = lo + (idx + 0.5) * s
+            ab = b - a
+            L2 = float(ab @ ab)
+            u = np.clip((cen - a) @ ab / L2, 0.0, 1.0) if L2 > 0 else np.zeros(len(cen))
+            dist = np.linalg.norm(cen - a - u[:, None] * ab, axis=1)
+            hit = dist <= r + hd
+            hit &= ~exclude[idx[:, 0], idx[:, 1], idx[:, 2]]
+            st = state[idx[:, 0], idx[:, 1], idx[:, 2]] * hit
+            if st.size and st.max() > worst[g]:
+                m = int(np.argmax(st))
+                worst[g] = st[m]
+                first[g] = int(np.ravel_multi_index(tuple(idx[m]), state.shape))
+    return worst, first, outside
+
+
+def check_path_states(state, lo, voxel_size: float, robot, stamps, q, padding: float = 0.0,
+                      exclude=None, max_move: float | None = None, map_stamp: float = float("nan"),
+                      twin: bool = False) -> PathVerdict:
+    """R22/R37: the verdict per segment of the path ``(stamps (n,) s, q (n, dof) rad)`` in the map
+    ``state`` (nx, ny, nz) uint8 (:data:`FREE`/:data:`UNKNOWN`/:data:`OCCUPIED`) whose voxel
+    ``(0, 0, 0)`` starts at ``lo`` (3,) m, cubes of ``voxel_size`` m.
+
+    ``padding`` m is added to the robot's capsules; ``exclude`` (nx, ny, nz) bool voxels never
+    count (default: the robot's body at the first waypoint, :func:`body_mask` — the map taken
+    there);
+    ``max_move`` m between samples (default a quarter voxel); ``twin`` uses the numpy twin.
+    A bad path raises ``ValueError`` naming the waypoint (:func:`validate_path`)."""
+    t, Q = validate_path(stamps, q, robot)
+    st = np.ascontiguousarray(state, dtype=np.uint8)
+    lo = np.ascontiguousarray(lo, dtype=np.float64)
+    s = float(voxel_size)
+    if exclude is None:
+        exclude = body_mask(st.shape, lo, s, robot, Q[0])
+    ex = np.ascontiguousarray(exclude, dtype=np.bool_)
+    if ex.shape != st.shape:
+        raise ValueError(f"exclude has shape {ex.shape}, the map {st.shape}")
+    mm = 0.25 * s if max_move is None else float(max_move)
+    A, B, R, seg = sample_path(robot, Q, mm, float(padding))
+    # a capsule whose axis stays put along the whole path (the base on its mount, a column turning
+    # about its own axis) sweeps nothing it does not cover now: it is left out
+    moving = np.max(np.abs(np.concatenate([A - A[:1], B - B[:1]], axis=0)), axis=(0, 2)) > STILL
+    if not moving.all():
+        A, B, R = A[:, moving], B[:, moving], R[:, moving]
+    n = len(Q) - 1
+    if twin:
+        worst, first, outside = sweep_states_numpy(st, ex, lo, s, A, B, R, seg, n)
+    else:
+        worst, first, outside = np.zeros(n, np.uint8), np.zeros(n, np.int64), np.zeros(n, np.bool_)
+        sweep_states(st, ex, lo, s, np.ascontiguousarray(A), np.ascontiguousarray(B), np.ascontiguousarray(R),
+                     seg, n, worst, first, outside)
+    segs = []
+    for i in range(n):
+        w = int(worst[i])
+        if outside[i]:
+            w = max(w, UNKNOWN)
+        vox = tuple(int(x) for x in np.unravel_index(int(first[i]), st.shape)) if first[i] >= 0 else None
+        segs.append(SegmentVerdict(i, float(t[i]), float(t[i + 1]), VERDICTS[w], vox, bool(outside[i])))
+    return PathVerdict(tuple(segs), float(map_stamp), len(A))
+
+
+def body_mask(shape, lo, s, robot, q) -> np.ndarray:
+    """(nx, ny, nz) bool voxels whose centre lies inside the robot's own capsules (no padding) at
+    ``q`` (dof,) rad: the robot's body, where nothing else can be (the map's centre convention,
+    R21). The only voxels a path check may leave out; the padded shell around them is not."""
+    return touched_mask(shape, lo, s, robot, q, -float(s) * _HALF_DIAG)
+
+
+def touched_mask(shape, lo, s, robot, q, padding) -> np.ndarray:
+    """(nx, ny, nz) bool voxels the robot's capsules (+ ``padding`` m) at ``q`` touch (the sweep's
+    rule: centre within ``r + padding + s*sqrt(3)/2`` of the axis)."""
+    A, B = capsule_ends(robot, np.asarray(q, dtype=np.float64)[None, :])
+    R = np.array([c.radius for c in robot.capsules], dtype=np.float64)[None, :] + float(padding)
+    out = np.zeros(shape, np.bool_)
+    _mark_kernel(out, np.ascontiguousarray(lo, dtype=np.float64), float(s), A, B, R)
+    return out
+
+
+@numba.njit(cache=True, nogil=True)
+def _mark_kernel(out, lo, s, A, B, R):
+    reach0 = s * 0.8660254037844386
+    for k in range(A.shape[0]):
+        for c in range(A.shape[1]):
+            reach = R[k, c] + reach0
+            d = B[k, c] - A[k, c]
+            L2 = d[0] * d[0] + d[1] * d[1] + d[2] * d[2]
+            i0 = np.empty(3, np.int64)
+            i1 = np.empty(3, np.int64)
+            for e in range(3):
+                mn = min(A[k, c, e], B[k, c, e])
+                mx = max(A[k, c, e], B[k, c, e])
+                i0[e] = min(max(int(math.floor((mn - reach - lo[e]) / s)), 0), out.shape[e])
+                i1[e] = min(max(int(math.floor((mx + reach - lo[e]) / s)) + 1, 0), out.shape[e])
+            for ii in range(i0[0], i1[0]):
+                for jj in range(i0[1], i1[1]):
+                    for kk in range(i0[2], i1[2]):
+                        px = lo[0] + (ii + 0.5) * s - A[k, c, 0]
+                        py = lo[1] + (jj + 0.5) * s - A[k, c, 1]
+                        pz = lo[2] + (kk + 0.5) * s - A[k, c, 2]
+                        u = 0.0
+                        if L2 > 0.0:
+                            u = min(max((px * d[0] + py * d[1] + pz * d[2]) / L2, 0.0), 1.0)
+                        ex, ey, ez = px - u * d[0], py - u * d[1], pz - u * d[2]
+                        if ex * ex + ey * ey + ez * ez <= reach * reach:
+                            out[ii, jj, kk] = True

@@ -1,0 +1,239 @@
+"""The free-space map in the runtime: the monitor's frames into R21 voxels, off the control path (R21, R37).
+
+:class:`RuntimeFreeSpace` keeps a :class:`~depthguard.fusion.free_space.FreeSpaceMap` of the rig's
+workspace box (default 5 cm voxels) and builds a :class:`FreeSpaceSnapshot` from the newest
+product of every camera worker — the depth as measured and the robot rendered at *that frame's*
+capture joints (R9, R30) — the same frames the distances use:
+
+- **robot removed at capture joints:** a pixel whose depth is at or behind the robot's rendered
+  depth less ``robot_offset`` (the monitor's setting) sees the robot, or something touching it:
+  it frees the voxels in front of its depth but marks no surface (``FreeSpaceMap.update(...,
+  robot=)``), so the robot's surface, a hand on it and the robot's shadow stay unknown;
+- **the known scene as background:** the rig's static meshes, rendered once per camera, are the
+  map's background (:meth:`FreeSpaceMap.set_background`): a measurement of the known scene frees
+  the voxels in front of it and marks no surface, while the voxels inside it keep their surface;
+- **unknown stays unknown:** a voxel no camera sees free is :data:`UNKNOWN` when no camera saw a
+  surface in it (hidden, out of view, invalid pixels) and :data:`OCCUPIED` when one did; a
+  snapshot starts again from "all unknown" (no voxel stays free from an earlier update: space a
+  person enters is not free in the next snapshot, space they leave is free in the next one the
+  cameras see it free);
+- **the robot's own current volume is not freed** (issue 30): the voxels whose centre lies
+  inside its unpadded capsules at the newest joints are kept as ``machine`` (the body, which a
+  path check leaves out: nothing else can be there) and keep the state the cameras gave them
+  (unknown: no camera sees inside the robot). The padded shell around the body is judged like
+  any other voxel — what the cameras cannot see because the robot is in the way is unknown.
+
+Margin and shell tolerance: 2 and 5 sigma of the cameras' noise model at the far end of the
+workspace (``sigma_a + sigma_z2 d_max^2``, the largest over the cameras; 1 cm when a camera names
+no sensor model).
+
+:class:`FreeSpaceWorker` runs :meth:`RuntimeFreeSpace.build` on its own background thread at
+``hz`` (default 10) and swaps the newest snapshot in whole (one assignment); readers take
+``worker.snapshot`` and never see half of one. Cost: one projection gather per camera and voxel
+(numba, :mod:`depthguard.fusion.free_space_kernels`), bounded by cameras x voxels whatever the
+scene; ``depthguard bench --only monitor`` measures it (``monitor.freespace_update_ms``).
+"""
+
+from __future__ import annotations
+
+import math
+import threading
+import time
+from dataclasses import dataclass
+
+import numpy as np
+
+from depthguard.control.path_check import FREE, OCCUPIED, UNKNOWN, body_mask, check_path_states
+from depthguard.fusion.free_space import FreeSpaceMap
+from depthguard.fusion.free_space_kernels import robot_pixels
+from depthguard.geometry.voxel_grid import VoxelGrid
+
+__all__ = ["FreeSpaceSnapshot", "RuntimeFreeSpace", "FreeSpaceWorker", "map_margins", "FREE", "UNKNOWN", "OCCUPIED"]
+
+DEFAULT_SIGMA = 0.01     # m: noise of a camera that names no sensor model
+
+
+@dataclass(frozen=True)
+class FreeSpaceSnapshot:
+    """One built map: ``state`` (nx, ny, nz) uint8 FREE / UNKNOWN / OCCUPIED (never written after
+    the swap), ``grid`` its :class:`VoxelGrid`, ``machine`` (nx, ny, nz) bool the robot's body at
+    ``q`` (dof,) rad (voxel centres inside its capsules; not freed), ``stamp`` s the newest capture stamp used (NaN: no frame),
+    ``stamps`` per camera the capture stamp used, ``build_s`` the wall seconds the build took."""
+    state: np.ndarray
+    grid: VoxelGrid
+    machine: np.ndarray
+    q: np.ndarray | None
+    stamp: float
+    stamps: dict
+    build_s: float
+
+    def counts(self) -> dict:
+        return {"free": int(np.count_nonzero(self.state == FREE)),
+                "unknown": int(np.count_nonzero(self.state == UNKNOWN)),
+                "occupied": int(np.count_nonzero(self.state == OCCUPIED))}
+
+    def obstacle_points(self) -> tuple[np.ndarray, np.ndarray]:
+        """Centres (N, 3) float32 m of the occupied and unknown voxels, and their state (N,) uint8
+        (1 unknown, 2 occupied): the map out for planners (R37)."""
+        idx = np.nonzero(self.state != FREE)
+        c = self.grid.lo + (np.stack(idx, axis=1) + 0.5) * self.grid.voxel_size
+        return c.astype(np.float32), self.state[idx].astype(np.uint8)
+
+
+def map_margins(cameras, workspace) -> tuple[float, float]:
+    """``(margin, tolerance)`` m: 2 and 5 times the largest noise sigma of ``cameras`` at the far
+    end of the ``workspace`` box in each (module docstring)."""
+    from depthguard.sensors import sensor_model
+
+    far = {c.id: workspace.depth_span(c)[1] for c in cameras}
+    sig = 0.0
+    for c in cameras:
+        if c.sensor is None:
+            sig = max(sig, DEFAULT_SIGMA)
+            continue
+        m = sensor_model(c.sensor)
+        sig = max(sig, float(m.sigma_a + m.sigma_z2 * far[c.id] ** 2))
+    sig = max(sig, 1e-3)
+    return 2.0 * sig, 5.0 * sig
+
+
+class RuntimeFreeSpace:
+    """The runtime's free-space map (module docstring).
+
+    rig : the :class:`~depthguard.rig.Rig` (workspace box, cameras, static meshes, robot).
+    camera_ids : the cameras to use (default all of the rig's).
+    voxel_size : m (default 0.05). robot_offset, robot_padding : m (the monitor's settings).
+    bounds : ``(lo, hi)`` m, default the rig's workspace.
+    """
+
+    def __init__(self, rig, camera_ids=None, voxel_size: float = 0.05, robot_offset: float = 0.08,
+                 robot_padding: float = 0.07, bounds=None):
+        from depthguard.filtering.expected import ExpectedDepth
+
+        ids = [c.id for c in rig.cameras] if camera_ids is None else list(camera_ids)
+        self.rig = rig
+        self.robot = rig.robot
+        self.cameras = [rig.camera(c) for c in ids]
+        lo, hi = (rig.workspace.lo, rig.workspace.hi) if bounds is None else bounds
+        self.margin, self.tolerance = map_margins(self.cameras, rig.workspace)
+        self.map = FreeSpaceMap(self.cameras, (lo, hi), voxel_size, margin=self.margin)
+        static = list(rig.static_meshes())
+        self.backgrounds = {c.id: np.asarray(ExpectedDepth(c, None, static).static, np.float32) for c in self.cameras}
+        if static:
+            self.map.set_background(self.backgrounds, tolerance=self.tolerance)
+        self.robot_offset = float(robot_offset)
+        self.robot_padding = float(robot_padding)
+        self._robot_px = {c.id: np.zeros((c.height, c.width), bool) for c in self.cameras}
+
+    @property
+    def grid(self) -> VoxelGrid:
+        return self.map.grid
+
+    def build(self, depths: dict, robot_depths: dict, q_now=None, stamps: dict | None = None) -> FreeSpaceSnapshot:
+        """One map from ``depths`` (camera id -> (H, W) m, 0/NaN invalid) and ``robot_depths``
+        (camera id -> (H, W) m, the robot rendered at that frame's capture joints, 0 = no robot);
+        ``machine`` is the robot's body at ``q_now`` (dof,) rad (None: no body), never freed.
+        Cameras left out say nothing."""
+        t0 = time.perf_counter()
+        use, robot = {}, {}
+        for cid, d in depths.items():
+            if cid not in self._robot_px:
+                continue
+            use[cid] = d
+            rd = robot_depths.get(cid)
+            if rd is not None:
+                # the robot (or what touches it): no surface (one numba pass, no allocation)
+                robot[cid] = robot_pixels(d, rd, self.robot_offset, self._robot_px[cid])
+        self.map.update(use, robot=robot)
+        nf, ns = self.map.counts()
+        occ = self.map.occupied
+        state = np.where(occ, np.where(ns > 0, OCCUPIED, UNKNOWN), FREE).astype(np.uint8)
+        machine = np.zeros(self.grid.shape, bool)
+        q = None
+        if q_now is not None and self.robot is not None:
+            q = np.asarray(q_now, dtype=np.float64).copy()
+            machine = body_mask(self.grid.shape, self.grid.lo, self.grid.voxel_size, self.robot, q)
+        st = dict(stamps or {})
+        stamp = max(st.values()) if st else float("nan")
+        return FreeSpaceSnapshot(state, self.grid, machine, q, stamp, st, time.perf_counter() - t0)
+
+    def build_from_workers(self, workers: dict, q_now=None) -> FreeSpaceSnapshot | None:
+        """:meth:`build` from the newest product of each camera worker (None: no product yet)."""
+        depths, robot_depths, stamps = {}, {}, {}
+        for cid, w in list(workers.items()):
+            if cid not in self._robot_px:
+                continue
+            with w.lock:
+                p = w.product
+            if p is None:
+                continue
+            depths[cid], robot_depths[cid], stamps[cid] = p.depth, p.robot_depth, p.stamp
+        if not depths:
+            return None
+        return self.build(depths, robot_depths, q_now, stamps)
+
+
+def check_path_in(snapshot: FreeSpaceSnapshot, robot, stamps, q, padding: float, twin: bool = False):
+    """The verdict per segment of a path in ``snapshot`` (:func:`check_path_states`)."""
+    g = snapshot.grid
+    exclude = snapshot.machine if snapshot.q is not None else None     # the body when the map was taken
+    return check_path_states(snapshot.state, g.lo, g.voxel_size, robot, stamps, q, padding=padding,
+                             exclude=exclude, map_stamp=snapshot.stamp, twin=twin)
+
+
+class FreeSpaceWorker:
+    """Builds the map at ``hz`` on a background thread from the monitor's camera workers and swaps
+    the newest :class:`FreeSpaceSnapshot` into :attr:`snapshot` (module docstring).
+
+    ``latest_q()`` -> the newest joints (dof,) or None; ``on_snapshot(snap)`` is called after each
+    swap (a sink, the path watch); keep it quick."""
+
+    def __init__(self, space: RuntimeFreeSpace, workers: dict, latest_q, hz: float = 10.0, on_snapshot=None):
+        if not (math.isfinite(hz) and hz > 0):
+            raise ValueError(f"free-space rate must be > 0 Hz, got {hz!r}")
+        self.space = space
+        self.workers = workers
+        self.latest_q = latest_q
+        self.period = 1.0 / float(hz)
+        self.on_snapshot = on_snapshot
+        self.snapshot: FreeSpaceSnapshot | None = None
+        self.builds = 0
+        self.errors = 0
+        self.last_error: str | None = None
+        self._build_lock = threading.Lock()     # one build at a time: the map's buffers are shared
+        self._stop = threading.Event()
+        self._thread = threading.Thread(target=self._run, name="depthguard-free-space", daemon=True)
+        self._thread.start()
+
+    def update_now(self) -> FreeSpaceSnapshot | None:
+        """Build one map now on the calling thread and swap it in (tests, the CLI's one-shot check)."""
+        with self._build_lock:
+            snap = self.space.build_from_workers(self.workers, self.latest_q())
+            if snap is not None:
+                self.snapshot = snap
+                self.builds += 1
+        if snap is not None and self.on_snapshot is not None:
+            self.on_snapshot(snap)
+        return snap
+
+    def _run(self) -> None:
+        from depthguard.runtime.ingest import background_thread
+
+        background_thread()
+        nxt = time.perf_counter()
+        while not self._stop.is_set():
+            try:
+                self.update_now()
+            except Exception as exc:           # a bad build never kills the thread; counted
+                self.errors += 1
+                self.last_error = f"{type(exc).__name__}: {exc}"
+            nxt += self.period
+            wait = nxt - time.perf_counter()
+            if wait < 0:
+                nxt = time.perf_counter()
+                wait = 0.0
+            self._stop.wait(wait)
+
+    def close(self, timeout: float = 2.0) -> None:
+        self._stop.set()
+        self._thread.join(timeout)
