@@ -32,15 +32,21 @@ class ExpectedDepth:
     parallel : the renderer's numba threads (False: one thread, for worker threads).
     learned : (H, W) float32 m, the camera's learned static scene (0 = unknown) or None
         (:meth:`depthguard.rig.Rig.learned_depth`); the nearer of it and the CAD is ``static``.
+    robot_cell : m, the robot's meshes are rendered clustered to this
+        (:meth:`~depthguard.robot.RobotModel.render_link_meshes`; default
+        :data:`~depthguard.geometry.decimate.RENDER_CELL`, the monitor's; the simulator uses
+        :data:`~depthguard.geometry.decimate.SIM_CELL`).
 
     ``static`` is the (H, W) float32 static scene in metres (0 = nothing);
     :meth:`robot` renders the robot at ``q`` and returns a reused (H, W) float32
     image (copy it to keep it); :meth:`known` the nearest of both.
     """
 
-    def __init__(self, cam, robot=None, static_meshes=(), parallel: bool = False, learned=None):
+    def __init__(self, cam, robot=None, static_meshes=(), parallel: bool = False, learned=None,
+                 robot_cell: float | None = None):
         self.camera = cam
         self.robot_model = robot
+        self.robot_cell = robot_cell
         self._renderer = Renderer(cam, parallel=parallel)
         meshes = list(static_meshes)
         self.static = (np.array(self._renderer.render(meshes)[0], dtype=np.float32, copy=True) if meshes
@@ -54,14 +60,15 @@ class ExpectedDepth:
         self._known = np.zeros(cam.shape, dtype=np.float32)
 
     def robot(self, q) -> np.ndarray:
-        """(H, W) float32 m: the robot's link meshes at joints ``q`` (0 where no robot); reused buffer."""
+        """(H, W) float32 m: the robot's link meshes at joints ``q`` (clustered to ``robot_cell``;
+        0 where no robot); reused buffer."""
         if self.robot_model is None:
             self._robot.fill(0.0)
             return self._robot
         qa = np.asarray(q, dtype=np.float64).reshape(-1)
         if qa.shape[0] != self.robot_model.dof or not np.all(np.isfinite(qa)):
             raise ValueError(f"expected {self.robot_model.dof} finite joint values, got {qa.tolist()}")
-        np.copyto(self._robot, self._renderer.render(self.robot_model.link_meshes(qa))[0])
+        np.copyto(self._robot, self._renderer.render(self.robot_model.render_link_meshes(qa, self.robot_cell))[0])
         return self._robot
 
     def known(self, q) -> np.ndarray:

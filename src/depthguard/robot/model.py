@@ -98,6 +98,7 @@ class RobotModel:
         self.link_mesh_names = tuple(order)
         self._mesh_link = np.array([chain.link_index(ln) for ln in order], dtype=np.int64)
         self._meshes = tuple(Mesh(_ro(meshes[ln].vertices), _ro_faces(meshes[ln].faces)) for ln in order)
+        self._render_meshes = {}         # render_link_meshes per cell, clustered on first use
         caps = tuple(capsules)
         for c in caps:
             chain.link_index(c.link)
@@ -282,6 +283,22 @@ class RobotModel:
         poses = self.link_poses(q)
         return [Mesh(transform_points(poses[k], m.vertices), m.faces)
                 for k, m in zip(self._mesh_link, self._meshes)]
+
+    def render_link_meshes(self, q, cell: float | None = None) -> list[Mesh]:
+        """:meth:`link_meshes` from the meshes clustered to ``cell`` m (default
+        :data:`~depthguard.geometry.decimate.RENDER_CELL`; made once per cell,
+        :func:`~depthguard.geometry.decimate.cluster_decimate`): what a camera's robot depth is
+        rendered from at every frame (R9; within ``sqrt(3) cell`` of the model's surface)."""
+        from depthguard.geometry.decimate import RENDER_CELL, cluster_decimate
+
+        cell = RENDER_CELL if cell is None else float(cell)
+        meshes = self._render_meshes.get(cell)
+        if meshes is None:
+            meshes = tuple(cluster_decimate(m, cell) for m in self._meshes)
+            self._render_meshes[cell] = meshes          # a cache of what the model holds
+        poses = self.link_poses(q)
+        return [Mesh(transform_points(poses[k], m.vertices), m.faces)
+                for k, m in zip(self._mesh_link, meshes)]
 
     def local_link_meshes(self) -> dict[str, Mesh]:
         """Link-frame meshes by link name."""

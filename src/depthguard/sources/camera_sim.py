@@ -32,6 +32,7 @@ from typing import NamedTuple, Sequence
 import numpy as np
 
 from depthguard.filtering.expected import ExpectedDepth
+from depthguard.geometry.decimate import SIM_CELL
 from depthguard.render import Renderer
 from depthguard.render.composite import nearest_depth
 from depthguard.sources.simulated import SimulatedCamera, returns_beyond_the_model
@@ -73,7 +74,8 @@ class CameraSim:
         self.robot = robot
         self.invalid = invalid
         self.seed = int(seed)
-        self.expected = {c.id: ExpectedDepth(c, robot, static, parallel=parallel) for c in cams}
+        # the robot as the simulated cameras see it: its meshes to SIM_CELL (the monitor renders coarser)
+        self.expected = {c.id: ExpectedDepth(c, robot, static, parallel=parallel, robot_cell=SIM_CELL) for c in cams}
         self.sims = {c.id: SimulatedCamera(c, seed=seed, noiseless=noiseless) for c in cams}
         self._moving = {c.id: Renderer(c, parallel=parallel) for c in cams}
         self._ideal = {c.id: np.zeros(c.shape, dtype=np.float32) for c in cams}
