@@ -13,6 +13,7 @@ import math
 import numpy as np
 import pytest
 
+from depthguard.geometry.decimate import SIM_CELL
 from depthguard.sim import load_cell
 from depthguard.sources import SimSource, SimulatedCamera
 from depthguard.sources.camera_sim import CameraSchedule, CameraSim
@@ -42,7 +43,7 @@ def test_frame_equals_the_whole_scene_rendered_at_once(cell):
         np.testing.assert_array_equal(shot.depth, _whole_scene(cell, cam, T))
         # the robot alone: the self-removal image, a copy that the next frame does not overwrite
         robot_only = SimulatedCamera(cam, noiseless=True).renderer.render(
-            cell.scene.robot.link_meshes(cell.scene.robot_q(T)))[0]
+            cell.scene.robot.render_link_meshes(cell.scene.robot_q(T), SIM_CELL))[0]
         np.testing.assert_array_equal(shot.robot_depth, robot_only)
         before = shot.robot_depth.copy()
         sim.shot(cam.id, 0.0, cell.scene.robot_q(0.0), [], keep_robot=True)

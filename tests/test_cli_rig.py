@@ -285,7 +285,7 @@ def test_monitor_on_a_rig_without_walls_sees_no_phantom_where_nothing_is_modelle
     src = open_source("sim", rig, {})
     q = np.asarray(UR3_JOINTS, dtype=float)
     d = src.render(cam.id, 0.0, q)
-    ideal = src._expected[cam.id].known(q)
+    ideal = src.sim.expected[cam.id].known(q)
     empty = ideal <= 0
     assert empty.any() and (~empty).any()
     assert np.all(d[empty] == np.float32(BEYOND_RANGE * cam.max_range))

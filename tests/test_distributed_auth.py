@@ -404,7 +404,10 @@ def test_unit_states_are_signed_by_their_cameras_certificate(pki, tmp_path):
         key = node.keys.states("camA")
         raw = node.state_unit.encode(*node.source(), node.q, 5, node.settings.state)
         forged, _ = Signer(load_identity(pki / "camB")).seal(raw, key)
+        # one at a time: a 1.5 MB put may be dropped by Zenoh's default congestion control while
+        # another is on its way (the unit itself puts with BLOCK)
         node.client.session.put(key, forged)
+        assert wait_until(lambda: src.states_refused.get("auth", 0) == 1, 10.0), src.states_refused
         node.client.session.put(key, raw)
         assert wait_until(lambda: src.states_refused.get("auth", 0) == 2, 10.0), src.states_refused
         assert src.states_until(1e18) == []

@@ -23,9 +23,10 @@ __all__ = ["cluster_decimate", "RENDER_CELL", "SIM_CELL"]
 #: point within 10.4 mm of the model's surface, a sixth of the product's robot_offset (8 cm);
 #: ur3-cell's UR3: 37,657 -> ~10,000 triangles, 5.7 -> ~1.5 ms per 640x480 frame
 RENDER_CELL = 0.006
-#: ... and the simulator its robot layer (closer to the model than the monitor's, so that the
-#: simulated cameras see a robot the monitor's removal did not render itself): 5.2 mm
-SIM_CELL = 0.003
+#: ... and the simulator its robot layer: the same meshes, as before with the full ones (the
+#: simulated cameras see the robot the monitor removes; a model that does not match the real robot
+#: is not simulated — with 3 mm here, the robot's outline alone made the closed loop react)
+SIM_CELL = RENDER_CELL
 
 
 def cluster_decimate(mesh: Mesh, cell: float) -> Mesh:

@@ -74,7 +74,7 @@ class CameraSim:
         self.robot = robot
         self.invalid = invalid
         self.seed = int(seed)
-        # the robot as the simulated cameras see it: its meshes to SIM_CELL (the monitor renders coarser)
+        # the robot as the simulated cameras see it: its meshes clustered to SIM_CELL
         self.expected = {c.id: ExpectedDepth(c, robot, static, parallel=parallel, robot_cell=SIM_CELL) for c in cams}
         self.sims = {c.id: SimulatedCamera(c, seed=seed, noiseless=noiseless) for c in cams}
         self._moving = {c.id: Renderer(c, parallel=parallel) for c in cams}
