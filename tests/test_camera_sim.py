@@ -28,8 +28,10 @@ def cell():
 
 
 def _whole_scene(cell, cam, t, seed=1, noiseless=False):
-    """The second implementation: every mesh of the scene in one render, then the noise."""
-    meshes, _ = cell.scene.meshes_at(t)
+    """The second implementation: every mesh of the scene in one render (the robot as the
+    simulator has it: its meshes clustered to SIM_CELL), then the noise."""
+    meshes, _ = cell.scene.meshes_at(t, robot=False)
+    meshes += cell.scene.robot.render_link_meshes(cell.scene.robot_q(t), SIM_CELL)
     return SimulatedCamera(cam, seed=seed, noiseless=noiseless).capture(meshes, stamp=t)
 
 

@@ -21,7 +21,8 @@ beam is vertical, the C plane is the vertical plane through the L-arm).
 
 ``CArm`` quacks like a robot where the scene needs it (``dof``,
 ``joint_names``, ``q_min``, ``q_max``, ``q_home``, ``qd_max``,
-``link_meshes(q)``, ``link_mesh_names``, ``collision_primitives(q)``), with
+``link_meshes(q)``, ``render_link_meshes(q, cell)``, ``link_mesh_names``,
+``collision_primitives(q)``), with
 ``q = CArmPose.as_array()``.
 """
 
@@ -210,3 +211,8 @@ class CArm:
         if not hasattr(self, "_local_meshes"):  # part shapes never change: build their meshes once
             self._local_meshes = [prim.local_mesh() for prim in prims]
         return [m.transformed(prim.world_from_local) for m, prim in zip(self._local_meshes, prims)]
+
+    def render_link_meshes(self, q, cell: float | None = None) -> list[Mesh]:
+        """What a camera renders of the machine at ``q``: :meth:`link_meshes` (its parts are
+        primitives of a few hundred triangles: nothing to cluster, ``cell`` is not used)."""
+        return self.link_meshes(q)

@@ -23,7 +23,6 @@ from typing import Callable, Sequence
 import numpy as np
 
 from depthguard.geometry.mesh import Mesh
-from depthguard.geometry.decimate import SIM_CELL
 from depthguard.geometry.primitives import Primitive
 from depthguard.sim import ground_truth as gt
 from depthguard.sim.ground_truth import MeshSolid
@@ -181,8 +180,9 @@ class Scene:
 
     def meshes_at(self, t: float, robot: bool = True, q=None) -> tuple[list[Mesh], list[str]]:
         """World triangle meshes at time ``t`` and their names (robot links last, named ``robot/<link>``:
-        its meshes clustered to :data:`~depthguard.geometry.decimate.SIM_CELL`, the robot the
-        simulated cameras see); ``q`` overrides the robot's scripted joint values."""
+        its full meshes — the camera simulator renders them clustered to
+        :data:`~depthguard.geometry.decimate.SIM_CELL`, ``sources/camera_sim.py``); ``q`` overrides
+        the robot's scripted joint values."""
         meshes = list(self._static_meshes)
         names = list(self._static_names)
         moving, moving_names = self.moving_meshes_at(t)
@@ -190,7 +190,7 @@ class Scene:
         names += moving_names
         if robot and self.robot is not None:
             q = self._q(t, q)
-            meshes.extend(self.robot.render_link_meshes(q, SIM_CELL))     # the simulated robot (camera_sim)
+            meshes.extend(self.robot.link_meshes(q))
             names.extend(f"robot/{n}" for n in self.robot.link_mesh_names)
         return meshes, names
 
