@@ -21,7 +21,7 @@ __all__ = ["cluster_decimate", "RENDER_CELL", "SIM_CELL"]
 
 #: grid side (m) of the robot meshes the monitor renders each camera's robot depth from (R9): every
 #: point within 10.4 mm of the model's surface, a sixth of the product's robot_offset (8 cm);
-#: ur3-cell's UR3: 37,657 -> ~10,000 triangles, 5.7 -> ~1.5 ms per 640x480 frame
+#: ur3-cell's UR3: 37,657 -> ~8,500 triangles, 5.7 -> 1.3 ms per 640x480 frame
 RENDER_CELL = 0.006
 #: ... and the simulator its robot layer: the same meshes, as before with the full ones (the
 #: simulated cameras see the robot the monitor removes; a model that does not match the real robot
