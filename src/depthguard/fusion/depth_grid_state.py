@@ -160,6 +160,20 @@ def frame_state_binned(depth, robot_depth, use_robot, min_range, max_range, robo
     H, W = depth.shape
     hb = out_free.shape[0]
     wb = out_free.shape[1]
+    if b == 2 and H % 2 == 0 and W % 2 == 0:
+        for j in prange(hb):               # the common case, unrolled
+            for i in range(wb):
+                m, k = pixel_state(depth, robot_depth, use_robot, min_range, max_range, robot_offset,
+                                   invalid_free, robot_free, silhouette, gap, 2 * j, 2 * i)
+                for c in range(1, 4):
+                    f, kk = pixel_state(depth, robot_depth, use_robot, min_range, max_range, robot_offset,
+                                        invalid_free, robot_free, silhouette, gap, 2 * j + (c >> 1), 2 * i + (c & 1))
+                    if f < m or (f == m and kk < k):
+                        m = f
+                        k = kk
+                out_free[j, i] = m
+                out_kind[j, i] = k
+        return
     for j in prange(hb):
         v1 = min(H, j * b + b)
         for i in range(wb):
