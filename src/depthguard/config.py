@@ -63,6 +63,11 @@ class MonitorConfig(BaseModel):
     principal's pixels per grid column side (2: one column per 2x2 pixels, a quarter of
     the columns to classify and look up; distances can only come out smaller, by at most
     a block's width at its depth, 1.1 cm for a 640x480 Kinect at 3 m; 1: the paper's grid).
+    ``fusion_duty`` the share of a core the fusion thread may take (R36): a build of b
+    seconds on n numba threads rests b (n / duty - 1) before the next, frames that come
+    meanwhile going into that one, so the fusion cannot starve the cameras' workers however
+    many frames come (1: build whenever a frame comes); ``fusion_threads`` its numba threads
+    (0: all).
 
     Self removal (R9, R30): ``robot_offset`` a pixel is the robot's where
     ``measured >= robot_depth - robot_offset`` (covers the sensor's noise and
@@ -152,6 +157,8 @@ class MonitorConfig(BaseModel):
     delta_d: float = Field(0.01, gt=0.0, le=0.5)
     principal: Optional[str] = None
     principal_bin: int = Field(2, ge=1, le=8)
+    fusion_duty: float = Field(1.0, gt=0.0, le=1.0)
+    fusion_threads: int = Field(0, ge=0, le=256)
     cameras: Optional[tuple[str, ...]] = None
     robot_offset: float = Field(PRODUCT_ROBOT_OFFSET, ge=0.0, le=1.0)
     robot_padding: float = Field(0.07, ge=0.0, le=0.5)

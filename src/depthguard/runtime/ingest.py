@@ -294,6 +294,8 @@ class FusionWorker:
         self.fused: dict[str, int] = {}           # per camera: frames loaded into a grid
         self._last_fused: dict[str, int] = {}
         self._volumes: dict = {}                  # robot_volume's capsules per capture-joints array
+        self._cfg = None                          # the settings of the last build
+        self.threads = 1                          # the fusion's numba threads (set by its thread)
         self.build_seconds: list[float] = []
         self.errors = 0
         self.last_error: str | None = None
@@ -318,28 +320,49 @@ class FusionWorker:
     def _run(self) -> None:
         # the cells classified ahead split over every core (they are most of a build, and the
         # control and distance threads need little); the lookup after it runs on one
-        background_thread(numba_threads=0)
+        cfg = self.settings()[0]
+        threads = int(getattr(cfg, "fusion_threads", 0))
+        background_thread(numba_threads=threads)
+        import numba
+
+        self.threads = numba.get_num_threads()
+        rest_until = 0.0
         while True:
             with self._wake:
                 while not self._pending and not self._stop:
                     self._wake.wait()
                 if self._stop:
                     return
+                wait = rest_until - time.perf_counter()
+                if wait > 0.0:                 # the duty's rest (below): frames coalesce meanwhile
+                    self._wake.wait(wait)
+                    if self._stop:
+                        return
                 self._pending = False
                 self._busy = True
+            t0 = time.perf_counter()
             try:
-                t0 = time.perf_counter()
-                if self._build():
+                built = self._build()
+                if built:
                     self.builds += 1
                     self.build_seconds.append(time.perf_counter() - t0)
                     if len(self.build_seconds) > 4096:
                         del self.build_seconds[:2048]
             except Exception as exc:
+                built = False
                 self.errors += 1
                 self.last_error = f"fusion: {type(exc).__name__}: {exc}"
             finally:
                 with self._wake:
                     self._busy = False
+            # the fusion's share of the machine, bounded by design (R36): a build of b seconds
+            # on n numba threads is followed by a rest of b (n / duty - 1), so that the fusion
+            # never takes more than ``fusion_duty`` of a core, whatever the cell and however
+            # many cameras' frames come; frames that come meanwhile go into the next build
+            duty = float(getattr(self._cfg, "fusion_duty", 1.0)) if self._cfg is not None else 1.0
+            if built and duty < 1.0:
+                b = time.perf_counter() - t0
+                rest_until = time.perf_counter() + b * (self.threads / duty - 1.0)
 
     def _products(self, camera_ids) -> dict:
         out = {}
@@ -384,6 +407,7 @@ class FusionWorker:
 
     def _build(self) -> bool:
         cfg, camera_ids, points = self.settings()
+        self._cfg = cfg
         products = self._products(camera_ids)
         # the grid is over the cameras with a frame; the principal (first) must have one
         cams = tuple(c for c in camera_ids if c in products)
