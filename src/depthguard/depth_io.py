@@ -111,6 +111,8 @@ def depth_units_problem(depth: np.ndarray, cam) -> str | None:
         far = int((measured & (d > far_limit)).sum())
         near_limit = min(float(cam.min_range), NEAR_LIMIT_M)
         near = int((measured & (d < near_limit)).sum())
+    if far <= UNITS_SHARE * n and near <= UNITS_SHARE * n:
+        return None                                    # every frame of a live camera: no median
     median = float(np.median(d[measured]))
     if far > UNITS_SHARE * n:
         return (f"camera {cam.id}: {100 * far / n:.0f} % of the measured pixels lie beyond {far_limit:g} m "

@@ -87,14 +87,15 @@ def gap_depth(depth, min_range, max_range, n, out):
     allocation.
     """
     H, W = depth.shape
-    for v in prange(H):                       # rows on the caller's numba threads
-        for u in range(W):
-            out[v, u] = 0.0
     if n <= 0:
+        for v in prange(H):
+            for u in range(W):
+                out[v, u] = 0.0
         return
-    for v in prange(H):
+    for v in prange(H):                       # rows on the caller's numba threads; one pass
         for u in range(W):
             if _end_depth(np.float64(depth[v, u]), min_range, max_range) > 0.0:
+                out[v, u] = 0.0
                 continue
             best = np.inf
             # along the row: the nearest end on each side, at most n + 1 pixels away
@@ -138,8 +139,7 @@ def gap_depth(depth, min_range, max_range, n, out):
                     if e > 0.0:
                         best = min(best, min(ea, e))
                         break
-            if best < np.inf:
-                out[v, u] = best
+            out[v, u] = best if best < np.inf else 0.0
 
 
 def gap_depth_numpy(depth, min_range: float, max_range: float, n: int) -> np.ndarray:

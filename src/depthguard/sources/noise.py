@@ -192,6 +192,21 @@ def ideal_depth_kernel(d, z):
             z[v, u] = x if (np.isfinite(x) and x > 0) else 0.0
 
 
+@numba.njit(cache=True, inline="always")
+def _edge_step(zp, zq, jump_abs, jump_rel, e, best, oth):
+    """One neighbour ``zq`` of the valid pixel ``zp`` (:func:`depth_edges_kernel`): the updated
+    ``(edge, largest step, depth across it)``."""
+    if zq > 0.0:
+        step = abs(zp - zq)
+        if step <= jump_abs + jump_rel * min(zp, zq):
+            return e, best, oth
+    else:
+        step = np.inf
+    if step > best:
+        return True, step, zq
+    return True, best, oth
+
+
 @numba.njit(cache=True, parallel=True, nogil=True)
 def depth_edges_kernel(z, jump_abs, jump_rel, edge, other, valid_start, edge_start):
     """Kernel of :func:`depth_edges`, in parallel over the image rows.
@@ -208,11 +223,11 @@ def depth_edges_kernel(z, jump_abs, jump_rel, edge, other, valid_start, edge_sta
         raise ValueError("depth_edges_kernel: edge and other must have the shape of z")
     if valid_start.shape[0] != H + 1 or edge_start.shape[0] != H + 1:
         raise ValueError("depth_edges_kernel: valid_start and edge_start need H + 1 elements")
-    du = (-1, 1, 0, 0)
-    dv = (0, 0, -1, 1)
     for v in numba.prange(H):
         n = 0
         n_valid = 0
+        up = v > 0
+        down = v < H - 1
         for u in range(W):
             zp = z[v, u]
             e = False
@@ -220,22 +235,16 @@ def depth_edges_kernel(z, jump_abs, jump_rel, edge, other, valid_start, edge_sta
             oth = 0.0
             if zp > 0.0:
                 n_valid += 1
-                for k in range(4):
-                    uu = u + du[k]
-                    vv = v + dv[k]
-                    if uu < 0 or uu >= W or vv < 0 or vv >= H:
-                        continue
-                    zq = z[vv, uu]
-                    if zq > 0.0:
-                        step = abs(zp - zq)
-                        if step <= jump_abs + jump_rel * min(zp, zq):
-                            continue
-                    else:
-                        step = np.inf
-                    e = True
-                    if step > best:
-                        best = step
-                        oth = zq
+                # the 4-neighbours in the order left, right, up, down (unrolled: a loop over
+                # offset tuples with a bounds test per neighbour took 2.4 ms of a 640x480 image)
+                if u > 0:
+                    e, best, oth = _edge_step(zp, z[v, u - 1], jump_abs, jump_rel, e, best, oth)
+                if u < W - 1:
+                    e, best, oth = _edge_step(zp, z[v, u + 1], jump_abs, jump_rel, e, best, oth)
+                if up:
+                    e, best, oth = _edge_step(zp, z[v - 1, u], jump_abs, jump_rel, e, best, oth)
+                if down:
+                    e, best, oth = _edge_step(zp, z[v + 1, u], jump_abs, jump_rel, e, best, oth)
             edge[v, u] = e
             other[v, u] = oth
             if e:
