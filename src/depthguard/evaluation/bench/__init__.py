@@ -38,6 +38,7 @@ _MODULES = [
     "depthguard.evaluation.bench.soak",
     "depthguard.evaluation.bench.calibrate",
     "depthguard.evaluation.bench.units",
+    "depthguard.evaluation.bench.availability",
 ]
 
 

@@ -1,0 +1,112 @@
+"""Bench group ``availability``: how long a real-time monitor stops the robot for late frames (R27, R36).
+
+``depthguard monitor`` runs a built-in cell in real time, the simulator rendering every camera
+in the same process (``--source sim:<cell>``), for a few seconds. A camera whose newest frame in
+use is older than ``camera_stale_limit`` (three periods) stops the robot (R27): on a machine
+that cannot render the cameras and run the monitor at once, that is the monitor's right answer,
+and the time it happens is what this group measures — the robot stopped for nothing else than
+the machine's speed.
+
+* ``availability.stale_s.<cell>`` — seconds of the run in which a ``stale:`` reason held
+  (the control cycles' log, ``log.jsonl``), median over alternated runs; peer: the same run
+  with ``monitor.fusion_duty: 1`` (the fusion building after every frame, as before it had a
+  duty; the cell's own setting otherwise).
+* ``availability.stale_s.<cell>.busy`` — the same with one other process keeping a core busy.
+
+Each run is its own process (``python -m depthguard monitor``, a rig file written from the
+built-in cell's with the ``monitor:`` setting changed), so that the runs do not share threads or
+a warm cache beyond numba's on-disk one. The first stamps of a run are excluded up to the
+monitor's first frame of every camera (``waiting``, not ``stale``).
+"""
+
+from __future__ import annotations
+
+import json
+import subprocess
+import sys
+import tempfile
+from pathlib import Path
+
+import numpy as np
+
+from depthguard.evaluation.bench import BenchContext, BenchRow, group
+
+#: (cell, with a busy core too)
+CASES = (("flacco-cell", True), ("ur3-cell", False))
+
+
+def stale_seconds(log_path: Path) -> float:
+    """Seconds of a run's control cycles (``log.jsonl``) in which some ``stale:`` reason held:
+    each cycle counts the time to the next one (R27)."""
+    ts, stale = [], []
+    with open(log_path) as fh:
+        for line in fh:
+            rec = json.loads(line)
+            ts.append(float(rec["t"]))
+            stale.append(any(k.startswith("stale:") for k in rec.get("reasons", {})))
+    if len(ts) < 2:
+        return float("nan")
+    dt = np.diff(np.asarray(ts))
+    return float(dt[np.asarray(stale[:-1])].sum())
+
+
+def _rig_file(cell: str, folder: Path, **monitor) -> Path:
+    """The built-in cell's rig file with ``monitor`` settings added, written into ``folder``
+    (its meshes linked beside it)."""
+    import yaml
+
+    from depthguard.sim.cells import cell_rig_path
+
+    src = cell_rig_path(cell)
+    data = yaml.safe_load(src.read_text())
+    data.setdefault("monitor", {}).update(monitor)
+    meshes = src.parent / "meshes"
+    if meshes.exists() and not (folder / "meshes").exists():
+        (folder / "meshes").symlink_to(meshes)
+    out = folder / f"{cell}-{'-'.join(f'{k}{v}' for k, v in monitor.items())}.yaml"
+    out.write_text(yaml.safe_dump(data, sort_keys=False))
+    return out
+
+
+def run_once(cell: str, seconds: float, busy: bool, folder: Path, **monitor) -> float:
+    """Stale seconds of one real-time run (module docstring)."""
+    rig = _rig_file(cell, folder, **monitor)
+    out = Path(tempfile.mkdtemp(dir=folder))
+    hog = subprocess.Popen([sys.executable, "-c", "while True: pass"]) if busy else None
+    try:
+        res = subprocess.run([sys.executable, "-m", "depthguard", "monitor", "--rig", str(rig),
+                              "--source", f"sim:{cell}", "--duration", str(seconds), "--out", str(out / "run"),
+                              "--quiet"], capture_output=True, text=True, timeout=120 + 4 * seconds)
+    finally:
+        if hog is not None:
+            hog.kill()
+            hog.wait()
+    if res.returncode != 0:
+        raise RuntimeError(f"monitor on {cell} failed ({res.returncode}): {res.stderr.strip()[-400:]}")
+    return stale_seconds(out / "run" / "log.jsonl")
+
+
+@group("availability")
+def bench_availability(ctx: BenchContext) -> list[BenchRow]:
+    from depthguard.sim.cells import load_cell
+
+    seconds = 3.0 if ctx.quick else 8.0
+    runs = 1 if ctx.quick else 3
+    rows: list[BenchRow] = []
+    with tempfile.TemporaryDirectory() as tmp:
+        folder = Path(tmp)
+        for cell, with_busy in CASES:
+            duty = load_cell(cell).rig.monitor.fusion_duty
+            for busy in ((False, True) if with_busy else (False,)):
+                ours, peer = [], []
+                for _ in range(runs):                  # alternated: the machine's load hits both
+                    ctx.log(f"availability: {cell}{' busy' if busy else ''} fusion_duty {duty}")
+                    ours.append(run_once(cell, seconds, busy, folder, fusion_duty=duty))
+                    peer.append(run_once(cell, seconds, busy, folder, fusion_duty=1.0))
+                rows.append(BenchRow(f"availability.stale_s.{cell}{'.busy' if busy else ''}", float(np.median(ours)),
+                                     "s", peer="the fusion building after every frame (fusion_duty 1)",
+                                     peer_value=float(np.median(peer)),
+                                     note=f"depthguard monitor, real time {seconds:g} s, the simulator rendering "
+                                          f"every camera in the process{', one other process busy' if busy else ''}; "
+                                          f"seconds with a stale: reason, median of {runs}; goal <= 0.3 s"))
+    return rows
