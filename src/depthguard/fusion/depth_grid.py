@@ -44,50 +44,24 @@ from pathlib import Path
 
 import numpy as np
 
-from depthguard.camera import Camera, check_depth_image
-from depthguard.distance.api import DistanceResult, check_points, check_rho
+from depthguard.camera import Camera
 from depthguard.distance.gaps import GapBuffers, check_gap_px
 from depthguard.distance.silhouette import SilhouetteBuffers, check_silhouette_px
-from depthguard.fusion import depth_grid_capsules, depth_grid_kernels, depth_grid_lazy, depth_grid_lookup, depth_grid_reach
+from depthguard.fusion import depth_grid_capsules, depth_grid_eager, depth_grid_kernels, depth_grid_lazy, depth_grid_lookup
 from depthguard.fusion.depth_grid_memo import new_memo
+from depthguard.fusion.depth_grid_query import GridQuery
+from depthguard.fusion.depth_grid_robot import GridRobot
 from depthguard.fusion.depth_grid_offline import corner_rays, default_cache_dir, load_map, map_key, save_map
 from depthguard.fusion.depth_grid_state import StateOptions, bin_state, pyramid_layout, pyramid_levels, state_into
 
 __all__ = ["DepthGridMap", "default_cache_dir"]
 
-PARALLEL_MIN_POINTS = 16     # below this many points a query runs on one thread (steadier)
-ENSURE_CHUNK_ROWS = 4        # image rows per parallel work item of the per-frame classification
 RUNS_PER_COLUMN = 8          # obstacle runs kept per principal column; more are merged (safe side)
-_METHODS = {"min": depth_grid_kernels.METHOD_MIN, "mean": depth_grid_kernels.METHOD_MEAN, "hybrid": depth_grid_kernels.METHOD_HYBRID}
 
 
 def _intrinsics_row(cam: Camera) -> list[float]:
     return [cam.fx, cam.fy, cam.cx, cam.cy, float(cam.width), float(cam.height),
             cam.min_range, cam.max_range]
-
-
-def _capsule_array(capsules) -> np.ndarray:
-    """(C, 7) world capsules ``a, b, radius`` from a list of ``Capsule`` or ``(segments (C,2,3), radii (C,))``."""
-    if capsules is None:
-        return np.zeros((0, 7))
-    if isinstance(capsules, tuple) and len(capsules) == 2 and np.ndim(capsules[0]) == 3:
-        seg = np.asarray(capsules[0], dtype=np.float64)
-        rad = np.asarray(capsules[1], dtype=np.float64)
-        if seg.shape[1:] != (2, 3) or rad.shape != (len(seg),):
-            raise ValueError(f"robot_capsules as (segments, radii) must be ((C, 2, 3), (C,)), "
-                             f"got {seg.shape}, {rad.shape}")
-        out = np.concatenate([seg.reshape(-1, 6), rad[:, None]], axis=1)
-    else:
-        rows = []
-        for c in capsules:
-            if not (hasattr(c, "segment") and hasattr(c, "radius")):
-                raise ValueError(f"robot_capsules must hold Capsule objects (got {type(c).__name__})")
-            a, b = c.segment()
-            rows.append(np.r_[a, b, c.radius])
-        out = np.asarray(rows, dtype=np.float64).reshape(-1, 7)
-    if not np.all(np.isfinite(out)) or np.any(out[:, 6] < 0):
-        raise ValueError("robot_capsules must have finite end points and radii >= 0")
-    return out
 
 
 def touch_pages(a: np.ndarray) -> int:
@@ -100,7 +74,7 @@ def touch_pages(a: np.ndarray) -> int:
     return int(a.nbytes)
 
 
-class DepthGridMap:
+class DepthGridMap(GridRobot, GridQuery):
     """Depth grid map of a rig (R10–R12): principal camera's pixels x depth slices.
 
     Parameters
@@ -462,98 +436,12 @@ class DepthGridMap:
             depth_grid_lazy.tile_min_free(self._pfree, self._tmin)
             self.has_frames = True
             return
-        depth_grid_kernels.column_runs(self._pfree, self._pkind, self._pint, self.d_min, self.delta_d, self.n_d,
+        depth_grid_eager.column_runs(self._pfree, self._pkind, self._pint, self.d_min, self.delta_d, self.n_d,
                       self._kfree, self._kpmin, self._kpmax, self._koff, self._kdims, self._rays_arg,
                       self._orig_arg, self._kint_arg, len(self.others), self._caps, self._ncaps,
                       self._cap_lo, self._cap_hi, self._cap_n, self._band, self._runs, self._nruns)
         depth_grid_lookup.tile_first_cells(self._runs, self._nruns, self._tile_first)
         self.has_frames = True
-
-    def _set_band(self, reach) -> None:
-        if reach is None:
-            if not self._band_full:           # the full band is already there: nothing to write
-                self._band[..., 0] = -(1 << 30)
-                self._band[..., 1] = 1 << 30
-                self._band_full = True
-            return
-        self._band_full = False
-        P = self.principal
-        is_box = (isinstance(reach, tuple) and len(reach) == 2 and np.shape(reach[0]) == (3,)
-                  and np.shape(reach[1]) == (3,))
-        if not is_box:
-            caps = _capsule_array(reach)
-            if not len(caps):
-                raise ValueError("reach as capsules needs at least one capsule")
-            grow = self.d_max * float(np.hypot(1 / P.fx, 1 / P.fy))     # half diagonal x 2
-            a = caps[:, 0:3] @ self._Rp.T + self._tp
-            b = caps[:, 3:6] @ self._Rp.T + self._tp
-            cc = np.ascontiguousarray(np.concatenate([a, b, caps[:, 6:7] + grow], axis=1))
-            depth_grid_reach.reach_band_capsules(cc, len(cc), self._capsule_boxes(cc), P.fx, P.fy, P.cx, P.cy,
-                                  self.d_min, self.delta_d, self._band)
-            return
-        lo, hi = (np.asarray(x, dtype=np.float64).reshape(3) for x in reach)
-        if not (np.all(np.isfinite(lo)) and np.all(np.isfinite(hi)) and np.all(lo <= hi)):
-            raise ValueError(f"reach must be a finite box with lo <= hi (got {lo}, {hi})")
-        pad = 2.0 * float(np.hypot(1 / P.fx, 1 / P.fy))
-        depth_grid_reach.reach_band(lo, hi, np.ascontiguousarray(P.world_from_camera[:3, :3]),
-                     np.ascontiguousarray(P.position), P.fx, P.fy, P.cx, P.cy, self.d_min, self.delta_d,
-                     pad, self._band)
-
-    @staticmethod
-    def robot_reach(robot_capsules, rho: float, margin: float = 0.1):
-        """The ``reach`` of :meth:`set_frames` for the robot's own control points:
-        its capsules with radii grown by ``rho + margin`` (m), as ``(segments (C, 2, 3),
-        radii (C,))``; ``margin`` covers the motion of the points between frames."""
-        caps = _capsule_array(robot_capsules)
-        if not len(caps):
-            raise ValueError("robot_reach needs at least one capsule")
-        return caps[:, :6].reshape(-1, 2, 3).copy(), caps[:, 6] + float(rho) + float(margin)
-
-    def set_robot_capsules(self, robot_capsules) -> None:
-        """Set the robot's padded volume (world capsules); part of :meth:`set_frames`."""
-        caps = _capsule_array(robot_capsules)
-        self._caps_world = caps
-        if len(caps):
-            a = caps[:, 0:3] @ self._Rp.T + self._tp
-            b = caps[:, 3:6] @ self._Rp.T + self._tp
-            self._caps = np.ascontiguousarray(np.concatenate([a, b, caps[:, 6:7]], axis=1))
-            P = self.principal
-            depth_grid_capsules.capsule_intervals(self._caps, len(caps), self._capsule_boxes(self._caps), P.fx, P.fy,
-                                P.cx, P.cy, P.height, P.width, self._cap_lo, self._cap_hi, self._cap_n)
-        else:
-            self._caps = np.zeros((1, 7))
-        self._ncaps = len(caps)
-        self._frame += 1          # memoised cells (lazy) were classified with the old volume
-        np.copyto(self._free_to, self._pfree)
-        self._clear.fill(-1)
-
-    def _capsule_boxes(self, caps: np.ndarray) -> np.ndarray:
-        """(C, 4) inclusive pixel boxes holding each capsule's projection (principal frame
-        capsules): the projected corners of its axis-aligned bounding box, plus a pixel."""
-        P = self.principal
-        if len(caps) > len(self._boxes):
-            self._boxes = np.zeros((len(caps), 4), dtype=np.int64)
-        boxes = self._boxes[:len(caps)]
-        depth_grid_capsules.capsule_boxes(caps, len(caps), P.fx, P.fy, P.cx, P.cy, P.height, P.width, boxes)
-        return boxes
-
-    def _capsule_boxes_numpy(self, caps: np.ndarray) -> np.ndarray:
-        """The plain-numpy twin of :func:`~depthguard.fusion.depth_grid_capsules.capsule_boxes`."""
-        P = self.principal
-        boxes = np.zeros((len(caps), 4), dtype=np.int64)
-        sgn = np.array([[x, y, z] for x in (-1, 1) for y in (-1, 1) for z in (-1, 1)], float)
-        for i, c in enumerate(caps):
-            lo = np.minimum(c[0:3], c[3:6]) - c[6]
-            hi = np.maximum(c[0:3], c[3:6]) + c[6]
-            C = (lo + hi) / 2 + sgn * (hi - lo) / 2
-            if np.any(C[:, 2] <= 1e-6):
-                boxes[i] = (0, P.width - 1, 0, P.height - 1)
-                continue
-            pu = C[:, 0] * P.fx / C[:, 2] + P.cx
-            pv = C[:, 1] * P.fy / C[:, 2] + P.cy
-            boxes[i] = (max(int(np.floor(pu.min() + 0.5)) - 1, 0), min(int(np.floor(pu.max() + 0.5)) + 1, P.width - 1),
-                        max(int(np.floor(pv.min() + 0.5)) - 1, 0), min(int(np.floor(pv.max() + 0.5)) + 1, P.height - 1))
-        return boxes
 
     def _principal_state(self, depth, robot_depth, state) -> None:
         """The principal's per-pixel state as ``_pfree`` / ``_pkind``: ``state``'s own arrays where
@@ -596,140 +484,6 @@ class DepthGridMap:
             return state
         state_into(cam, depth, robot_depth, options, robot_free, self._silhouette, self._gaps, out_free, out_kind)
         return None
-
-    def query(self, points, rho: float = 0.4, method: str = "hybrid",
-              threads: int | None = None, rho_core: float | None = None) -> DistanceResult:
-        """Distances of control points (N, 3) world metres to the fused obstacles (R12).
-
-        threads : numba threads for this call. Default: one thread below
-            ``PARALLEL_MIN_POINTS`` points (a parallel region costs more than it
-            saves for a few points, and waits for the slowest thread on a busy
-            machine), all threads from there. The first query of a frame (lazy)
-            classifies the cells it needs first, per pixel over the merged slice
-            range of all points, on all threads by default (a few ms of work that
-            splits well over image rows), then looks up.
-
-        rho_core : (lazy grid only) the mean / hybrid direction from the pixels within
-            ``rho_core <= rho``, the distance from every pixel within ``rho`` (a point with
-            none within ``rho_core`` gets the nearest and its direction); default ``rho``.
-            A result with ``rho > rho_core`` bounds the distance of a point that has moved
-            since (:mod:`depthguard.runtime.distances`).
-
-        The arrays of the result are views of reused buffers, overwritten by
-        the next query: ``.copy()`` the result to keep it.
-        """
-        if not self.has_frames:
-            raise ValueError("DepthGridMap.query: call set_frames(depths) first")
-        p = check_points(points)
-        r = check_rho(rho)
-        try:
-            m = _METHODS[method]
-        except (KeyError, TypeError):
-            raise ValueError(f"method must be one of 'min', 'mean', 'hybrid' (got {method!r})") from None
-        rc = r if rho_core is None else check_rho(rho_core)
-        if rc > r:
-            raise ValueError(f"rho_core must be <= rho (got rho_core={rho_core!r}, rho={rho!r})")
-        if rc < r and not self.lazy:
-            raise ValueError("rho_core < rho needs the lazy grid (lazy=True)")
-        n = len(p)
-        if n > self._cap:
-            self._alloc_points(n)
-        prev = None
-        auto = threads is None and n < PARALLEL_MIN_POINTS
-        if auto:
-            threads = 1
-        prefill = self.lazy and self._queried != self._frame
-        if threads is not None:
-            import numba
-
-            if int(threads) < 1:
-                raise ValueError(f"threads must be >= 1 (got {threads!r})")
-            prev = numba.get_num_threads()
-            numba.set_num_threads(min(int(threads), numba.config.NUMBA_NUM_THREADS))
-        self._queried = self._frame
-        try:
-            if prefill:                       # the frame's cells, merged per pixel (and on all
-                if auto:                      # threads unless the caller chose)
-                    numba.set_num_threads(prev)
-                self._ensure(p, n, r)
-                if auto:
-                    numba.set_num_threads(1)
-            self._run_query(p, n, r, m, rc)
-        finally:
-            if prev is not None:
-                import numba
-
-                numba.set_num_threads(prev)
-        return DistanceResult(self._dist[:n], self._dir[:n], self._obs[:n], self._count[:n])
-
-    def principal_view(self) -> tuple:
-        """``(R (3, 3), t (3,), pint, W, H)``: the principal camera's world → camera transform and
-        intrinsics row (fx, fy, cx, cy, …, min range, max range), the image the points' R26
-        test uses (:mod:`depthguard.runtime.distances`)."""
-        P = self.principal
-        return self._Rp, self._tp, self._pint, P.width, P.height
-
-    def _ensure(self, p, n, r) -> None:
-        """Classify (lazy, on the current numba threads) every cell a query of ``p`` needs.
-        Rows are handed out in chunks of a few (the work gathers around the robot, so two
-        contiguous halves of the image would leave one thread idle)."""
-        import numba
-
-        with numba.parallel_chunksize(ENSURE_CHUNK_ROWS):
-            self._ensure_rows(p, n, r)
-
-    def _ensure_rows(self, p, n, r) -> None:
-        depth_grid_lazy.ensure_cells(self._pfree, self._pkind, self._tmin, self._pint, self.d_min, self.delta_d, self.n_d,
-                       self._kfree, self._kpmin, self._kpmax, self._koff, self._kdims, self._rays_arg,
-                       self._orig_arg, self._kint_arg, len(self.others), self._kmemo, self._caps, self._ncaps,
-                       self._cap_lo, self._cap_hi, self._cap_n, self._band, self._Rp, self._tp, p, n, r,
-                       self._frame, self._stamp, self._obits, self._cbits, self._clear, self._free_to,
-                       self._ws, self._span)
-
-    def _run_query(self, p, n, r, m, rc=None) -> None:
-        if self.lazy:
-            import numba
-
-            fill = numba.get_num_threads() == 1
-            if not fill:
-                self._ensure(p, n, r)
-            depth_grid_lazy.grid_distances_lazy(self._pfree, self._tmin, self._obits, self._cap_n, self._caps, self._ncaps,
-                                  self._cap_lo, self._cap_hi, self.n_d, self._Rp, self._tp, self._pint,
-                                  self.d_min, self.delta_d, p, n, r, m,
-                                  self._dist, self._dir, self._count, self._obs,
-                                  fill, self._pkind, self._kfree, self._kpmin, self._kpmax, self._koff,
-                                  self._kdims, self._rays_arg, self._orig_arg, self._kint_arg,
-                                  len(self.others), self._kmemo, self._band, self._frame, self._stamp, self._cbits,
-                                  self._clear, self._free_to, self._axbuf, r if rc is None else rc)
-            return
-        depth_grid_lookup.grid_distances(self._pfree, self._runs, self._nruns, self._tile_first, self._Rp, self._tp, self._pint,
-                         self.d_min, self.delta_d, p, n, r, m,
-                         self._dist, self._dir, self._count, self._obs)
-
-    def distance(self, depths: dict, points, rho: float = 0.4, method: str = "hybrid",
-                 robot_depths: dict | None = None, *, robot_capsules=None,
-                 robot_offset: float = 0.03, invalid: str = "unknown",
-                 robot_in_others: str = "unknown", reach=None, lazy: bool = True,
-                 silhouette_px: int = 0, gap_px: int = 0) -> DistanceResult:
-        """Distance from control points to what all cameras see together (SPEC §3, §9).
-
-        depths, robot_depths : dict camera id -> (H, W) images (see :meth:`set_frames`).
-        points : (N, 3) world metres. rho : radius of surveillance (m).
-        method : ``"min"``, ``"mean"`` or ``"hybrid"`` (R7 over the principal's pixels,
-            one distance per pixel: its nearest obstacle cell).
-        robot_capsules, robot_offset, invalid, robot_in_others, reach, lazy, silhouette_px, gap_px :
-            see :meth:`set_frames` (``silhouette_px=0`` and ``gap_px=0``, the defaults, are off;
-            the product runs with silhouette_px=4, R32).
-
-        Returns a :class:`~depthguard.distance.DistanceResult` with fresh arrays:
-        ``distance`` (N,) m, ``inf`` = no obstacle within ``rho``; ``direction``
-        (N, 3) world unit vectors towards the obstacle; ``observed`` (N,) =
-        the point lies in the principal's image and range.
-        """
-        self.set_frames(depths, robot_depths, robot_offset=robot_offset, robot_capsules=robot_capsules,
-                        invalid=invalid, robot_in_others=robot_in_others, reach=reach, lazy=lazy,
-                        silhouette_px=silhouette_px, gap_px=gap_px)
-        return self.query(points, rho=rho, method=method).copy()
 
     def __repr__(self) -> str:
         H, W, nd = self.shape

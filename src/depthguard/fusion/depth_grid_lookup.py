@@ -1,13 +1,13 @@
 """Distances of points to the classified cells of the depth grid (SPEC §3, R7, R10–R12).
 
-The eager path: :func:`~depthguard.fusion.depth_grid_kernels.column_runs` gives
+The eager path: :func:`~depthguard.fusion.depth_grid_eager.column_runs` gives
 every principal column its obstacle cells as runs, :func:`tile_first_cells`
 the first of them per tile of ``TILE`` x ``TILE`` pixels, and
 :func:`grid_distances` looks up each point's nearest obstacle per pixel of its
 region of surveillance by the R10 distance (the cell's nearest depth to the
 point along the pixel's ray) and folds the pixels by the R7 method
 (:func:`_fold_pixel`, :func:`_finish_point`, shared with the lazy path,
-:func:`~depthguard.fusion.depth_grid_lazy.grid_distances_lazy`).
+:func:`~depthguard.fusion.depth_grid_lazy_lookup.grid_distances_lazy`).
 
 The plain-numpy twin is
 :func:`~depthguard.fusion.depth_grid_ref.grid_distances_numpy`.

@@ -23,7 +23,7 @@ Each bit is exactly :func:`~depthguard.fusion.depth_grid_kernels.cell_cleared`
 for that one camera (cell by cell, or a whole stretch at once where the
 camera's min / max pyramids prove it cleared / confirmed, an exact shortcut),
 so a cell's class equals the eager runs'
-(:func:`~depthguard.fusion.depth_grid_kernels.column_runs`).
+(:func:`~depthguard.fusion.depth_grid_eager.column_runs`).
 """
 
 from __future__ import annotations

@@ -16,7 +16,7 @@ points ``P`` (:func:`bound_distances`):
 * "Nothing within ρ" needs the same care: the snapshot is queried with
   ``ρ + margin`` (the direction still from the pixels within ρ, R7; the band
   between ρ and ρ + margin counts for the distance only,
-  :func:`~depthguard.fusion.depth_grid_lazy.grid_distances_lazy`), so
+  :func:`~depthguard.fusion.depth_grid_lazy_lookup.grid_distances_lazy`), so
   ``D₀ = inf`` at ``P₀`` means nothing within ``ρ + margin - Δ >= ρ`` at ``P``.
 * A point that moved more than ``margin`` since the snapshot, a snapshot older
   than ``max_age_s`` of wall time (the worker starved or failed), another ρ
