@@ -42,7 +42,7 @@ import numpy as np
 
 from depthguard.config import MonitorConfig
 from depthguard.control.policy import Cycle, PolicySetup, make_policies
-from depthguard.control.reaction import reaction as reaction_of
+from depthguard.control.repulsion_limits import repulsion_and_limits
 from depthguard.control.supervisor import SafetySupervisor, stop_reasons
 from depthguard.runtime.monitor_distances import MonitorDistances
 from depthguard.runtime.monitor_paths import MonitorPaths
@@ -445,7 +445,7 @@ class Monitor(MonitorDistances, UnitStateInput, MonitorPaths):
                 hi = part.qd_max if hi is None else np.minimum(hi, part.qd_max)
         if lo is None:
             cfg = c.config
-            _, lo, hi = reaction_of(self._D_none, c.direction, c.jacobians, c.q, self._q_min, self._q_max,
+            _, lo, hi = repulsion_and_limits(self._D_none, c.direction, c.jacobians, c.q, self._q_min, self._q_max,
                                     self._qd_max, cfg.dt, cfg.rho, cfg.v_max, cfg.alpha, c.override,
                                     out=self._box_buf)
             lo, hi = lo.copy(), hi.copy()
