@@ -26,7 +26,10 @@ One control cycle (500 Hz, ``dt = 2 ms``) at time ``t``:
    low-priority posture term; ``τ += s·k·dt``; ``q += q̇·dt``. With ``reaction`` ``ssm`` or
    ``both`` (R33) the monitor gets that command before scaling and returns a speed scale;
    the robot applies it to ``q̇`` and ``τ``, braking no harder than the stopping model's
-   deceleration allows (:mod:`depthguard.evaluation.closed_loop.ssm_truth`).
+   deceleration allows (:mod:`depthguard.evaluation.closed_loop.ssm_truth`). This robot is the
+   package's one obeying robot, :class:`depthguard.sim.obeying_robot.ObeyingRobot` with its
+   :class:`~depthguard.sim.obeying_robot.TaskFollower` (the ``sim:`` source drives the same
+   object on its joint path).
 4. **Ground truth** (not part of the system): the robot's collision capsules
    against the true obstacles (``scene.true_distance`` + the scenario's
    scripted primitives), sampled along each capsule axis every
