@@ -384,7 +384,7 @@ class Monitor(MonitorDistances, UnitStateInput, MonitorPaths, MonitorWatches):
         r = Reaction(t=float(t), override=float(k), repulsion=rep, qd_min=lo, qd_max=hi,
                      names=self._names, distance=D, direction=V, observed=obs, is_watch=self._is_watch,
                      reasons=reasons, cameras=cams, joints_age_s=float(joints_age), q=q.copy(),
-                     frame_stamps=stamps, step_s=step_s, reaction=self._mode, speed_scale=scale,
+                     frame_stamps=stamps, step_s=step_s, reaction_mode=self._mode, speed_scale=scale,
                      protective_stop=pstop, ssm=None if ssm is None else ssm.terms,
                      ssm_scale=1.0 if ssm is None else float(ssm.scale), parts=parts)
         for s in self.sinks:
