@@ -54,7 +54,8 @@ def product_defaults() -> dict:
 
 
 def literal_defaults(tree):
-    """(line, function, parameter, value) of every constant default of a function parameter."""
+    """(line, function, parameter, value) of every constant default of a function parameter (also
+    a CLI option's, the first argument of ``typer.Option``)."""
     for node in ast.walk(tree):
         if isinstance(node, (ast.FunctionDef, ast.AsyncFunctionDef)):
             a = node.args
@@ -62,15 +63,17 @@ def literal_defaults(tree):
             pairs = list(zip(pos[len(pos) - len(a.defaults):], a.defaults))
             pairs += [(x, d) for x, d in zip(a.kwonlyargs, a.kw_defaults) if d is not None]
             for arg, d in pairs:
+                if isinstance(d, ast.Call) and d.args:        # a command's option: typer.Option(default, ...)
+                    d = d.args[0]
                 if isinstance(d, ast.Constant) and not isinstance(d.value, bool):
                     yield node.lineno, node.name, arg.arg, d.value
 
 
-def offenders(files) -> list[str]:
+def offenders(files, root=SRC) -> list[str]:
     prod = product_defaults()
     out = []
     for path in files:
-        rel = path.relative_to(SRC).as_posix()
+        rel = path.relative_to(root).as_posix()
         if rel == "config.py":
             continue
         for line, fn, arg, value in literal_defaults(ast.parse(path.read_text(encoding="utf-8"))):
@@ -88,11 +91,9 @@ def test_no_library_signature_repeats_a_product_default():
 
 
 def test_the_check_finds_a_repeated_and_a_contradicting_default(tmp_path):
-    bad = SRC / "_probe_defaults.py"         # the walk reads files under src/: a probe there, removed after
-    bad.write_text('def f(points, rho: float = 0.4, method="hybrid", robot_offset=0.03, n=3):\n    pass\n')
-    try:
-        found = offenders([bad])
-    finally:
-        bad.unlink()
+    bad = tmp_path / "_probe_defaults.py"
+    bad.write_text('def f(points, rho: float = 0.4, method="hybrid", robot_offset=0.03, n=3,\n'
+                   '      invalid=typer.Option("unknown", "--invalid")):\n    pass\n')
+    found = offenders([bad], root=tmp_path)
     assert found == ["_probe_defaults.py:1 f(rho=0.4)", "_probe_defaults.py:1 f(method='hybrid')",
-                     "_probe_defaults.py:1 f(robot_offset=0.03)"]
+                     "_probe_defaults.py:1 f(robot_offset=0.03)", "_probe_defaults.py:1 f(invalid='unknown')"]
