@@ -222,8 +222,8 @@ def test_sns_bad_input():
         sns_velocity(np.eye(3), np.zeros(2), -np.ones(3), np.ones(3))
 
 
-def test_reaction_kernel_matches_numpy_twin():
-    from depthguard.control.reaction import reaction, reaction_numpy
+def test_repulsion_and_limits_kernel_matches_numpy_twin():
+    from depthguard.control.repulsion_limits import repulsion_and_limits, repulsion_and_limits_numpy
 
     rng = np.random.default_rng(11)
     n, m = 7, 9
@@ -238,8 +238,8 @@ def test_reaction_kernel_matches_numpy_twin():
         q = rng.uniform(-2.1, 2.1, n)
         qd_max = rng.uniform(1.0, 3.0, n)
         k = rng.uniform(0, 1)
-        a = reaction(D, V, J, q, q_min, q_max, qd_max, 0.002, RHO, VMAX, ALPHA, k)
-        b = reaction_numpy(D, V, J, q, q_min, q_max, qd_max, 0.002, RHO, VMAX, ALPHA, k)
+        a = repulsion_and_limits(D, V, J, q, q_min, q_max, qd_max, 0.002, RHO, VMAX, ALPHA, k)
+        b = repulsion_and_limits_numpy(D, V, J, q, q_min, q_max, qd_max, 0.002, RHO, VMAX, ALPHA, k)
         for x, y in zip(a, b):
             np.testing.assert_allclose(x, y, rtol=1e-12, atol=1e-12)
         assert np.all(a[1] <= 0) and np.all(a[2] >= 0)

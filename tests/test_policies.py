@@ -89,7 +89,7 @@ def test_a_policy_module_composes_with_the_repulsion_most_restrictive_wins(rig, 
         np.testing.assert_array_equal(r.qd_max, np.minimum(r0.qd_max, cap))
         np.testing.assert_array_equal(r.qd_min, np.maximum(r0.qd_min, -cap))
         rec = json.loads(json.dumps(r.to_dict()))
-        assert rec["reaction"] == "repulsion+gentle"
+        assert rec["reaction_mode"] == "repulsion+gentle"
         assert rec["policies"]["gentle"]["near_cycles"] == near_seen
     assert near_seen > 10 and stop_seen > 0 and near_seen < len(got)     # both sides of the rule ran
 

@@ -195,7 +195,7 @@ def test_monitor_ssm_log_recomputes(tmp_path):
         qd = np.full(rig.robot.dof, 0.4)
         r = mon.step(0.002, q0, qd=qd)
     d = r.to_dict()
-    assert d["reaction"] == "both" and 0.0 <= d["speed_scale"] <= 1.0
+    assert d["reaction_mode"] == "both" and 0.0 <= d["speed_scale"] <= 1.0
     s = d["ssm_scale"]
     for p in d["points"][:len(rig.robot.control_points)]:
         t = p["ssm"]

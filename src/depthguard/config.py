@@ -23,7 +23,9 @@ from pydantic import BaseModel, ConfigDict, Field, field_validator, model_valida
 
 from depthguard.control.ssm_config import SSMConfig
 
-__all__ = ["MonitorConfig", "WatchPoint", "CAMERA_ID_PATTERN", "check_camera_id", "PRODUCT_RHO", "PRODUCT_ROBOT_OFFSET"]
+__all__ = ["MonitorConfig", "WatchPoint", "CAMERA_ID_PATTERN", "check_camera_id", "PRODUCT_RHO", "PRODUCT_ROBOT_OFFSET",
+           "PRODUCT_METHOD", "PRODUCT_INVALID", "PRODUCT_ROBOT_IN_OTHERS", "PRODUCT_DELTA_D", "PRODUCT_ROBOT_PADDING",
+           "PRODUCT_CAMERA_HZ", "PRODUCT_JOINT_WAIT_S"]
 
 _Vec3 = tuple[float, float, float]
 
@@ -307,3 +309,11 @@ class MonitorConfig(BaseModel):
 
 #: the product's radius of surveillance (m): the default of the library's distance queries too
 PRODUCT_RHO: float = MonitorConfig.model_fields["rho"].default
+#: the other product defaults that library signatures take (each defined once, in MonitorConfig above)
+PRODUCT_METHOD: str = MonitorConfig.model_fields["method"].default                  # R7 aggregation
+PRODUCT_INVALID: str = MonitorConfig.model_fields["invalid"].default                # R28
+PRODUCT_ROBOT_IN_OTHERS: str = MonitorConfig.model_fields["robot_in_others"].default  # R12
+PRODUCT_DELTA_D: float = MonitorConfig.model_fields["delta_d"].default              # m, R10
+PRODUCT_ROBOT_PADDING: float = MonitorConfig.model_fields["robot_padding"].default  # m, R12
+PRODUCT_CAMERA_HZ: float = MonitorConfig.model_fields["camera_hz"].default          # Hz
+PRODUCT_JOINT_WAIT_S: float = MonitorConfig.model_fields["joint_wait_s"].default    # s, R30

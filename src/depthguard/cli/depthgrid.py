@@ -7,14 +7,15 @@ from pathlib import Path
 import typer
 
 from depthguard.cli.reproduce import reproduce_app
+from depthguard.evaluation.flacco2015 import PAPER_DELTA_D, PAPER_RHO
 
 
 @reproduce_app.command("flacco2015")
 def flacco2015_cmd(
     out: Path = typer.Option(Path("out/flacco2015"), "--out", help="Output directory for the plots and table.md."),
-    rho: float = typer.Option(0.4, "--rho", help="Radius of surveillance, metres (paper: 0.4)."),
+    rho: float = typer.Option(PAPER_RHO, "--rho", help="Radius of surveillance, metres (paper: 0.4)."),
     padding: float = typer.Option(0.05, "--padding", help="Padding of the robot's capsules (self volume), metres."),
-    delta_d: float = typer.Option(0.01, "--delta-d", help="Depth slice of the grid, metres (paper: 0.01)."),
+    delta_d: float = typer.Option(PAPER_DELTA_D, "--delta-d", help="Depth slice of the grid, metres (paper: 0.01)."),
 ) -> None:
     """Flacco & De Luca 2015 figs. 8/12 and 9/13 on the flacco-cell: shadow, hidden hand, robot alone.
 

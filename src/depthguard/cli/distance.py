@@ -11,6 +11,7 @@ from typing import Optional
 import typer
 
 from depthguard.cli.app import app
+from depthguard.config import PRODUCT_INVALID, PRODUCT_METHOD, PRODUCT_RHO
 from depthguard.cli.reproduce import reproduce_app
 
 
@@ -145,9 +146,9 @@ def distance_cmd(
                                 "may be a header of three column names."),
     robot_joints: Optional[str] = typer.Option(None, "--robot-joints", metavar="Q1,...,QN",
                                                help="Remove the rig's robot at these joints, rad, inside its limits (R9)."),
-    rho: float = typer.Option(0.4, "--rho", help="Radius of surveillance, metres."),
-    method: str = typer.Option("hybrid", "--method", help="min | mean | hybrid (R7)."),
-    invalid: str = typer.Option("unknown", "--invalid", help="Invalid pixels: unknown (safe, R28) | free."),
+    rho: float = typer.Option(PRODUCT_RHO, "--rho", help="Radius of surveillance, metres."),
+    method: str = typer.Option(PRODUCT_METHOD, "--method", help="min | mean | hybrid (R7)."),
+    invalid: str = typer.Option(PRODUCT_INVALID, "--invalid", help="Invalid pixels: unknown (safe, R28) | free."),
     robot_mode: str = typer.Option("drop", "--robot-mode", help="Robot pixels: drop (default) | shadow (obstacle behind the robot)."),
     accept_out_of_range: bool = typer.Option(False, "--accept-out-of-range",
                                              help="Use an image whose measured pixels mostly lie outside the "

@@ -7,7 +7,7 @@ obstacle (R14); the joint position and speed limits bound the box too. The box
 is times the supervision's override. It does not scale the commanded motion
 (``scale`` 1): its part is the repulsion and the box. Distances beyond ``rho``
 (looked for farther when another policy reaches farther, e.g. SSM) do not
-repel. The arithmetic is one numba kernel, :func:`depthguard.control.reaction.reaction`.
+repel. The arithmetic is one numba kernel, :func:`depthguard.control.repulsion_limits.repulsion_and_limits`.
 """
 
 from __future__ import annotations
@@ -15,7 +15,7 @@ from __future__ import annotations
 import numpy as np
 
 from depthguard.control.policy import Cycle, Part, PolicySetup
-from depthguard.control.reaction import reaction
+from depthguard.control.repulsion_limits import repulsion_and_limits
 
 __all__ = ["Repulsion"]
 
@@ -50,6 +50,6 @@ class Repulsion:
             self._D[self._D > rho] = np.inf
             D = self._D
         n = self._q_min.shape[0]
-        rep, lo, hi = reaction(D, c.direction, c.jacobians, c.q, self._q_min, self._q_max, self._qd_max,
+        rep, lo, hi = repulsion_and_limits(D, c.direction, c.jacobians, c.q, self._q_min, self._q_max, self._qd_max,
                                dt, rho, v_max, alpha, c.override, out=(np.empty(3), np.empty(n), np.empty(n)))
         return Part(repulsion=rep, qd_min=lo, qd_max=hi)

@@ -23,10 +23,10 @@ from __future__ import annotations
 
 import numpy as np
 
-__all__ = ["risk", "repulsive_magnitude", "repulsive_velocity", "check_reaction_params"]
+__all__ = ["risk", "repulsive_magnitude", "repulsive_velocity", "check_repulsion_params"]
 
 
-def check_reaction_params(rho: float, alpha: float, v_max: float | None = None) -> None:
+def check_repulsion_params(rho: float, alpha: float, v_max: float | None = None) -> None:
     """Raise ``ValueError`` unless ``rho > 0``, ``alpha > 0`` (and ``v_max >= 0``)."""
     if not (np.isfinite(rho) and rho > 0):
         raise ValueError(f"rho must be a positive distance in metres, got {rho!r}")
@@ -43,7 +43,7 @@ def risk(D, rho: float, alpha: float) -> np.ndarray:
     (f = 0). Negative or NaN distances are rejected. Returns float64 of the
     shape of ``D``, values in (0, 1).
     """
-    check_reaction_params(rho, alpha)
+    check_repulsion_params(rho, alpha)
     d = np.asarray(D, dtype=np.float64)
     if np.any(np.isnan(d)) or np.any(d < 0):
         raise ValueError("distances D must be >= 0 or inf (no obstacle within rho); got NaN or negative")
@@ -54,7 +54,7 @@ def risk(D, rho: float, alpha: float) -> np.ndarray:
 
 def repulsive_magnitude(D, rho: float, v_max: float, alpha: float) -> np.ndarray:
     """``v(D) = Vmax · f(D)`` in m/s (R13, eq. 17); 0 for ``D = inf``."""
-    check_reaction_params(rho, alpha, v_max)
+    check_repulsion_params(rho, alpha, v_max)
     return v_max * risk(D, rho, alpha)
 
 

@@ -17,7 +17,7 @@ import numba
 import numpy as np
 
 from depthguard.config import PRODUCT_RHO as RHO   # the product defaults, defined once in config
-from depthguard.config import PRODUCT_ROBOT_OFFSET
+from depthguard.config import PRODUCT_INVALID, PRODUCT_METHOD, PRODUCT_ROBOT_OFFSET
 from depthguard.camera import Camera, check_depth_image
 from depthguard.distance import kernels
 from depthguard.distance.gaps import GapBuffers, check_gap_px
@@ -144,7 +144,7 @@ class DistanceWorkspace:
         self._obs = np.empty(n, dtype=np.bool_)
 
     def set_depth(self, depth: np.ndarray, robot_depth: np.ndarray | None = None,
-                  invalid: str = "unknown", robot_mode: str = "drop",
+                  invalid: str = PRODUCT_INVALID, robot_mode: str = "drop",
                   robot_offset: float = PRODUCT_ROBOT_OFFSET, silhouette_px: int = 0, gap_px: int = 0) -> None:
         """Load one frame: compute each pixel's obstacle start depth (R1, R9, R28, R32).
 
@@ -215,7 +215,7 @@ class DistanceWorkspace:
         kernels.obstacle_start_depth(d, rd, use, cam.min_range, cam.max_range, pol, mode, off, self.d0, sil, gaps)
         self.has_depth = True
 
-    def query(self, points: np.ndarray, rho: float = RHO, method: str = "hybrid") -> DistanceResult:
+    def query(self, points: np.ndarray, rho: float = RHO, method: str = PRODUCT_METHOD) -> DistanceResult:
         """Distances of ``points`` (N, 3) world metres to the current frame (R3–R7).
 
         The arrays of the result are views of the workspace's buffers,
@@ -255,8 +255,8 @@ def workspace_for(cam: Camera) -> DistanceWorkspace:
 
 
 def depth_space_distance(cam: Camera, depth: np.ndarray, points: np.ndarray, rho: float = RHO,
-                         method: str = "hybrid", robot_depth: np.ndarray | None = None,
-                         invalid: str = "unknown", robot_mode: str = "drop",
+                         method: str = PRODUCT_METHOD, robot_depth: np.ndarray | None = None,
+                         invalid: str = PRODUCT_INVALID, robot_mode: str = "drop",
                          robot_offset: float = PRODUCT_ROBOT_OFFSET, silhouette_px: int = 0,
                          gap_px: int = 0) -> DistanceResult:
     """Distance from control points to everything one depth camera sees (SPEC §2, R3–R9, R28).

@@ -12,13 +12,13 @@ from __future__ import annotations
 import numpy as np
 
 from depthguard.camera import Camera, RETURN_LIMIT_FACTOR
-from depthguard.config import PRODUCT_ROBOT_OFFSET
+from depthguard.config import PRODUCT_INVALID, PRODUCT_ROBOT_OFFSET
 
 __all__ = ["obstacle_start_depth_numpy", "surveillance_window_numpy", "pixel_vector_numpy",
            "depth_space_distance_numpy"]
 
 
-def obstacle_start_depth_numpy(depth, robot_depth, min_range, max_range, invalid="unknown",
+def obstacle_start_depth_numpy(depth, robot_depth, min_range, max_range, invalid=PRODUCT_INVALID,
                                robot_mode="drop", robot_offset=PRODUCT_ROBOT_OFFSET, silhouette_px=0,
                                gap_px=0) -> np.ndarray:
     """(H, W) float64 start depth of each pixel's obstacle frustum; ``inf`` = no obstacle.

@@ -63,6 +63,7 @@ from typing import Callable, Sequence
 import numpy as np
 
 from depthguard.camera import Camera
+from depthguard.config import PRODUCT_JOINT_WAIT_S
 from depthguard.fusion.voxels import FilterOffset, VoxelFilter, regrid
 from depthguard.transport import wire
 from depthguard.transport.client import ServerClient, ServerRefused, ServerUnavailable
@@ -156,7 +157,7 @@ class CameraNode:
                  fps: float = 15.0, trigger: bool = False, multicast: bool = False,
                  lease_ms: int = DEFAULT_LEASE_MS, log: Callable[[str], None] | None = None,
                  joint_source=None, joint_span_s: float = 1.0, joint_gap_s: float = math.inf,
-                 joint_wait_s: float = 0.05, identity=None, insecure: bool = False,
+                 joint_wait_s: float = PRODUCT_JOINT_WAIT_S, identity=None, insecure: bool = False,
                  init_timeout_s: float = 30.0, states: bool = False):
         from depthguard.transport.keys import ROLE_NODE
         from depthguard.transport.settings import check_exposure

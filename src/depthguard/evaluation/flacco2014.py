@@ -72,7 +72,11 @@ def _largest_jump_deg(V: np.ndarray) -> float:
     return float(np.degrees(np.arccos(c)).max())
 
 
-def run_flacco2014(steps: int = 201, noiseless: bool = False, seed: int = 0, rho: float = 0.3,
+#: the paper's radius of surveillance (m, §4), which this reproduction keeps whatever the product's is
+PAPER_RHO = 0.3
+
+
+def run_flacco2014(steps: int = 201, noiseless: bool = False, seed: int = 0, rho: float = PAPER_RHO,
                    invalid: str = "free", cell=None, quiet: bool = True) -> Flacco2014Result:
     """Run the sweep of the paper's §4 and check its three claims.
 

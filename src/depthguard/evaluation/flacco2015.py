@@ -27,6 +27,10 @@ import numpy as np
 __all__ = ["SITUATIONS", "SituationResult", "run_flacco2015", "grid_for_rig", "write_outputs"]
 
 SITUATIONS = ("shadow", "hidden_hand", "robot_alone")
+#: the paper's settings (Flacco 2015 §VIII), which this reproduction keeps whatever the product's
+#: defaults (MonitorConfig) become
+PAPER_RHO = 0.4            # m, radius of surveillance
+PAPER_DELTA_D = 0.01       # m, the grid's depth slice
 
 
 @dataclass
@@ -46,7 +50,7 @@ class SituationResult:
     eps: np.ndarray = field(repr=False, default=None)   # (9,) discretisation bound
 
 
-def grid_for_rig(rig, principal: str = "cam0", delta_d: float = 0.01, cache_dir=None, quiet=True):
+def grid_for_rig(rig, principal: str = "cam0", delta_d: float = PAPER_DELTA_D, cache_dir=None, quiet=True):
     """A :class:`DepthGridMap` whose slices span the workspace box as seen by the principal."""
     from depthguard.fusion.depth_grid import DepthGridMap
 
@@ -67,7 +71,7 @@ def discretisation_bound(cam, points, rho: float, delta_d: float) -> np.ndarray:
     return 2 * pix + np.sqrt(pix ** 2 + delta_d ** 2)
 
 
-def run_flacco2015(rho: float = 0.4, padding: float = 0.05, delta_d: float = 0.01, cache_dir=None,
+def run_flacco2015(rho: float = PAPER_RHO, padding: float = 0.05, delta_d: float = PAPER_DELTA_D, cache_dir=None,
                    situations=SITUATIONS, quiet: bool = True) -> dict[str, SituationResult]:
     """Run the three situations; returns ``{name: SituationResult}``."""
     from depthguard.distance import depth_space_distance
@@ -103,7 +107,7 @@ def run_flacco2015(rho: float = 0.4, padding: float = 0.05, delta_d: float = 0.0
     return out
 
 
-def table(results: dict[str, SituationResult], rho: float = 0.4) -> str:
+def table(results: dict[str, SituationResult], rho: float = PAPER_RHO) -> str:
     """Markdown table: per situation and control point, truth and the three estimates."""
     def f(x):
         return "—" if not np.isfinite(x) else f"{x:.3f}"

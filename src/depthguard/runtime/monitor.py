@@ -42,10 +42,11 @@ import numpy as np
 
 from depthguard.config import MonitorConfig
 from depthguard.control.policy import Cycle, PolicySetup, make_policies
-from depthguard.control.reaction import reaction as reaction_of
+from depthguard.control.repulsion_limits import repulsion_and_limits
 from depthguard.control.supervisor import SafetySupervisor, stop_reasons
 from depthguard.runtime.monitor_distances import MonitorDistances
 from depthguard.runtime.monitor_paths import MonitorPaths
+from depthguard.runtime.monitor_watches import MonitorWatches
 from depthguard.runtime.ingest import CameraWorker, FusionWorker
 from depthguard.robot.joint_history import JointHistory
 from depthguard.runtime.result import CameraStatus, Reaction
@@ -56,7 +57,7 @@ from depthguard.runtime.warm_up import warm_up
 __all__ = ["Monitor", "warm_up"]
 
 
-class Monitor(MonitorDistances, UnitStateInput, MonitorPaths):
+class Monitor(MonitorDistances, UnitStateInput, MonitorPaths, MonitorWatches):
     """The runtime of one cell (module docstring).
 
     rig : a :class:`~depthguard.rig.Rig` with a robot and cameras.
@@ -288,39 +289,6 @@ class Monitor(MonitorDistances, UnitStateInput, MonitorPaths):
             self._camera_ids = self._camera_ids + (camera_id,)
         self._added_at[camera_id] = -math.inf if t is None else float(t)
 
-    def accept_camera(self, camera_id: str) -> None:
-        """The user trusts camera ``camera_id`` as it is now (R34): its drift flag is cleared and its
-        current residual level becomes the baseline — a further growth is flagged again. (A moved
-        camera is better recalibrated: ``depthguard calibrate``, then run with the corrected rig.)"""
-        w = self._workers.get(camera_id)
-        if w is None:
-            raise ValueError(f"camera {camera_id!r} is not monitored; monitored: {', '.join(self._camera_ids)}")
-        if w.drift is not None:
-            w.drift.accept()
-
-    def drift(self) -> dict:
-        """Per monitored camera: ``untrusted``, the last judged ``share`` farther than the static
-        scene, its ``baseline``, the ``flagged_at`` stamp and the ``message`` (R34); {} when off."""
-        out = {}
-        for c, w in list(self._workers.items()):
-            d = w.drift
-            if d is not None:
-                out[c] = {"untrusted": d.untrusted, "share": d.share, "baseline": d.baseline,
-                          "flagged_at": d.flagged_at, "judged": d.judged, "samples": d.samples,
-                          "message": d.message}
-        return out
-
-    def scene_changes(self) -> list[dict]:
-        """Where the cell no longer matches its learned scene (issue 31): per camera and region,
-        ``kind`` new (something stayed in front of it) or gone, the tile's ``box`` (u0, v0, u1, v1 px),
-        ``share`` and ``since`` (s); [] without a learned scene
-        (:class:`~depthguard.runtime.scene_change.SceneChangeWatch`). Never learned into the scene."""
-        out = []
-        for w in list(self._workers.values()):
-            if getattr(w, "scene_change", None) is not None:
-                out.extend(w.scene_change.changes())
-        return out
-
     def remove_camera(self, camera_id: str) -> None:
         """Stop monitoring a camera: its frames are no longer awaited nor used. The principal
         can be removed: the next camera becomes principal."""
@@ -416,7 +384,7 @@ class Monitor(MonitorDistances, UnitStateInput, MonitorPaths):
         r = Reaction(t=float(t), override=float(k), repulsion=rep, qd_min=lo, qd_max=hi,
                      names=self._names, distance=D, direction=V, observed=obs, is_watch=self._is_watch,
                      reasons=reasons, cameras=cams, joints_age_s=float(joints_age), q=q.copy(),
-                     frame_stamps=stamps, step_s=step_s, reaction=self._mode, speed_scale=scale,
+                     frame_stamps=stamps, step_s=step_s, reaction_mode=self._mode, speed_scale=scale,
                      protective_stop=pstop, ssm=None if ssm is None else ssm.terms,
                      ssm_scale=1.0 if ssm is None else float(ssm.scale), parts=parts)
         for s in self.sinks:
@@ -445,7 +413,7 @@ class Monitor(MonitorDistances, UnitStateInput, MonitorPaths):
                 hi = part.qd_max if hi is None else np.minimum(hi, part.qd_max)
         if lo is None:
             cfg = c.config
-            _, lo, hi = reaction_of(self._D_none, c.direction, c.jacobians, c.q, self._q_min, self._q_max,
+            _, lo, hi = repulsion_and_limits(self._D_none, c.direction, c.jacobians, c.q, self._q_min, self._q_max,
                                     self._qd_max, cfg.dt, cfg.rho, cfg.v_max, cfg.alpha, c.override,
                                     out=self._box_buf)
             lo, hi = lo.copy(), hi.copy()

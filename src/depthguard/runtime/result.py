@@ -60,7 +60,9 @@ class Reaction:
     q : (dof,) the joints the distances were computed at.
     frame_stamps : camera id -> capture stamp of the frame this cycle used.
     step_s : wall seconds the cycle took inside ``step``.
-    reaction : the monitor's mode, ``"repulsion"``, ``"ssm"`` or ``"both"`` (R33).
+    reaction_mode : the monitor's mode (:attr:`MonitorConfig.reaction_mode
+        <depthguard.config.MonitorConfig.reaction_mode>`), ``"repulsion"``, ``"ssm"`` or
+        ``"both"`` (R33), or the reaction policies' names joined by ``+``.
     speed_scale : in [0, 1], the factor for the commanded motion (what ros2_control's speed
         scaling or a UR speed slider takes): ``override`` times the SSM scale (``override``
         alone in repulsion mode).
@@ -91,7 +93,7 @@ class Reaction:
     q: np.ndarray
     frame_stamps: dict[str, float] = field(default_factory=dict)
     step_s: float = 0.0
-    reaction: str = "repulsion"
+    reaction_mode: str = "repulsion"
     speed_scale: float = 1.0
     protective_stop: bool = False
     ssm: np.ndarray | None = None
@@ -136,7 +138,7 @@ class Reaction:
                             for c, s in self.cameras.items()},
                 "joints_age_s": round(self.joints_age_s, 6) if math.isfinite(self.joints_age_s) else None,
                 "q": [round(float(x), 6) for x in self.q],
-                "reaction": self.reaction, "speed_scale": round(float(self.speed_scale), 6),
+                "reaction_mode": self.reaction_mode, "speed_scale": round(float(self.speed_scale), 6),
                 "protective_stop": bool(self.protective_stop), "ssm_scale": round(float(self.ssm_scale), 6)}
         own = {n: dict(p.record, scale=round(float(p.scale), 6), stop=bool(p.stop))
                for n, p in self.parts.items() if p.record}

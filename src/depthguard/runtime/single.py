@@ -13,7 +13,8 @@ from __future__ import annotations
 
 import numpy as np
 
-from depthguard.config import PRODUCT_RHO as RHO   # the product default, defined once in MonitorConfig
+from depthguard.config import PRODUCT_RHO as RHO   # the product defaults, defined once in MonitorConfig
+from depthguard.config import PRODUCT_INVALID, PRODUCT_METHOD, PRODUCT_ROBOT_IN_OTHERS
 from depthguard.distance.api import DistanceResult, DistanceWorkspace
 
 __all__ = ["OneCameraMap"]
@@ -27,7 +28,7 @@ class OneCameraMap:
         self.ws = DistanceWorkspace(cam, max_points=64, parallel=False)
 
     def set_frames(self, depths: dict, robot_depths: dict | None = None, *, robot_offset: float,
-                   robot_capsules=None, invalid: str = "unknown", robot_in_others: str = "unknown",
+                   robot_capsules=None, invalid: str = PRODUCT_INVALID, robot_in_others: str = PRODUCT_ROBOT_IN_OTHERS,
                    changed=None, silhouette_px: int = 0, gap_px: int = 0) -> None:
         """Load the camera's frame (R9, R28, R32): ``robot_capsules`` and ``robot_in_others``
         have no meaning for one camera (the robot pixels are dropped)."""
@@ -36,7 +37,7 @@ class OneCameraMap:
         self.ws.set_depth(depths[cid], robot_depth=rd, invalid=invalid, robot_mode="drop",
                           robot_offset=robot_offset, silhouette_px=silhouette_px, gap_px=gap_px)
 
-    def query(self, points, rho: float = RHO, method: str = "hybrid", threads: int | None = None,
+    def query(self, points, rho: float = RHO, method: str = PRODUCT_METHOD, threads: int | None = None,
               rho_core: float | None = None) -> DistanceResult:
         """Distances of the points (N, 3) world m to what the camera sees (views of reused buffers).
         ``rho_core < rho``: the answer of radius ``rho_core`` where it finds something, else the

@@ -45,7 +45,9 @@ from collections import deque
 
 import numpy as np
 
+from depthguard.config import PRODUCT_CAMERA_HZ
 from depthguard.robot.joint_history import JointHistory
+from depthguard.sim.obeying_robot import ObeyingRobot, PathFollower
 from depthguard.sources.base import register_joints, register_source
 from depthguard.sources.camera_sim import CameraSchedule, CameraSim
 from depthguard.sources.frame import Frame
@@ -84,7 +86,7 @@ class SimWorld:
 
     def __init__(self, cell_name: str, rig=None, situation: str | None = None, alone: bool = False,
                  dark: bool = False, noiseless: bool = False, seed: int = 0, joint_hz: float = 500.0,
-                 camera_hz: float = 30.0):
+                 camera_hz: float = PRODUCT_CAMERA_HZ):
         from depthguard.sim.cells import cell_from_rig, load_cell
 
         cell = load_cell(cell_name) if (rig is None or cell_name) else cell_from_rig(rig)
@@ -98,40 +100,39 @@ class SimWorld:
         self.history = JointHistory(self.robot.dof, span_s=5.0)
         self.states: deque = deque(maxlen=int(5.0 * joint_hz))   # (stamp, q) of every tick, newest last
         self._lock = threading.Lock()
-        self.override = 1.0
-        self._qd_lo = self._qd_hi = None
-        self.scale = 1.0                # the speed scale of the last tick (0 = standing)
-        self.scale_min = 1.0            # the lowest scale so far
-        self.slowed_s = 0.0             # seconds below 0.95 of the path's speed
-        self.stopped_s = 0.0            # seconds below 1 % of it
-        self._tau = self.start          # path time of the robot
+        self._path_end = float(getattr(self.scene.robot_path, "end", 0.0))   # a JointPath loops; a callable does not
+        # the package's one obeying robot (sim/obeying_robot.py), here on the cell's joint path
+        self.robot_sim = ObeyingRobot(PathFollower(self._path_q), self.robot.dof, tau=self.start)
         self._tick = 0                  # next joint tick index (time = origin + tick / joint_hz)
         self.origin = 0.0               # the run's clock at the simulator's time 0 (start_clock)
         self.skipped_ticks = 0          # joint ticks jumped over by a world far behind (advance)
-        self._path_end = float(getattr(self.scene.robot_path, "end", 0.0))   # a JointPath loops; a callable does not
 
     def on_reaction(self, reaction) -> None:
         """A sink: the robot takes each reaction — the override and the joint-velocity limits
         (R14) scale the speed along its path (a joint path cannot follow the end effector's
-        repulsion, which this robot ignores)."""
+        repulsion, which this robot ignores): :class:`~depthguard.sim.obeying_robot.PathFollower`."""
         with self._lock:
-            self.override = float(reaction.override)
-            self._qd_lo = np.asarray(reaction.qd_min, dtype=np.float64)
-            self._qd_hi = np.asarray(reaction.qd_max, dtype=np.float64)
+            self.robot_sim.obey(reaction)
 
-    def _speed_scale(self, tau: float, dt: float) -> float:
-        """The largest scale in [0, override] of the path's speed at ``tau`` that keeps every joint
-        within the reaction's velocity limits (R14)."""
-        s = self.override
-        if self._qd_lo is None or s <= 0.0:
-            return max(s, 0.0)
-        qd = (self._path_q(tau + dt) - self._path_q(tau)) / dt          # joint speed at scale 1
-        for v, lo, hi in zip(qd, self._qd_lo, self._qd_hi):
-            if v > 1e-12:
-                s = min(s, max(hi, 0.0) / v)
-            elif v < -1e-12:
-                s = min(s, max(-lo, 0.0) / -v)
-        return max(s, 0.0)
+    @property
+    def scale(self) -> float:
+        """The speed scale along the path of the last tick (0 = standing)."""
+        return self.robot_sim.rate
+
+    @property
+    def scale_min(self) -> float:
+        """The lowest scale so far."""
+        return self.robot_sim.rate_min
+
+    @property
+    def slowed_s(self) -> float:
+        """Seconds below 0.95 of the path's speed."""
+        return self.robot_sim.slowed_s
+
+    @property
+    def stopped_s(self) -> float:
+        """Seconds below 1 % of it."""
+        return self.robot_sim.stopped_s
 
     def scene_time(self, t: float) -> float:
         """The scene's time at run time ``t`` (it loops over its scripted duration)."""
@@ -165,18 +166,12 @@ class SimWorld:
             if due - self._tick >= self.states.maxlen:
                 skip = due - self._tick - self.states.maxlen + 1
                 if self._tick > 0:
-                    self._tau += self.scale * skip * dt
+                    self.robot_sim.coast(skip, dt)
                 self.skipped_ticks += skip
                 self._tick += skip
             while self._tick * dt <= local + 1e-12:
                 ts = self.origin + self._tick * dt
-                if self._tick > 0:
-                    self.scale = self._speed_scale(self._tau, dt)
-                    self._tau += self.scale * dt
-                    self.scale_min = min(self.scale_min, self.scale)
-                    self.slowed_s += dt if self.scale < 0.95 else 0.0
-                    self.stopped_s += dt if self.scale < 0.01 else 0.0
-                q = self._path_q(self._tau)
+                q = self.robot_sim.step(dt) if self._tick > 0 else self.robot_sim.q
                 self.history.push(ts, q)
                 self.states.append((ts, q))
                 new.append((ts, q))
@@ -264,7 +259,7 @@ class SimFrames:
         monitor`` run (2-4 frames skipped, a camera stale for a moment). Each frame's noise
         comes from its own stamp's generator, so the frames that follow are the same with or
         without it."""
-        q = self.world._path_q(self.world._tau)
+        q = self.world.robot_sim.q
         for cid in self.camera_ids:
             self.render(cid, 0.0, q)
 

@@ -284,7 +284,7 @@ def _run_monitor(script: _Script, rig, feeds, cfg, duration: float, attach=None)
 # ---------------------------------------------------------------- today's code: the grid on the control path
 def _run_today(script: _Script, rig, feeds, cfg, duration: float) -> dict:
     """The closed loop's way (module docstring): set_frames + first query on the control path."""
-    from depthguard.control.reaction import reaction as reaction_of
+    from depthguard.control.repulsion_limits import repulsion_and_limits
     from depthguard.filtering.expected import ExpectedDepth
     from depthguard.fusion.depth_grid import DepthGridMap
 
@@ -352,7 +352,7 @@ def _run_today(script: _Script, rig, feeds, cfg, duration: float) -> dict:
                 D, V = np.asarray(res.distance, dtype=np.float64), np.asarray(res.direction, dtype=np.float64)
             else:
                 D, V = np.full(len(data.cp_positions), np.inf), np.zeros((len(data.cp_positions), 3))
-            reaction_of(D, V, data.cp_jacobians, q, q_min, q_max, qd_max, cfg.dt, cfg.rho, cfg.v_max, cfg.alpha,
+            repulsion_and_limits(D, V, data.cp_jacobians, q, q_min, q_max, qd_max, cfg.dt, cfg.rho, cfg.v_max, cfg.alpha,
                         1.0, out=buf)
             c1 = time.perf_counter()
             if t >= SKIP_S:

@@ -26,7 +26,10 @@ One control cycle (500 Hz, ``dt = 2 ms``) at time ``t``:
    low-priority posture term; ``τ += s·k·dt``; ``q += q̇·dt``. With ``reaction`` ``ssm`` or
    ``both`` (R33) the monitor gets that command before scaling and returns a speed scale;
    the robot applies it to ``q̇`` and ``τ``, braking no harder than the stopping model's
-   deceleration allows (:mod:`depthguard.evaluation.closed_loop.ssm_truth`).
+   deceleration allows (:mod:`depthguard.evaluation.closed_loop.ssm_truth`). This robot is the
+   package's one obeying robot, :class:`depthguard.sim.obeying_robot.ObeyingRobot` with its
+   :class:`~depthguard.sim.obeying_robot.TaskFollower` (the ``sim:`` source drives the same
+   object on its joint path).
 4. **Ground truth** (not part of the system): the robot's collision capsules
    against the true obstacles (``scene.true_distance`` + the scenario's
    scripted primitives), sampled along each capsule axis every
@@ -51,9 +54,9 @@ from depthguard.config import MonitorConfig
 from depthguard.control.policy import LEGACY_MODES
 from depthguard.evaluation.closed_loop.camera_pipeline import CameraPipeline, threadsafe_numba
 from depthguard.evaluation.closed_loop.loop_truth import LoopTruth
-from depthguard.control.sns import SNSWorkspace, sns_velocity
 from depthguard.control.supervisor import SafetySupervisor, stop_reasons
 from depthguard.evaluation.closed_loop.trajectory import Hexagon
+from depthguard.sim.obeying_robot import ObeyingRobot, TaskFollower
 from depthguard.sources.camera_sim import CameraSchedule, CameraSim
 from depthguard.sources.frame import Frame
 
@@ -225,8 +228,6 @@ class ClosedLoop:
         self.camera_sim = CameraSim(cams, robot=self.robot, static_meshes=self._static_meshes, seed=seed,
                                     noiseless=not cfg.noise, invalid=cfg.invalid, parallel=self.threads > 1)
         self.sims = self.camera_sim.sims
-        self.data = self.robot.create_data()
-        self.sns_ws = SNSWorkspace(3, self.robot.dof)
         self.hexagon = cfg.hexagon
         q_start = np.asarray(getattr(rig, "robot_q0", None) if getattr(rig, "robot_q0", None) is not None
                              else self.robot.q_home, dtype=np.float64)
@@ -347,12 +348,12 @@ class ClosedLoop:
             from depthguard.evaluation.closed_loop.ssm_truth import SSMTruth
             truth_ssm = SSMTruth(mcfg.ssm, dt)
         from depthguard.evaluation.closed_loop.ssm_truth import braking_deceleration
-        brake = braking_deceleration(mcfg.ssm)
-        qd_nom = np.zeros(n)                    # the previous cycle's command before the SSM scale
-        s_applied, table, pstop = 1.0, None, False
-        q = self.q_start.copy()
-        tau = 0.0
-        data = self.data
+        # the package's one obeying robot (sim/obeying_robot.py), here the papers' SNS on the task
+        follower = TaskFollower(robot, self.hexagon, self.q_start, cfg.k_p, cfg.k_posture,
+                                brake=braking_deceleration(mcfg.ssm) if ssm_on else None)
+        bot = ObeyingRobot(follower, n)
+        table, pstop = None, False
+        q = bot.q
         wall0 = time.perf_counter()
         snaps_todo = sorted(float(x) for x in snapshot_times)
         snapshots = []
@@ -381,7 +382,7 @@ class ClosedLoop:
                     snapshots.append((t_cap, cid, d.copy()))
             # 2-4. the runtime: joints and the frames delivered now in, the reaction out (R29)
             t0 = time.perf_counter()
-            robot.forward(q, data)
+            data = follower.forward(q)
             P = data.cp_positions
             due = k == 0 or cfg.distance_hz is None or t + 1e-9 >= next_distance
             if due:                                    # else: hold the last cycle's reaction
@@ -391,11 +392,10 @@ class ClosedLoop:
                 if new_frames:                         # fused before this cycle's distances
                     mon.flush()
                     new_frames = set()
-                react = mon.step(t, q, qd=qd_nom) if ssm_on else mon.step(t, q)
+                react = mon.step(t, q, qd=follower.qd_nominal) if ssm_on else mon.step(t, q)
                 D, obs = react.distance[:m], react.observed[:m]
-                table, pstop, s_cmd = react.ssm, react.protective_stop, react.ssm_scale
-                kov = react.override
-                rep, lo, hi = react.repulsion, react.qd_min, react.qd_max   # R13, R14, joint limits, times k
+                table, pstop = react.ssm, react.protective_stop
+                bot.obey(react)                        # R13, R14, joint limits, times k; R33's scale
                 n_distance += 1
                 if cfg.distance_hz is not None:
                     next_distance = t + 1.0 / cfg.distance_hz
@@ -403,35 +403,24 @@ class ClosedLoop:
             timing["distance"] += t1 - t0
             ages = t - stamps
             # the robot obeys: EE task scaled by the override, plus the repulsion, within the limits
-            x = P[0]
-            p_d, v_d = self.hexagon.at(tau)
-            xd = kov * v_d + cfg.k_p * (p_d - x)
-            xc = xd + rep
-            r = sns_velocity(data.cp_jacobians[0], xc, lo, hi, qd0=cfg.k_posture * (self.q_start - q),
-                             workspace=self.sns_ws)
-            qd_c = r.qd
-            if ssm_on:                     # R33: the robot obeys the scale, braking at most by its model
-                qd_nom = r.qd.copy()
-                v_peak = float(np.sqrt((np.einsum("mij,j->mi", data.cp_jacobians, r.qd) ** 2).sum(axis=1)).max())
-                floor = s_applied - brake * dt / v_peak if v_peak > 0 else 0.0
-                s_applied = min(1.0, max(s_cmd, floor))
-                qd_c = s_applied * r.qd
+            bot.command(dt)
+            qd_c = bot.qd
             t2 = time.perf_counter()
             timing["reaction"] += t2 - t1
             # record (before integrating: state at t)
             R["t"][k] = t
             R["q"][k] = q
             R["qd"][k] = qd_c
-            R["tau"][k] = tau
-            R["ssm_scale"][k] = s_applied if ssm_on else 1.0
+            R["tau"][k] = bot.tau
+            R["ssm_scale"][k] = follower.applied if ssm_on else 1.0
             R["protective_stop"][k] = pstop
-            R["ee"][k] = x
-            R["ee_des"][k] = p_d
+            R["ee"][k] = P[0]
+            R["ee_des"][k] = follower.target
             R["D"][k] = D
             R["observed"][k] = obs
-            R["rep"][k] = rep
-            R["scale"][k] = r.scale
-            R["override"][k] = kov
+            R["rep"][k] = bot.repulsion
+            R["scale"][k] = follower.task_scale
+            R["override"][k] = bot.override
             R["frame_age"][k] = ages
             # 5. ground truth
             R["gt_cp"][k], R["gt_robot"][k], R["gt_robot_dyn"][k] = self.ground_truth(P, q, t)
@@ -443,8 +432,8 @@ class ClosedLoop:
                     P, Xdot, moving, table, pstop or standing)
             timing["ground_truth"] += time.perf_counter() - t2
             # integrate
-            q = q + qd_c * dt
-            tau += r.scale * kov * (s_applied if ssm_on else 1.0) * dt
+            bot.move(dt)
+            q = bot.q
         timing["total"] = time.perf_counter() - wall0
         timing["distance_cycles"] = n_distance
         return LoopResult(t=R["t"], q=R["q"], qd=R["qd"], ee=R["ee"], ee_des=R["ee_des"], D=R["D"],

@@ -1,7 +1,8 @@
-"""One control cycle's reaction inputs in one numba kernel (R13, R14): the EE repulsive
-velocity and the joint-velocity box, for the 500 Hz loop.
+"""The repulsive velocity and the joint-velocity limits of one control cycle in one numba
+kernel (R13, R14; the papers' "repulsive velocity" and "joint velocity limits"), for
+the 500 Hz loop.
 
-``reaction_numpy`` is the plain twin, written with the functions that read like
+``repulsion_and_limits_numpy`` is the plain twin, written with the functions that read like
 the equations (:mod:`~depthguard.control.repulsion`,
 :mod:`~depthguard.control.joint_limits`); the tests compare both.
 
@@ -21,13 +22,13 @@ import numba
 import numpy as np
 
 from depthguard.control.joint_limits import INFLUENCE_TOL, combine_limits, constraint_limits, position_limits
-from depthguard.control.repulsion import check_reaction_params, repulsive_velocity
+from depthguard.control.repulsion import check_repulsion_params, repulsive_velocity
 
-__all__ = ["reaction", "reaction_numpy"]
+__all__ = ["repulsion_and_limits", "repulsion_and_limits_numpy"]
 
 
 @numba.njit(cache=True, nogil=True)
-def _reaction_kernel(D, V, J, q, q_min, q_max, qd_max, dt, rho, v_max, alpha, k, tol, rep, lo, hi):
+def _repulsion_and_limits_kernel(D, V, J, q, q_min, q_max, qd_max, dt, rho, v_max, alpha, k, tol, rep, lo, hi):
     m = D.shape[0]
     n = q.shape[0]
     # R13 at the end effector
@@ -72,7 +73,7 @@ def _reaction_kernel(D, V, J, q, q_min, q_max, qd_max, dt, rho, v_max, alpha, k,
         hi[i] *= k
 
 
-def reaction(D, V, J, q, q_min, q_max, qd_max, dt: float, rho: float, v_max: float, alpha: float,
+def repulsion_and_limits(D, V, J, q, q_min, q_max, qd_max, dt: float, rho: float, v_max: float, alpha: float,
              k: float = 1.0, out: tuple[np.ndarray, np.ndarray, np.ndarray] | None = None):
     """``(rep (3,), lo (n,), hi (n,))`` of one cycle (module docstring); ``out`` reuses buffers.
 
@@ -81,14 +82,14 @@ def reaction(D, V, J, q, q_min, q_max, qd_max, dt: float, rho: float, v_max: flo
     """
     n = q.shape[0]
     rep, lo, hi = out if out is not None else (np.empty(3), np.empty(n), np.empty(n))
-    _reaction_kernel(D, V, J, q, q_min, q_max, qd_max, float(dt), float(rho), float(v_max), float(alpha),
+    _repulsion_and_limits_kernel(D, V, J, q, q_min, q_max, qd_max, float(dt), float(rho), float(v_max), float(alpha),
                      float(k), INFLUENCE_TOL, rep, lo, hi)
     return rep, lo, hi
 
 
-def reaction_numpy(D, V, J, q, q_min, q_max, qd_max, dt, rho, v_max, alpha, k=1.0):
-    """Plain twin of :func:`reaction`: R13 + R14 + position limits, tightest per joint, times ``k``."""
-    check_reaction_params(rho, alpha, v_max)
+def repulsion_and_limits_numpy(D, V, J, q, q_min, q_max, qd_max, dt, rho, v_max, alpha, k=1.0):
+    """Plain twin of :func:`repulsion_and_limits`: R13 + R14 + position limits, tightest per joint, times ``k``."""
+    check_repulsion_params(rho, alpha, v_max)
     rep = repulsive_velocity(D[0], V[0], rho, v_max, alpha)
     box_c = constraint_limits(J[1:], D[1:], V[1:], qd_max, rho, alpha)
     box_p = position_limits(q, q_min, q_max, qd_max, dt)
