@@ -393,3 +393,31 @@ def test_robot_pixels_free_in_front_and_never_count_a_surface(full, background):
     assert np.array_equal(nf, nf0)                       # every free view kept
     assert (ns <= ns0).all() and (ns < ns0).sum() > 20   # the box's surface is no longer counted
     assert (occ <= plain).all()                          # nothing becomes occupied by it
+
+
+def test_margin_grows_with_each_voxels_own_depth():
+    """R17/R21 (issue 30): with ``margin_growth`` a camera's margin at a voxel is ``margin + g z^2``
+    at the voxel's own centre depth ``z``. Truth: a camera 3 m above a floor, looking straight down,
+    measures 3 m everywhere (a plane square to the optical axis), so a voxel whose centre is at
+    height ``c`` (depth ``3 - c``) is seen free exactly when ``c > margin + g (3 - c)^2``."""
+    H, m, g = 3.0, 0.002, 0.02
+    T = np.eye(4)
+    T[:3, :3] = np.array([[1.0, 0, 0], [0, -1.0, 0], [0, 0, -1.0]]).T    # columns: x, y, optical axis down
+    T[:3, 3] = (0.0, 0.0, H)
+    cam = Camera("down", 160, 120, 110.0, 110.0, 79.5, 59.5, world_from_camera=T, min_range=0.2, max_range=8.0)
+    depth = np.full((120, 160), H, np.float32)
+    fs = FreeSpaceMap([cam], (LO, HI), 0.05, margin=m, margin_growth={"down": g})
+    occ = fs.update({"down": depth}).copy()
+    nviews = fs.view_counts() > 0
+    c = fs.grid.centres()[:, 2].reshape(fs.grid.shape)
+    truth_free = c > m + g * (H - c) ** 2
+    assert truth_free[nviews].any() and (~truth_free[nviews]).any()       # the threshold lies in the box
+    assert np.array_equal(~occ[nviews], truth_free[nviews])
+    # one margin everywhere (the far end's) frees less; the numpy twin agrees with the kernel
+    flat = FreeSpaceMap([cam], (LO, HI), 0.05, margin=m + g * H ** 2)
+    assert (~flat.update({"down": depth})[nviews]).sum() < (~occ[nviews]).sum()
+    ref = free_space_update_numpy([depth], fs.grid.size, *fs.twin_args(), fs.margin, fs.min_free_views,
+                                  **fs.background_twin_args())
+    assert np.array_equal(occ.ravel(), ref)
+    with pytest.raises(ValueError, match="margin_growth"):
+        FreeSpaceMap([cam], (LO, HI), 0.05, margin_growth={"nope": 0.1})
