@@ -151,6 +151,26 @@ def test_invalid_pixels_never_free_anything():
         assert fs.update(depths).all(), bad
 
 
+@pytest.mark.parametrize("full", [False, True])
+def test_a_return_beyond_the_rated_range_frees_up_to_it_and_marks_no_surface(full):
+    """R28 (issue 30), as the product's distances read it: a depth in ``(max_range, 3 max_range]``
+    is free up to ``max_range`` and unknown behind — the same free voxels as a measurement at
+    ``max_range`` itself, and no surface anywhere; farther than that it is invalid."""
+    cams = [cam_at(f"c{k}", (2.4 * np.cos(a), 2.4 * np.sin(a), 2.0)) for k, a in enumerate([0.0, 2.0])]
+    cams = [Camera(c.id, c.width, c.height, c.fx, c.fy, c.cx, c.cy, world_from_camera=c.world_from_camera,
+                   min_range=0.2, max_range=2.8) for c in cams]       # the box's far side lies beyond 2.8 m
+    fs = FreeSpaceMap(cams, (LO, HI), S, footprint="full" if full else "centre")
+    beyond = ~fs.update({c.id: np.full(c.shape, 6.0, np.float32) for c in cams}).copy()
+    _, ns = fs.counts()
+    assert ns.sum() == 0
+    at = ~fs.update({c.id: np.full(c.shape, 2.8, np.float32) for c in cams}).copy()
+    assert beyond.any() and not beyond.all() and np.array_equal(beyond, at)
+    assert fs.update({c.id: np.full(c.shape, 9.0, np.float32) for c in cams}).all()     # > 3 x 2.8 m
+    imgs = [np.full(c.shape, 6.0, np.float32) for c in cams]
+    ref = free_space_update_numpy(imgs, fs.grid.size, *fs.twin_args(), fs.margin, fs.min_free_views, full=full)
+    assert np.array_equal(~beyond.ravel(), ref)
+
+
 def test_machine_volume_is_free():
     cams = four_cams()
     fs = FreeSpaceMap(cams, bounds=(LO, HI), voxel_size=S)

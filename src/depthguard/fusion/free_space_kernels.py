@@ -22,7 +22,12 @@ Per camera: ``half (C,)`` half the depth extent of any voxel,
 
 Per camera, with ``d`` the measured depth (R21):
 
-- ``d`` invalid (0, NaN, outside ``[min_range, max_range]``): no information;
+- ``d`` invalid (0, NaN, below ``min_range``): no information;
+- ``max_range < d <= RETURN_LIMIT_FACTOR max_range`` (a return beyond the rated range, R28;
+  farther is invalid): read as ``max_range`` and never a
+  surface — free up to the rated range, unknown behind, as the product's distances read it
+  (:mod:`depthguard.sensors`; issue 30: the Kinects of flacco-cell see the far walls at 5-7.5 m,
+  beyond their rated 4 m, so the space above the robot was never freed);
 - ``d > z_c + far_c + m_c(z_c)``: the camera sees the voxel **free**;
 - ``z_c - h_c <= d <= z_c + far_c + m_c(z_c)``: it sees a **surface** in the voxel;
 
@@ -76,6 +81,8 @@ from __future__ import annotations
 import numba as nb
 import numpy as np
 
+from depthguard.camera import RETURN_LIMIT_FACTOR
+
 __all__ = ["free_space_update", "free_space_update_numpy", "voxel_counts_numpy", "robot_pixels",
            "robot_pixels_numpy", "negate_where"]
 
@@ -122,6 +129,7 @@ def free_space_update(depth, offs, widths, heights, rmin, rmax, vstart, chunk, v
             h = half[c]
             f = far[c] + margin
             gz = grow[c]
+            rl = hi * RETURN_LIMIT_FACTOR
             W = widths[c]
             H = heights[c]
             off = offs[c]
@@ -133,7 +141,10 @@ def free_space_update(depth, offs, widths, heights, rmin, rmax, vstart, chunk, v
                         rob = d < 0.0                   # a robot pixel: free in front, never a surface
                         if rob:
                             d = -d
-                        if d >= lo and d <= hi:
+                        if d > hi:                      # beyond the rated range: free up to it, no surface
+                            d = hi if d <= rl else -1.0
+                            rob = True
+                        if d >= lo:
                             z = zc[k]
                             B = bg[p]
                             front = B <= 0.0 or z < B   # centre in front of the known shell
@@ -148,7 +159,10 @@ def free_space_update(depth, offs, widths, heights, rmin, rmax, vstart, chunk, v
                     rob = d < 0.0
                     if rob:
                         d = -d
-                    if d >= lo and d <= hi:
+                    if d > hi:
+                        d = hi if d <= rl else -1.0
+                        rob = True
+                    if d >= lo:
                         z = zc[k]
                         if d > z + f + gz * z * z:
                             n_free[vox[k]] += 1
@@ -171,7 +185,10 @@ def free_space_update(depth, offs, widths, heights, rmin, rmax, vstart, chunk, v
                         xr = x < 0.0
                         if xr:
                             x = -x
-                        if not (x >= lo and x <= hi):
+                        if x > hi:
+                            x = hi if x <= rl else -1.0
+                            xr = True
+                        if not (x >= lo):
                             bad = True
                         elif x < d:
                             d = x
@@ -210,6 +227,9 @@ def voxel_counts_numpy(depths, n_voxels, rmin, rmax, start, vox, pix, offs, zc, 
         img = np.asarray(img, dtype=np.float32)
         rob_px = img < 0                                         # robot pixels (module docstring)
         img = np.abs(img)
+        beyond = (img > rmax[c]) & (img <= RETURN_LIMIT_FACTOR * rmax[c])    # free up to the rated range, no surface
+        img = np.where(beyond, np.float32(rmax[c]), img)
+        rob_px = rob_px | beyond
         H, W = img.shape
         sl = slice(start[c], start[c + 1])
         v_idx = vox[sl]
