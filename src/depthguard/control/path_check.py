@@ -210,7 +210,8 @@ def sample_path(robot, Q: np.ndarray, max_move: float, padding: float):
         move = l1 * lever
         n = np.maximum(1, np.ceil(move / max_move).astype(np.int64))
         seg = np.repeat(np.arange(len(dq), dtype=np.int64), n + 1)
-        frac = np.concatenate([np.arange(m + 1) / m for m in n])
+        starts = np.concatenate([[0], np.cumsum(n + 1)[:-1]])
+        frac = (np.arange(len(seg)) - starts[seg]) / n[seg]        # 0, 1/m, ..., 1 per segment
         Qs = Q[seg] + frac[:, None] * dq[seg]
         A, B = capsule_ends(robot, Qs)
         e_seen = _axis_reach(A, B, base)
@@ -259,6 +260,8 @@ def sweep_states(state, exclude, known, dpad, lo, s, A, B, R, seg, n_seg, worst,
                 b = int(math.floor((mx + reach - lo[d]) / s)) + 1
                 lo_i[d] = min(max(a, 0), n_d)
                 hi_i[d] = min(max(b, 0), n_d)
+            if worst[g] == 2:                   # the segment is unsafe already: nothing worse to find
+                continue
             r2 = reach * reach
             rk = max(r - dpad, 0.0) + hd
             rk2 = rk * rk
@@ -362,14 +365,12 @@ def check_path_states(state, lo, voxel_size: float, robot, stamps, q, padding: f
         worst, first, outside = np.zeros(n, np.uint8), np.zeros(n, np.int64), np.zeros(n, np.bool_)
         sweep_states(st, ex, kn, dpad, lo, s, np.ascontiguousarray(A), np.ascontiguousarray(B), np.ascontiguousarray(R),
                      seg, n, worst, first, outside)
-    segs = []
-    for i in range(n):
-        w = int(worst[i])
-        if outside[i]:
-            w = max(w, UNKNOWN)
-        vox = tuple(int(x) for x in np.unravel_index(int(first[i]), st.shape)) if first[i] >= 0 else None
-        segs.append(SegmentVerdict(i, float(t[i]), float(t[i + 1]), VERDICTS[w], vox, bool(outside[i])))
-    return PathVerdict(tuple(segs), float(map_stamp), len(A))
+    w = np.where(outside, np.maximum(worst, UNKNOWN), worst).tolist()
+    ijk = np.stack(np.unravel_index(np.maximum(first, 0), st.shape), axis=1).tolist()
+    has, out, tl = (first >= 0).tolist(), outside.tolist(), t.tolist()
+    segs = tuple(SegmentVerdict(i, tl[i], tl[i + 1], VERDICTS[w[i]], tuple(ijk[i]) if has[i] else None, out[i])
+                 for i in range(n))
+    return PathVerdict(segs, float(map_stamp), len(A))
 
 
 def body_mask(shape, lo, s, robot, q) -> np.ndarray:
