@@ -151,6 +151,26 @@ def test_invalid_pixels_never_free_anything():
         assert fs.update(depths).all(), bad
 
 
+@pytest.mark.parametrize("full", [False, True])
+def test_a_return_beyond_the_rated_range_frees_up_to_it_and_marks_no_surface(full):
+    """R28 (issue 30), as the product's distances read it: a depth in ``(max_range, 3 max_range]``
+    is free up to ``max_range`` and unknown behind — the same free voxels as a measurement at
+    ``max_range`` itself, and no surface anywhere; farther than that it is invalid."""
+    cams = [cam_at(f"c{k}", (2.4 * np.cos(a), 2.4 * np.sin(a), 2.0)) for k, a in enumerate([0.0, 2.0])]
+    cams = [Camera(c.id, c.width, c.height, c.fx, c.fy, c.cx, c.cy, world_from_camera=c.world_from_camera,
+                   min_range=0.2, max_range=2.8) for c in cams]       # the box's far side lies beyond 2.8 m
+    fs = FreeSpaceMap(cams, (LO, HI), S, footprint="full" if full else "centre")
+    beyond = ~fs.update({c.id: np.full(c.shape, 6.0, np.float32) for c in cams}).copy()
+    _, ns = fs.counts()
+    assert ns.sum() == 0
+    at = ~fs.update({c.id: np.full(c.shape, 2.8, np.float32) for c in cams}).copy()
+    assert beyond.any() and not beyond.all() and np.array_equal(beyond, at)
+    assert fs.update({c.id: np.full(c.shape, 9.0, np.float32) for c in cams}).all()     # > 3 x 2.8 m
+    imgs = [np.full(c.shape, 6.0, np.float32) for c in cams]
+    ref = free_space_update_numpy(imgs, fs.grid.size, *fs.twin_args(), fs.margin, fs.min_free_views, full=full)
+    assert np.array_equal(~beyond.ravel(), ref)
+
+
 def test_machine_volume_is_free():
     cams = four_cams()
     fs = FreeSpaceMap(cams, bounds=(LO, HI), voxel_size=S)
@@ -393,3 +413,31 @@ def test_robot_pixels_free_in_front_and_never_count_a_surface(full, background):
     assert np.array_equal(nf, nf0)                       # every free view kept
     assert (ns <= ns0).all() and (ns < ns0).sum() > 20   # the box's surface is no longer counted
     assert (occ <= plain).all()                          # nothing becomes occupied by it
+
+
+def test_margin_grows_with_each_voxels_own_depth():
+    """R17/R21 (issue 30): with ``margin_growth`` a camera's margin at a voxel is ``margin + g z^2``
+    at the voxel's own centre depth ``z``. Truth: a camera 3 m above a floor, looking straight down,
+    measures 3 m everywhere (a plane square to the optical axis), so a voxel whose centre is at
+    height ``c`` (depth ``3 - c``) is seen free exactly when ``c > margin + g (3 - c)^2``."""
+    H, m, g = 3.0, 0.002, 0.02
+    T = np.eye(4)
+    T[:3, :3] = np.array([[1.0, 0, 0], [0, -1.0, 0], [0, 0, -1.0]]).T    # columns: x, y, optical axis down
+    T[:3, 3] = (0.0, 0.0, H)
+    cam = Camera("down", 160, 120, 110.0, 110.0, 79.5, 59.5, world_from_camera=T, min_range=0.2, max_range=8.0)
+    depth = np.full((120, 160), H, np.float32)
+    fs = FreeSpaceMap([cam], (LO, HI), 0.05, margin=m, margin_growth={"down": g})
+    occ = fs.update({"down": depth}).copy()
+    nviews = fs.view_counts() > 0
+    c = fs.grid.centres()[:, 2].reshape(fs.grid.shape)
+    truth_free = c > m + g * (H - c) ** 2
+    assert truth_free[nviews].any() and (~truth_free[nviews]).any()       # the threshold lies in the box
+    assert np.array_equal(~occ[nviews], truth_free[nviews])
+    # one margin everywhere (the far end's) frees less; the numpy twin agrees with the kernel
+    flat = FreeSpaceMap([cam], (LO, HI), 0.05, margin=m + g * H ** 2)
+    assert (~flat.update({"down": depth})[nviews]).sum() < (~occ[nviews]).sum()
+    ref = free_space_update_numpy([depth], fs.grid.size, *fs.twin_args(), fs.margin, fs.min_free_views,
+                                  **fs.background_twin_args())
+    assert np.array_equal(occ.ravel(), ref)
+    with pytest.raises(ValueError, match="margin_growth"):
+        FreeSpaceMap([cam], (LO, HI), 0.05, margin_growth={"nope": 0.1})

@@ -75,8 +75,9 @@ def test_the_person_is_not_free_and_unknown_is_not_occupied(cell, reaching):
     assert np.count_nonzero(snap.state == UNKNOWN) > 0 and np.count_nonzero(snap.state == OCCUPIED) > 0
     # the robot's own current volume is not freed (issue 30): no camera sees inside the robot,
     # so most of its body is unknown (a voxel whose centre is inside a capsule but outside the
-    # rendered links can still be seen free or occupied)
-    assert snap.machine.any() and np.mean(snap.state[snap.machine] == UNKNOWN) > 0.7
+    # rendered links can still be seen free or occupied: with the margin at each voxel's own depth,
+    # 2-3 mm at the robot, about a third of them are)
+    assert snap.machine.any() and np.mean(snap.state[snap.machine] == UNKNOWN) > 0.5
 
 
 def test_robot_pixels_say_nothing(cell, reaching):

@@ -42,13 +42,13 @@ def grid_of(robot, Q):
     return VoxelGrid(A.min(0) - 0.6, A.max(0) + 0.6, S)
 
 
-def dense_clearance(robot, Q, centre, per_segment=20):
+def dense_clearance(robot, Q, centre, per_segment=20, pad=PAD):
     """Per segment: min over dense poses of the padded robot's sdf at ``centre`` (m)."""
     out = []
     for i in range(len(Q) - 1):
         d = math.inf
         for f in np.linspace(0.0, 1.0, per_segment + 1):
-            caps = robot.collision_capsules(Q[i] + f * (Q[i + 1] - Q[i]), PAD)
+            caps = robot.collision_capsules(Q[i] + f * (Q[i + 1] - Q[i]), pad)
             d = min(d, min(float(c.sdf(centre[None])[0]) for c in caps))
         out.append(d)
     return np.array(out)
@@ -74,6 +74,32 @@ def test_an_occupied_voxel_on_the_way_makes_exactly_the_near_segments_not_safe(r
     assert v.verdict == "unsafe"
     assert int(np.argmax(clear <= hd + S)) <= v.first_not_safe <= int(np.argmax(clear <= hd))
     assert all(v.segments[i].voxel == ijk for i in np.nonzero(got == "unsafe")[0])
+
+
+def test_a_known_scene_voxel_is_met_with_the_scene_padding(robot, path):
+    """Issue 30: a voxel of the known scene (``known``) is touched with ``scene_padding`` in place of
+    ``padding``: not safe where the robot padded by ``scene_padding`` comes within half a voxel
+    diagonal of its centre, safe where it stays a sample spacing farther — while the same voxel
+    seen by the cameras keeps the full padding."""
+    t, Q = path
+    grid = grid_of(robot, Q)
+    tip = robot.collision_capsules(Q[13])[-1].segment()[1]
+    ijk = tuple(int(x) for x in np.floor((tip - grid.lo) / S))
+    state = np.zeros(grid.shape, np.uint8)
+    state[ijk] = OCCUPIED
+    known = np.zeros(grid.shape, bool)
+    known[ijk] = True
+    centre = grid.lo + (np.array(ijk) + 0.5) * S
+    hd = S * math.sqrt(3) / 2
+    big = 0.15                                     # the robot's padding; the scene's is 1 cm
+    seen = np.array([s.verdict for s in check_path_states(state, grid.lo, S, robot, t, Q, padding=big).segments])
+    cad = check_path_states(state, grid.lo, S, robot, t, Q, padding=big, known=known, scene_padding=0.01)
+    got = np.array([s.verdict for s in cad.segments])
+    clear = dense_clearance(robot, Q, centre, pad=0.01)
+    assert np.all(got[clear <= hd] == "unsafe"), (clear, got)
+    assert np.all(got[clear > hd + S] == "safe"), (clear, got)
+    assert (got == "safe").sum() > (seen == "safe").sum()          # the case is really there
+    assert set(np.nonzero(got != "safe")[0]) <= set(np.nonzero(seen != "safe")[0])
 
 
 def test_unknown_gives_maybe_occupied_wins_and_free_map_is_safe(robot, path):
@@ -123,10 +149,12 @@ def test_kernel_equals_numpy_twin_on_random_maps(robot, path):
     for p in (0.0005, 0.005, 0.05):
         state = rng.choice(np.array([0, 1, 2], np.uint8), size=grid.shape, p=[1 - 2 * p, p, p])
         ex = rng.random(grid.shape) < 0.01
+        kn = rng.random(grid.shape) < 0.3              # known-scene voxels, touched with less padding
+        dp = 0.5 * PAD
         n = len(Q) - 1
         w, f, o = np.zeros(n, np.uint8), np.zeros(n, np.int64), np.zeros(n, bool)
-        sweep_states(state, ex, grid.lo, S, A, B, R, seg, n, w, f, o)
-        w2, f2, o2 = sweep_states_numpy(state, ex, grid.lo, S, A, B, R, seg, n)
+        sweep_states(state, ex, kn, dp, grid.lo, S, A, B, R, seg, n, w, f, o)
+        w2, f2, o2 = sweep_states_numpy(state, ex, kn, dp, grid.lo, S, A, B, R, seg, n)
         assert np.array_equal(w, w2) and np.array_equal(o, o2)
         assert np.all(state.ravel()[f[f >= 0]] == w[f >= 0])
 

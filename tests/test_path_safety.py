@@ -64,7 +64,7 @@ def test_colliding_segments_near_the_robot_or_in_its_shadow_are_never_safe(cell,
     frames = SimSource(cell, seed=0).frames(t)
     rdepth = {c.id: np.asarray(ExpectedDepth(c, rig.robot, []).robot(q_now)) for c in rig.cameras}
     space = RuntimeFreeSpace(rig, voxel_size=cfg.free_space_voxel, robot_offset=cfg.robot_offset,
-                             robot_padding=cfg.robot_padding)
+                             robot_padding=cfg.robot_padding, scene_padding=cfg.free_space_scene_padding)
     snap = space.build({k: f.depth for k, f in frames.items()}, rdepth, q_now, {k: t for k in frames})
     obstacles = cell.scene.obstacles_at(t)
     lo, hi = np.asarray(rig.robot.q_min, float), np.asarray(rig.robot.q_max, float)

@@ -149,7 +149,9 @@ class MonitorConfig(BaseModel):
     Free space (R21, R37; :mod:`depthguard.runtime.free_space_map`): ``free_space`` keeps the
     voxel map of free, unknown and occupied space of the workspace on its own thread (off by
     default), rebuilt at ``free_space_hz`` from the newest frames, voxels of ``free_space_voxel``
-    m; :meth:`~depthguard.runtime.Monitor.check_path` judges planned paths in it.
+    m; :meth:`~depthguard.runtime.Monitor.check_path` judges planned paths in it, with the
+    robot's capsules padded by ``robot_padding`` against what the cameras saw and by
+    ``free_space_scene_padding`` (2 cm) against the known CAD scene (exact and static).
     """
 
     model_config = ConfigDict(extra="forbid", frozen=True)
@@ -195,6 +197,7 @@ class MonitorConfig(BaseModel):
     free_space: bool = False
     free_space_hz: float = Field(10.0, gt=0.0, le=100.0)
     free_space_voxel: float = Field(0.05, ge=0.01, le=0.5)
+    free_space_scene_padding: float = Field(0.02, ge=0.0, le=0.5)
     reactions: Optional[tuple[str, ...]] = None
 
     @field_validator("reactions")

@@ -19,6 +19,13 @@ bound is ``sum_j |dq_j| * 2 E`` with ``E`` the robot's largest reach from its ba
 samples (every joint axis and every point lie within ``E`` of the base), and ``pad_k`` = half
 that move (x 1.05), so every pose between two samples is covered by one of them.
 
+The known scene (the rig's CAD: the table the robot stands on, fixtures) is exact and does not
+move: its voxels (``known``, centre inside a CAD object) are touched with ``scene_padding``
+(default 2 cm, ``monitor.free_space_scene_padding``) in place of the robot's padding. The sweep's
+half voxel diagonal still covers every point of such a voxel, so a voxel with anything in it is
+still met by the unpadded robot that reaches it (issue 30: with 7 cm, a UR3 turning its shoulder
+capsule 4 mm off its axis "met" the table it is mounted on in every path of ur3-cell).
+
 A capsule whose axis stays put along the whole path (:data:`STILL`: the base on its mount, a
 column turning about its own axis) sweeps nothing it does not already cover and is left out: what
 touches it now (the mount) is not the motion's. Only the robot's body when the map was taken (``exclude``: the voxels whose centre lies inside
@@ -203,7 +210,8 @@ def sample_path(robot, Q: np.ndarray, max_move: float, padding: float):
         move = l1 * lever
         n = np.maximum(1, np.ceil(move / max_move).astype(np.int64))
         seg = np.repeat(np.arange(len(dq), dtype=np.int64), n + 1)
-        frac = np.concatenate([np.arange(m + 1) / m for m in n])
+        starts = np.concatenate([[0], np.cumsum(n + 1)[:-1]])
+        frac = (np.arange(len(seg)) - starts[seg]) / n[seg]        # 0, 1/m, ..., 1 per segment
         Qs = Q[seg] + frac[:, None] * dq[seg]
         A, B = capsule_ends(robot, Qs)
         e_seen = _axis_reach(A, B, base)
@@ -216,11 +224,12 @@ def sample_path(robot, Q: np.ndarray, max_move: float, padding: float):
 
 
 @numba.njit(cache=True, nogil=True)
-def sweep_states(state, exclude, lo, s, A, B, R, seg, n_seg, worst, first, outside):
+def sweep_states(state, exclude, known, dpad, lo, s, A, B, R, seg, n_seg, worst, first, outside):
     """Numba kernel: per segment the worst state (0/1/2) of a voxel touched, the flat index of the
     first such voxel (-1: none) and whether the swept robot leaves the box (module docstring).
 
-    state (nx, ny, nz) uint8, exclude (nx, ny, nz) bool, lo (3,) m, s m, A/B (S, K, 3) m, R (S, K)
+    state (nx, ny, nz) uint8, exclude (nx, ny, nz) bool, known (nx, ny, nz) bool the known scene's
+    voxels, touched with radii ``R - dpad`` (m), lo (3,) m, s m, A/B (S, K, 3) m, R (S, K)
     m, seg (S,) int64; outputs worst (n_seg,) uint8, first (n_seg,) int64, outside (n_seg,) bool."""
     nx, ny, nz = state.shape
     hd = s * 0.8660254037844386
@@ -251,7 +260,11 @@ def sweep_states(state, exclude, lo, s, A, B, R, seg, n_seg, worst, first, outsi
                 b = int(math.floor((mx + reach - lo[d]) / s)) + 1
                 lo_i[d] = min(max(a, 0), n_d)
                 hi_i[d] = min(max(b, 0), n_d)
+            if worst[g] == 2:                   # the segment is unsafe already: nothing worse to find
+                continue
             r2 = reach * reach
+            rk = max(r - dpad, 0.0) + hd
+            rk2 = rk * rk
             for ii in range(lo_i[0], hi_i[0]):
                 cx = lo[0] + (ii + 0.5) * s
                 for jj in range(lo_i[1], hi_i[1]):
@@ -266,13 +279,14 @@ def sweep_states(state, exclude, lo, s, A, B, R, seg, n_seg, worst, first, outsi
                             u = ((cx - ax) * dx + (cy - ay) * dy + (cz - az) * dz) / L2
                             u = min(max(u, 0.0), 1.0)
                         ex, ey, ez = cx - ax - u * dx, cy - ay - u * dy, cz - az - u * dz
-                        if ex * ex + ey * ey + ez * ez <= r2:
+                        e2 = ex * ex + ey * ey + ez * ez
+                        if e2 <= r2 and (e2 <= rk2 or not known[ii, jj, kk]):
                             worst[g] = st
                             first[g] = (ii * ny + jj) * nz + kk
     return worst
 
 
-def sweep_states_numpy(state, exclude, lo, s, A, B, R, seg, n_seg):
+def sweep_states_numpy(state, exclude, known, dpad, lo, s, A, B, R, seg, n_seg):
     """Plain numpy twin of :func:`sweep_states`: (worst, first, outside) per segment. ``first`` may
     name another voxel of the same worst state than the kernel's; the tests compare states."""
     worst = np.zeros(n_seg, np.uint8)
@@ -297,7 +311,8 @@ def sweep_states_numpy(state, exclude, lo, s, A, B, R, seg, n_seg):
             L2 = float(ab @ ab)
             u = np.clip((cen - a) @ ab / L2, 0.0, 1.0) if L2 > 0 else np.zeros(len(cen))
             dist = np.linalg.norm(cen - a - u[:, None] * ab, axis=1)
-            hit = dist <= r + hd
+            kn = known[idx[:, 0], idx[:, 1], idx[:, 2]]
+            hit = (dist <= r + hd) & (~kn | (dist <= max(r - dpad, 0.0) + hd))
             hit &= ~exclude[idx[:, 0], idx[:, 1], idx[:, 2]]
             st = state[idx[:, 0], idx[:, 1], idx[:, 2]] * hit
             if st.size and st.max() > worst[g]:
@@ -309,7 +324,7 @@ def sweep_states_numpy(state, exclude, lo, s, A, B, R, seg, n_seg):
 
 def check_path_states(state, lo, voxel_size: float, robot, stamps, q, padding: float = 0.0,
                       exclude=None, max_move: float | None = None, map_stamp: float = float("nan"),
-                      twin: bool = False) -> PathVerdict:
+                      twin: bool = False, known=None, scene_padding: float | None = None) -> PathVerdict:
     """R22/R37: the verdict per segment of the path ``(stamps (n,) s, q (n, dof) rad)`` in the map
     ``state`` (nx, ny, nz) uint8 (:data:`FREE`/:data:`UNKNOWN`/:data:`OCCUPIED`) whose voxel
     ``(0, 0, 0)`` starts at ``lo`` (3,) m, cubes of ``voxel_size`` m.
@@ -317,6 +332,10 @@ def check_path_states(state, lo, voxel_size: float, robot, stamps, q, padding: f
     ``padding`` m is added to the robot's capsules; ``exclude`` (nx, ny, nz) bool voxels never
     count (default: the robot's body at the first waypoint, :func:`body_mask` — the map taken
     there);
+    ``known`` (nx, ny, nz) bool: the known scene's voxels (centre inside the rig's CAD,
+    :func:`~depthguard.runtime.free_space_map.known_scene_mask`), touched with ``scene_padding`` m
+    (default ``padding``) instead of ``padding``: the CAD is exact and static, the padding covers
+    what the cameras may have misjudged (module docstring);
     ``max_move`` m between samples (default a quarter voxel); ``twin`` uses the numpy twin.
     A bad path raises ``ValueError`` naming the waypoint (:func:`validate_path`)."""
     t, Q = validate_path(stamps, q, robot)
@@ -328,6 +347,10 @@ def check_path_states(state, lo, voxel_size: float, robot, stamps, q, padding: f
     ex = np.ascontiguousarray(exclude, dtype=np.bool_)
     if ex.shape != st.shape:
         raise ValueError(f"exclude has shape {ex.shape}, the map {st.shape}")
+    kn = np.zeros(st.shape, np.bool_) if known is None else np.ascontiguousarray(known, dtype=np.bool_)
+    if kn.shape != st.shape:
+        raise ValueError(f"known has shape {kn.shape}, the map {st.shape}")
+    dpad = 0.0 if scene_padding is None else max(float(padding) - float(scene_padding), 0.0)
     mm = 0.25 * s if max_move is None else float(max_move)
     A, B, R, seg = sample_path(robot, Q, mm, float(padding))
     # a capsule whose axis stays put along the whole path (the base on its mount, a column turning
@@ -337,19 +360,17 @@ def check_path_states(state, lo, voxel_size: float, robot, stamps, q, padding: f
         A, B, R = A[:, moving], B[:, moving], R[:, moving]
     n = len(Q) - 1
     if twin:
-        worst, first, outside = sweep_states_numpy(st, ex, lo, s, A, B, R, seg, n)
+        worst, first, outside = sweep_states_numpy(st, ex, kn, dpad, lo, s, A, B, R, seg, n)
     else:
         worst, first, outside = np.zeros(n, np.uint8), np.zeros(n, np.int64), np.zeros(n, np.bool_)
-        sweep_states(st, ex, lo, s, np.ascontiguousarray(A), np.ascontiguousarray(B), np.ascontiguousarray(R),
+        sweep_states(st, ex, kn, dpad, lo, s, np.ascontiguousarray(A), np.ascontiguousarray(B), np.ascontiguousarray(R),
                      seg, n, worst, first, outside)
-    segs = []
-    for i in range(n):
-        w = int(worst[i])
-        if outside[i]:
-            w = max(w, UNKNOWN)
-        vox = tuple(int(x) for x in np.unravel_index(int(first[i]), st.shape)) if first[i] >= 0 else None
-        segs.append(SegmentVerdict(i, float(t[i]), float(t[i + 1]), VERDICTS[w], vox, bool(outside[i])))
-    return PathVerdict(tuple(segs), float(map_stamp), len(A))
+    w = np.where(outside, np.maximum(worst, UNKNOWN), worst).tolist()
+    ijk = np.stack(np.unravel_index(np.maximum(first, 0), st.shape), axis=1).tolist()
+    has, out, tl = (first >= 0).tolist(), outside.tolist(), t.tolist()
+    segs = tuple(SegmentVerdict(i, tl[i], tl[i + 1], VERDICTS[w[i]], tuple(ijk[i]) if has[i] else None, out[i])
+                 for i in range(n))
+    return PathVerdict(segs, float(map_stamp), len(A))
 
 
 def body_mask(shape, lo, s, robot, q) -> np.ndarray:

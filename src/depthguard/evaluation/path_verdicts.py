@@ -98,7 +98,7 @@ def evaluate_situation(cell, situation: str, paths: int = 20, seed: int = 0) -> 
     rdepth = {c.id: np.asarray(ExpectedDepth(c, rig.robot, []).robot(q_now)) for c in rig.cameras}
     cfg = rig.monitor
     space = RuntimeFreeSpace(rig, voxel_size=cfg.free_space_voxel, robot_offset=cfg.robot_offset,
-                             robot_padding=cfg.robot_padding)
+                             robot_padding=cfg.robot_padding, scene_padding=cfg.free_space_scene_padding)
     snap = space.build({k: f.depth for k, f in frames.items()}, rdepth, q_now, {k: t for k in frames})
     obstacles = cell.scene.obstacles_at(t)
     rng = np.random.default_rng(seed)

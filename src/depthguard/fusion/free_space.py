@@ -116,6 +116,10 @@ class FreeSpaceMap:
     margin : float, metres (default 0.0) — a camera calls a voxel free only if its
         measured depth exceeds the voxel's depth by more than this; choose about
         two sigma of the depth noise.
+    margin_growth : optional dict camera id -> ``g`` 1/m (default none): that camera's margin at a
+        voxel of centre depth ``z`` is ``margin + g z^2`` — two sigma of a noise model
+        ``sigma_a + sigma_z2 z^2`` is ``margin = 2 sigma_a``, ``g = 2 sigma_z2``: the margin of
+        each voxel at its own depth, not the worst case of the workspace everywhere (R17, R21).
     min_free_views : int (default 3) — cameras needed to overrule a seen surface.
     footprint : ``"centre"`` (the paper) or ``"full"`` (see the module docstring).
     depth_test : ``"centre"`` (the paper) or ``"extent"`` (see the module docstring).
@@ -128,7 +132,7 @@ class FreeSpaceMap:
 
     def __init__(self, cameras, bounds, voxel_size: float, margin: float = 0.0,
                  min_free_views: int = 3, footprint: str = "centre", depth_test: str = "centre",
-                 max_window: int = 7):
+                 max_window: int = 7, margin_growth=None):
         cams = list(cameras)
         if not cams:
             raise ValueError("FreeSpaceMap needs at least one camera")
@@ -185,6 +189,12 @@ class FreeSpaceMap:
         self.ru = np.concatenate([p[3] for p in parts]).astype(np.uint8)
         self.rv = np.concatenate([p[4] for p in parts]).astype(np.uint8)
         self.far = self.half.copy() if depth_test == "extent" else np.zeros(C)
+        growth = dict(margin_growth or {})
+        if set(growth) - set(ids):
+            raise ValueError(f"margin_growth names unknown camera ids {sorted(set(growth) - set(ids))}; known: {ids}")
+        self.grow = np.array([float(growth.get(i, 0.0)) for i in ids], dtype=np.float64)
+        if not np.all(np.isfinite(self.grow) & (self.grow >= 0)):
+            raise ValueError(f"margin_growth must be finite numbers >= 0 (1/m), got {growth}")
         # parallel tasks: chunks of voxels, with each camera's pair range per chunk
         T = int(min(64, max(1, n // 512)))
         self.vstart = np.linspace(0, n, T + 1).astype(np.int64)
@@ -192,7 +202,7 @@ class FreeSpaceMap:
         for ci in range(C):
             a, b = self.start[ci], self.start[ci + 1]
             self.chunk[ci] = a + np.searchsorted(self.vox[a:b], self.vstart)
-        for a in (self.vstart, self.chunk, self.start, self.vox, self.pix, self.zc, self.ru, self.rv, self.half, self.far,
+        for a in (self.vstart, self.chunk, self.start, self.vox, self.pix, self.zc, self.ru, self.rv, self.half, self.far, self.grow,
                   self.offs, self.widths, self.heights, self.rmin, self.rmax):
             a.setflags(write=False)
         # ---- data (preallocated workspace)
@@ -359,10 +369,13 @@ class FreeSpaceMap:
     def background_twin_args(self) -> dict:
         """Keyword arguments of the numpy twin for the current background (empty if none)."""
         if not self._use_bg:
-            return {}
+            return {"grow": self.grow} if self.grow.any() else {}
         imgs = [self._bg[self.offs[ci]: self.offs[ci] + c.width * c.height].reshape(c.height, c.width)
                 for ci, c in enumerate(self.cameras)]
-        return {"background": imgs, "bg_tol": self.background_tolerance}
+        out = {"background": imgs, "bg_tol": self.background_tolerance}
+        if self.grow.any():
+            out["grow"] = self.grow
+        return out
 
     def update(self, depths: Mapping[str, np.ndarray], accumulate: bool = False,
                robot: Mapping[str, np.ndarray] | None = None) -> np.ndarray:
@@ -392,7 +405,7 @@ class FreeSpaceMap:
         free_space_update(self._depth, self.offs, self.widths, self.heights, self.rmin, self.rmax,
                           self.vstart, self.chunk, self.vox, self.pix, self.zc, self.ru, self.rv,
                           self.half, self.far, self._bg, self.background_tolerance, self._use_bg,
-                          self.margin, self.min_free_views, self.footprint == "full", bool(accumulate),
+                          self.margin, self.grow, self.min_free_views, self.footprint == "full", bool(accumulate),
                           self._nf, self._ns, self._free, self._occ)
         return self.occupied
 

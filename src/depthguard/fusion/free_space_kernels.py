@@ -22,9 +22,17 @@ Per camera: ``half (C,)`` half the depth extent of any voxel,
 
 Per camera, with ``d`` the measured depth (R21):
 
-- ``d`` invalid (0, NaN, outside ``[min_range, max_range]``): no information;
-- ``d > z_c + far_c + margin``: the camera sees the voxel **free**;
-- ``z_c - h_c <= d <= z_c + far_c + margin``: it sees a **surface** in the voxel;
+- ``d`` invalid (0, NaN, below ``min_range``): no information;
+- ``max_range < d <= RETURN_LIMIT_FACTOR max_range`` (a return beyond the rated range, R28;
+  farther is invalid): read as ``max_range`` and never a
+  surface — free up to the rated range, unknown behind, as the product's distances read it
+  (:mod:`depthguard.sensors`; issue 30: the Kinects of flacco-cell see the far walls at 5-7.5 m,
+  beyond their rated 4 m, so the space above the robot was never freed);
+- ``d > z_c + far_c + m_c(z_c)``: the camera sees the voxel **free**;
+- ``z_c - h_c <= d <= z_c + far_c + m_c(z_c)``: it sees a **surface** in the voxel;
+
+with the margin ``m_c(z) = margin + grow_c z^2`` (a camera's noise sigma grows with the square of
+the depth, R17/R21 "plus a margin": ``grow = 0`` is one margin everywhere);
 - ``d < z_c - h_c``: the voxel is hidden from that camera: no information.
 
 **Known background** (optional, ``use_bg``): ``bg`` is a second flat buffer
@@ -73,13 +81,15 @@ from __future__ import annotations
 import numba as nb
 import numpy as np
 
+from depthguard.camera import RETURN_LIMIT_FACTOR
+
 __all__ = ["free_space_update", "free_space_update_numpy", "voxel_counts_numpy", "robot_pixels",
            "robot_pixels_numpy", "negate_where"]
 
 
 @nb.njit(cache=True, parallel=True, nogil=True)
 def free_space_update(depth, offs, widths, heights, rmin, rmax, vstart, chunk, vox, pix, zc, ru, rv,
-                      half, far, bg, bg_tol, use_bg, margin, min_free_views, full, accumulate,
+                      half, far, bg, bg_tol, use_bg, margin, grow, min_free_views, full, accumulate,
                       n_free, n_surf, free_state, occupied):
     """R21: one update of the free-space map, in place.
 
@@ -96,7 +106,9 @@ def free_space_update(depth, offs, widths, heights, rmin, rmax, vstart, chunk, v
     bg : (sum H*W,) float32 — expected depth of the known shell, laid out like ``depth``, 0 = none;
         read only when ``use_bg`` (centre-pixel mode only). bg_tol : float, metres — the
         shell match ``|d - B| <= bg_tol`` (module docstring).
-    margin : float, metres; min_free_views : int; full : bool.
+    margin : float, metres; grow : (C,) float64, 1/m — camera ``c``'s margin at a voxel of centre
+        depth ``z`` is ``margin + grow[c] z^2`` (the noise grows with depth; module docstring);
+    min_free_views : int; full : bool.
     accumulate : bool — keep voxels that ``free_state`` already holds free.
     n_free, n_surf : (N,) uint8 — workspace, overwritten (cameras seeing free / a surface).
     free_state : (N,) bool, in/out — free voxels (sticky when ``accumulate``).
@@ -116,6 +128,8 @@ def free_space_update(depth, offs, widths, heights, rmin, rmax, vstart, chunk, v
             hi = rmax[c]
             h = half[c]
             f = far[c] + margin
+            gz = grow[c]
+            rl = hi * RETURN_LIMIT_FACTOR
             W = widths[c]
             H = heights[c]
             off = offs[c]
@@ -127,11 +141,14 @@ def free_space_update(depth, offs, widths, heights, rmin, rmax, vstart, chunk, v
                         rob = d < 0.0                   # a robot pixel: free in front, never a surface
                         if rob:
                             d = -d
-                        if d >= lo and d <= hi:
+                        if d > hi:                      # beyond the rated range: free up to it, no surface
+                            d = hi if d <= rl else -1.0
+                            rob = True
+                        if d >= lo:
                             z = zc[k]
                             B = bg[p]
                             front = B <= 0.0 or z < B   # centre in front of the known shell
-                            if d > z + f and front:
+                            if d > z + f + gz * z * z and front:
                                 n_free[vox[k]] += 1
                             elif d >= z - h and not rob:
                                 if not (B > 0.0 and front and abs(np.float64(d) - np.float64(B)) <= bg_tol):
@@ -142,9 +159,12 @@ def free_space_update(depth, offs, widths, heights, rmin, rmax, vstart, chunk, v
                     rob = d < 0.0
                     if rob:
                         d = -d
-                    if d >= lo and d <= hi:
+                    if d > hi:
+                        d = hi if d <= rl else -1.0
+                        rob = True
+                    if d >= lo:
                         z = zc[k]
-                        if d > z + f:
+                        if d > z + f + gz * z * z:
                             n_free[vox[k]] += 1
                         elif d >= z - h and not rob:
                             n_surf[vox[k]] += 1
@@ -165,7 +185,10 @@ def free_space_update(depth, offs, widths, heights, rmin, rmax, vstart, chunk, v
                         xr = x < 0.0
                         if xr:
                             x = -x
-                        if not (x >= lo and x <= hi):
+                        if x > hi:
+                            x = hi if x <= rl else -1.0
+                            xr = True
+                        if not (x >= lo):
                             bad = True
                         elif x < d:
                             d = x
@@ -173,7 +196,7 @@ def free_space_update(depth, offs, widths, heights, rmin, rmax, vstart, chunk, v
                 if bad:
                     continue
                 z = zc[k]
-                if d > z + f:
+                if d > z + f + gz * z * z:
                     n_free[vox[k]] += 1
                 elif d >= z - h and not rob:
                     n_surf[vox[k]] += 1
@@ -187,13 +210,14 @@ def free_space_update(depth, offs, widths, heights, rmin, rmax, vstart, chunk, v
 
 # ----------------------------------------------------------------- numpy twins
 def voxel_counts_numpy(depths, n_voxels, rmin, rmax, start, vox, pix, offs, zc, ru, rv, half, far,
-                       margin, full, background=None, bg_tol=0.0):
+                       margin, full, background=None, bg_tol=0.0, grow=None):
     """Plain-numpy twin of the per-camera tests: ``(n_free, n_surface)`` per voxel, (N,) each.
 
     ``depths`` is a list of (H, W) images in camera order, a robot pixel's depth negated (module
     docstring); the model as in the kernel.
     ``background``: optional list of (H, W) expected shell depths (0 = none) in camera
-    order, with the match tolerance ``bg_tol`` (centre-pixel mode only).
+    order, with the match tolerance ``bg_tol`` (centre-pixel mode only). ``grow`` (C,) 1/m: the
+    margin's growth with depth (None: none).
     """
     if background is not None and full:
         raise ValueError("a background is supported only with full=False (centre pixel)")
@@ -203,6 +227,9 @@ def voxel_counts_numpy(depths, n_voxels, rmin, rmax, start, vox, pix, offs, zc, 
         img = np.asarray(img, dtype=np.float32)
         rob_px = img < 0                                         # robot pixels (module docstring)
         img = np.abs(img)
+        beyond = (img > rmax[c]) & (img <= RETURN_LIMIT_FACTOR * rmax[c])    # free up to the rated range, no surface
+        img = np.where(beyond, np.float32(rmax[c]), img)
+        rob_px = rob_px | beyond
         H, W = img.shape
         sl = slice(start[c], start[c + 1])
         v_idx = vox[sl]
@@ -231,14 +258,15 @@ def voxel_counts_numpy(depths, n_voxels, rmin, rmax, start, vox, pix, offs, zc, 
             rob = rob_px.ravel()[q]
         z = zc[sl].astype(np.float64)
         d = d.astype(np.float64)
+        m = margin + (0.0 if grow is None else float(grow[c])) * z * z
         if background is None:
-            free = ok & (d > z + far[c] + margin)
+            free = ok & (d > z + far[c] + m)
             surf = ok & ~free & (d >= z - half[c]) & ~rob
         else:
             B = np.asarray(background[c], dtype=np.float32).ravel()[q].astype(np.float64)
             front = (B <= 0) | (z < B)
             shell = (B > 0) & front & (np.abs(np.float64(d) - np.float64(B)) <= bg_tol)
-            free = ok & (d > z + far[c] + margin) & front
+            free = ok & (d > z + far[c] + m) & front
             surf = ok & ~free & (d >= z - half[c]) & ~shell & ~rob
         np.add.at(n_free, v_idx, free)
         np.add.at(n_surf, v_idx, surf)
@@ -246,7 +274,8 @@ def voxel_counts_numpy(depths, n_voxels, rmin, rmax, start, vox, pix, offs, zc, 
 
 
 def free_space_update_numpy(depths, n_voxels, rmin, rmax, start, vox, pix, offs, zc, ru, rv, half, far,
-                            margin, min_free_views, full=False, previous_free=None, background=None, bg_tol=0.0):
+                            margin, min_free_views, full=False, previous_free=None, background=None, bg_tol=0.0,
+                            grow=None):
     """Plain-numpy twin of :func:`free_space_update`: (N,) bool ``occupied``.
 
     free = n_free >= min_free_views  or  (n_free >= 1 and n_surface == 0),
@@ -254,7 +283,7 @@ def free_space_update_numpy(depths, n_voxels, rmin, rmax, start, vox, pix, offs,
     see :func:`voxel_counts_numpy`.
     """
     n_free, n_surf = voxel_counts_numpy(depths, n_voxels, rmin, rmax, start, vox, pix, offs, zc, ru, rv,
-                                        half, far, margin, full, background, bg_tol)
+                                        half, far, margin, full, background, bg_tol, grow)
     free = (n_free >= min_free_views) | ((n_free >= 1) & (n_surf == 0))
     if previous_free is not None:
         free |= previous_free

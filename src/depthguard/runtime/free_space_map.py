@@ -23,9 +23,11 @@ capture joints (R9, R30) — the same frames the distances use:
   (unknown: no camera sees inside the robot). The padded shell around the body is judged like
   any other voxel — what the cameras cannot see because the robot is in the way is unknown.
 
-Margin and shell tolerance: 2 and 5 sigma of the cameras' noise model at the far end of the
-workspace (``sigma_a + sigma_z2 d_max^2``, the largest over the cameras; 1 cm when a camera names
-no sensor model).
+Margin: 2 sigma of each camera's noise model at the voxel's own depth (``sigma_a + sigma_z2
+z^2``; 1 cm when a camera names no sensor model) — issue 30: the worst case of the workspace
+everywhere (4.5 cm for ur3-cell's D435s at 2.6 m) left the voxels a few cm in front of the table and
+the robot unknown. Shell tolerance: 5 sigma at the far end of the workspace (the largest over the
+cameras).
 
 :class:`FreeSpaceWorker` runs :meth:`RuntimeFreeSpace.build` on its own background thread at
 ``hz`` (default 10) and swaps the newest snapshot in whole (one assignment); readers take
@@ -58,7 +60,9 @@ class FreeSpaceSnapshot:
     """One built map: ``state`` (nx, ny, nz) uint8 FREE / UNKNOWN / OCCUPIED (never written after
     the swap), ``grid`` its :class:`VoxelGrid`, ``machine`` (nx, ny, nz) bool the robot's body at
     ``q`` (dof,) rad (voxel centres inside its capsules; not freed), ``stamp`` s the newest capture stamp used (NaN: no frame),
-    ``stamps`` per camera the capture stamp used, ``build_s`` the wall seconds the build took."""
+    ``stamps`` per camera the capture stamp used, ``build_s`` the wall seconds the build took,
+    ``known`` (nx, ny, nz) bool the known scene's voxels (:func:`known_scene_mask`; None: none) and
+    ``scene_padding`` m the path check's padding against them."""
     state: np.ndarray
     grid: VoxelGrid
     machine: np.ndarray
@@ -66,6 +70,8 @@ class FreeSpaceSnapshot:
     stamp: float
     stamps: dict
     build_s: float
+    known: np.ndarray | None = None
+    scene_padding: float | None = None
 
     def counts(self) -> dict:
         return {"free": int(np.count_nonzero(self.state == FREE)),
@@ -80,21 +86,44 @@ class FreeSpaceSnapshot:
         return c.astype(np.float32), self.state[idx].astype(np.uint8)
 
 
-def map_margins(cameras, workspace) -> tuple[float, float]:
-    """``(margin, tolerance)`` m: 2 and 5 times the largest noise sigma of ``cameras`` at the far
-    end of the ``workspace`` box in each (module docstring)."""
+def known_scene_mask(rig, grid: VoxelGrid) -> np.ndarray:
+    """(nx, ny, nz) bool: voxels whose centre lies inside one of the rig's CAD objects that is a
+    primitive (box, cylinder, ...; ``Primitive.sdf <= 0``); a mesh object's voxels are not marked
+    (they keep the robot's full padding in the path check)."""
+    c = grid.centres()
+    out = np.zeros(len(c), bool)
+    for o in rig.objects:
+        if o.primitive is None:
+            continue
+        lo, hi = o.mesh.bounds
+        near = np.all((c >= np.asarray(lo) - 1e-9) & (c <= np.asarray(hi) + 1e-9), axis=1)
+        if near.any():
+            idx = np.flatnonzero(near)
+            out[idx[o.primitive.sdf(c[idx]) <= 0.0]] = True
+    return out.reshape(grid.shape)
+
+
+def map_margins(cameras, workspace) -> tuple[float, float, dict]:
+    """``(margin, tolerance, growth)``: the free test's margin at depth ``z`` for camera ``c`` is
+    ``margin + growth[c] z^2`` — two sigma of its noise model ``sigma_a + sigma_z2 z^2`` at the
+    voxel's own depth (``margin`` = 2 x the largest ``sigma_a``, 2 x 1 cm for a camera with no
+    sensor model, at least 2 mm; ``growth[c] = 2 sigma_z2``); ``tolerance`` m (the known scene's
+    match) 5 x the largest sigma at the far end of the ``workspace`` box (module docstring)."""
     from depthguard.sensors import sensor_model
 
     far = {c.id: workspace.depth_span(c)[1] for c in cameras}
-    sig = 0.0
+    sig, sig_a, growth = 0.0, 1e-3, {}
     for c in cameras:
         if c.sensor is None:
             sig = max(sig, DEFAULT_SIGMA)
+            sig_a = max(sig_a, DEFAULT_SIGMA)
             continue
         m = sensor_model(c.sensor)
         sig = max(sig, float(m.sigma_a + m.sigma_z2 * far[c.id] ** 2))
+        sig_a = max(sig_a, float(m.sigma_a))
+        growth[c.id] = 2.0 * float(m.sigma_z2)
     sig = max(sig, 1e-3)
-    return 2.0 * sig, 5.0 * sig
+    return 2.0 * sig_a, 5.0 * sig, growth
 
 
 class RuntimeFreeSpace:
@@ -107,7 +136,7 @@ class RuntimeFreeSpace:
     """
 
     def __init__(self, rig, camera_ids=None, voxel_size: float = 0.05, robot_offset: float = 0.08,
-                 robot_padding: float = 0.07, bounds=None):
+                 robot_padding: float = 0.07, bounds=None, scene_padding: float = 0.02):
         from depthguard.filtering.expected import ExpectedDepth
 
         ids = [c.id for c in rig.cameras] if camera_ids is None else list(camera_ids)
@@ -115,14 +144,18 @@ class RuntimeFreeSpace:
         self.robot = rig.robot
         self.cameras = [rig.camera(c) for c in ids]
         lo, hi = (rig.workspace.lo, rig.workspace.hi) if bounds is None else bounds
-        self.margin, self.tolerance = map_margins(self.cameras, rig.workspace)
-        self.map = FreeSpaceMap(self.cameras, (lo, hi), voxel_size, margin=self.margin)
+        self.margin, self.tolerance, self.margin_growth = map_margins(self.cameras, rig.workspace)
+        self.map = FreeSpaceMap(self.cameras, (lo, hi), voxel_size, margin=self.margin,
+                                margin_growth=self.margin_growth)
         static = list(rig.static_meshes())
         self.backgrounds = {c.id: np.asarray(ExpectedDepth(c, None, static).static, np.float32) for c in self.cameras}
         if static:
             self.map.set_background(self.backgrounds, tolerance=self.tolerance)
         self.robot_offset = float(robot_offset)
         self.robot_padding = float(robot_padding)
+        self.scene_padding = float(scene_padding)
+        self.known = known_scene_mask(rig, self.grid)
+        self.known.setflags(write=False)
         self._robot_px = {c.id: np.zeros((c.height, c.width), bool) for c in self.cameras}
 
     @property
@@ -155,7 +188,8 @@ class RuntimeFreeSpace:
             machine = body_mask(self.grid.shape, self.grid.lo, self.grid.voxel_size, self.robot, q)
         st = dict(stamps or {})
         stamp = max(st.values()) if st else float("nan")
-        return FreeSpaceSnapshot(state, self.grid, machine, q, stamp, st, time.perf_counter() - t0)
+        return FreeSpaceSnapshot(state, self.grid, machine, q, stamp, st, time.perf_counter() - t0,
+                                 self.known, self.scene_padding)
 
     def build_from_workers(self, workers: dict, q_now=None) -> FreeSpaceSnapshot | None:
         """:meth:`build` from the newest product of each camera worker (None: no product yet)."""
@@ -178,7 +212,8 @@ def check_path_in(snapshot: FreeSpaceSnapshot, robot, stamps, q, padding: float,
     g = snapshot.grid
     exclude = snapshot.machine if snapshot.q is not None else None     # the body when the map was taken
     return check_path_states(snapshot.state, g.lo, g.voxel_size, robot, stamps, q, padding=padding,
-                             exclude=exclude, map_stamp=snapshot.stamp, twin=twin)
+                             exclude=exclude, map_stamp=snapshot.stamp, twin=twin, known=snapshot.known,
+                             scene_padding=snapshot.scene_padding)
 
 
 class FreeSpaceWorker:

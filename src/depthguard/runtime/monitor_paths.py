@@ -21,7 +21,8 @@ class MonitorPaths:
             return self.free_space
         cfg = self.config
         space = RuntimeFreeSpace(self.rig, self._camera_ids, voxel_size or cfg.free_space_voxel,
-                                 cfg.robot_offset, cfg.robot_padding)
+                                 cfg.robot_offset, cfg.robot_padding,
+                                 scene_padding=cfg.free_space_scene_padding)
         self.free_space = FreeSpaceWorker(space, self._workers, self._latest_q, hz or cfg.free_space_hz,
                                           lambda snap: self._on_snapshot(snap, on_snapshot))
         return self.free_space
