@@ -157,7 +157,8 @@ def test_frame_state_and_start_depth_equal_twins_with_beyond_range_and_gaps(rng)
                         np.testing.assert_array_equal(ws.d0, want)
         # the grid's per-pixel states through set_frames equal the twin
         grid = DepthGridMap([cam], cam.id, 0.5, 4.5, 0.05, cache=False)
-        grid.set_frames({cam.id: depth}, {cam.id: robot}, invalid="unknown", silhouette_px=3, gap_px=2)
+        grid.set_frames({cam.id: depth}, {cam.id: robot}, robot_offset=0.03, invalid="unknown", silhouette_px=3,
+                        gap_px=2)
         f2, k2 = ref.frame_state_numpy(cam, depth, robot, 0.03, "unknown", silhouette_px=3, gap_px=2)
         np.testing.assert_array_equal(grid._pfree, f2)
         np.testing.assert_array_equal(grid._pkind, k2)

@@ -44,6 +44,7 @@ from pathlib import Path
 
 import numpy as np
 
+from depthguard.config import PRODUCT_INVALID, PRODUCT_ROBOT_IN_OTHERS, PRODUCT_ROBOT_OFFSET   # the product's defaults, defined once
 from depthguard.camera import Camera
 from depthguard.distance.gaps import GapBuffers, check_gap_px
 from depthguard.distance.silhouette import SilhouetteBuffers, check_silhouette_px
@@ -285,8 +286,8 @@ class DepthGridMap(GridRobot, GridQuery):
         self._axbuf = np.empty((n, self.principal.width))
 
     def set_frames(self, depths: dict, robot_depths: dict | None = None,
-                   robot_offset: float = 0.03, robot_capsules=None, invalid: str = "unknown",
-                   robot_in_others: str = "unknown", reach=None, lazy: bool = True,
+                   robot_offset: float = PRODUCT_ROBOT_OFFSET, robot_capsules=None, invalid: str = PRODUCT_INVALID,
+                   robot_in_others: str = PRODUCT_ROBOT_IN_OTHERS, reach=None, lazy: bool = True,
                    changed=None, silhouette_px: int = 0, gap_px: int = 0, states=None) -> None:
         """Load one frame per camera (R9, R28, R32); call once per camera frame.
 

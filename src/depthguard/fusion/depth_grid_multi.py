@@ -10,6 +10,7 @@ from __future__ import annotations
 
 import numpy as np
 
+from depthguard.config import PRODUCT_INVALID, PRODUCT_METHOD, PRODUCT_RHO, PRODUCT_ROBOT_IN_OTHERS, PRODUCT_ROBOT_OFFSET   # the product's defaults, defined once
 from depthguard.distance.api import DistanceResult, check_points, check_rho
 from depthguard.fusion.depth_grid import DepthGridMap
 
@@ -39,7 +40,7 @@ class MultiPrincipalDepthGrid:
     def nbytes(self) -> int:
         return sum(m.nbytes for m in self.maps.values())
 
-    def principal_for(self, points, rho: float = 0.4) -> np.ndarray:
+    def principal_for(self, points, rho: float = PRODUCT_RHO) -> np.ndarray:
         """(N,) index into ``cameras`` of each point's principal, -1 where no camera sees it."""
         p = check_points(points)
         r = check_rho(rho)
@@ -57,10 +58,10 @@ class MultiPrincipalDepthGrid:
             score[take] = s[take]
         return best
 
-    def distance(self, depths: dict, points, rho: float = 0.4, method: str = "hybrid",
+    def distance(self, depths: dict, points, rho: float = PRODUCT_RHO, method: str = PRODUCT_METHOD,
                  robot_depths: dict | None = None, *, robot_capsules=None,
-                 robot_offset: float = 0.03, invalid: str = "unknown",
-                 robot_in_others: str = "unknown", silhouette_px: int = 0,
+                 robot_offset: float = PRODUCT_ROBOT_OFFSET, invalid: str = PRODUCT_INVALID,
+                 robot_in_others: str = PRODUCT_ROBOT_IN_OTHERS, silhouette_px: int = 0,
                  gap_px: int = 0) -> DistanceResult:
         """As :meth:`DepthGridMap.distance`, each point through its own principal."""
         p = check_points(points)

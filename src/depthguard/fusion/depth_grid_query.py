@@ -10,6 +10,7 @@ up its obstacle runs (:func:`~depthguard.fusion.depth_grid_lookup.grid_distances
 
 from __future__ import annotations
 
+from depthguard.config import PRODUCT_INVALID, PRODUCT_METHOD, PRODUCT_RHO, PRODUCT_ROBOT_IN_OTHERS, PRODUCT_ROBOT_OFFSET   # the product's defaults, defined once
 from depthguard.distance.api import DistanceResult, check_points, check_rho
 from depthguard.fusion import depth_grid_kernels, depth_grid_lazy, depth_grid_lazy_lookup, depth_grid_lookup
 
@@ -24,7 +25,7 @@ class GridQuery:
     """The queries of a :class:`~depthguard.fusion.depth_grid.DepthGridMap` (a mixin: the grid's
     buffers are its own)."""
 
-    def query(self, points, rho: float = 0.4, method: str = "hybrid",
+    def query(self, points, rho: float = PRODUCT_RHO, method: str = PRODUCT_METHOD,
               threads: int | None = None, rho_core: float | None = None) -> DistanceResult:
         """Distances of control points (N, 3) world metres to the fused obstacles (R12).
 
@@ -133,10 +134,10 @@ class GridQuery:
                          self.d_min, self.delta_d, p, n, r, m,
                          self._dist, self._dir, self._count, self._obs)
 
-    def distance(self, depths: dict, points, rho: float = 0.4, method: str = "hybrid",
+    def distance(self, depths: dict, points, rho: float = PRODUCT_RHO, method: str = PRODUCT_METHOD,
                  robot_depths: dict | None = None, *, robot_capsules=None,
-                 robot_offset: float = 0.03, invalid: str = "unknown",
-                 robot_in_others: str = "unknown", reach=None, lazy: bool = True,
+                 robot_offset: float = PRODUCT_ROBOT_OFFSET, invalid: str = PRODUCT_INVALID,
+                 robot_in_others: str = PRODUCT_ROBOT_IN_OTHERS, reach=None, lazy: bool = True,
                  silhouette_px: int = 0, gap_px: int = 0) -> DistanceResult:
         """Distance from control points to what all cameras see together (SPEC §3, §9).
 

@@ -16,6 +16,7 @@ from __future__ import annotations
 
 import numpy as np
 
+from depthguard.config import PRODUCT_INVALID, PRODUCT_METHOD, PRODUCT_ROBOT_OFFSET   # the product's defaults, defined once
 from depthguard.camera import Camera, RETURN_LIMIT_FACTOR
 from depthguard.distance.window import surveillance_window
 from depthguard.fusion.depth_grid_kernels import D_ZERO, KIND_ROBOT, KIND_SURFACE, KIND_UNKNOWN
@@ -24,7 +25,7 @@ __all__ = ["frame_state_numpy", "explicit_map_numpy", "cell_corners_world",
            "cleared_numpy", "grid_distances_numpy"]
 
 
-def frame_state_numpy(cam: Camera, depth, robot_depth=None, robot_offset=0.03, invalid="unknown",
+def frame_state_numpy(cam: Camera, depth, robot_depth=None, robot_offset=PRODUCT_ROBOT_OFFSET, invalid=PRODUCT_INVALID,
                       robot_free=False, silhouette_px=0, gap_px=0):
     """(free (H, W) float64, kind (H, W) int8) of one frame: free depth = ``do``
     (surface), ``dr`` (robot: ``measured >= dr - offset``), ``max_range`` (a finite return
@@ -157,7 +158,7 @@ def cleared_numpy(principal: Camera, others: list[Camera], kfree: list[np.ndarra
 
 def grid_distances_numpy(principal: Camera, others: list[Camera], pfree, pkind, kfree,
                          d_min: float, delta_d: float, n_d: int, points, rho: float,
-                         method: str = "hybrid", capsules=None):
+                         method: str = PRODUCT_METHOD, capsules=None):
     """Twin of :func:`~depthguard.fusion.depth_grid_lookup.grid_distances` (R10–R12).
 
     Every cell ``(u, v, gd)`` of the region of surveillance with

@@ -274,7 +274,7 @@ class FusionWorker:
     ``front`` is the buffer ``step`` reads; ``swap_lock`` guards the assignment.
     """
 
-    def __init__(self, workers: dict, make_grid, settings, robot):
+    def __init__(self, workers: dict, make_grid, settings, robot, threads: int = 0):
         self.workers = workers
         self.make_grid = make_grid
         self.settings = settings
@@ -295,6 +295,7 @@ class FusionWorker:
         self._last_fused: dict[str, int] = {}
         self._volumes: dict = {}                  # robot_volume's capsules per capture-joints array
         self._cfg = None                          # the settings of the last build
+        self._threads_wanted = int(threads)       # numba threads (0: all; MonitorConfig.fusion_threads)
         self.threads = 1                          # the fusion's numba threads (set by its thread)
         self.build_seconds: list[float] = []
         self.errors = 0
@@ -320,9 +321,7 @@ class FusionWorker:
     def _run(self) -> None:
         # the cells classified ahead split over every core (they are most of a build, and the
         # control and distance threads need little); the lookup after it runs on one
-        cfg = self.settings()[0]
-        threads = int(getattr(cfg, "fusion_threads", 0))
-        background_thread(numba_threads=threads)
+        background_thread(numba_threads=self._threads_wanted)
         import numba
 
         self.threads = numba.get_num_threads()

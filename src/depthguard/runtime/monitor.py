@@ -103,7 +103,8 @@ class Monitor(MonitorDistances, UnitStateInput, MonitorPaths, MonitorWatches):
             from depthguard.runtime.voxel_input import VoxelObstacles
             self._ssm_voxels = VoxelObstacles()
         self._workers: dict[str, CameraWorker] = {}
-        self.fusion = FusionWorker(self._workers, self._make_grid, self._fusion_settings, self.robot)
+        self.fusion = FusionWorker(self._workers, self._make_grid, self._fusion_settings, self.robot,
+                                   threads=cfg.fusion_threads)
         self.fusion.prepare(self._camera_ids)      # the grid made now, not by the first frames
         for cid in self._camera_ids:
             self._start_worker(cid)
