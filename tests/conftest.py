@@ -56,6 +56,23 @@ def prismatic_urdf():
     return PRISMATIC_URDF
 
 
+# ---------------------------------------------------------------- the monitor's kernels, compiled once
+# A fresh clone's numba cache is empty: the monitor's path then compiles for about 150 CPU-seconds
+# (measured: `warm_up` of flacco-cell 154 s user with an empty NUMBA_CACHE_DIR, 9 s with the cache).
+# A test that starts the CLI in a subprocess would pay that inside its subprocess timeout (the
+# first one took 150 s in CI and ran past its 300 s timeout on a loaded machine), and processes
+# started together (a principal and its units) would each compile the same kernels. Such tests
+# ask for this fixture: the compilation happens here, once, in the test process, with no timeout,
+# and writes the cache the subprocesses then load.
+@pytest.fixture(scope="session")
+def monitor_kernels():
+    from depthguard.runtime.warm_up import warm_up
+    from depthguard.sim import load_cell
+
+    rig = load_cell("flacco-cell").rig
+    return warm_up(rig, rig.monitor)
+
+
 # ---------------------------------------------------------------- soaks: `make soak`, not `make test`
 # A test marked ``soak`` runs for a long wall time (a whole scene at 30 Hz through the monitor...):
 # the suite keeps a short slice of its property and leaves the soak out unless ``--soak`` is given

@@ -177,7 +177,7 @@ def test_a_truncated_bag_is_one_clear_line_from_the_cli(rig, tmp_path):
     assert lines[-1].startswith("depthguard: error: bag ") and "truncated" in lines[-1] and "Traceback" not in res.stderr
 
 
-def test_skipped_frames_are_in_the_monitors_summary(rig, tmp_path):
+def test_skipped_frames_are_in_the_monitors_summary(rig, tmp_path, monitor_kernels):
     cam = rig.camera("cam0")
     msgs = good(rig) + [("/cam0/depth/image_rect_raw", "img", _image(cam, 0.33, enc="rgb8"))]
     path = write(tmp_path / "b.mcap", msgs)

@@ -21,7 +21,7 @@ def _lines(path: Path) -> list[dict]:
 
 
 @pytest.mark.slow
-def test_fast_run_writes_a_log_line_per_cycle_and_a_summary_that_agrees(tmp_path):
+def test_fast_run_writes_a_log_line_per_cycle_and_a_summary_that_agrees(tmp_path, monitor_kernels):
     out = tmp_path / "run"
     res = subprocess.run(DG + ["monitor", "--cell", "flacco-cell", "--source", "sim:flacco-cell:reach",
                                "--duration", "0.4", "--fast", "--out", str(out), "--quiet"],
@@ -42,7 +42,7 @@ def test_fast_run_writes_a_log_line_per_cycle_and_a_summary_that_agrees(tmp_path
 
 
 @pytest.mark.slow
-def test_monitor_alone_runs_in_real_time_and_stops_cleanly_on_ctrl_c(tmp_path):
+def test_monitor_alone_runs_in_real_time_and_stops_cleanly_on_ctrl_c(tmp_path, monitor_kernels):
     out = tmp_path / "live"
     proc = subprocess.Popen(DG + ["monitor", "--out", str(out)], stdout=subprocess.PIPE,
                             stderr=subprocess.PIPE, text=True, cwd=tmp_path)
@@ -97,7 +97,8 @@ def test_an_output_folder_holding_a_run_is_refused_before_any_work(tmp_path):
 @pytest.mark.slow
 @pytest.mark.parametrize("joint_hz, joint_offset", [(500, 0.0), (100, 0.0007)])
 def test_a_recording_replays_from_its_first_stamp_with_the_robot_removed_at_capture_time(tmp_path, joint_hz,
-                                                                                        joint_offset):
+                                                                                        joint_offset,
+                                                                                        monitor_kernels):
     """A recorded cell (depth images + joint CSV, as a real cell's recorder would write them,
     stamps on a wall clock far from 0) replayed with --fast: the log's clock starts at the first
     stamp, every frame is used, and the robot moving through the images is not an obstacle —

@@ -170,8 +170,30 @@ def test_frame_state_and_start_depth_equal_twins_with_beyond_range_and_gaps(rng)
     assert np.all(np.isinf(free)) and np.all(kind == depth_grid_kernels.KIND_UNKNOWN)
     d0 = np.empty((H, W))
     DK.obstacle_start_depth(d, robot, False, cam.min_range, cam.max_range, DK.INVALID_FREE, DK.ROBOT_DROP,
-                            0.03, d0)
+                            0.03, d0, DK.NO_SILHOUETTE[robot.dtype], DK.NO_GAP)
     assert np.all(np.isinf(d0))
+
+
+def test_start_depth_is_one_compiled_signature_whatever_the_options(rng):
+    """Silhouette and gaps off are empty arrays, not None: every combination of the options
+    (and the robot or none) runs one compiled variant of the kernel per image dtype (each
+    variant is a compilation on a fresh clone's empty cache)."""
+    import numba
+
+    cam = _cam()
+    depth = _random_depth(rng, *cam.shape).astype(np.float32)
+    robot = np.zeros(cam.shape, np.float32)
+    robot[30:70, 50:100] = 2.0
+    ws = DistanceWorkspace(cam)
+    for rd in (None, robot):
+        for n_sil in (0, 2):
+            for n_gap in (0, 2):
+                ws.set_depth(depth, rd, silhouette_px=n_sil, gap_px=n_gap)
+    f32 = numba.typeof(depth)
+    sigs = [s for s in DK.obstacle_start_depth.signatures if s[0] == f32 and s[1] == f32]
+    assert len(sigs) == 1, sigs
+    for s in DK.obstacle_start_depth.signatures:              # never None nor an omitted argument
+        assert all(isinstance(t, numba.types.Array) for t in s[9:]), s
 
 
 def test_gap_px_zero_is_todays_state(rng):
@@ -183,7 +205,7 @@ def test_gap_px_zero_is_todays_state(rng):
     np.testing.assert_array_equal(a.d0, b.d0)
     d0 = np.empty(cam.shape)
     DK.obstacle_start_depth(depth, a._no_robot, False, cam.min_range, cam.max_range, DK.INVALID_UNKNOWN,
-                            DK.ROBOT_DROP, 0.03, d0)
+                            DK.ROBOT_DROP, 0.03, d0, DK.NO_SILHOUETTE[a._no_robot.dtype], DK.NO_GAP)
     np.testing.assert_array_equal(a.d0, d0)
     # the rule only frees space: every start depth with gap_px = 3 is >= the one with 0
     c = DistanceWorkspace(cam)

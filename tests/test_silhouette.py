@@ -153,7 +153,7 @@ def test_frame_state_and_start_depth_equal_twins(rng):
     np.testing.assert_array_equal(ws0.d0[valid], ws4.d0[valid])
     d0 = np.empty((H, W))
     DK.obstacle_start_depth(depth, robot, True, cam.min_range, cam.max_range, DK.INVALID_UNKNOWN,
-                            DK.ROBOT_DROP, PRODUCT_ROBOT_OFFSET, d0)        # set_depth's default offset (R9)
+                            DK.ROBOT_DROP, PRODUCT_ROBOT_OFFSET, d0, DK.NO_SILHOUETTE[robot.dtype], DK.NO_GAP)        # set_depth's default offset (R9)
     np.testing.assert_array_equal(ws0.d0, d0)
 
 

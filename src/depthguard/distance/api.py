@@ -202,12 +202,12 @@ class DistanceWorkspace:
             rd, use = self._no_robot, False
         else:
             rd, use = check_depth_image(cam, robot_depth, name="robot_depth"), True
-        sil = None
+        sil = kernels.NO_SILHOUETTE[np.dtype(np.float32 if rd.dtype == np.float32 else np.float64)]   # off
         if use and n_sil > 0 and pol == kernels.INVALID_UNKNOWN:
             if self._silhouette is None:
                 self._silhouette = SilhouetteBuffers(cam.shape)
             sil = self._silhouette.dilate(rd, n_sil)
-        gaps = None
+        gaps = kernels.NO_GAP                      # off
         if n_gap > 0 and pol == kernels.INVALID_UNKNOWN:
             if self._gaps is None:
                 self._gaps = GapBuffers(cam.shape)
