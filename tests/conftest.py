@@ -111,13 +111,23 @@ def _required() -> list[str]:
     return names
 
 
-def pytest_runtest_logreport(report):
+def _note_required_skip(report):
     if not report.skipped or not isinstance(report.longrepr, tuple):
         return
     reason = str(report.longrepr[2])
     for name in _required():
         if _REQUIRED_SKIPS[name] in reason:
             _required_skipped.append(f"{report.nodeid}: {reason}")
+
+
+def pytest_runtest_logreport(report):
+    _note_required_skip(report)
+
+
+def pytest_collectreport(report):
+    """A module that skips itself at import (``pytest.skip(..., allow_module_level=True)``, as every
+    RealSense test file does) is skipped at collection, never reaching ``pytest_runtest_logreport``."""
+    _note_required_skip(report)
 
 
 def pytest_sessionfinish(session, exitstatus):

@@ -92,4 +92,5 @@ def test_bench_group_quick_rows():
               "depthgrid.cycle_ms.1cam", "depthgrid.cycle_ms.4cam"):
         assert n in rows and np.isfinite(rows[n].value) and rows[n].value > 0
     assert rows["depthgrid.cycle_ms"].paper == 3.3 and rows["depthgrid.cycle_ms"].peer_value > 0
-    assert rows["depthgrid.bytes"].value <= 1e9 and rows["depthgrid.build_s"].value <= 30
+    # the rows are measured, not judged here (speed lives in the bench, issue 33); memory is a bound
+    assert rows["depthgrid.bytes"].value <= 1e9

@@ -40,6 +40,21 @@ def reaching(cell):
     return t, q, space, snap, frames, rd
 
 
+@pytest.fixture(scope="module")
+def warm(cell):
+    """The monitor's kernels compiled before any timed wait: with a cold numba cache (a fresh
+    checkout, a changed kernel) on a loaded machine the first frames' compilation inside the
+    camera workers took over 120 s and ``flush`` timed out (measured 123 and 129 s, 2 cores at
+    load 10); ``warm_up`` compiles them with no deadline of its own that matters here."""
+    from depthguard.runtime.monitor import warm_up
+
+    warm_up(cell.rig, cell.rig.monitor)
+
+
+# generous: flush waits on a condition (every pushed frame in the grid), it is not a sleep
+FLUSH_S = 600.0
+
+
 def test_no_truly_occupied_voxel_is_free_except_within_half_a_voxel_of_a_surface(cell, reaching):
     t, q, space, snap, _, _ = reaching
     g = snap.grid
@@ -95,7 +110,7 @@ def test_robot_pixels_say_nothing(cell, reaching):
     assert np.count_nonzero(removed.state[only_robot] == OCCUPIED) < 0.1 * np.count_nonzero(raw.state[only_robot] == OCCUPIED)
 
 
-def test_monitor_check_path_through_the_person_is_unsafe_and_clear_path_is_not(cell, reaching):
+def test_monitor_check_path_through_the_person_is_unsafe_and_clear_path_is_not(cell, reaching, warm):
     from depthguard.runtime.monitor import Monitor
 
     t, q, _, _, frames, _ = reaching
@@ -105,7 +120,7 @@ def test_monitor_check_path_through_the_person_is_unsafe_and_clear_path_is_not(c
         mon.push_joints(t + 0.01, q)
         for f in frames.values():
             mon.push_frame(f)
-        mon.flush(timeout=120)
+        mon.flush(timeout=FLUSH_S)
         # towards the reaching hand (right hand at (0.2, -0.15, 1.0) m): the shoulder pan that
         # brings the tool over it, truth: the hand's distance to the swept tool
         hand = np.array([0.2, -0.15, 1.0])
@@ -166,7 +181,7 @@ def test_cli_verdict_codes_differ_from_usage_error():
     assert len({0, 2, EXIT_MAYBE, EXIT_UNSAFE}) == 4
 
 
-def test_monitor_watch_path_feeds_the_path_watch_policy(cell, reaching):
+def test_monitor_watch_path_feeds_the_path_watch_policy(cell, reaching, warm):
     """``Monitor.watch_path`` (R37) with ``reactions: [repulsion, path_watch]``: the path into the
     reaching person (as above) gets its verdict at the next map update and the policy's part holds
     the robot at the path's last waypoint before the person (truth: the person's geometry via the
@@ -190,7 +205,7 @@ def test_monitor_watch_path_feeds_the_path_watch_policy(cell, reaching):
         mon.push_joints(t + 0.01, q)
         for f in frames.values():
             mon.push_frame(f)
-        mon.flush(timeout=120)
+        mon.flush(timeout=FLUSH_S)
         mon.watch_path(stamps, Q)
         mon.free_space.update_now()
         v = mon.check_path(stamps, Q)

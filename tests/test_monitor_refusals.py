@@ -16,6 +16,10 @@ from depthguard.sim import load_cell
 from depthguard.sources.frame import Frame
 
 DG = [sys.executable, "-m", "depthguard.cli"]
+# flush waits on a condition (every pushed frame processed); the first frames of a module compile
+# the workers' kernels, minutes with a cold numba cache on a loaded machine (the default 10 s
+# timed out here once, at load 10): a generous deadline, not a sleep
+FLUSH_S = 600.0
 
 
 def _still(rig, cam, q0):
@@ -33,7 +37,7 @@ def test_a_stale_cameras_reason_names_its_refused_frames_until_one_is_accepted()
             mon.push_joints(k * 0.002, q0)
         mon.push_frame(Frame(cam0.id, good0 / 1000.0, 0.001))       # metres written into a millimetre PNG
         mon.push_frame(Frame(cam1.id, good1, 0.001))
-        mon.flush()
+        mon.flush(timeout=FLUSH_S)
         r = mon.step(0.01)
         assert "hold metres" in r.reasons[f"stale:{cam0.id}"] and "refused" in r.reasons[f"stale:{cam0.id}"]
         last = mon.stats()["cameras"][cam0.id]["last_refusal"]
@@ -41,11 +45,11 @@ def test_a_stale_cameras_reason_names_its_refused_frames_until_one_is_accepted()
         assert "refused" not in r.reasons.get(f"stale:{cam1.id}", "")   # stale too (no grid yet), not refusing
         mon.push_frame(Frame(cam0.id, good0, 0.02))                  # a good frame: the refusal is history
         mon.push_frame(Frame(cam1.id, good1, 0.02))
-        mon.flush()
+        mon.flush(timeout=FLUSH_S)
         assert f"stale:{cam0.id}" not in mon.step(0.03).reasons
         mon.push_frame(Frame(cam0.id, good0 / 1000.0, 0.04))        # bad again; the good frame grows old
         mon.push_frame(Frame(cam1.id, good1, 0.02 + limit))
-        mon.flush()
+        mon.flush(timeout=FLUSH_S)
         r = mon.step(0.02 + limit + 0.01)
         assert "hold metres" in r.reasons[f"stale:{cam0.id}"]
         assert "refused" not in r.reasons.get(f"stale:{cam1.id}", "")

@@ -3,7 +3,7 @@
 import numpy as np
 
 from depthguard.config import WatchPoint
-from depthguard.runtime.monitor import Monitor
+from depthguard.runtime.monitor import Monitor, warm_up
 from depthguard.runtime.runner import run, summarise
 from depthguard.sources.base import open_joints, open_source
 from depthguard.sim import load_cell
@@ -13,6 +13,9 @@ def test_a_watch_point_no_camera_sees_is_counted_in_every_cycle():
     rig = load_cell("flacco-cell").rig
     cfg = rig.monitor.with_changes(watch_points=(WatchPoint(name="door", position=(0.5, 0.0, 0.5)),
                                                  WatchPoint(name="attic", position=(0.0, 0.0, 30.0))))
+    # the kernels compiled first: a --fast run's flush allows 10 s, and with a cold numba cache on a
+    # loaded machine the first frames' compilation took longer (TimeoutError, issue 33)
+    warm_up(rig, cfg)
     context: dict = {}
     frames = open_source("sim:flacco-cell:alone:noiseless", rig, context)
     joints = open_joints("sim", rig, context)
