@@ -332,11 +332,12 @@ class FusionWorker:
                     self._wake.wait()
                 if self._stop:
                     return
-                wait = rest_until - time.perf_counter()
-                if wait > 0.0:                 # the duty's rest (below): frames coalesce meanwhile
+                # the duty's rest (below): frames coalesce meanwhile; a frame's notify() wakes the
+                # wait, so wait again until the rest is over (or the worker is closed)
+                while not self._stop and (wait := rest_until - time.perf_counter()) > 0.0:
                     self._wake.wait(wait)
-                    if self._stop:
-                        return
+                if self._stop:
+                    return
                 self._pending = False
                 self._busy = True
             t0 = time.perf_counter()
