@@ -86,6 +86,8 @@ class _SimulatedCell:
                 t = (k + phase) / 30.0
                 while self.clock() < t + 0.005 and not self._stop.is_set():
                     time.sleep(0.0005)
+                if t >= self.duration:                   # the recording ends: no capture after it
+                    break
                 depth = self.sim.render(cid, 8.0 + t, scene.robot_q(8.0 + t))
                 on_depth(cid, depth.copy(), t)
                 k += 1
@@ -97,10 +99,9 @@ class _SimulatedCell:
             th.start()
 
     def running(self) -> bool:
-        if self.clock() < self.duration:
-            return True
-        self._stop.set()
-        return False
+        # The robot driver's joint stream goes on until close(), as a powered robot's does: a
+        # frame captured just before the end still finds the joint states after its stamp.
+        return self.clock() < self.duration
 
     def wait_for_next_cycle(self) -> None:
         self.cycles += 1
