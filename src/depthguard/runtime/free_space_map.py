@@ -45,6 +45,7 @@ from dataclasses import dataclass
 
 import numpy as np
 
+from depthguard.config import PRODUCT_ROBOT_OFFSET, PRODUCT_ROBOT_PADDING   # the product's defaults, defined once
 from depthguard.control.path_check import FREE, OCCUPIED, UNKNOWN, body_mask, check_path_states
 from depthguard.fusion.free_space import FreeSpaceMap
 from depthguard.fusion.free_space_kernels import robot_pixels
@@ -135,8 +136,8 @@ class RuntimeFreeSpace:
     bounds : ``(lo, hi)`` m, default the rig's workspace.
     """
 
-    def __init__(self, rig, camera_ids=None, voxel_size: float = 0.05, robot_offset: float = 0.08,
-                 robot_padding: float = 0.07, bounds=None, scene_padding: float = 0.02):
+    def __init__(self, rig, camera_ids=None, voxel_size: float = 0.05, robot_offset: float = PRODUCT_ROBOT_OFFSET,
+                 robot_padding: float = PRODUCT_ROBOT_PADDING, bounds=None, scene_padding: float = 0.02):
         from depthguard.filtering.expected import ExpectedDepth
 
         ids = [c.id for c in rig.cameras] if camera_ids is None else list(camera_ids)
