@@ -37,6 +37,30 @@ def test_a_linear_path_moves_at_the_largest_rate_the_box_allows():
     assert bot.rate_min == 0.0 and bot.slowed_s == pytest.approx(12 * dt)
 
 
+def test_the_path_follower_obeys_the_speed_scale_of_the_ssm_and_other_policies():
+    """A reaction's ``speed_scale`` (the override times the policies' scales, R33) is what the
+    path's robot moves at: an SSM scale of 0.25 under an override of 1 quarters its rate; a
+    protective stop (speed scale 0, override 1) stands it still."""
+    a, b = np.zeros(2), np.array([0.1, -0.1])
+    bot = ObeyingRobot(PathFollower(lambda tau: a + b * tau), dof=2)
+    free = ([-9, -9], [9, 9])
+    r = reaction(1.0, *free, ssm_scale=0.25)
+    r.speed_scale = 0.25
+    bot.obey(r)
+    tau = bot.tau
+    bot.step(0.002)
+    assert bot.rate == pytest.approx(0.25) and bot.tau - tau == pytest.approx(0.25 * 0.002)
+    r.speed_scale = 0.0
+    bot.obey(r)
+    tau = bot.tau
+    for _ in range(5):
+        bot.step(0.002)
+    assert bot.rate == 0.0 and bot.tau == tau
+    bot.obey(reaction(0.6, *free))              # a reaction without a speed scale: its override
+    bot.step(0.002)
+    assert bot.rate == pytest.approx(0.6)
+
+
 class Line:
     """p_d(tau) = p0 + v tau (the task), ṗ_d = v."""
 

@@ -14,7 +14,8 @@ robot's model/data split): a pluggable object with ``start(bot)``, ``command(bot
 ``move(bot, dt)``. Two are given:
 
 - :class:`PathFollower`: the cell's scripted joint path ``q(τ)``, its path time ``τ``
-  advancing at the largest rate in ``[0, k]`` that keeps every joint within the box (a joint
+  advancing at the largest rate in ``[0, s]`` that keeps every joint within the box, ``s`` the
+  reaction's speed scale (the override times the SSM and other policies' scales; a joint
   path cannot follow the end effector's repulsion, which it ignores);
 - :class:`TaskFollower`: the papers' robot (Flacco 2012 §V, 2015 §VIII): an end-effector
   task ``p_d(τ)`` (e.g. the hexagon), ``ẋ_c = k·ṗ_d(τ) + K_p (p_d(τ) − x) + ẋ_rep``, the joint
@@ -49,6 +50,7 @@ class ObeyingRobot:
         self.dof = int(dof)
         self.tau = float(tau)
         self.override = 1.0                      # k of the newest reaction
+        self.speed_scale = 1.0                   # k times the reaction policies' scales (SSM, R33)
         self.qd_min: np.ndarray | None = None    # (dof,) rad/s, None before a reaction
         self.qd_max: np.ndarray | None = None
         self.repulsion = np.zeros(3)             # m/s, the end effector's (R13)
@@ -65,6 +67,7 @@ class ObeyingRobot:
         """Take a reaction (a :class:`~depthguard.runtime.result.Reaction` or anything with its
         ``override``, ``qd_min``, ``qd_max``; ``repulsion`` and ``ssm_scale`` optional)."""
         self.override = float(reaction.override)
+        self.speed_scale = float(getattr(reaction, "speed_scale", reaction.override))
         self.qd_min = np.asarray(reaction.qd_min, dtype=np.float64)
         self.qd_max = np.asarray(reaction.qd_max, dtype=np.float64)
         rep = getattr(reaction, "repulsion", None)
@@ -105,9 +108,11 @@ class PathFollower:
         bot.q = self.path_q(bot.tau)
 
     def command(self, bot: ObeyingRobot, dt: float) -> None:
-        """``rate``: the largest scale in ``[0, k]`` of the path's speed at ``τ`` that keeps every
-        joint within the reaction's velocity limits (R14)."""
-        s = bot.override
+        """``rate``: the largest scale in ``[0, s]`` of the path's speed at ``τ`` that keeps every
+        joint within the reaction's velocity limits (R14); ``s`` is the reaction's
+        ``speed_scale`` (the override times the policies' scales, R33), the override where a
+        reaction has none."""
+        s = bot.speed_scale
         if bot.qd_min is None or s <= 0.0:
             bot.rate = max(s, 0.0)
             return
