@@ -15,8 +15,9 @@ import math
 import numpy as np
 import pytest
 
-from depthguard.control.path_check import (FREE, OCCUPIED, UNKNOWN, check_path_states, sweep_states,
-                                           sweep_states_numpy, sample_path, touched_mask, validate_path)
+from depthguard.control.path_check import (FREE, OCCUPIED, UNKNOWN, STILL, _samples, check_path_states,
+                                           sample_path, sample_path_numpy, sweep_states, sweep_states_numpy,
+                                           touched_mask, validate_path)
 from depthguard.geometry.voxel_grid import VoxelGrid
 from depthguard.sim import load_cell
 
@@ -157,6 +158,20 @@ def test_kernel_equals_numpy_twin_on_random_maps(robot, path):
         w2, f2, o2 = sweep_states_numpy(state, ex, kn, dp, grid.lo, S, A, B, R, seg, n)
         assert np.array_equal(w, w2) and np.array_equal(o, o2)
         assert np.all(state.ravel()[f[f >= 0]] == w[f >= 0])
+
+
+def test_sampler_kernel_equals_its_numpy_twin_bit_for_bit(robot, path):
+    """The one-call sampler (forward kinematics, reach, resampling, pads, the still capsules in
+    numba) gives the numpy twin's samples exactly, and the capsules it calls still are those whose
+    axis ends move no more than STILL along the path."""
+    _, Q = path
+    for move in (0.25 * S, 0.02):
+        A, B, R, seg, moving = _samples(robot, Q, move, PAD)
+        A2, B2, R2, seg2 = sample_path_numpy(robot, Q, move, PAD)
+        for x, y in ((A, A2), (B, B2), (R, R2), (seg, seg2)):
+            assert x.shape == y.shape and np.array_equal(x, y)
+        still = np.max(np.abs(np.concatenate([A2 - A2[:1], B2 - B2[:1]], axis=0)), axis=(0, 2)) <= STILL
+        assert np.array_equal(moving, ~still) and still.any() and not still.all()
 
 
 def test_samples_move_at_most_a_quarter_voxel(robot, path):

@@ -35,8 +35,8 @@ judge (the robot is in the way), and they stay unknown — a path through them i
 never ``safe`` (issue 30: leaving out the padded start volume judged 18 colliding segments safe
 on flacco-cell).
 
-:func:`sweep_states` is the numba kernel (``cache=True``), :func:`sweep_states_numpy` its plain
-numpy twin (the tests hold them equal).
+The sweep is :mod:`depthguard.control.path_sweep` (:func:`sweep_states`, the numba kernel, and
+:func:`sweep_states_numpy`, its plain numpy twin; the tests hold them equal).
 """
 
 from __future__ import annotations
@@ -47,10 +47,11 @@ from dataclasses import dataclass, field
 import numba
 import numpy as np
 
+from depthguard.control.path_sweep import sweep_states, sweep_states_numpy
 from depthguard.robot.chain import forward_kernel
 
 __all__ = ["FREE", "UNKNOWN", "OCCUPIED", "VERDICTS", "SegmentVerdict", "PathVerdict", "check_path_states",
-           "validate_path", "sweep_states", "sweep_states_numpy", "sample_path", "capsule_ends", "touched_mask", "body_mask"]
+           "validate_path", "sweep_states", "sweep_states_numpy", "sample_path", "sample_path_numpy", "capsule_ends", "touched_mask", "body_mask"]
 
 FREE, UNKNOWN, OCCUPIED = 0, 1, 2
 VERDICTS = ("safe", "maybe", "unsafe")      # index = the worst state touched
@@ -198,6 +199,110 @@ def sample_path(robot, Q: np.ndarray, max_move: float, padding: float):
     every joint origin within ``E + r_max`` (it is inside a capsule), so the lever is at most
     ``max(2 E + r_max, 1 m)``. ``E`` is taken over the waypoints first, then over the samples,
     resampling while a sample reaches farther."""
+    A, B, R, seg, _ = _samples(robot, Q, max_move, padding)
+    return A, B, R, seg
+
+
+def _samples(robot, Q: np.ndarray, max_move: float, padding: float):
+    """:func:`sample_path` in one numba call, and per capsule whether its axis moves along the
+    path (K,) bool (more than :data:`STILL`)."""
+    c = robot.chain
+    r0 = np.array([cap.radius for cap in robot.capsules], dtype=np.float64)
+    return _samples_kernel(np.ascontiguousarray(Q, dtype=np.float64), np.ascontiguousarray(robot.base, dtype=np.float64),
+                           c.xf, c.ints, c.axis, c.support, robot._cap_link, robot._cap_ab, r0, float(padding),
+                           float(max_move), STILL)
+
+
+@numba.njit(cache=True, nogil=True)
+def _poses_ends(Qs, base, xf, ints, axis, support, cap_link, cap_ab, A, B, bpos):
+    """Capsule axis ends of each row of ``Qs`` into ``A``, ``B`` (rows, K, 3); returns the largest
+    distance (m) of an end from ``bpos`` (3,) (:func:`_axis_reach`)."""
+    L = ints.shape[0]
+    n = Qs.shape[1]
+    poses = np.empty((L, 4, 4))
+    jf = np.empty((L, 2, 3))
+    scratch = np.empty((3, 4, 4))
+    cp_link = np.empty(0, np.int64)
+    cp_off = np.empty((0, 3))
+    cp_pos = np.empty((0, 3))
+    cp_jac = np.empty((0, 3, n))
+    e = 0.0
+    for s in range(Qs.shape[0]):
+        forward_kernel(Qs[s], base, xf, ints, axis, support, cp_link, cp_off, poses, jf, scratch, cp_pos, cp_jac)
+        for k in range(cap_link.shape[0]):
+            T = poses[cap_link[k]]
+            for r in range(3):
+                A[s, k, r] = T[r, 0] * cap_ab[k, 0, 0] + T[r, 1] * cap_ab[k, 0, 1] + T[r, 2] * cap_ab[k, 0, 2] + T[r, 3]
+                B[s, k, r] = T[r, 0] * cap_ab[k, 1, 0] + T[r, 1] * cap_ab[k, 1, 1] + T[r, 2] * cap_ab[k, 1, 2] + T[r, 3]
+            da = math.sqrt((A[s, k, 0] - bpos[0]) ** 2 + (A[s, k, 1] - bpos[1]) ** 2 + (A[s, k, 2] - bpos[2]) ** 2)
+            db = math.sqrt((B[s, k, 0] - bpos[0]) ** 2 + (B[s, k, 1] - bpos[1]) ** 2 + (B[s, k, 2] - bpos[2]) ** 2)
+            e = max(e, da, db)
+    return e
+
+
+@numba.njit(cache=True, nogil=True)
+def _samples_kernel(Q, base, xf, ints, axis, support, cap_link, cap_ab, r0, padding, max_move, still):
+    """Numba form of :func:`sample_path_numpy` (the same expressions, so the same samples), plus
+    the capsules whose axis moves (module docstring)."""
+    nw = Q.shape[0]
+    dof = Q.shape[1]
+    K = cap_link.shape[0]
+    bpos = np.empty(3)
+    for r in range(3):
+        bpos[r] = base[r, 3]
+    r_max = 0.0
+    for k in range(K):
+        r_max = max(r_max, r0[k])
+    Aw = np.empty((nw, K, 3))
+    Bw = np.empty((nw, K, 3))
+    e = _poses_ends(Q, base, xf, ints, axis, support, cap_link, cap_ab, Aw, Bw, bpos)
+    l1 = np.zeros(nw - 1)
+    for i in range(nw - 1):
+        for j in range(dof):
+            l1[i] += abs(Q[i + 1, j] - Q[i, j])
+    n = np.empty(nw - 1, np.int64)
+    move = np.empty(nw - 1)
+    A = Aw
+    B = Bw
+    seg = np.empty(0, np.int64)
+    for _ in range(6):
+        lever = max(2.0 * e + r_max, 1.0)
+        total = 0
+        for i in range(nw - 1):
+            move[i] = l1[i] * lever
+            n[i] = max(1, int(math.ceil(move[i] / max_move)))
+            total += n[i] + 1
+        Qs = np.empty((total, dof))
+        seg = np.empty(total, np.int64)
+        m = 0
+        for i in range(nw - 1):
+            for j in range(n[i] + 1):
+                frac = j / n[i]
+                for d in range(dof):
+                    Qs[m, d] = Q[i, d] + frac * (Q[i + 1, d] - Q[i, d])
+                seg[m] = i
+                m += 1
+        A = np.empty((total, K, 3))
+        B = np.empty((total, K, 3))
+        e_seen = _poses_ends(Qs, base, xf, ints, axis, support, cap_link, cap_ab, A, B, bpos)
+        if e_seen <= e + 0.5 * max_move:
+            break
+        e = e_seen
+    S = A.shape[0]
+    R = np.empty((S, K))
+    moving = np.zeros(K, np.bool_)
+    for m in range(S):
+        pad = 0.5 * 1.05 * move[seg[m]] / n[seg[m]]
+        for k in range(K):
+            R[m, k] = r0[k] + padding + pad
+            for r in range(3):
+                if abs(A[m, k, r] - A[0, k, r]) > still or abs(B[m, k, r] - B[0, k, r]) > still:
+                    moving[k] = True
+    return A, B, R, seg, moving
+
+
+def sample_path_numpy(robot, Q: np.ndarray, max_move: float, padding: float):
+    """Plain numpy twin of :func:`sample_path` (the tests hold them equal)."""
     base = _base(robot)
     r0 = np.array([c.radius for c in robot.capsules], dtype=np.float64)
     r_max = float(np.max(r0))
@@ -221,105 +326,6 @@ def sample_path(robot, Q: np.ndarray, max_move: float, padding: float):
     pad = 0.5 * 1.05 * move / n
     R = r0[None, :] + float(padding) + pad[seg][:, None]
     return A, B, R, seg
-
-
-@numba.njit(cache=True, nogil=True)
-def sweep_states(state, exclude, known, dpad, lo, s, A, B, R, seg, n_seg, worst, first, outside):
-    """Numba kernel: per segment the worst state (0/1/2) of a voxel touched, the flat index of the
-    first such voxel (-1: none) and whether the swept robot leaves the box (module docstring).
-
-    state (nx, ny, nz) uint8, exclude (nx, ny, nz) bool, known (nx, ny, nz) bool the known scene's
-    voxels, touched with radii ``R - dpad`` (m), lo (3,) m, s m, A/B (S, K, 3) m, R (S, K)
-    m, seg (S,) int64; outputs worst (n_seg,) uint8, first (n_seg,) int64, outside (n_seg,) bool."""
-    nx, ny, nz = state.shape
-    hd = s * 0.8660254037844386
-    for i in range(n_seg):
-        worst[i] = 0
-        first[i] = -1
-        outside[i] = False
-    lo_i = np.empty(3, np.int64)
-    hi_i = np.empty(3, np.int64)
-    for k in range(A.shape[0]):
-        g = seg[k]
-        for c in range(A.shape[1]):
-            ax, ay, az = A[k, c, 0], A[k, c, 1], A[k, c, 2]
-            bx, by, bz = B[k, c, 0], B[k, c, 1], B[k, c, 2]
-            r = R[k, c]
-            reach = r + hd
-            dx, dy, dz = bx - ax, by - ay, bz - az
-            L2 = dx * dx + dy * dy + dz * dz
-            pa = (ax, ay, az)
-            pb = (bx, by, bz)
-            for d in range(3):
-                mn = min(pa[d], pb[d])
-                mx = max(pa[d], pb[d])
-                n_d = state.shape[d]
-                if mn - r < lo[d] or mx + r > lo[d] + n_d * s:
-                    outside[g] = True
-                a = int(math.floor((mn - reach - lo[d]) / s))
-                b = int(math.floor((mx + reach - lo[d]) / s)) + 1
-                lo_i[d] = min(max(a, 0), n_d)
-                hi_i[d] = min(max(b, 0), n_d)
-            if worst[g] == 2:                   # the segment is unsafe already: nothing worse to find
-                continue
-            r2 = reach * reach
-            rk = max(r - dpad, 0.0) + hd
-            rk2 = rk * rk
-            for ii in range(lo_i[0], hi_i[0]):
-                cx = lo[0] + (ii + 0.5) * s
-                for jj in range(lo_i[1], hi_i[1]):
-                    cy = lo[1] + (jj + 0.5) * s
-                    for kk in range(lo_i[2], hi_i[2]):
-                        st = state[ii, jj, kk]
-                        if st <= worst[g] or exclude[ii, jj, kk]:
-                            continue
-                        cz = lo[2] + (kk + 0.5) * s
-                        u = 0.0
-                        if L2 > 0.0:
-                            u = ((cx - ax) * dx + (cy - ay) * dy + (cz - az) * dz) / L2
-                            u = min(max(u, 0.0), 1.0)
-                        ex, ey, ez = cx - ax - u * dx, cy - ay - u * dy, cz - az - u * dz
-                        e2 = ex * ex + ey * ey + ez * ez
-                        if e2 <= r2 and (e2 <= rk2 or not known[ii, jj, kk]):
-                            worst[g] = st
-                            first[g] = (ii * ny + jj) * nz + kk
-    return worst
-
-
-def sweep_states_numpy(state, exclude, known, dpad, lo, s, A, B, R, seg, n_seg):
-    """Plain numpy twin of :func:`sweep_states`: (worst, first, outside) per segment. ``first`` may
-    name another voxel of the same worst state than the kernel's; the tests compare states."""
-    worst = np.zeros(n_seg, np.uint8)
-    first = np.full(n_seg, -1, np.int64)
-    outside = np.zeros(n_seg, bool)
-    shape = np.array(state.shape)
-    hd = s * _HALF_DIAG
-    for k in range(len(A)):
-        g = seg[k]
-        for c in range(A.shape[1]):
-            a, b, r = A[k, c], B[k, c], R[k, c]
-            mn, mx = np.minimum(a, b), np.maximum(a, b)
-            if np.any(mn - r < lo) or np.any(mx + r > lo + shape * s):
-                outside[g] = True
-            i0 = np.clip(np.floor((mn - r - hd - lo) / s).astype(int), 0, shape)
-            i1 = np.clip(np.floor((mx + r + hd - lo) / s).astype(int) + 1, 0, shape)
-            if np.any(i1 <= i0):
-                continue
-            idx = np.stack(np.meshgrid(*[np.arange(i0[d], i1[d]) for d in range(3)], indexing="ij"), -1).reshape(-1, 3)
-            cen = lo + (idx + 0.5) * s
-            ab = b - a
-            L2 = float(ab @ ab)
-            u = np.clip((cen - a) @ ab / L2, 0.0, 1.0) if L2 > 0 else np.zeros(len(cen))
-            dist = np.linalg.norm(cen - a - u[:, None] * ab, axis=1)
-            kn = known[idx[:, 0], idx[:, 1], idx[:, 2]]
-            hit = (dist <= r + hd) & (~kn | (dist <= max(r - dpad, 0.0) + hd))
-            hit &= ~exclude[idx[:, 0], idx[:, 1], idx[:, 2]]
-            st = state[idx[:, 0], idx[:, 1], idx[:, 2]] * hit
-            if st.size and st.max() > worst[g]:
-                m = int(np.argmax(st))
-                worst[g] = st[m]
-                first[g] = int(np.ravel_multi_index(tuple(idx[m]), state.shape))
-    return worst, first, outside
 
 
 def check_path_states(state, lo, voxel_size: float, robot, stamps, q, padding: float = 0.0,
@@ -352,10 +358,13 @@ def check_path_states(state, lo, voxel_size: float, robot, stamps, q, padding: f
         raise ValueError(f"known has shape {kn.shape}, the map {st.shape}")
     dpad = 0.0 if scene_padding is None else max(float(padding) - float(scene_padding), 0.0)
     mm = 0.25 * s if max_move is None else float(max_move)
-    A, B, R, seg = sample_path(robot, Q, mm, float(padding))
+    if twin:
+        A, B, R, seg = sample_path_numpy(robot, Q, mm, float(padding))
+        moving = np.max(np.abs(np.concatenate([A - A[:1], B - B[:1]], axis=0)), axis=(0, 2)) > STILL
+    else:
+        A, B, R, seg, moving = _samples(robot, Q, mm, float(padding))
     # a capsule whose axis stays put along the whole path (the base on its mount, a column turning
     # about its own axis) sweeps nothing it does not cover now: it is left out
-    moving = np.max(np.abs(np.concatenate([A - A[:1], B - B[:1]], axis=0)), axis=(0, 2)) > STILL
     if not moving.all():
         A, B, R = A[:, moving], B[:, moving], R[:, moving]
     n = len(Q) - 1

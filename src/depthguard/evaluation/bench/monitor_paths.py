@@ -7,7 +7,8 @@ monitor's worker; peer: the reproduction's own assembly (:class:`FreeSpaceProduc
 frames fused per camera, then the same map update) on the same frames.
 
 ``monitor.check_path_ms``: :meth:`Monitor.check_path`'s work (:func:`check_path_states`) for a
-5 s path of 100 waypoints in that map (goal <= 2 ms); peer: the reproduction's sweep
+5 s path of 100 waypoints in that map (goal <= 2 ms), and ``.free_map`` the same path in a map free
+everywhere (no segment's sweep ends early: the most work); peer: the reproduction's sweep
 (:func:`~depthguard.control.motion_check.check_motion`, the same path as one motion, its own
 step control and :meth:`VoxelGrid.touched_by`).
 """
@@ -87,6 +88,16 @@ def monitor_paths(ctx) -> list[BenchRow]:
                              "check_motion (the reproduction's sweep), same path", float(np.median(tm) * 1e3),
                              f"5 s path, 100 waypoints, {v.samples} samples, 5 cm, verdict {v.verdict}; goal <= 2 ms; "
                              f"worst {tc.max() * 1e3:.1f} ms"))
+        # the same path in a map that is free everywhere: no segment ends its sweep early (the
+        # check's most work; a verdict found unsafe early is the least)
+        free = np.zeros_like(snap.state)
+        tf = time_call(lambda: check_path_states(free, g.lo, g.voxel_size, robot, stamps, Q, padding=pad), reps)
+        tmf = time_call(lambda: check_motion(free != 0, g, motion), max(2, reps // 5), warmup=1)
+        vf = check_path_states(free, g.lo, g.voxel_size, robot, stamps, Q, padding=pad)
+        rows.append(BenchRow("monitor.check_path_ms.free_map", float(np.median(tf) * 1e3), "ms", None,
+                             "check_motion (the reproduction's sweep), same path and map", float(np.median(tmf) * 1e3),
+                             f"the path above in an all-free map: every sample swept, verdict {vf.verdict}; "
+                             f"goal <= 2 ms; worst {tf.max() * 1e3:.1f} ms"))
     finally:
         numba.set_num_threads(threads)
     return rows
