@@ -50,6 +50,7 @@ from depthguard.distance.gaps import GapBuffers, check_gap_px
 from depthguard.distance.silhouette import SilhouetteBuffers, check_silhouette_px
 from depthguard.fusion import depth_grid_capsules, depth_grid_eager, depth_grid_kernels, depth_grid_lazy, depth_grid_lookup
 from depthguard.fusion.depth_grid_memo import new_memo
+from depthguard.fusion.depth_grid_data import lazy_model
 from depthguard.fusion.depth_grid_query import GridQuery
 from depthguard.fusion.depth_grid_robot import GridRobot
 from depthguard.fusion.depth_grid_offline import corner_rays, default_cache_dir, load_map, map_key, save_map
@@ -264,6 +265,7 @@ class DepthGridMap(GridRobot, GridQuery):
         self._rays_arg = self.rays if nk else np.zeros((1, 1, 1, 3))
         self._orig_arg = self.origins if nk else np.zeros((1, 3))
         self._kint_arg = self._kint if nk else np.zeros((1, 8))
+        self._lazy_model = lazy_model(self)      # the camera set's tables as the lazy kernels take them
 
     def touch(self) -> int:
         """Write every memory page of the lazy path's per-frame buffers once, now, leaving their

@@ -309,9 +309,7 @@ def _lowest_stop(cbits, obits, v, u, lo, hi, with_obst):
 
 
 @njit(cache=True, parallel=True, nogil=True)
-def ensure_cells(pfree, pkind, tmin, pint, dmin, dd, nd, kfree, kpmin, kpmax, koff, kdims, rays, origins,
-                 kint, nk, kmemo, caps, ncaps, cap_lo, cap_hi, cap_n, band, Rp, tp, points, n_points, rho,
-                 frame, stamp, obits, cbits, clear, free_to, ws, span):
+def ensure_cells(model, fr, memo, points, n_points, rho, ws, span):
     """Lazy per-frame work (R12): classify every cell that a query of these points can
     look at — per pixel of each point's region of surveillance outside case 1, the
     slices within ``rho`` of the point (:func:`_needed_slices`) from ``r(df)`` on, inside
@@ -320,8 +318,15 @@ def ensure_cells(pfree, pkind, tmin, pint, dmin, dd, nd, kfree, kpmin, kpmax, ko
     pixel the points' slice ranges are merged first (``lo..hi`` from the smallest to the
     largest slice any point needs) and classified in one pass: long stretches let the
     pyramids settle many cells at once (R12 classes do not depend on the order).
+    model, fr, memo : the grid's :class:`~depthguard.fusion.depth_grid_data.LazyModel`,
+    :class:`~depthguard.fusion.depth_grid_data.LazyFrame` and
+    :class:`~depthguard.fusion.depth_grid_data.LazyMemo` (the memo filled in place).
+    points : (>= n_points, 3) float64 world m; rho : m.
     ws : (>= n_points, 10) float64 workspace (per point: px, py, dp, window, slices).
     span : (2, H, W) int32 workspace (per pixel: the merged range)."""
+    pint, Rp, tp, dmin, dd, nd, koff, kdims, rays, origins, kint, nk = model
+    pfree, pkind, tmin, kfree, kpmin, kpmax, caps, ncaps, cap_lo, cap_hi, cap_n, band = fr
+    frame, stamp, obits, cbits, clear, free_to, kmemo = memo
     H = pfree.shape[0]
     W = pfree.shape[1]
     fx = pint[0]

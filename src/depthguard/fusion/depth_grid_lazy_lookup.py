@@ -134,11 +134,7 @@ def _column_bits(u, v, gs, ncp, nd, obits, caps, ncaps, cap_lo, cap_hi, ax, ay, 
 
 
 @njit(cache=True, parallel=True, nogil=True)
-def grid_distances_lazy(pfree, tmin, obits, cap_n, caps, ncaps, cap_lo, cap_hi, nd, Rp, tp, pint, dmin, dd,
-                        points, n_points, rho, method,
-                        out_distance, out_direction, out_count, out_observed,
-                        fill, pkind, kfree, kpmin, kpmax, koff, kdims, rays, origins, kint, nk, kmemo, band,
-                        frame, stamp, cbits, clear, free_to, axbuf, rho_core):
+def grid_distances_lazy(model, fr, memo, points, n_points, rho, method, out, fill, axbuf, rho_core):
     """:func:`~depthguard.fusion.depth_grid_lookup.grid_distances` over the memoised cells: same cases, same R10 distance, same
     R7 reduction. ``fill`` False: :func:`ensure_cells` was called first with the same
     points. ``fill`` True: the cells are classified here as they are met (one pass; only
@@ -151,7 +147,16 @@ def grid_distances_lazy(pfree, tmin, obits, cap_n, caps, ncaps, cap_lo, cap_hi, 
     one in the band gets the band's nearest distance and its direction (the min rule). With
     ``rho_core == rho`` there is no band: the R7 answer of radius ``rho``. The band lets a
     result stay a bound for a point that moved less than ``rho - rho_core`` since
-    (:mod:`depthguard.runtime.distances`)."""
+    (:mod:`depthguard.runtime.distances`).
+
+    model, fr, memo : the grid's :class:`~depthguard.fusion.depth_grid_data.LazyModel`,
+    :class:`~depthguard.fusion.depth_grid_data.LazyFrame`, :class:`~depthguard.fusion.depth_grid_data.LazyMemo`;
+    points : (>= n_points, 3) float64 world m; rho, rho_core : m; method : METHOD_*;
+    out : ``(distance (N,) m, direction (N, 3), count (N,) int64, observed (N,) bool)``, written."""
+    pint, Rp, tp, dmin, dd, nd, koff, kdims, rays, origins, kint, nk = model
+    pfree, pkind, tmin, kfree, kpmin, kpmax, caps, ncaps, cap_lo, cap_hi, cap_n, band = fr
+    frame, stamp, obits, cbits, clear, free_to, kmemo = memo
+    out_distance, out_direction, out_count, out_observed = out
     H = pfree.shape[0]
     W = pfree.shape[1]
     fx = pint[0]

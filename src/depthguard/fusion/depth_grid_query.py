@@ -13,6 +13,7 @@ from __future__ import annotations
 from depthguard.config import PRODUCT_INVALID, PRODUCT_METHOD, PRODUCT_RHO, PRODUCT_ROBOT_IN_OTHERS, PRODUCT_ROBOT_OFFSET   # the product's defaults, defined once
 from depthguard.distance.api import DistanceResult, check_points, check_rho
 from depthguard.fusion import depth_grid_kernels, depth_grid_lazy, depth_grid_lazy_lookup, depth_grid_lookup
+from depthguard.fusion.depth_grid_data import lazy_frame, lazy_memo
 
 __all__ = ["GridQuery"]
 
@@ -107,12 +108,7 @@ class GridQuery:
             self._ensure_rows(p, n, r)
 
     def _ensure_rows(self, p, n, r) -> None:
-        depth_grid_lazy.ensure_cells(self._pfree, self._pkind, self._tmin, self._pint, self.d_min, self.delta_d, self.n_d,
-                       self._kfree, self._kpmin, self._kpmax, self._koff, self._kdims, self._rays_arg,
-                       self._orig_arg, self._kint_arg, len(self.others), self._kmemo, self._caps, self._ncaps,
-                       self._cap_lo, self._cap_hi, self._cap_n, self._band, self._Rp, self._tp, p, n, r,
-                       self._frame, self._stamp, self._obits, self._cbits, self._clear, self._free_to,
-                       self._ws, self._span)
+        depth_grid_lazy.ensure_cells(self._lazy_model, lazy_frame(self), lazy_memo(self), p, n, r, self._ws, self._span)
 
     def _run_query(self, p, n, r, m, rc=None) -> None:
         if self.lazy:
@@ -121,14 +117,9 @@ class GridQuery:
             fill = numba.get_num_threads() == 1
             if not fill:
                 self._ensure(p, n, r)
-            depth_grid_lazy_lookup.grid_distances_lazy(self._pfree, self._tmin, self._obits, self._cap_n, self._caps, self._ncaps,
-                                  self._cap_lo, self._cap_hi, self.n_d, self._Rp, self._tp, self._pint,
-                                  self.d_min, self.delta_d, p, n, r, m,
-                                  self._dist, self._dir, self._count, self._obs,
-                                  fill, self._pkind, self._kfree, self._kpmin, self._kpmax, self._koff,
-                                  self._kdims, self._rays_arg, self._orig_arg, self._kint_arg,
-                                  len(self.others), self._kmemo, self._band, self._frame, self._stamp, self._cbits,
-                                  self._clear, self._free_to, self._axbuf, r if rc is None else rc)
+            depth_grid_lazy_lookup.grid_distances_lazy(self._lazy_model, lazy_frame(self), lazy_memo(self), p, n, r, m,
+                                                       (self._dist, self._dir, self._count, self._obs), fill,
+                                                       self._axbuf, r if rc is None else rc)
             return
         depth_grid_lookup.grid_distances(self._pfree, self._runs, self._nruns, self._tile_first, self._Rp, self._tp, self._pint,
                          self.d_min, self.delta_d, p, n, r, m,
