@@ -257,13 +257,14 @@ def _fill(key, A0, B0, X0, Y0, A1, B1, X1, Y1, A2, B2, X2, Y2, Pa, Pb, xw, yw, w
                 e0 = A0 * (x - X0) + r0e
                 e1 = A1 * (x - X1) + r1e
                 e2 = A2 * (x - X2) + r2e
-                out = ((e0 < 0.0) | ((e0 == 0.0) & nt0) | (e1 < 0.0) | ((e1 == 0.0) & nt1)
-                       | (e2 < 0.0) | ((e2 == 0.0) & nt2))
+                out = (int(e0 < 0.0) | int((e0 == 0.0) & nt0) | int(e1 < 0.0) | int((e1 == 0.0) & nt1)
+                       | int(e2 < 0.0) | int((e2 == 0.0) & nt2))
                 w = Pa * (x - xw) + rp
                 old = wbuf[v, u]
-                win = (w > old) & (not out)
-                wbuf[v, u] = w if win else old
-                sbuf[v, u] = key if win else sbuf[v, u]
+                win = int(w > old) & (1 - out)
+                wbuf[v, u] = max(old, w * win)     # w > old >= 0 where it wins, else old
+                s0 = sbuf[v, u]
+                sbuf[v, u] = s0 + (key - s0) * win
         return
     i0 = 1.0 / A0 if A0 != 0.0 else 0.0
     i1 = 1.0 / A1 if A1 != 0.0 else 0.0

@@ -123,6 +123,7 @@ class Renderer:
         self._face_label = np.zeros(0, dtype=np.int32)
         self._tri = np.zeros((0, 18))                       # the parallel kernel's slots
         self._box = np.zeros((0, 4), dtype=np.int32)
+        self._bound = None                                  # (n_v, n_f, n_meshes, meshes) of bind()
 
     # -------------------------------------------------------------- buffers
     def _reserve(self, n_v: int, n_f: int) -> None:
@@ -152,6 +153,33 @@ class Renderer:
             np.concatenate([m.faces for m in meshes], out=self._faces[:n_f])
         return n_v, n_f
 
+    # ------------------------------------------------- fixed topology (R16)
+    def bind(self, meshes: Sequence) -> np.ndarray:
+        """Pack the faces of ``meshes`` once, for :meth:`render_bound`; returns the (V, 3)
+        float64 buffer of their packed vertices (all meshes one after the other), which the
+        caller fills with world vertices before each :meth:`render_bound` (e.g.
+        :meth:`~depthguard.robot.RobotModel.render_link_vertices`). A :meth:`render` call
+        unbinds."""
+        ms = _mesh_list(meshes)
+        n_v, n_f = self._pack(ms)
+        self._bound = (n_v, n_f, len(ms), ms)
+        return self._vw[:n_v]
+
+    def render_bound(self, cull_back: bool = True) -> tuple[np.ndarray, np.ndarray]:
+        """:meth:`render` of the bound meshes with the vertices now in :meth:`bind`'s buffer:
+        the same images as :meth:`render` of those meshes, without packing them again."""
+        if self._bound is None:
+            raise RuntimeError("render_bound() needs bind(meshes) first")
+        n_v, n_f, n_m, ms = self._bound
+        status = self._draw(n_v, n_f, n_m, bool(cull_back))
+        if status != 0:
+            if status == 1:
+                for k, m in enumerate(ms):   # as_mesh names the mesh and the problem
+                    as_mesh(m, name=f"meshes[{k}]")
+            raise ValueError("meshes: " + ("a face index lies outside its mesh" if status == 1
+                                           else "vertices must be finite"))
+        return self.depth, self.labels
+
     # --------------------------------------------------------------- render
     def render(self, meshes: Sequence, cull_back: bool = True) -> tuple[np.ndarray, np.ndarray]:
         """Render ``meshes`` (world coordinates) into the camera (R16).
@@ -170,6 +198,7 @@ class Renderer:
         labels : (H, W) int32 view of ``self.labels``; index into ``meshes``, -1 = nothing.
         """
         ms = _mesh_list(meshes)
+        self._bound = None
         n_v, n_f = self._pack(ms)
         status = self._draw(n_v, n_f, len(ms), bool(cull_back))
         if status != 0:
