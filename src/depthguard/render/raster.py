@@ -41,6 +41,12 @@ behind) vertex pair, identically in both triangles. (Floating-point edge
 functions, not fixed point: an edge passing within rounding of a pixel
 centre may go either way, but consistently for its two triangles.)
 
+The kernels are compiled with numba's ``error_model="numpy"`` (no zero-division check
+per division): no division here can have a zero divisor (``z >= near > 0``, a
+triangle's area is tested != 0, ``1/A`` only where ``A != 0``, ``1/w`` only where a
+triangle won the pixel with ``w > 0``, a clipped edge has one end on each side of
+the near plane).
+
 Buffers (all preallocated by the caller, nothing is allocated here):
 
 - ``vw`` (V, 3) float64 world vertices and ``faces`` (F, 3) int32 of all
@@ -76,7 +82,7 @@ from numba import njit, prange
 
 __all__ = ["render_packed", "render_packed_parallel", "check_and_label"]
 
-@njit(cache=True, inline="always")
+@njit(cache=True, error_model="numpy", inline="always")
 def _transform_one(vw, R, t, vc, i):
     """``vc[i, :3] = R @ vw[i] + t`` (equation 1)."""
     x = vw[i, 0]
@@ -86,7 +92,7 @@ def _transform_one(vw, R, t, vc, i):
         vc[i, k] = R[k, 0] * x + R[k, 1] * y + R[k, 2] * z + t[k]
 
 
-@njit(cache=True, inline="always")
+@njit(cache=True, error_model="numpy", inline="always")
 def _project_one(vc, i, near, fx, fy, cx, cy):
     """``vc[i, 3:6] = (px, py, 1/z)`` of a vertex at or beyond the near plane (equation 2,
     the operations of a per-face projection: the same bits); left as is otherwise."""
@@ -98,7 +104,7 @@ def _project_one(vc, i, near, fx, fy, cx, cy):
         vc[i, 5] = iz
 
 
-@njit(cache=True, inline="always")
+@njit(cache=True, error_model="numpy", inline="always")
 def _edge(x0, y0, x1, y1):
     """Edge function of the directed edge (x0,y0)->(x1,y1), anchored at its canonical end.
 
@@ -117,7 +123,7 @@ def _edge(x0, y0, x1, y1):
     return (-A if flip else A), (-B if flip else B), px, py
 
 
-@njit(cache=True, inline="always")
+@njit(cache=True, error_model="numpy", inline="always")
 def _tri_setup(x0, y0, iz0, x1, y1, iz1, x2, y2, iz2, W, H):
     """Screen-space setup of one triangle (``(x_i, y_i)`` pixel coordinates, ``iz_i = 1/z_i``).
 
@@ -160,14 +166,14 @@ def _tri_setup(x0, y0, iz0, x1, y1, iz1, x2, y2, iz2, W, H):
     return True, A0, B0, X0, Y0, A1, B1, X1, Y1, A2, B2, X2, Y2, Pa, Pb, tl, u0, u1, v0, v1
 
 
-@njit(cache=True, inline="always")
+@njit(cache=True, error_model="numpy", inline="always")
 def _clip_point(xi, yi, zi, xo, yo, zo, near):
     """Point of the segment (inside -> outside) on the plane ``z = near``."""
     a = (near - zi) / (zo - zi)
     return xi + a * (xo - xi), yi + a * (yo - yi)
 
 
-@njit(cache=True, inline="always")
+@njit(cache=True, error_model="numpy", inline="always")
 def _clip_face(vc, ia, ib, ic, near, cull_back, fx, fy, cx, cy):
     """Cull and clip the face with packed vertex rows ``ia, ib, ic`` of ``vc`` (projected by
     :func:`_project_one`). Returns ``(n, px, py, pz, x1, y1, iz1, x2, y2, iz2, x3, y3)``:
@@ -218,7 +224,7 @@ def _clip_face(vc, ia, ib, ic, near, cull_back, fx, fy, cx, cy):
             x2 * fx * inear + cx, y2 * fy * inear + cy, inear, 0., 0.)
 
 
-@njit(cache=True, inline="always")
+@njit(cache=True, error_model="numpy", inline="always")
 def _inside(x, A0, X0, r0, t0, A1, X1, r1, t1, A2, X2, r2, t2):
     """Pixel centre at column ``x`` of a row covered (edge values ``A (x - X) + r``, top-left ties)."""
     e0 = A0 * (x - X0) + r0
@@ -233,7 +239,7 @@ def _inside(x, A0, X0, r0, t0, A1, X1, r1, t1, A2, X2, r2, t2):
     return True
 
 
-@njit(cache=True, inline="always")
+@njit(cache=True, error_model="numpy", inline="always")
 def _fill(key, A0, B0, X0, Y0, A1, B1, X1, Y1, A2, B2, X2, Y2, Pa, Pb, xw, yw, w0, tl, ua, ub, va, vb,
           wbuf, sbuf):
     """Z-buffer one set-up triangle (``key`` = its face) into rows ``va .. vb``, columns
@@ -313,7 +319,7 @@ def _fill(key, A0, B0, X0, Y0, A1, B1, X1, Y1, A2, B2, X2, Y2, Pa, Pb, xw, yw, w
                 sbuf[v, u] = key
 
 
-@njit(cache=True, nogil=True)
+@njit(cache=True, error_model="numpy", nogil=True)
 def _read_out(r0, r1, u0, u1, wbuf, sbuf, face_label, depth, labels, face_ids):
     """Rows ``r0 .. r1-1``, columns ``u0 .. u1`` of ``depth = float32(1/w)`` (0 = nothing),
     ``labels`` (mesh) and ``face_ids`` (packed face; -1 = nothing) from the z-buffer, which is
@@ -333,7 +339,7 @@ def _read_out(r0, r1, u0, u1, wbuf, sbuf, face_label, depth, labels, face_ids):
                 face_ids[v, u] = -1
 
 
-@njit(cache=True, nogil=True)
+@njit(cache=True, error_model="numpy", nogil=True)
 def check_and_label(vw, n_v, faces, mesh_off, n_meshes, face_label):
     """Check the packed input and write ``face_label``.
 
@@ -354,7 +360,7 @@ def check_and_label(vw, n_v, faces, mesh_off, n_meshes, face_label):
     return 0, -1
 
 
-@njit(cache=True, nogil=True)
+@njit(cache=True, error_model="numpy", nogil=True)
 def render_packed(vw, n_v, faces, n_f, mesh_off, n_meshes, face_label, R, t, fx, fy, cx, cy,
                   near, cull_back, vc, wbuf, sbuf, depth, labels, face_ids, dirty):
     """Render packed buffers on one core (see the module docstring for shapes).
@@ -411,7 +417,7 @@ def render_packed(vw, n_v, faces, n_f, mesh_off, n_meshes, face_label, R, t, fx,
     return 0, -1, n
 
 
-@njit(cache=True, parallel=True, nogil=True)
+@njit(cache=True, error_model="numpy", parallel=True, nogil=True)
 def render_packed_parallel(vw, n_v, faces, n_f, mesh_off, n_meshes, face_label, R, t, fx, fy, cx, cy,
                            near, cull_back, vc, tri, box, n_bands, wbuf, sbuf,
                            depth, labels, face_ids, dirty):
