@@ -62,6 +62,7 @@ class ExpectedDepth:
         self._no_robot.flags.writeable = False
         # a RobotModel fills the bound renderer's vertex buffer itself (no meshes made per frame)
         self._vertices = None
+        self._last_q = None                  # the joints of the image in the renderer's buffer
         if robot is not None and hasattr(robot, "render_link_vertices"):
             self._vertices = self._renderer.bind(robot.render_link_topology(robot_cell))
 
@@ -76,8 +77,13 @@ class ExpectedDepth:
         if qa.shape[0] != self.robot_model.dof or not np.all(np.isfinite(qa)):
             raise ValueError(f"expected {self.robot_model.dof} finite joint values, got {qa.tolist()}")
         if self._vertices is not None:
+            if self._last_q is not None and np.array_equal(qa, self._last_q):
+                return self._renderer.depth      # a robot at rest: the image is still there
+            self._last_q = None
             self.robot_model.render_link_vertices(qa, self.robot_cell, self._vertices)
-            return self._renderer.render_bound()[0]
+            depth = self._renderer.render_bound()[0]
+            self._last_q = qa.copy()
+            return depth
         return self._renderer.render(self.robot_model.render_link_meshes(qa, self.robot_cell))[0]
 
     def known(self, q) -> np.ndarray:
