@@ -271,6 +271,42 @@ def test_renderer_reuses_buffers_and_grows():
     np.testing.assert_array_equal(d3, ref1)   # nothing left over from the bigger scene
     d4, l4 = r.render([])
     assert not d4.any() and np.all(l4 == -1)
+    # a call reads out only its window and the last call's: nothing else may write the images
+    for img in (d4, l4, r.face_ids):
+        with pytest.raises(ValueError, match="read-only"):
+            img[0, 0] = 1
+
+
+def test_robot_render_bound_equals_a_fresh_render_and_the_twin():
+    """ExpectedDepth.robot (the renderer bound to the clustered link meshes, the model writing
+    their world vertices into its buffer) gives, frame after frame as the robot moves in and out
+    of view, bit for bit the image of a fresh serial and parallel render of
+    ``render_link_meshes(q)``; at a small resolution also the plain-numpy twin's."""
+    from depthguard.filtering.expected import ExpectedDepth
+    from depthguard.sim import load_cell
+
+    rig = load_cell("ur3-cell").rig
+    robot = rig.robot
+    rng = np.random.default_rng(4)
+    qs = [np.clip(robot.q_home + rng.uniform(-1.5, 1.5, robot.dof), robot.q_min, robot.q_max) for _ in range(4)]
+    away = robot.with_base(_tz(50.0))            # far above every camera's view: an empty image
+    for cam in rig.cameras[:2]:
+        ex, ex_away = ExpectedDepth(cam, robot, []), ExpectedDepth(cam, away, [])
+        rp = Renderer(cam, parallel=True)
+        for q in qs + qs[:1] + qs[:1]:           # the same joints twice in a row: the image kept
+            want = np.array(Renderer(cam).render(robot.render_link_meshes(q))[0], copy=True)
+            assert (want > 0).sum() > 500
+            got = ex.robot(q)
+            assert np.array_equal(got, want)
+            assert np.array_equal(rp.render(robot.render_link_meshes(q))[0], want)
+            assert not ex_away.robot(q).any()
+        assert not ex.robot(qs[0]).flags.writeable
+    small = dg.Camera("small", 160, 120, 96.0, 96.0, 79.5, 59.5, rig.cameras[0].world_from_camera)
+    ex = ExpectedDepth(small, robot, [])
+    for q in qs[:2]:
+        d2, _, _ = render_depth_numpy(small, robot.render_link_meshes(q))
+        assert (d2 > 0).sum() > 100
+        np.testing.assert_allclose(ex.robot(q), d2, rtol=0, atol=1e-6)
 
 
 def test_inputs_accepted_and_rejected():
@@ -418,7 +454,7 @@ def test_builtin_cells_match_embree(name):
 
 @pytest.mark.slow
 def test_bench_group_quick_rows():
-    """The ``render`` bench group (quick mode) yields its three rows, each with the Embree
+    """The ``render`` bench group (quick mode) yields its five rows, each with the Embree
     peer measured on the same frame (no speed is asserted: timings belong to the bench)."""
     from depthguard.evaluation.bench import BenchContext
     from depthguard.evaluation.bench.render import bench_render
@@ -427,7 +463,8 @@ def test_bench_group_quick_rows():
 
     rows = {r.name: r for r in bench_render(BenchContext(quick=True, repeats=3))}
     assert set(rows) == {"render.ur3_cell.640x480_ms", "render.ur3_cell.1280x720_ms",
-                         "render.soup200k.640x480_ms"}
+                         "render.soup200k.640x480_ms", "render.ur3_cell.robot_640x480_ms",
+                         "render.flacco_cell.robot_640x480_ms"}
     for r in rows.values():
         assert r.unit == "ms" and r.peer == "embree"
         assert np.isfinite(r.value) and r.value > 0

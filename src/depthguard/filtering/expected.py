@@ -38,8 +38,9 @@ class ExpectedDepth:
         :data:`~depthguard.geometry.decimate.SIM_CELL`).
 
     ``static`` is the (H, W) float32 static scene in metres (0 = nothing);
-    :meth:`robot` renders the robot at ``q`` and returns a reused (H, W) float32
-    image (copy it to keep it); :meth:`known` the nearest of both.
+    :meth:`robot` renders the robot at ``q`` and returns the renderer's (H, W) float32
+    image (read-only, overwritten by the next call: copy it to keep it); :meth:`known`
+    the nearest of both.
     """
 
     def __init__(self, cam, robot=None, static_meshes=(), parallel: bool = False, learned=None,
@@ -56,20 +57,34 @@ class ExpectedDepth:
             if ld.shape != tuple(cam.shape):
                 raise ValueError(f"camera {cam.id}: learned scene is {ld.shape}, the camera {tuple(cam.shape)}")
             nearest_depth(self.static, np.ascontiguousarray(ld))
-        self._robot = np.zeros(cam.shape, dtype=np.float32)
         self._known = np.zeros(cam.shape, dtype=np.float32)
+        self._no_robot = np.zeros(cam.shape, dtype=np.float32)
+        self._no_robot.flags.writeable = False
+        # a RobotModel fills the bound renderer's vertex buffer itself (no meshes made per frame)
+        self._vertices = None
+        self._last_q = None                  # the joints of the image in the renderer's buffer
+        if robot is not None and hasattr(robot, "render_link_vertices"):
+            self._vertices = self._renderer.bind(robot.render_link_topology(robot_cell))
 
     def robot(self, q) -> np.ndarray:
         """(H, W) float32 m: the robot's link meshes at joints ``q`` (clustered to ``robot_cell``;
-        0 where no robot); reused buffer."""
+        0 where no robot). A **read-only view of the renderer's buffer**, overwritten by the next
+        call (copy it to keep it); the renderer reads out only the pixels the robot can cover
+        now or covered last time, so nothing may write into it (R9, R16, R30)."""
         if self.robot_model is None:
-            self._robot.fill(0.0)
-            return self._robot
+            return self._no_robot
         qa = np.asarray(q, dtype=np.float64).reshape(-1)
         if qa.shape[0] != self.robot_model.dof or not np.all(np.isfinite(qa)):
             raise ValueError(f"expected {self.robot_model.dof} finite joint values, got {qa.tolist()}")
-        np.copyto(self._robot, self._renderer.render(self.robot_model.render_link_meshes(qa, self.robot_cell))[0])
-        return self._robot
+        if self._vertices is not None:
+            if self._last_q is not None and np.array_equal(qa, self._last_q):
+                return self._renderer.depth      # a robot at rest: the image is still there
+            self._last_q = None
+            self.robot_model.render_link_vertices(qa, self.robot_cell, self._vertices)
+            depth = self._renderer.render_bound()[0]
+            self._last_q = qa.copy()
+            return depth
+        return self._renderer.render(self.robot_model.render_link_meshes(qa, self.robot_cell))[0]
 
     def known(self, q) -> np.ndarray:
         """(H, W) float32 m: static scene and robot at ``q`` together (R16); reused buffer."""

@@ -26,6 +26,12 @@ from depthguard.render.raster import render_packed, render_packed_parallel
 __all__ = ["Renderer", "render_depth"]
 
 
+def _read_only(a: np.ndarray) -> np.ndarray:
+    v = a.view()
+    v.flags.writeable = False
+    return v
+
+
 def _checked(m, k: int) -> Mesh:
     """A :class:`Mesh` with float64 (V, 3) vertices and int32 (F, 3) faces. A ``Mesh`` that
     already has them passes as is (the kernel then checks values: finite vertices and
@@ -69,11 +75,14 @@ class Renderer:
 
     The depth / label images and the packed vertex / face / label buffers are
     allocated once and grown when a call brings more triangles; the kernels
-    allocate nothing. :meth:`render` returns **views of the renderer's own
+    allocate nothing. :meth:`render` returns **read-only views of the renderer's own
     buffers** (``self.depth``, ``self.labels``): the next call overwrites them,
     so copy what you keep. ``self.face_ids`` holds the packed index of the face
     owning each pixel (see :meth:`face_index` for the index within its mesh).
-    One renderer per thread: its buffers are not shared safely.
+    A call reads out only the window of pixels its triangles and the last call's
+    can cover (outside it the images hold 0 / -1 already): the views are read-only
+    so that nothing else can write there. One renderer per thread: its buffers are
+    not shared safely.
     """
 
     def __init__(self, cam, near: float = 0.01, parallel: bool = False, n_bands: int | None = None):
@@ -96,33 +105,39 @@ class Renderer:
         self.n_bands = int(max(1, min(n_bands, H)))
         self._R = np.ascontiguousarray(cam.R, dtype=np.float64)
         self._t = np.ascontiguousarray(cam.t, dtype=np.float64)
-        self.depth = np.zeros((H, W), dtype=np.float32)
-        self.labels = np.full((H, W), -1, dtype=np.int32)
-        self.face_ids = np.full((H, W), -1, dtype=np.int32)
+        # the kernels write these; the public images are read-only views of them, because a
+        # call reads out only the window its triangles and the last call's touch
+        self._depth = np.zeros((H, W), dtype=np.float32)
+        self._labels = np.full((H, W), -1, dtype=np.int32)
+        self._face_ids = np.full((H, W), -1, dtype=np.int32)
+        self.depth = _read_only(self._depth)
+        self.labels = _read_only(self._labels)
+        self.face_ids = _read_only(self._face_ids)
+        self._dirty = np.array([1 << 30, -1, 1 << 30, -1], dtype=np.int64)   # last call's window (empty)
         self._wbuf = np.zeros((H, W))                       # 1/z z-buffer (workspace, clear between calls)
         self._sbuf = np.full((H, W), -1, dtype=np.int32)    # winning slot (workspace)
         self._mesh_off = np.zeros((1, 2), dtype=np.int64)
         self._vw = np.zeros((0, 3))
-        self._vc = np.zeros((0, 3))
+        self._vc = np.zeros((0, 6))
         self._faces = np.zeros((0, 3), dtype=np.int32)
         self._face_label = np.zeros(0, dtype=np.int32)
-        self._tri = np.zeros((0, 18))
+        self._tri = np.zeros((0, 18))                       # the parallel kernel's slots
         self._box = np.zeros((0, 4), dtype=np.int32)
-        self._slot_label = np.zeros((0, 2), dtype=np.int32)
+        self._bound = None                                  # (n_v, n_f, n_meshes, meshes) of bind()
 
     # -------------------------------------------------------------- buffers
     def _reserve(self, n_v: int, n_f: int) -> None:
         if n_v > len(self._vw):
             cap = max(n_v, 2 * len(self._vw), 1024)
             self._vw = np.zeros((cap, 3))
-            self._vc = np.zeros((cap, 3))
+            self._vc = np.zeros((cap, 6))
         if n_f > len(self._faces):
             cap = max(n_f, 2 * len(self._faces), 1024)
             self._faces = np.zeros((cap, 3), dtype=np.int32)
             self._face_label = np.zeros(cap, dtype=np.int32)
-            self._tri = np.zeros((2 * cap, 18))
-            self._box = np.zeros((2 * cap, 4), dtype=np.int32)
-            self._slot_label = np.zeros((2 * cap, 2), dtype=np.int32)
+            if self.parallel:
+                self._tri = np.zeros((2 * cap, 18))
+                self._box = np.zeros((2 * cap, 4), dtype=np.int32)
 
     def _pack(self, meshes: list[Mesh]) -> tuple[int, int]:
         nv = [len(m.vertices) for m in meshes]
@@ -137,6 +152,33 @@ class Renderer:
         if n_f:
             np.concatenate([m.faces for m in meshes], out=self._faces[:n_f])
         return n_v, n_f
+
+    # ------------------------------------------------- fixed topology (R16)
+    def bind(self, meshes: Sequence) -> np.ndarray:
+        """Pack the faces of ``meshes`` once, for :meth:`render_bound`; returns the (V, 3)
+        float64 buffer of their packed vertices (all meshes one after the other), which the
+        caller fills with world vertices before each :meth:`render_bound` (e.g.
+        :meth:`~depthguard.robot.RobotModel.render_link_vertices`). A :meth:`render` call
+        unbinds."""
+        ms = _mesh_list(meshes)
+        n_v, n_f = self._pack(ms)
+        self._bound = (n_v, n_f, len(ms), ms)
+        return self._vw[:n_v]
+
+    def render_bound(self, cull_back: bool = True) -> tuple[np.ndarray, np.ndarray]:
+        """:meth:`render` of the bound meshes with the vertices now in :meth:`bind`'s buffer:
+        the same images as :meth:`render` of those meshes, without packing them again."""
+        if self._bound is None:
+            raise RuntimeError("render_bound() needs bind(meshes) first")
+        n_v, n_f, n_m, ms = self._bound
+        status = self._draw(n_v, n_f, n_m, bool(cull_back))
+        if status != 0:
+            if status == 1:
+                for k, m in enumerate(ms):   # as_mesh names the mesh and the problem
+                    as_mesh(m, name=f"meshes[{k}]")
+            raise ValueError("meshes: " + ("a face index lies outside its mesh" if status == 1
+                                           else "vertices must be finite"))
+        return self.depth, self.labels
 
     # --------------------------------------------------------------- render
     def render(self, meshes: Sequence, cull_back: bool = True) -> tuple[np.ndarray, np.ndarray]:
@@ -156,26 +198,36 @@ class Renderer:
         labels : (H, W) int32 view of ``self.labels``; index into ``meshes``, -1 = nothing.
         """
         ms = _mesh_list(meshes)
+        self._bound = None
         n_v, n_f = self._pack(ms)
-        c = self.cam
-        args = (self._vw, n_v, self._faces, n_f, self._mesh_off, len(ms), self._face_label,
-                self._R, self._t, float(c.fx), float(c.fy), float(c.cx), float(c.cy), self.near,
-                bool(cull_back), self._vc, self._tri, self._box, self._slot_label)
-        if self.parallel:
-            status, bad, _ = render_packed_parallel(*args, self.n_bands, self._wbuf, self._sbuf,
-                                                    self.depth, self.labels, self.face_ids)
-        else:
-            status, bad, _ = render_packed(*args, self._wbuf, self._sbuf,
-                                           self.depth, self.labels, self.face_ids)
+        status = self._draw(n_v, n_f, len(ms), bool(cull_back))
         if status != 0:
-            self.depth[:] = 0.0
-            self.labels[:] = -1
-            self.face_ids[:] = -1
             for k, m in enumerate(ms):   # as_mesh names the mesh and the problem
                 as_mesh(m, name=f"meshes[{k}]")
             raise ValueError("meshes: " + ("a face index lies outside its mesh" if status == 1
                                            else "vertices must be finite"))
         return self.depth, self.labels
+
+    def _draw(self, n_v: int, n_f: int, n_meshes: int, cull_back: bool) -> int:
+        """Run the kernel on the packed buffers; its status (0 = drawn; else nothing was drawn
+        and the images are cleared)."""
+        c = self.cam
+        args = (self._vw, n_v, self._faces, n_f, self._mesh_off, n_meshes, self._face_label,
+                self._R, self._t, float(c.fx), float(c.fy), float(c.cx), float(c.cy), self.near,
+                cull_back, self._vc)
+        if self.parallel:
+            status, _, _ = render_packed_parallel(*args, self._tri, self._box, self.n_bands, self._wbuf,
+                                                  self._sbuf, self._depth, self._labels, self._face_ids,
+                                                  self._dirty)
+        else:
+            status, _, _ = render_packed(*args, self._wbuf, self._sbuf, self._depth, self._labels,
+                                         self._face_ids, self._dirty)
+        if status != 0:     # nothing was drawn (the z-buffer is clear); clear what the last call drew
+            self._depth[:] = 0.0
+            self._labels[:] = -1
+            self._face_ids[:] = -1
+            self._dirty[:] = (1 << 30, -1, 1 << 30, -1)
+        return status
 
     def face_index(self) -> np.ndarray:
         """(H, W) int32: which face of mesh ``labels[v, u]`` owns each pixel of the last

@@ -289,6 +289,12 @@ class RobotModel:
         :data:`~depthguard.geometry.decimate.RENDER_CELL`; made once per cell,
         :func:`~depthguard.geometry.decimate.cluster_decimate`): what a camera's robot depth is
         rendered from at every frame (R9; within ``sqrt(3) cell`` of the model's surface)."""
+        meshes = self._clustered(cell)
+        poses = self.link_poses(q)
+        return [Mesh(transform_points(poses[k], m.vertices), m.faces)
+                for k, m in zip(self._mesh_link, meshes)]
+
+    def _clustered(self, cell: float | None) -> tuple[Mesh, ...]:
         from depthguard.geometry.decimate import RENDER_CELL, cluster_decimate
 
         cell = RENDER_CELL if cell is None else float(cell)
@@ -296,9 +302,28 @@ class RobotModel:
         if meshes is None:
             meshes = tuple(cluster_decimate(m, cell) for m in self._meshes)
             self._render_meshes[cell] = meshes          # a cache of what the model holds
+        return meshes
+
+    def render_link_topology(self, cell: float | None = None) -> list[Mesh]:
+        """The link-frame meshes of :meth:`render_link_meshes` (order :attr:`link_mesh_names`):
+        their faces and vertex counts are what :meth:`render_link_vertices` fills vertices for."""
+        return list(self._clustered(cell))
+
+    def render_link_vertices(self, q, cell: float | None, out: np.ndarray) -> np.ndarray:
+        """The world vertices of :meth:`render_link_meshes` ``(q, cell)``, all links one after the
+        other, written into ``out`` (V, 3) float64 C-contiguous (the same bits: the same
+        ``p @ R.T + t`` per link, into ``out`` instead of new arrays); returns ``out[:V]`` (R16)."""
+        meshes = self._clustered(cell)
         poses = self.link_poses(q)
-        return [Mesh(transform_points(poses[k], m.vertices), m.faces)
-                for k, m in zip(self._mesh_link, meshes)]
+        o = 0
+        for k, m in zip(self._mesh_link, meshes):
+            n = len(m.vertices)
+            T = poses[k]
+            dst = out[o:o + n]
+            np.matmul(m.vertices, T[:3, :3].T, out=dst)
+            dst += T[:3, 3]
+            o += n
+        return out[:o]
 
     def local_link_meshes(self) -> dict[str, Mesh]:
         """Link-frame meshes by link name."""

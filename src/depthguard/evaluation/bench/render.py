@@ -8,6 +8,12 @@ buffers reused, after a warm-up that compiles the numba kernels):
 - ``render.ur3_cell.1280x720_ms``: the same camera pose with the D435's
   1280x720 intrinsics.
 - ``render.soup200k.640x480_ms``: about 200k triangles (350 UV spheres).
+- ``render.{ur3_cell,flacco_cell}.robot_640x480_ms``: what a camera worker and the
+  simulator pay per frame for the robot (issue 29): median **CPU** milliseconds of
+  :meth:`~depthguard.filtering.expected.ExpectedDepth.robot` (the robot clustered to
+  ``RENDER_CELL``, one thread, numba threads set to 1) over joints along a sweep, in
+  the cell's first camera (goal <= 0.5 ms). The note gives the person's render (the
+  simulator's other render per frame) the same way.
 
 Peer, measured in the same run on the same frame: Embree (``embreex``, one
 thread) building its BVH and casting one ray per pixel centre. The scene
@@ -88,9 +94,67 @@ def _row(name: str, cam, meshes, ctx: BenchContext, what: str) -> BenchRow:
     return BenchRow(name, float(np.median(t) * 1e3), "ms", None, "embree", peer_ms, note)
 
 
+def _cpu_ms(fn, n: int) -> np.ndarray:
+    for _ in range(3):
+        fn()
+    out = np.empty(n)
+    for i in range(n):
+        c0 = time.thread_time()
+        fn()
+        out[i] = (time.thread_time() - c0) * 1e3
+    return out
+
+
+def _robot_row(cell_name: str, ctx: BenchContext) -> BenchRow:
+    import numba
+
+    from depthguard.filtering.expected import ExpectedDepth
+    from depthguard.render import Renderer
+    from depthguard.sim import load_cell
+
+    cell = load_cell(cell_name)
+    cam, robot = cell.rig.cameras[0], cell.rig.robot
+    ex = ExpectedDepth(cam, robot, [])
+    n = max(ctx.repeats, 30)
+    qs = [robot.q_home + (robot.q_max.clip(-3, 3) - robot.q_home) * 0.3 * np.sin(2 * np.pi * k / n)
+          for k in range(n)]
+    people = [p.mesh() for p in cell.scene.dynamic_at(1.0)]
+    rp = Renderer(cam)
+    threads = numba.get_num_threads()
+    numba.set_num_threads(1)
+    try:
+        k = iter(range(1 << 30))
+        robot_ms = _cpu_ms(lambda: ex.robot(qs[next(k) % n]), n)
+        person_ms = _cpu_ms(lambda: rp.render(people), n) if people else np.array([np.nan])
+    finally:
+        numba.set_num_threads(threads)
+    n_tri = sum(len(m.faces) for m in robot.render_link_topology())
+    peer_ms = None
+    try:
+        from depthguard.render.embree import EmbreeCaster
+
+        caster = EmbreeCaster(cam)
+        meshes = robot.render_link_meshes(qs[0])
+        peer_ms = float(np.median(time_call(lambda: caster.cast(meshes), 1 if ctx.quick else 5,
+                                            warmup=0 if ctx.quick else 1)) * 1e3)
+    except ImportError:
+        pass
+    load = os.getloadavg()[0] if hasattr(os, "getloadavg") else float("nan")
+    note = (f"{cell_name} {cam.id} {cam.width}x{cam.height}: ExpectedDepth.robot, {n_tri} triangles "
+            f"(clustered), {n} joint sets; CPU p20 {np.percentile(robot_ms, 20):.3f} / p90 "
+            f"{np.percentile(robot_ms, 90):.3f} ms; the person's render "
+            f"{np.median(person_ms):.3f} ms CPU (goal <= 0.5 ms each; load average {load:.1f} on "
+            f"{os.cpu_count()} cores); peer: Embree (1 thread) BVH build + 1 ray/pixel on the robot")
+    return BenchRow(f"render.{cell_name.replace('-', '_')}.robot_{cam.width}x{cam.height}_ms",
+                    float(np.median(robot_ms)), "ms", None, "embree", peer_ms, note)
+
+
 @group("render")
 def bench_render(ctx: BenchContext) -> list[BenchRow]:
     rows = []
+    for name in ("ur3-cell", "flacco-cell"):
+        ctx.log(f"render {name} robot")
+        rows.append(_robot_row(name, ctx))
     for w, h in ((640, 480), (1280, 720)):
         cam, meshes = _ur3_frame(w, h)
         ctx.log(f"render ur3-cell {w}x{h}")
