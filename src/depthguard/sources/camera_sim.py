@@ -12,7 +12,11 @@ rendered once, a renderer for what moves, the sensor's noise model); a frame is 
    rendered and combined per pixel with the static scene — the same image, bit for bit, as
    rendering everything (:mod:`depthguard.render.composite`);
 2. the camera's noise model turns the ideal image into the measured one, its noise drawn from
-   the frame's own generator (``seed``, camera, capture stamp: ``simulated.frame_rng``);
+   the frame's own generator (``seed``, camera, capture stamp: ``simulated.frame_rng``).
+   Steps 1-3 are one :class:`~depthguard.sources.layered.LayeredCamera` per camera: the static
+   scene's edges and counts are made once, a frame works again only the rows' spans the moving
+   layers cover and measures the image in one pass (issue 29: 4.5 -> 1.3 ms of a 640x480 frame's
+   CPU besides the renders), bit for bit the frame of ``apply_noise`` on the composite;
 3. the invalid pixels follow one vocabulary, the monitor's (``MonitorConfig.invalid``, R28):
    ``"unknown"`` — no return stays 0, and a ray that meets nothing the scene models returns
    from beyond the rated range, as a real cell's walls would; ``"free"`` — every invalid
@@ -34,8 +38,8 @@ import numpy as np
 from depthguard.filtering.expected import ExpectedDepth
 from depthguard.geometry.decimate import SIM_CELL
 from depthguard.render import Renderer
-from depthguard.render.composite import nearest_depth
-from depthguard.sources.simulated import SimulatedCamera, returns_beyond_the_model
+from depthguard.sources.layered import LayeredCamera
+from depthguard.sources.simulated import SimulatedCamera, frame_rng
 
 __all__ = ["CameraSim", "CameraSchedule", "Shot", "INVALID_POLICIES"]
 
@@ -78,7 +82,9 @@ class CameraSim:
         self.expected = {c.id: ExpectedDepth(c, robot, static, parallel=parallel, robot_cell=SIM_CELL) for c in cams}
         self.sims = {c.id: SimulatedCamera(c, seed=seed, noiseless=noiseless) for c in cams}
         self._moving = {c.id: Renderer(c, parallel=parallel) for c in cams}
-        self._ideal = {c.id: np.zeros(c.shape, dtype=np.float32) for c in cams}
+        self.layered = {c.id: LayeredCamera(self.expected[c.id].static, self.sims[c.id].model, c.fx, c.min_range,
+                                            self.sims[c.id].model.returns_to(c.max_range), c.max_range,
+                                            noiseless=noiseless, invalid=invalid) for c in cams}
 
     @property
     def camera_ids(self) -> list[str]:
@@ -95,27 +101,16 @@ class CameraSim:
         """Camera ``camera_id``'s frame captured at ``t`` (s, the noise's stamp) with the robot at
         ``q`` (dof,) rad (None: no robot in the image) and the moving obstacles' world meshes
         ``moving`` (module docstring)."""
-        cam = self.cams[camera_id]
         ex = self.expected[camera_id]
         t0 = time.perf_counter()
         rd = ex.robot(q) if (self.robot is not None and q is not None) else None      # ExpectedDepth's reused buffer
         robot_depth = np.array(rd, copy=True) if keep_robot and rd is not None else None
         t1 = time.perf_counter()
-        ideal = self._ideal[camera_id]
-        np.copyto(ideal, ex.static)
-        person = None
-        if moving:
-            person = self._moving[camera_id].render(list(moving))[0]   # the renderer's buffer
-            nearest_depth(ideal, person)
-        if rd is not None:
-            nearest_depth(ideal, rd)                   # the robot occludes, as on a real cell
-        d = self.sims[camera_id].measure(ideal, stamp=t)
-        if self.invalid == "free":
-            d = np.where(d > 0, d, np.float32(cam.max_range - 1e-3)).astype(np.float32)
-        elif self.invalid == "unknown":
-            returns_beyond_the_model(d, ideal, cam)    # a user's rig without walls (R28)
-        if dark and person is not None:
-            d[(person > 0) & (person <= ideal + 1e-6)] = 0.0      # dark clothing: no return
+        person = self._moving[camera_id].render(moving if isinstance(moving, list) else list(moving))[0] \
+            if moving else None                                                     # the renderer's buffer
+        sim = self.sims[camera_id]
+        # the robot occludes, as on a real cell; a user's rig without walls: R28 (module docstring)
+        d = self.layered[camera_id].frame(rd, person, frame_rng(sim.seed, camera_id, t), bank=sim.bank, dark=dark)
         return Shot(d, robot_depth, t1 - t0, time.perf_counter() - t1)
 
     def depth(self, camera_id: str, t: float, q, moving: Sequence = (), dark: bool = False) -> np.ndarray:

@@ -1,0 +1,443 @@
+"""One simulated camera's frames as a static scene plus moving layers, in two passes (R16, R28, issue 29).
+
+The static scene of a camera does not move: its ideal depth, its depth edges and the count of
+its valid and edge pixels per row are computed once (:class:`LayeredCamera`). A frame brings
+the moving layers — the robot at its joints, the people and props — as depth images (0 =
+nothing), and only the pixels they can change are worked again:
+
+1. :func:`layer_spans`: per row, the span ``[a, b)`` of a layer's nonzero pixels (a run list;
+   on the built-in cells 10-15 % of a 640x480 image);
+2. :func:`compose_edges`: the previous frame's spans are restored from the static scene, the
+   layers are combined with it per pixel in their spans (the nearest surface wins:
+   :func:`depthguard.render.composite.nearest_depth`'s rule), and the depth edges are found
+   again in the spans grown by the edge test's reach (one pixel and one row); the per-row
+   counts of valid and edge pixels follow, so the draws are known before any is made;
+3. the draws of :func:`depthguard.sources.noise.apply_noise`, in its order;
+4. :func:`measure_frame`: one pass over the image — the noise model, the range rule and the
+   invalid pixels' policy (``camera_sim``'s step 3) together.
+
+The result is bit for bit the frame of the former way (copy the static scene, ``nearest_depth``
+of each layer, ``apply_noise``, ``returns_beyond_the_model``), which stays as
+:func:`reference_frame` — with ``use_numpy=True`` on the plain-numpy twins — for the tests and
+the bench (``sim.ur3_cell.frame_noise_ms``). The kernels run on the calling thread and allocate
+nothing; the frame's own image is the one allocation.
+"""
+
+from __future__ import annotations
+
+import numba
+import numpy as np
+
+from depthguard.render.composite import nearest_depth
+from depthguard.sources.noise import EDGE_JUMP_ABS, EDGE_JUMP_REL, _draws, _params, apply_noise
+
+__all__ = ["LayeredCamera", "layer_spans", "compose_edges", "measure_frame", "reference_frame",
+           "POLICY_CODES"]
+
+#: the invalid pixels' policies (``camera_sim.INVALID_POLICIES``) as kernel codes
+POLICY_CODES = {None: 0, "unknown": 1, "free": 2}
+
+
+@numba.njit(cache=True, nogil=True, inline="always")
+def _depth(x):
+    """A float32 depth as the noise model reads it: float64 metres, 0 where not finite or <= 0."""
+    return np.float64(x) if (x > 0.0 and x < np.inf) else 0.0
+
+
+@numba.njit(cache=True, nogil=True)
+def layer_spans(bits, spans):
+    """Per row, the span of a layer's nonzero pixels (step 1 of the module docstring).
+
+    bits : (H, W) uint32, the layer's float32 bits (``layer.view(np.uint32)``); spans : (H, 2)
+    int32, filled with ``[a, b)`` such that every pixel of row ``v`` outside it is +0.0 (``(0,
+    0)``: none). Rows are scanned 16 words at a time from both ends. Returns the pixels spanned.
+    """
+    H, W = bits.shape
+    total = 0
+    for v in range(H):
+        a = 0
+        while a + 16 <= W:
+            acc = np.uint32(0)
+            for j in range(16):
+                acc |= bits[v, a + j]
+            if acc != 0:
+                break
+            a += 16
+        while a < W and bits[v, a] == 0:
+            a += 1
+        if a == W:
+            spans[v, 0] = 0
+            spans[v, 1] = 0
+            continue
+        b = W
+        while b - 16 >= a:
+            acc = np.uint32(0)
+            for j in range(16):
+                acc |= bits[v, b - 16 + j]
+            if acc != 0:
+                break
+            b -= 16
+        while bits[v, b - 1] == 0:
+            b -= 1
+        spans[v, 0] = a
+        spans[v, 1] = b
+        total += b - a
+    return total
+
+
+@numba.njit(cache=True, nogil=True, inline="always")
+def _pick(zp, zq, jump_abs, jump_rel, e, best, oth):
+    """One neighbour ``zq`` of pixel ``zp`` (m, 0 = invalid) in the edge test: the updated ``(edge,
+    largest step, depth across it)`` — :func:`depthguard.sources.noise._edge_step` written with
+    selects, so that a loop of it compiles to vector instructions."""
+    valid = zq > 0.0
+    step = abs(zp - zq) if valid else np.inf
+    is_e = (not valid) | (step > jump_abs + jump_rel * min(zp, zq))
+    better = is_e & (step > best)
+    return e | is_e, step if better else best, zq if better else oth
+
+
+@numba.njit(cache=True, nogil=True)
+def _edges_span(zc, v, a, b, jump_abs, jump_rel, edge, other, base, s_edge):
+    """Edge test of row ``v``'s pixels ``[a, b)`` of the raw composite ``zc`` (H, W) float32 into
+    ``edge`` (uint8) and ``other`` (float32 m), as :func:`depthguard.sources.noise.depth_edges`
+    (neighbours left, right, up, down; an image border has none). Returns the change of the row's
+    ``(valid, edge)`` counts against ``base`` (H, W) float32 and ``s_edge`` (H, W) uint8 — the
+    static scene's image and edges — or the counts themselves when ``base`` is None."""
+    H, W = zc.shape
+    dv = 0
+    de = 0
+    lo = max(a, 1)
+    hi = min(b, W - 1)
+    if v == 0 or v == H - 1 or hi <= lo:      # no interior: every pixel on the general path
+        lo = b
+        hi = b
+    for u in range(lo, hi):                   # interior pixels: four neighbours, no branches
+        zp = _depth(zc[v, u])
+        e, best, oth = _pick(zp, _depth(zc[v, u - 1]), jump_abs, jump_rel, False, 0.0, 0.0)
+        e, best, oth = _pick(zp, _depth(zc[v, u + 1]), jump_abs, jump_rel, e, best, oth)
+        e, best, oth = _pick(zp, _depth(zc[v - 1, u]), jump_abs, jump_rel, e, best, oth)
+        e, best, oth = _pick(zp, _depth(zc[v + 1, u]), jump_abs, jump_rel, e, best, oth)
+        ok = zp > 0.0
+        e = e & ok
+        edge[v, u] = np.uint8(e)
+        other[v, u] = np.float32(oth if e else 0.0)
+        dv += np.int64(ok)
+        de += np.int64(e)
+        if base is not None:
+            dv -= np.int64(_depth(base[v, u]) > 0.0)
+            de -= np.int64(s_edge[v, u])
+    for u in range(a, b):                     # the rest: the image's border pixels
+        if u >= lo and u < hi:
+            continue
+        zp = _depth(zc[v, u])
+        e = False
+        best = 0.0
+        oth = 0.0
+        if zp > 0.0:
+            if u > 0:
+                e, best, oth = _pick(zp, _depth(zc[v, u - 1]), jump_abs, jump_rel, e, best, oth)
+            if u < W - 1:
+                e, best, oth = _pick(zp, _depth(zc[v, u + 1]), jump_abs, jump_rel, e, best, oth)
+            if v > 0:
+                e, best, oth = _pick(zp, _depth(zc[v - 1, u]), jump_abs, jump_rel, e, best, oth)
+            if v < H - 1:
+                e, best, oth = _pick(zp, _depth(zc[v + 1, u]), jump_abs, jump_rel, e, best, oth)
+        edge[v, u] = np.uint8(e)
+        other[v, u] = np.float32(oth)
+        dv += np.int64(zp > 0.0)
+        de += np.int64(e)
+        if base is not None:
+            dv -= np.int64(_depth(base[v, u]) > 0.0)
+            de -= np.int64(s_edge[v, u])
+    return dv, de
+
+
+@numba.njit(cache=True, nogil=True)
+def static_edges(static, jump_abs, jump_rel, edge, other, valid_row, edge_row):
+    """The static scene's edges, once per camera: ``edge`` (H, W) uint8, ``other`` (H, W) float32 m
+    (the depth across the edge, as :func:`depthguard.sources.noise.depth_edges`), ``valid_row``,
+    ``edge_row`` (H,) int64 counts per row, of the raw (H, W) float32 image ``static``."""
+    H, W = static.shape
+    for v in range(H):
+        valid_row[v], edge_row[v] = _edges_span(static, v, 0, W, jump_abs, jump_rel, edge, other, None, edge)
+
+
+@numba.njit(cache=True, nogil=True)
+def compose_edges(static, s_edge, s_other, s_valid_row, s_edge_row, robot, r_spans, person, p_spans,
+                  zc, edge, other, valid_row, edge_row, c_spans, e_spans, jump_abs, jump_rel, do_edges):
+    """Step 2 of the module docstring, in place.
+
+    static (H, W) float32 m raw (0 = nothing) with its ``s_edge`` (H, W) uint8, ``s_other`` (H, W)
+    float32 m, ``s_valid_row``, ``s_edge_row`` (H,) int64 (:func:`static_edges`); the layers
+    ``robot``, ``person`` (H, W) float32 m with their spans ``r_spans``, ``p_spans`` (H, 2) int32
+    (:func:`layer_spans`; all ``(0, 0)``: no layer, the image is then not read).
+    The frame's state: ``zc`` (H, W) float32 the raw composite, ``edge``, ``other``, ``valid_row``,
+    ``edge_row`` as the static ones; ``c_spans``, ``e_spans`` (H, 2) int32 the spans composed and
+    edge-tested, on entry the previous frame's (restored from the static scene first), on return
+    this frame's. ``do_edges`` False (noiseless): the composite alone.
+    Returns ``(valid pixels, edge pixels)`` of the frame.
+    """
+    H, W = static.shape
+    for v in range(H):                       # the previous frame's pixels back to the static scene
+        for u in range(c_spans[v, 0], c_spans[v, 1]):
+            zc[v, u] = static[v, u]
+        for u in range(e_spans[v, 0], e_spans[v, 1]):
+            edge[v, u] = s_edge[v, u]
+            other[v, u] = s_other[v, u]
+    for v in range(H):                       # nearest of static, person, robot (nearest_depth's rule)
+        ra, rb = r_spans[v, 0], r_spans[v, 1]
+        pa, pb = p_spans[v, 0], p_spans[v, 1]
+        a = min(ra if rb > ra else W, pa if pb > pa else W)
+        b = max(rb if rb > ra else 0, pb if pb > pa else 0)
+        if b <= a:
+            a = 0
+            b = 0
+        c_spans[v, 0] = a
+        c_spans[v, 1] = b
+        if pb > pa:                          # outside its span a layer is 0: nothing to combine
+            for u in range(pa, pb):
+                x = static[v, u]
+                z = person[v, u]
+                zc[v, u] = z if (z > 0.0) & ((x == 0.0) | (z < x)) else x
+        if rb > ra:
+            for u in range(ra, rb):
+                x = zc[v, u]
+                z = robot[v, u]
+                zc[v, u] = z if (z > 0.0) & ((x == 0.0) | (z < x)) else x
+    n_valid = 0
+    n_edge = 0
+    for v in range(H):
+        valid_row[v] = s_valid_row[v]
+        edge_row[v] = s_edge_row[v]
+        a = W
+        b = 0
+        if do_edges:                         # a pixel's edge test reads its row and the two next to it
+            for r in range(max(0, v - 1), min(H, v + 2)):
+                if c_spans[r, 1] > c_spans[r, 0]:
+                    a = min(a, c_spans[r, 0] - 1)
+                    b = max(b, c_spans[r, 1] + 1)
+            a = max(a, 0)
+            b = min(b, W)
+        if b <= a:
+            a = 0
+            b = 0
+        e_spans[v, 0] = a
+        e_spans[v, 1] = b
+        if b > a:
+            dv, de = _edges_span(zc, v, a, b, jump_abs, jump_rel, edge, other, static, s_edge)
+            valid_row[v] += dv
+            edge_row[v] += de
+        n_valid += valid_row[v]
+        n_edge += edge_row[v]
+    return n_valid, n_edge
+
+
+@numba.njit(cache=True, nogil=True, inline="always")
+def _noisy(kind, zp, g, g2, fb, steps, sigma_a, sigma_z2):
+    """The noise model's depth (m) of a valid pixel at ``zp`` m with its normals ``g``, ``g2``
+    (:func:`depthguard.sources.noise.measure_kernel`'s formulas, in its order)."""
+    if kind == 1:
+        d = fb / zp + sigma_z2 * fb * g
+        q = np.rint(d * steps) / steps
+        m = fb / q if q > 0.0 else 0.0
+        if sigma_a > 0.0 and m > 0.0:
+            m += sigma_a * g2
+        return m
+    if kind == 0:
+        return zp
+    return zp + (sigma_a + sigma_z2 * zp * zp) * g
+
+
+@numba.njit(cache=True, nogil=True, inline="always")
+def _finish(m, x, lo, hi, policy, fill):
+    """The range rule, then the invalid pixels' policy: the float32 value of a pixel measured
+    ``m`` m whose raw composite is ``x``."""
+    if m < lo or m > hi:
+        m = 0.0
+    r = np.float32(m)
+    if policy == 1:
+        if x <= 0.0:
+            r = fill
+    elif policy == 2:
+        if not r > 0.0:
+            r = fill
+    return r
+
+
+@numba.njit(cache=True, nogil=True)
+def measure_frame(zc, edge, other, valid_row, edge_row, gauss, gauss2, u_fly, u_drop, kind, fb, steps,
+                  sigma_a, sigma_z2, flying_fraction, edge_dropout, lo, hi, policy, fill, out):
+    """Step 4 of the module docstring: ``out`` (H, W) float32 m, the measured frame.
+
+    zc, edge, other, valid_row, edge_row : the frame's composite, edges and counts per row
+    (:func:`compose_edges`); the draws and the model's terms as
+    :func:`depthguard.sources.noise.measure_kernel` (kind 0: the range rule alone, as
+    noiseless); policy : :data:`POLICY_CODES` — 1 ``"unknown"``: a pixel whose composite is <= 0
+    (nothing the scene models) reads ``fill``; 2 ``"free"``: every 0 reads ``fill``; 0: the raw
+    sensor. A row whose pixels are all valid is measured in a loop without branches (the
+    compiler's vector instructions), its edge pixels after; other rows pixel by pixel.
+    """
+    H, W = zc.shape
+    n_fly = u_fly.shape[0]
+    n_drop = u_drop.shape[0]
+    two = kind == 1 and sigma_a > 0.0
+    i = 0
+    k = 0
+    for v in range(H):
+        zr = zc[v]
+        orow = out[v]
+        if valid_row[v] == W and kind != 0:
+            gr = gauss[i:i + W]
+            g2r = gauss2[i:i + W] if two else gr
+            for u in range(W):
+                zp = np.float64(zr[u])
+                orow[u] = _finish(_noisy(kind, zp, np.float64(gr[u]), np.float64(g2r[u]), fb, steps,
+                                         sigma_a, sigma_z2), zr[u], lo, hi, policy, fill)
+            left = edge_row[v]
+            u = 0
+            while left > 0:                   # the row's edge pixels: flying pixels and dropout
+                if edge[v, u]:
+                    zp = np.float64(zr[u])
+                    m = _noisy(kind, zp, np.float64(gr[u]), np.float64(g2r[u]), fb, steps, sigma_a, sigma_z2)
+                    oz = np.float64(other[v, u])
+                    if n_fly > 0 and oz > 0.0 and u_fly[k] < flying_fraction:
+                        m = zp + (u_fly[k] / flying_fraction) * (oz - zp)
+                    if n_drop > 0 and u_drop[k] < edge_dropout:
+                        m = 0.0
+                    k += 1
+                    left -= 1
+                    orow[u] = _finish(m, zr[u], lo, hi, policy, fill)
+                u += 1
+            i += W
+            continue
+        for u in range(W):
+            x = zr[u]
+            zp = _depth(x)
+            m = 0.0
+            if zp > 0.0:
+                if kind == 0:
+                    m = zp
+                else:
+                    m = _noisy(kind, zp, np.float64(gauss[i]), np.float64(gauss2[i]) if two else 0.0, fb,
+                               steps, sigma_a, sigma_z2)
+                    i += 1
+                    if edge[v, u]:
+                        oz = np.float64(other[v, u])
+                        if n_fly > 0 and oz > 0.0 and u_fly[k] < flying_fraction:
+                            m = zp + (u_fly[k] / flying_fraction) * (oz - zp)
+                        if n_drop > 0 and u_drop[k] < edge_dropout:
+                            m = 0.0
+                        k += 1
+            orow[u] = _finish(m, x, lo, hi, policy, fill)
+    return out
+
+
+@numba.njit(cache=True, nogil=True)
+def dark_layer(out, person, zc, p_spans):
+    """``out`` 0 where ``person`` (H, W) float32 is seen (> 0 and not behind the composite ``zc``
+    by more than 1e-6 m, float32 as numpy computes ``ideal + 1e-6``): dark clothing."""
+    eps = np.float32(1e-6)
+    for v in range(out.shape[0]):
+        for u in range(p_spans[v, 0], p_spans[v, 1]):
+            p = person[v, u]
+            if p > 0.0 and p <= zc[v, u] + eps:
+                out[v, u] = 0.0
+
+
+class LayeredCamera:
+    """One camera's frame maker (module docstring): ``static`` (H, W) float32 m its static scene
+    (0 = nothing), ``model`` its :class:`~depthguard.sensors.SensorModel`, ``fx`` px, the range
+    ``lo``..``hi`` m that returns, ``max_range`` m, ``noiseless``, ``invalid`` the policy
+    (``camera_sim``: ``"unknown"``, ``"free"`` or None). One object per thread."""
+
+    def __init__(self, static, model, fx: float, lo: float, hi: float, max_range: float,
+                 noiseless: bool = False, invalid: str | None = "unknown"):
+        from depthguard.sources.simulated import BEYOND_RANGE
+
+        self.static = np.ascontiguousarray(static, dtype=np.float32)
+        H, W = self.shape = self.static.shape
+        self.model, self.fx, self.lo, self.hi = model, float(fx), float(lo), float(hi)
+        self.noise = not (noiseless or model.kind == "ideal")
+        self.params = _params(model, fx) if self.noise else (0, 0.0, 1.0, 0.0, 0.0, 0.0, 0.0)
+        self.policy = POLICY_CODES[invalid]
+        self.fill = np.float32(BEYOND_RANGE * max_range if invalid == "unknown" else max_range - 1e-3)
+        self.s_edge = np.zeros((H, W), np.uint8)
+        self.s_other = np.zeros((H, W), np.float32)
+        self.s_valid_row = np.zeros(H, np.int64)
+        self.s_edge_row = np.zeros(H, np.int64)
+        static_edges(self.static, EDGE_JUMP_ABS, EDGE_JUMP_REL, self.s_edge, self.s_other,
+                     self.s_valid_row, self.s_edge_row)
+        self.zc = self.static.copy()
+        self.edge, self.other = self.s_edge.copy(), self.s_other.copy()
+        self.valid_row, self.edge_row = self.s_valid_row.copy(), self.s_edge_row.copy()
+        self.c_spans = np.zeros((H, 2), np.int32)
+        self.e_spans = np.zeros((H, 2), np.int32)
+        self.r_spans = np.zeros((H, 2), np.int32)
+        self.p_spans = np.zeros((H, 2), np.int32)
+        self._empty = np.zeros((1, 1), np.float32)
+        n = H * W
+        self.gauss = np.empty(n, np.float32)     # the draws' buffers (noise._draws)
+        self.gauss2 = np.empty(n, np.float32)
+        self.u_fly = np.empty(n, np.float64)
+        self.u_drop = np.empty(n, np.float64)
+
+    def _layer(self, layer, spans):
+        if layer is None:
+            spans.fill(0)
+            return self._empty
+        if layer.shape != self.shape or layer.dtype != np.float32 or not layer.flags.c_contiguous:
+            raise ValueError(f"a layer must be a C-contiguous float32 {self.shape} image, got "
+                             f"{layer.dtype} {layer.shape}")
+        layer_spans(layer.view(np.uint32), spans)
+        return layer
+
+    def frame(self, robot, person, rng: np.random.Generator, bank=None, dark: bool = False,
+              out: np.ndarray | None = None) -> np.ndarray:
+        """The measured (H, W) float32 m frame (``out``, or a new image) of the static scene with
+        the layers ``robot`` and ``person`` ((H, W) float32 m or None), the noise drawn from
+        ``rng`` (its normals from ``bank``, a :class:`~depthguard.sources.noise.NormalBank`, when
+        given); ``dark``: the person's pixels return nothing."""
+        r = self._layer(robot, self.r_spans)
+        p = self._layer(person, self.p_spans)
+        n_valid, n_edges = compose_edges(self.static, self.s_edge, self.s_other, self.s_valid_row,
+                                         self.s_edge_row, r, self.r_spans, p, self.p_spans, self.zc,
+                                         self.edge, self.other, self.valid_row, self.edge_row,
+                                         self.c_spans, self.e_spans, EDGE_JUMP_ABS, EDGE_JUMP_REL, self.noise)
+        if out is None:
+            out = np.empty(self.shape, np.float32)
+        if self.noise:
+            g, g2, u_fly, u_drop = _draws(self.model, rng, self, int(n_edges), int(n_valid), bank)
+        else:
+            g = g2 = self.gauss[:0]
+            u_fly = u_drop = self.u_fly[:0]
+        kind, fb, steps, sa, sz2, ff, ed = self.params
+        measure_frame(self.zc, self.edge, self.other, self.valid_row, self.edge_row, g, g2, u_fly, u_drop, kind, fb, steps, sa, sz2, ff,
+                      ed, self.lo, self.hi, self.policy, self.fill, out)
+        if dark and person is not None:
+            dark_layer(out, p, self.zc, self.p_spans)
+        return out
+
+
+def reference_frame(static, robot, person, model, fx: float, lo: float, hi: float, max_range: float,
+                    rng: np.random.Generator, bank=None, noiseless: bool = False,
+                    invalid: str | None = "unknown", dark: bool = False, use_numpy: bool = False) -> np.ndarray:
+    """The same frame the former way (module docstring): the static scene copied, each layer
+    combined by ``nearest_depth``, ``apply_noise`` (its numpy twins with ``use_numpy``), the
+    invalid policy and the dark pixels on whole images. The twin of :class:`LayeredCamera`."""
+    from depthguard.sources.simulated import BEYOND_RANGE
+
+    ideal = np.array(static, dtype=np.float32, copy=True)
+    if person is not None:
+        nearest_depth(ideal, person)
+    if robot is not None:
+        nearest_depth(ideal, robot)
+    d = apply_noise(ideal, model, fx, rng, lo, max_range, noiseless=noiseless, use_numpy=use_numpy,
+                    return_range=hi, bank=bank)
+    if invalid == "free":
+        d = np.where(d > 0, d, np.float32(max_range - 1e-3)).astype(np.float32)
+    elif invalid == "unknown":
+        d[ideal <= 0] = np.float32(BEYOND_RANGE * max_range)
+    if dark and person is not None:
+        d[(person > 0) & (person <= ideal + 1e-6)] = 0.0
+    return d
