@@ -97,139 +97,175 @@ def _pick(zp, zq, jump_abs, jump_rel, e, best, oth):
     return e | is_e, step if better else best, zq if better else oth
 
 
+@numba.njit(cache=True, nogil=True, inline="always")
+def _edge_general(zu, zm, zd, u, up, down, W, jump_abs, jump_rel):
+    """``(edge, depth across)`` of pixel ``u`` of the sanitized row ``zm`` (float64 m, 0 = invalid)
+    with the rows above / below (``up`` / ``down``: whether they exist) on an image border."""
+    zp = zm[u]
+    e = False
+    best = 0.0
+    oth = 0.0
+    if zp > 0.0:
+        if u > 0:
+            e, best, oth = _pick(zp, zm[u - 1], jump_abs, jump_rel, e, best, oth)
+        if u < W - 1:
+            e, best, oth = _pick(zp, zm[u + 1], jump_abs, jump_rel, e, best, oth)
+        if up:
+            e, best, oth = _pick(zp, zu[u], jump_abs, jump_rel, e, best, oth)
+        if down:
+            e, best, oth = _pick(zp, zd[u], jump_abs, jump_rel, e, best, oth)
+    return e, oth
+
+
 @numba.njit(cache=True, nogil=True)
-def _edges_span(zc, v, a, b, jump_abs, jump_rel, edge, other, base, s_edge):
-    """Edge test of row ``v``'s pixels ``[a, b)`` of the raw composite ``zc`` (H, W) float32 into
-    ``edge`` (uint8) and ``other`` (float32 m), as :func:`depthguard.sources.noise.depth_edges`
-    (neighbours left, right, up, down; an image border has none). Returns the change of the row's
-    ``(valid, edge)`` counts against ``base`` (H, W) float32 and ``s_edge`` (H, W) uint8 — the
-    static scene's image and edges — or the counts themselves when ``base`` is None."""
-    H, W = zc.shape
-    dv = 0
-    de = 0
-    lo = max(a, 1)
-    hi = min(b, W - 1)
-    if v == 0 or v == H - 1 or hi <= lo:      # no interior: every pixel on the general path
-        lo = b
-        hi = b
-    for u in range(lo, hi):                   # interior pixels: four neighbours, no branches
-        zp = _depth(zc[v, u])
-        e, best, oth = _pick(zp, _depth(zc[v, u - 1]), jump_abs, jump_rel, False, 0.0, 0.0)
-        e, best, oth = _pick(zp, _depth(zc[v, u + 1]), jump_abs, jump_rel, e, best, oth)
-        e, best, oth = _pick(zp, _depth(zc[v - 1, u]), jump_abs, jump_rel, e, best, oth)
-        e, best, oth = _pick(zp, _depth(zc[v + 1, u]), jump_abs, jump_rel, e, best, oth)
+def _edges_span(zu, zm, zd, up, down, a, b, jump_abs, jump_rel, erow, orow):
+    """Edge test of pixels ``[a, b)`` of the row ``zm`` (W,) float64 m (0 = invalid: the composite
+    as :func:`_depth` reads it), with the rows above / below ``zu``, ``zd`` (``up`` / ``down``:
+    whether they exist), into ``erow`` (W,) uint8 and ``orow`` (W,) float32 m, as
+    :func:`depthguard.sources.noise.depth_edges` (neighbours left, right, up, down; an image
+    border has none); the interior pixels in a loop of selects (vector instructions).
+    Returns the span's ``(valid, edge)`` counts."""
+    W = zm.shape[0]
+    ia = max(a, 1)
+    ib = min(b, W - 1)
+    if not (up and down) or ib <= ia:         # no interior: every pixel on the border path
+        ia = b
+        ib = b
+    nv = 0
+    ne = 0
+    for u in range(ia, ib):                   # interior pixels: four neighbours, no branches
+        zp = zm[u]
+        e, best, oth = _pick(zp, zm[u - 1], jump_abs, jump_rel, False, 0.0, 0.0)
+        e, best, oth = _pick(zp, zm[u + 1], jump_abs, jump_rel, e, best, oth)
+        e, best, oth = _pick(zp, zu[u], jump_abs, jump_rel, e, best, oth)
+        e, best, oth = _pick(zp, zd[u], jump_abs, jump_rel, e, best, oth)
         ok = zp > 0.0
         e = e & ok
-        edge[v, u] = np.uint8(e)
-        other[v, u] = np.float32(oth if e else 0.0)
-        dv += np.int64(ok)
-        de += np.int64(e)
-        if base is not None:
-            dv -= np.int64(_depth(base[v, u]) > 0.0)
-            de -= np.int64(s_edge[v, u])
-    for u in range(a, b):                     # the rest: the image's border pixels
-        if u >= lo and u < hi:
-            continue
-        zp = _depth(zc[v, u])
-        e = False
-        best = 0.0
-        oth = 0.0
-        if zp > 0.0:
-            if u > 0:
-                e, best, oth = _pick(zp, _depth(zc[v, u - 1]), jump_abs, jump_rel, e, best, oth)
-            if u < W - 1:
-                e, best, oth = _pick(zp, _depth(zc[v, u + 1]), jump_abs, jump_rel, e, best, oth)
-            if v > 0:
-                e, best, oth = _pick(zp, _depth(zc[v - 1, u]), jump_abs, jump_rel, e, best, oth)
-            if v < H - 1:
-                e, best, oth = _pick(zp, _depth(zc[v + 1, u]), jump_abs, jump_rel, e, best, oth)
-        edge[v, u] = np.uint8(e)
-        other[v, u] = np.float32(oth)
-        dv += np.int64(zp > 0.0)
-        de += np.int64(e)
-        if base is not None:
-            dv -= np.int64(_depth(base[v, u]) > 0.0)
-            de -= np.int64(s_edge[v, u])
-    return dv, de
+        erow[u] = np.uint8(e)
+        orow[u] = np.float32(oth if e else 0.0)
+        nv += np.int64(ok)
+        ne += np.int64(e)
+    for u in range(a, ia):                    # the image's border pixels
+        e, oth = _edge_general(zu, zm, zd, u, up, down, W, jump_abs, jump_rel)
+        erow[u] = np.uint8(e)
+        orow[u] = np.float32(oth)
+        nv += np.int64(zm[u] > 0.0)
+        ne += np.int64(e)
+    for u in range(max(ib, ia), b):
+        e, oth = _edge_general(zu, zm, zd, u, up, down, W, jump_abs, jump_rel)
+        erow[u] = np.uint8(e)
+        orow[u] = np.float32(oth)
+        nv += np.int64(zm[u] > 0.0)
+        ne += np.int64(e)
+    return nv, ne
 
 
 @numba.njit(cache=True, nogil=True)
-def static_edges(static, jump_abs, jump_rel, edge, other, valid_row, edge_row):
-    """The static scene's edges, once per camera: ``edge`` (H, W) uint8, ``other`` (H, W) float32 m
-    (the depth across the edge, as :func:`depthguard.sources.noise.depth_edges`), ``valid_row``,
-    ``edge_row`` (H,) int64 counts per row, of the raw (H, W) float32 image ``static``."""
+def static_edges(static, z, jump_abs, jump_rel, edge, other, valid_cum, edge_cum):
+    """The static scene's edges, once per camera, of the raw (H, W) float32 image ``static``:
+    ``edge`` (H, W) uint8, ``other`` (H, W) float32 m (the depth across the edge, as
+    :func:`depthguard.sources.noise.depth_edges`), and ``valid_cum``, ``edge_cum`` (H, W + 1)
+    int32: per row the valid / edge pixels left of each column (``[v, W]``: the row's count).
+    ``z`` (H, W) float64: scratch (``static`` as the noise reads it, :func:`_depth`)."""
     H, W = static.shape
     for v in range(H):
-        valid_row[v], edge_row[v] = _edges_span(static, v, 0, W, jump_abs, jump_rel, edge, other, None, edge)
+        for u in range(W):
+            z[v, u] = _depth(static[v, u])
+    for v in range(H):
+        _edges_span(z[max(v - 1, 0)], z[v], z[min(v + 1, H - 1)], v > 0, v < H - 1, 0, W, jump_abs, jump_rel,
+                    edge[v], other[v])
+        valid_cum[v, 0] = 0
+        edge_cum[v, 0] = 0
+        for u in range(W):
+            valid_cum[v, u + 1] = valid_cum[v, u] + (1 if z[v, u] > 0.0 else 0)
+            edge_cum[v, u + 1] = edge_cum[v, u] + edge[v, u]
+
+
+@numba.njit(cache=True, nogil=True, inline="always")
+def _hull(spans, r0, r1, grow, W):
+    """``[a, b)``: the hull of the non-empty ``spans[r0:r1]``, grown by ``grow`` and clipped to
+    ``[0, W)``; ``(0, 0)`` when all are empty."""
+    a = W
+    b = 0
+    for r in range(r0, r1):
+        if spans[r, 1] > spans[r, 0]:
+            a = min(a, spans[r, 0])
+            b = max(b, spans[r, 1])
+    if b <= a:
+        return 0, 0
+    return max(a - grow, 0), min(b + grow, W)
 
 
 @numba.njit(cache=True, nogil=True)
-def compose_edges(static, s_edge, s_other, s_valid_row, s_edge_row, robot, r_spans, person, p_spans,
-                  zc, edge, other, valid_row, edge_row, c_spans, e_spans, jump_abs, jump_rel, do_edges):
-    """Step 2 of the module docstring, in place.
+def compose_edges(static, s_edge, s_other, s_valid_cum, s_edge_cum, robot, r_spans, person, p_spans,
+                  zc, edge, other, valid_row, edge_row, c_spans, e_spans, rows, jump_abs, jump_rel, do_edges):
+    """Step 2 of the module docstring, in place, in one sweep down the rows.
 
     static (H, W) float32 m raw (0 = nothing) with its ``s_edge`` (H, W) uint8, ``s_other`` (H, W)
-    float32 m, ``s_valid_row``, ``s_edge_row`` (H,) int64 (:func:`static_edges`); the layers
+    float32 m, ``s_valid_cum``, ``s_edge_cum`` (H, W + 1) int32 (:func:`static_edges`); the layers
     ``robot``, ``person`` (H, W) float32 m with their spans ``r_spans``, ``p_spans`` (H, 2) int32
     (:func:`layer_spans`; all ``(0, 0)``: no layer, the image is then not read).
-    The frame's state: ``zc`` (H, W) float32 the raw composite, ``edge``, ``other``, ``valid_row``,
-    ``edge_row`` as the static ones; ``c_spans``, ``e_spans`` (H, 2) int32 the spans composed and
-    edge-tested, on entry the previous frame's (restored from the static scene first), on return
-    this frame's. ``do_edges`` False (noiseless): the composite alone.
+    The frame's state: ``zc`` (H, W) float32 the raw composite, ``edge``, ``other`` as the static
+    ones, ``valid_row``, ``edge_row`` (H,) int64 the counts per row; ``c_spans``, ``e_spans`` (H,
+    2) int32 the spans composed and edge-tested, on entry the previous frame's (restored from the
+    static scene first), on return this frame's; ``rows`` (3, W) float64 scratch: three rows of
+    the composite as the edge test reads it (:func:`_depth`). ``do_edges`` False (noiseless): the
+    composite alone. Row ``i`` is composed, row ``i - 2`` read into ``rows``, row ``i - 3``
+    edge-tested — while the rows are in the cache.
     Returns ``(valid pixels, edge pixels)`` of the frame.
     """
     H, W = static.shape
-    for v in range(H):                       # the previous frame's pixels back to the static scene
-        for u in range(c_spans[v, 0], c_spans[v, 1]):
-            zc[v, u] = static[v, u]
-        for u in range(e_spans[v, 0], e_spans[v, 1]):
-            edge[v, u] = s_edge[v, u]
-            other[v, u] = s_other[v, u]
-    for v in range(H):                       # nearest of static, person, robot (nearest_depth's rule)
-        ra, rb = r_spans[v, 0], r_spans[v, 1]
-        pa, pb = p_spans[v, 0], p_spans[v, 1]
-        a = min(ra if rb > ra else W, pa if pb > pa else W)
-        b = max(rb if rb > ra else 0, pb if pb > pa else 0)
-        if b <= a:
-            a = 0
-            b = 0
-        c_spans[v, 0] = a
-        c_spans[v, 1] = b
-        if pb > pa:                          # outside its span a layer is 0: nothing to combine
-            for u in range(pa, pb):
-                x = static[v, u]
-                z = person[v, u]
-                zc[v, u] = z if (z > 0.0) & ((x == 0.0) | (z < x)) else x
-        if rb > ra:
-            for u in range(ra, rb):
-                x = zc[v, u]
-                z = robot[v, u]
-                zc[v, u] = z if (z > 0.0) & ((x == 0.0) | (z < x)) else x
     n_valid = 0
     n_edge = 0
-    for v in range(H):
-        valid_row[v] = s_valid_row[v]
-        edge_row[v] = s_edge_row[v]
-        a = W
-        b = 0
-        if do_edges:                         # a pixel's edge test reads its row and the two next to it
-            for r in range(max(0, v - 1), min(H, v + 2)):
-                if c_spans[r, 1] > c_spans[r, 0]:
-                    a = min(a, c_spans[r, 0] - 1)
-                    b = max(b, c_spans[r, 1] + 1)
-            a = max(a, 0)
-            b = min(b, W)
-        if b <= a:
-            a = 0
-            b = 0
-        e_spans[v, 0] = a
-        e_spans[v, 1] = b
-        if b > a:
-            dv, de = _edges_span(zc, v, a, b, jump_abs, jump_rel, edge, other, static, s_edge)
-            valid_row[v] += dv
-            edge_row[v] += de
-        n_valid += valid_row[v]
-        n_edge += edge_row[v]
+    for i in range(H + 3):
+        if i < H:                            # compose row i: the nearest of static, person, robot
+            v = i
+            for u in range(c_spans[v, 0], c_spans[v, 1]):     # the previous frame's pixels back
+                zc[v, u] = static[v, u]
+            ra, rb = r_spans[v, 0], r_spans[v, 1]
+            pa, pb = p_spans[v, 0], p_spans[v, 1]
+            a = min(ra if rb > ra else W, pa if pb > pa else W)
+            b = max(rb if rb > ra else 0, pb if pb > pa else 0)
+            c_spans[v, 0] = a if b > a else 0
+            c_spans[v, 1] = b if b > a else 0
+            for u in range(pa, pb):          # outside its span a layer is 0: nothing to combine
+                x = static[v, u]
+                y = person[v, u]
+                zc[v, u] = y if (y > 0.0) & ((x == 0.0) | (y < x)) else x
+            for u in range(ra, rb):
+                x = zc[v, u]
+                y = robot[v, u]
+                zc[v, u] = y if (y > 0.0) & ((x == 0.0) | (y < x)) else x
+        if not do_edges:
+            if i < H:
+                valid_row[i] = s_valid_cum[i, W]
+                edge_row[i] = s_edge_cum[i, W]
+                n_valid += valid_row[i]
+                n_edge += edge_row[i]
+            continue
+        r = i - 2
+        if r >= 0 and r < H:                 # row r as the edge tests of rows r - 1 .. r + 1 read it
+            a, b = _hull(c_spans, max(0, r - 2), min(H, r + 3), 2, W)
+            zr = rows[r % 3]
+            for u in range(a, b):
+                zr[u] = _depth(zc[r, u])
+        v = i - 3
+        if v >= 0:                           # edge test of row v where the composite changed
+            for u in range(e_spans[v, 0], e_spans[v, 1]):
+                edge[v, u] = s_edge[v, u]
+                other[v, u] = s_other[v, u]
+            a, b = _hull(c_spans, max(0, v - 1), min(H, v + 2), 1, W)
+            e_spans[v, 0] = a
+            e_spans[v, 1] = b
+            valid_row[v] = s_valid_cum[v, W]
+            edge_row[v] = s_edge_cum[v, W]
+            if b > a:
+                nv, ne = _edges_span(rows[(v + 2) % 3], rows[v % 3], rows[(v + 1) % 3], v > 0, v < H - 1, a, b,
+                                     jump_abs, jump_rel, edge[v], other[v])
+                valid_row[v] += nv - (s_valid_cum[v, b] - s_valid_cum[v, a])
+                edge_row[v] += ne - (s_edge_cum[v, b] - s_edge_cum[v, a])
+            n_valid += valid_row[v]
+            n_edge += edge_row[v]
     return n_valid, n_edge
 
 
@@ -265,7 +301,35 @@ def _finish(m, x, lo, hi, policy, fill):
     return r
 
 
-@numba.njit(cache=True, nogil=True)
+@numba.njit(cache=True, nogil=True, error_model="numpy")
+def _row_additive(zr, gr, sigma_a, sigma_z2, lo, hi, policy, fill, orow):
+    """A row of valid pixels (zr (W,) float32 m > 0) of the stereo / ToF law ``z + (sigma_a +
+    sigma_z2 z^2) g`` with its normals ``gr`` (W,), the range rule and the policy, into ``orow``;
+    selects only, so that the loop compiles to vector instructions (8x the pixel-by-pixel loop)."""
+    for u in range(zr.shape[0]):
+        zp = np.float64(zr[u])
+        m = zp + (sigma_a + sigma_z2 * zp * zp) * np.float64(gr[u])
+        m = 0.0 if (m < lo) | (m > hi) else m
+        r = np.float32(m)
+        orow[u] = fill if (policy == 2) & (not r > 0.0) else r
+
+
+@numba.njit(cache=True, nogil=True, error_model="numpy")
+def _row_disparity(zr, gr, g2r, fb, steps, sigma_a, sigma_z2, lo, hi, policy, fill, orow):
+    """:func:`_row_additive` for the structured-light law (disparity noise, quantisation,
+    ``sigma_a`` on top with the second normals ``g2r``)."""
+    for u in range(zr.shape[0]):
+        zp = np.float64(zr[u])
+        d = fb / zp + sigma_z2 * fb * np.float64(gr[u])
+        q = np.rint(d * steps) / steps
+        m = fb / q if q > 0.0 else 0.0
+        m = m + sigma_a * np.float64(g2r[u]) if (sigma_a > 0.0) & (m > 0.0) else m
+        m = 0.0 if (m < lo) | (m > hi) else m
+        r = np.float32(m)
+        orow[u] = fill if (policy == 2) & (not r > 0.0) else r
+
+
+@numba.njit(cache=True, nogil=True, error_model="numpy")
 def measure_frame(zc, edge, other, valid_row, edge_row, gauss, gauss2, u_fly, u_drop, kind, fb, steps,
                   sigma_a, sigma_z2, flying_fraction, edge_dropout, lo, hi, policy, fill, out):
     """Step 4 of the module docstring: ``out`` (H, W) float32 m, the measured frame.
@@ -290,10 +354,10 @@ def measure_frame(zc, edge, other, valid_row, edge_row, gauss, gauss2, u_fly, u_
         if valid_row[v] == W and kind != 0:
             gr = gauss[i:i + W]
             g2r = gauss2[i:i + W] if two else gr
-            for u in range(W):
-                zp = np.float64(zr[u])
-                orow[u] = _finish(_noisy(kind, zp, np.float64(gr[u]), np.float64(g2r[u]), fb, steps,
-                                         sigma_a, sigma_z2), zr[u], lo, hi, policy, fill)
+            if kind == 1:
+                _row_disparity(zr, gr, g2r, fb, steps, sigma_a, sigma_z2, lo, hi, policy, fill, orow)
+            else:
+                _row_additive(zr, gr, sigma_a, sigma_z2, lo, hi, policy, fill, orow)
             left = edge_row[v]
             u = 0
             while left > 0:                   # the row's edge pixels: flying pixels and dropout
@@ -364,13 +428,15 @@ class LayeredCamera:
         self.fill = np.float32(BEYOND_RANGE * max_range if invalid == "unknown" else max_range - 1e-3)
         self.s_edge = np.zeros((H, W), np.uint8)
         self.s_other = np.zeros((H, W), np.float32)
-        self.s_valid_row = np.zeros(H, np.int64)
-        self.s_edge_row = np.zeros(H, np.int64)
-        static_edges(self.static, EDGE_JUMP_ABS, EDGE_JUMP_REL, self.s_edge, self.s_other,
-                     self.s_valid_row, self.s_edge_row)
+        self.s_valid_cum = np.zeros((H, W + 1), np.int32)
+        self.s_edge_cum = np.zeros((H, W + 1), np.int32)
+        static_edges(self.static, np.zeros((H, W), np.float64), EDGE_JUMP_ABS, EDGE_JUMP_REL, self.s_edge,
+                     self.s_other, self.s_valid_cum, self.s_edge_cum)
         self.zc = self.static.copy()
+        self.rows = np.zeros((3, W), np.float64)
         self.edge, self.other = self.s_edge.copy(), self.s_other.copy()
-        self.valid_row, self.edge_row = self.s_valid_row.copy(), self.s_edge_row.copy()
+        self.valid_row = self.s_valid_cum[:, W].astype(np.int64)
+        self.edge_row = self.s_edge_cum[:, W].astype(np.int64)
         self.c_spans = np.zeros((H, 2), np.int32)
         self.e_spans = np.zeros((H, 2), np.int32)
         self.r_spans = np.zeros((H, 2), np.int32)
@@ -392,18 +458,23 @@ class LayeredCamera:
         layer_spans(layer.view(np.uint32), spans)
         return layer
 
+    def compose(self, robot, person) -> tuple[int, int]:
+        """Steps 1-2 of the module docstring: the frame's composite and edges of the layers
+        ``robot`` and ``person`` ((H, W) float32 m or None); returns its ``(valid, edge)`` pixels."""
+        r = self._layer(robot, self.r_spans)
+        p = self._layer(person, self.p_spans)
+        return compose_edges(self.static, self.s_edge, self.s_other, self.s_valid_cum, self.s_edge_cum,
+                             r, self.r_spans, p, self.p_spans, self.zc, self.edge, self.other,
+                             self.valid_row, self.edge_row, self.c_spans, self.e_spans, self.rows, EDGE_JUMP_ABS,
+                             EDGE_JUMP_REL, self.noise)
+
     def frame(self, robot, person, rng: np.random.Generator, bank=None, dark: bool = False,
               out: np.ndarray | None = None) -> np.ndarray:
         """The measured (H, W) float32 m frame (``out``, or a new image) of the static scene with
         the layers ``robot`` and ``person`` ((H, W) float32 m or None), the noise drawn from
         ``rng`` (its normals from ``bank``, a :class:`~depthguard.sources.noise.NormalBank`, when
         given); ``dark``: the person's pixels return nothing."""
-        r = self._layer(robot, self.r_spans)
-        p = self._layer(person, self.p_spans)
-        n_valid, n_edges = compose_edges(self.static, self.s_edge, self.s_other, self.s_valid_row,
-                                         self.s_edge_row, r, self.r_spans, p, self.p_spans, self.zc,
-                                         self.edge, self.other, self.valid_row, self.edge_row,
-                                         self.c_spans, self.e_spans, EDGE_JUMP_ABS, EDGE_JUMP_REL, self.noise)
+        n_valid, n_edges = self.compose(robot, person)
         if out is None:
             out = np.empty(self.shape, np.float32)
         if self.noise:
@@ -415,7 +486,7 @@ class LayeredCamera:
         measure_frame(self.zc, self.edge, self.other, self.valid_row, self.edge_row, g, g2, u_fly, u_drop, kind, fb, steps, sa, sz2, ff,
                       ed, self.lo, self.hi, self.policy, self.fill, out)
         if dark and person is not None:
-            dark_layer(out, p, self.zc, self.p_spans)
+            dark_layer(out, person, self.zc, self.p_spans)
         return out
 
 
