@@ -220,22 +220,37 @@ def compose_edges(static, s_edge, s_other, s_valid_cum, s_edge_cum, robot, r_spa
     for i in range(H + 3):
         if i < H:                            # compose row i: the nearest of static, person, robot
             v = i
-            for u in range(c_spans[v, 0], c_spans[v, 1]):     # the previous frame's pixels back
-                zc[v, u] = static[v, u]
             ra, rb = r_spans[v, 0], r_spans[v, 1]
             pa, pb = p_spans[v, 0], p_spans[v, 1]
             a = min(ra if rb > ra else W, pa if pb > pa else W)
             b = max(rb if rb > ra else 0, pb if pb > pa else 0)
-            c_spans[v, 0] = a if b > a else 0
-            c_spans[v, 1] = b if b > a else 0
-            for u in range(pa, pb):          # outside its span a layer is 0: nothing to combine
-                x = static[v, u]
-                y = person[v, u]
-                zc[v, u] = y if (y > 0.0) & ((x == 0.0) | (y < x)) else x
-            for u in range(ra, rb):
-                x = zc[v, u]
-                y = robot[v, u]
-                zc[v, u] = y if (y > 0.0) & ((x == 0.0) | (y < x)) else x
+            if b <= a:
+                a = 0
+                b = 0
+            # the previous frame's pixels that this one does not compose again: back to static
+            for u in range(c_spans[v, 0], min(c_spans[v, 1], a)):
+                zc[v, u] = static[v, u]
+            for u in range(max(c_spans[v, 0], b), c_spans[v, 1]):
+                zc[v, u] = static[v, u]
+            c_spans[v, 0] = a
+            c_spans[v, 1] = b
+            if pb > pa and rb > ra:          # a layer is 0 outside its span: read over the hull
+                for u in range(a, b):
+                    x = static[v, u]
+                    y = person[v, u]
+                    x = y if (y > 0.0) & ((x == 0.0) | (y < x)) else x
+                    y = robot[v, u]
+                    zc[v, u] = y if (y > 0.0) & ((x == 0.0) | (y < x)) else x
+            elif pb > pa:
+                for u in range(a, b):
+                    x = static[v, u]
+                    y = person[v, u]
+                    zc[v, u] = y if (y > 0.0) & ((x == 0.0) | (y < x)) else x
+            else:
+                for u in range(a, b):
+                    x = static[v, u]
+                    y = robot[v, u]
+                    zc[v, u] = y if (y > 0.0) & ((x == 0.0) | (y < x)) else x
         if not do_edges:
             if i < H:
                 valid_row[i] = s_valid_cum[i, W]
@@ -251,10 +266,13 @@ def compose_edges(static, s_edge, s_other, s_valid_cum, s_edge_cum, robot, r_spa
                 zr[u] = _depth(zc[r, u])
         v = i - 3
         if v >= 0:                           # edge test of row v where the composite changed
-            for u in range(e_spans[v, 0], e_spans[v, 1]):
+            a, b = _hull(c_spans, max(0, v - 1), min(H, v + 2), 1, W)
+            for u in range(e_spans[v, 0], min(e_spans[v, 1], a)):   # tested last frame, not now
                 edge[v, u] = s_edge[v, u]
                 other[v, u] = s_other[v, u]
-            a, b = _hull(c_spans, max(0, v - 1), min(H, v + 2), 1, W)
+            for u in range(max(e_spans[v, 0], b), e_spans[v, 1]):
+                edge[v, u] = s_edge[v, u]
+                other[v, u] = s_other[v, u]
             e_spans[v, 0] = a
             e_spans[v, 1] = b
             valid_row[v] = s_valid_cum[v, W]

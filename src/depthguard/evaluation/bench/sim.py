@@ -14,7 +14,7 @@ default numba threads, the renders on one):
   D435 frame of the ur3-cell besides its two renders — the static scene and the moving layers
   (robot, person) combined, the noise with a real-time run's normal bank, the invalid pixels as
   the ``sim:`` source has them (:class:`~depthguard.sources.layered.LayeredCamera`), median
-  over frames of 2 s of the scene. Peer: the former way on the same layers and generators
+  over frames of 2 s of the scene, each call right after its layers' renders. Peer: the former way on the same layers and generators
   (:func:`~depthguard.sources.layered.reference_frame`: copy, ``nearest_depth`` twice,
   ``apply_noise``, the policy on whole images), alternated; the frames must be bit-identical.
 - ``sim.c_arm_room.occupancy_5cm_ms``: ground-truth occupancy (R24) of the
@@ -118,29 +118,33 @@ def _frame_cpu_row(cell, n: int) -> BenchRow:
     hi = model.returns_to(cam.max_range)
     layered = LayeredCamera(ex.static, model, cam.fx, cam.min_range, hi, cam.max_range, invalid="unknown")
     bank = NormalBank(0)
-    frames = []
-    for k in range(n):
-        t = 2.0 + 2.0 * k / n
-        moving, _ = cell.scene.moving_meshes_at(t)
-        person = people.render(moving)[0].copy() if moving else None
-        frames.append((t, ex.robot(cell.scene.robot_q(t)).copy(), person))
+    scene = cell.scene
+
+    def layers(t):          # rendered just before the call, as in a shot (not timed)
+        moving, _ = scene.moving_meshes_at(t)
+        return ex.robot(scene.robot_q(t)), (people.render(moving)[0] if moving else None)
+
     new, old = [], []
     previous = numba.get_num_threads()
     numba.set_num_threads(1)
     try:
         for rep in range(3):
-            for t, robot, person in frames:
+            for k in range(n):
+                t = 2.0 + 2.0 * k / n
+                robot, person = layers(t)
                 c0 = time.thread_time()
                 a = layered.frame(robot, person, frame_rng(0, cam.id, t), bank=bank)
                 c1 = time.thread_time()
+                robot, person = layers(t)
+                c2 = time.thread_time()
                 b = reference_frame(ex.static, robot, person, model, cam.fx, cam.min_range, hi, cam.max_range,
                                     frame_rng(0, cam.id, t), bank=bank)
-                c2 = time.thread_time()
+                c3 = time.thread_time()
                 if a.tobytes() != b.tobytes():
                     raise AssertionError(f"sim bench: the layered frame at t = {t} differs from the former way")
                 if rep:
                     new.append(c1 - c0)
-                    old.append(c2 - c1)
+                    old.append(c3 - c2)
     finally:
         numba.set_num_threads(previous)
     return BenchRow("sim.ur3_cell.frame_cpu_ms", 1e3 * float(np.median(new)), "ms", None,
