@@ -96,13 +96,44 @@ def test_layer_spans_hold_every_nonzero_pixel():
         a[3, width - 1] = -0.0
         a[4, 0] = np.nan
         spans = np.full((30, 2), -7, np.int32)
-        total = layer_spans(a.view(np.uint32), spans)
+        total = layer_spans(a.view(np.uint32), spans, -5, 99, -3, width + 8)     # a window beyond the image
         want = []
         for row in a.view(np.uint32):
             nz = np.flatnonzero(row)
             want.append((nz[0], nz[-1] + 1) if len(nz) else (0, 0))
         np.testing.assert_array_equal(spans, np.array(want))
         assert total == sum(b - a_ for a_, b in want)
+        vv, uu = np.nonzero(a.view(np.uint32))                  # the tightest window: the same spans
+        layer_spans(a.view(np.uint32), spans, vv.min(), vv.max() + 1, uu.min(), uu.max() + 1)
+        np.testing.assert_array_equal(spans, np.array(want))
+
+
+def test_mesh_window_holds_every_pixel_the_renderer_draws():
+    """Truth: the renderer itself. Random triangles in front of a ur3-cell camera, some partly
+    outside the image: every pixel drawn lies in the window; a vertex behind the near plane
+    widens it to the whole image."""
+    from depthguard.geometry.mesh import Mesh
+    from depthguard.sources.layered import mesh_window
+
+    cam = load_cell("ur3-cell").rig.cameras[0]
+    r = Renderer(cam)
+    R, t = np.ascontiguousarray(cam.R, dtype=np.float64), np.ascontiguousarray(cam.t, dtype=np.float64)
+    rng = np.random.default_rng(5)
+    for k in range(30):
+        centre = cam.position + (0.6 + 2.5 * rng.random()) * cam.R[2] + rng.normal(0, 0.8, 3)
+        v = centre + rng.normal(0, 0.05 + 0.3 * rng.random(), (6, 3))
+        mesh = Mesh(v, np.array([[0, 1, 2], [3, 4, 5], [0, 2, 1], [3, 5, 4]], np.int32))
+        depth = np.array(r.render([mesh])[0])
+        win = np.array([1 << 30, -(1 << 30), 1 << 30, -(1 << 30)], np.int64)
+        inside = mesh_window(mesh.vertices, R, t, cam.fx, cam.fy, cam.cx, cam.cy, r.near, win)
+        vv, uu = np.nonzero(depth)
+        if inside and len(vv):
+            assert win[0] <= vv.min() and vv.max() < win[1] and win[2] <= uu.min() and uu.max() < win[3], k
+        if not inside:
+            assert win[0] < 0 and win[1] > cam.height and win[2] < 0 and win[3] > cam.width
+    behind = cam.position - 0.5 * cam.R[2]
+    win = np.zeros(4, np.int64)
+    assert not mesh_window(np.array([behind]), R, t, cam.fx, cam.fy, cam.cx, cam.cy, r.near, win)
 
 
 def test_layers_may_be_read_only_views():

@@ -38,7 +38,7 @@ import numpy as np
 from depthguard.filtering.expected import ExpectedDepth
 from depthguard.geometry.decimate import SIM_CELL
 from depthguard.render import Renderer
-from depthguard.sources.layered import LayeredCamera
+from depthguard.sources.layered import LayeredCamera, mesh_window
 from depthguard.sources.simulated import SimulatedCamera, frame_rng
 
 __all__ = ["CameraSim", "CameraSchedule", "Shot", "INVALID_POLICIES"]
@@ -82,6 +82,10 @@ class CameraSim:
         self.expected = {c.id: ExpectedDepth(c, robot, static, parallel=parallel, robot_cell=SIM_CELL) for c in cams}
         self.sims = {c.id: SimulatedCamera(c, seed=seed, noiseless=noiseless) for c in cams}
         self._moving = {c.id: Renderer(c, parallel=parallel) for c in cams}
+        self._robot = {c.id: Renderer(c, parallel=parallel) for c in cams}     # the robot layer's own
+        self._win = np.zeros(4, np.int64)
+        self._pose = {c.id: (np.ascontiguousarray(c.R, dtype=np.float64), np.ascontiguousarray(c.t, dtype=np.float64))
+                      for c in cams}
         self.layered = {c.id: LayeredCamera(self.expected[c.id].static, self.sims[c.id].model, c.fx, c.min_range,
                                             self.sims[c.id].model.returns_to(c.max_range), c.max_range,
                                             noiseless=noiseless, invalid=invalid) for c in cams}
@@ -101,17 +105,43 @@ class CameraSim:
         """Camera ``camera_id``'s frame captured at ``t`` (s, the noise's stamp) with the robot at
         ``q`` (dof,) rad (None: no robot in the image) and the moving obstacles' world meshes
         ``moving`` (module docstring)."""
-        ex = self.expected[camera_id]
         t0 = time.perf_counter()
-        rd = ex.robot(q) if (self.robot is not None and q is not None) else None      # ExpectedDepth's reused buffer
+        rd = rwin = None
+        if self.robot is not None and q is not None:
+            qa = np.asarray(q, dtype=np.float64).reshape(-1)
+            if qa.shape[0] != self.robot.dof or not np.all(np.isfinite(qa)):
+                raise ValueError(f"expected {self.robot.dof} finite joint values, got {qa.tolist()}")
+            meshes = self.robot.render_link_meshes(qa, SIM_CELL)     # as ExpectedDepth.robot renders it
+            rd = self._robot[camera_id].render(meshes)[0]            # the renderer's buffer
+            rwin = self._window(camera_id, meshes)
         robot_depth = np.array(rd, copy=True) if keep_robot and rd is not None else None
         t1 = time.perf_counter()
-        person = self._moving[camera_id].render(moving if isinstance(moving, list) else list(moving))[0] \
-            if moving else None                                                     # the renderer's buffer
+        person = pwin = None
+        if moving:
+            moving = moving if isinstance(moving, list) else list(moving)
+            person = self._moving[camera_id].render(moving)[0]      # the renderer's buffer
+            pwin = self._window(camera_id, moving)
         sim = self.sims[camera_id]
         # the robot occludes, as on a real cell; a user's rig without walls: R28 (module docstring)
-        d = self.layered[camera_id].frame(rd, person, frame_rng(sim.seed, camera_id, t), bank=sim.bank, dark=dark)
+        d = self.layered[camera_id].frame(rd, person, frame_rng(sim.seed, camera_id, t), bank=sim.bank, dark=dark,
+                                          robot_window=rwin, person_window=pwin)
         return Shot(d, robot_depth, t1 - t0, time.perf_counter() - t1)
+
+    def _window(self, camera_id: str, meshes) -> tuple | None:
+        """The pixel window ``(v0, v1, u0, u1)`` that holds what ``meshes`` can draw in the camera
+        (:func:`~depthguard.sources.layered.mesh_window`), None: the whole image."""
+        near = self._robot[camera_id].near
+        cam = self.cams[camera_id]
+        R, tr = self._pose[camera_id]
+        win = self._win
+        win[:] = (1 << 30, -(1 << 30), 1 << 30, -(1 << 30))
+        for m in meshes:
+            v = getattr(m, "vertices", None)
+            if not (isinstance(v, np.ndarray) and v.dtype == np.float64 and v.ndim == 2 and v.shape[1] == 3):
+                return None
+            if not mesh_window(v, R, tr, float(cam.fx), float(cam.fy), float(cam.cx), float(cam.cy), near, win):
+                return None
+        return int(win[0]), int(win[1]), int(win[2]), int(win[3])
 
     def depth(self, camera_id: str, t: float, q, moving: Sequence = (), dark: bool = False) -> np.ndarray:
         """The measured (H, W) float32 depth alone (:meth:`shot`)."""

@@ -31,7 +31,7 @@ import numpy as np
 from depthguard.render.composite import nearest_depth
 from depthguard.sources.noise import EDGE_JUMP_ABS, EDGE_JUMP_REL, _draws, _params, apply_noise
 
-__all__ = ["LayeredCamera", "layer_spans", "compose_edges", "measure_frame", "reference_frame",
+__all__ = ["LayeredCamera", "layer_spans", "mesh_window", "compose_edges", "measure_frame", "reference_frame",
            "POLICY_CODES"]
 
 #: the invalid pixels' policies (``camera_sim.INVALID_POLICIES``) as kernel codes
@@ -45,44 +45,81 @@ def _depth(x):
 
 
 @numba.njit(cache=True, nogil=True)
-def layer_spans(bits, spans):
+def layer_spans(bits, spans, v0, v1, u0, u1):
     """Per row, the span of a layer's nonzero pixels (step 1 of the module docstring).
 
     bits : (H, W) uint32, the layer's float32 bits (``layer.view(np.uint32)``); spans : (H, 2)
     int32, filled with ``[a, b)`` such that every pixel of row ``v`` outside it is +0.0 (``(0,
-    0)``: none). Rows are scanned 16 words at a time from both ends. Returns the pixels spanned.
+    0)``: none). Only the window rows ``[v0, v1)``, columns ``[u0, u1)`` are read: the caller
+    knows the layer is 0 outside it (:func:`mesh_window`; the whole image when it does not).
+    Rows are scanned 16 words at a time from both ends. Returns the pixels spanned.
     """
     H, W = bits.shape
+    v0 = max(v0, 0)
+    v1 = min(v1, H)
+    u0 = max(u0, 0)
+    u1 = min(u1, W)
     total = 0
     for v in range(H):
-        a = 0
-        while a + 16 <= W:
+        spans[v, 0] = 0
+        spans[v, 1] = 0
+        if v < v0 or v >= v1 or u1 <= u0:
+            continue
+        row = bits[v]
+        a = u0
+        while a + 16 <= u1:
             acc = np.uint32(0)
             for j in range(16):
-                acc |= bits[v, a + j]
+                acc |= row[a + j]
             if acc != 0:
                 break
             a += 16
-        while a < W and bits[v, a] == 0:
+        while a < u1 and row[a] == 0:
             a += 1
-        if a == W:
-            spans[v, 0] = 0
-            spans[v, 1] = 0
+        if a == u1:
             continue
-        b = W
+        b = u1
         while b - 16 >= a:
             acc = np.uint32(0)
             for j in range(16):
-                acc |= bits[v, b - 16 + j]
+                acc |= row[b - 16 + j]
             if acc != 0:
                 break
             b -= 16
-        while bits[v, b - 1] == 0:
+        while row[b - 1] == 0:
             b -= 1
         spans[v, 0] = a
         spans[v, 1] = b
         total += b - a
     return total
+
+
+@numba.njit(cache=True, nogil=True)
+def mesh_window(vertices, R, t, fx, fy, cx, cy, near, win):
+    """Grow ``win`` (4,) int64 ``[v0, v1, u0, u1]`` (pixel rows / columns, half-open) to hold every
+    pixel a renderer (``px = x fx / z + cx``, camera point ``R p + t``) can draw of triangles with
+    the world ``vertices`` (V, 3) float64 m: their projected box and 2 pixels around it. A vertex
+    at or behind the near plane ``near`` m (a clipped triangle reaches anywhere): the whole image.
+    Returns False then."""
+    for i in range(vertices.shape[0]):
+        x, y, z = vertices[i, 0], vertices[i, 1], vertices[i, 2]
+        zc = R[2, 0] * x + R[2, 1] * y + R[2, 2] * z + t[2]
+        if not zc > near:
+            win[0] = -(1 << 30)
+            win[1] = 1 << 30
+            win[2] = -(1 << 30)
+            win[3] = 1 << 30
+            return False
+        px = (R[0, 0] * x + R[0, 1] * y + R[0, 2] * z + t[0]) * fx / zc + cx
+        py = (R[1, 0] * x + R[1, 1] * y + R[1, 2] * z + t[1]) * fy / zc + cy
+        if not (abs(px) < 1e9 and abs(py) < 1e9):
+            px = 1e9 if not px < 0.0 else -1e9
+            py = 1e9 if not py < 0.0 else -1e9
+        win[0] = min(win[0], np.int64(np.floor(py)) - 2)
+        win[1] = max(win[1], np.int64(np.ceil(py)) + 3)
+        win[2] = min(win[2], np.int64(np.floor(px)) - 2)
+        win[3] = max(win[3], np.int64(np.ceil(px)) + 3)
+    return True
 
 
 @numba.njit(cache=True, nogil=True, inline="always")
@@ -466,33 +503,36 @@ class LayeredCamera:
         self.u_fly = np.empty(n, np.float64)
         self.u_drop = np.empty(n, np.float64)
 
-    def _layer(self, layer, spans):
+    def _layer(self, layer, spans, window):
         if layer is None:
             spans.fill(0)
             return self._empty
         if layer.shape != self.shape or layer.dtype != np.float32 or not layer.flags.c_contiguous:
             raise ValueError(f"a layer must be a C-contiguous float32 {self.shape} image, got "
                              f"{layer.dtype} {layer.shape}")
-        layer_spans(layer.view(np.uint32), spans)
+        v0, v1, u0, u1 = (0, self.shape[0], 0, self.shape[1]) if window is None else window
+        layer_spans(layer.view(np.uint32), spans, int(v0), int(v1), int(u0), int(u1))
         return layer
 
-    def compose(self, robot, person) -> tuple[int, int]:
+    def compose(self, robot, person, robot_window=None, person_window=None) -> tuple[int, int]:
         """Steps 1-2 of the module docstring: the frame's composite and edges of the layers
-        ``robot`` and ``person`` ((H, W) float32 m or None); returns its ``(valid, edge)`` pixels."""
-        r = self._layer(robot, self.r_spans)
-        p = self._layer(person, self.p_spans)
+        ``robot`` and ``person`` ((H, W) float32 m or None), each 0 outside its window ``(v0, v1,
+        u0, u1)`` (pixel rows / columns, half-open; None: anywhere); returns its ``(valid, edge)``
+        pixels."""
+        r = self._layer(robot, self.r_spans, robot_window)
+        p = self._layer(person, self.p_spans, person_window)
         return compose_edges(self.static, self.s_edge, self.s_other, self.s_valid_cum, self.s_edge_cum,
                              r, self.r_spans, p, self.p_spans, self.zc, self.edge, self.other,
                              self.valid_row, self.edge_row, self.c_spans, self.e_spans, self.rows, EDGE_JUMP_ABS,
                              EDGE_JUMP_REL, self.noise)
 
     def frame(self, robot, person, rng: np.random.Generator, bank=None, dark: bool = False,
-              out: np.ndarray | None = None) -> np.ndarray:
+              out: np.ndarray | None = None, robot_window=None, person_window=None) -> np.ndarray:
         """The measured (H, W) float32 m frame (``out``, or a new image) of the static scene with
         the layers ``robot`` and ``person`` ((H, W) float32 m or None), the noise drawn from
         ``rng`` (its normals from ``bank``, a :class:`~depthguard.sources.noise.NormalBank`, when
-        given); ``dark``: the person's pixels return nothing."""
-        n_valid, n_edges = self.compose(robot, person)
+        given); ``dark``: the person's pixels return nothing; the windows: :meth:`compose`."""
+        n_valid, n_edges = self.compose(robot, person, robot_window, person_window)
         if out is None:
             out = np.empty(self.shape, np.float32)
         if self.noise:
