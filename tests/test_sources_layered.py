@@ -155,12 +155,12 @@ def test_layers_may_be_read_only_views():
 
 
 def test_a_cell_s_frames_equal_the_former_way():
-    """ur3-cell, two 640x480 D435 with the robot moving and a person walking in: the frames of
+    """ur3-cell, a 640x480 D435 with the robot moving and a person walking in: the frames of
     consecutive captures equal the former way (numba kernels; the first also the numpy twins),
     exact draws and the real-time bank alike."""
     cell = load_cell("ur3-cell")
     bank = NormalBank(0)
-    for cam in cell.rig.cameras[:2]:
+    for cam in cell.rig.cameras[:1]:
         model = sensor_model(cam.sensor)
         hi = model.returns_to(cam.max_range)
         ex = ExpectedDepth(cam, cell.scene.robot, cell.scene.static_meshes, robot_cell=SIM_CELL)

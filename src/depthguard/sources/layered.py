@@ -6,20 +6,21 @@ the moving layers — the robot at its joints, the people and props — as depth
 nothing), and only the pixels they can change are worked again:
 
 1. :func:`layer_spans`: per row, the span ``[a, b)`` of a layer's nonzero pixels (a run list;
-   on the built-in cells 10-15 % of a 640x480 image);
-2. :func:`compose_edges`: the previous frame's spans are restored from the static scene, the
+   on the built-in cells 10-30 % of a 640x480 image), read only inside the window its meshes
+   project to (:func:`mesh_window`);
+2. :func:`compose_edges`, one sweep down the rows: the previous frame's spans are restored from the static scene, the
    layers are combined with it per pixel in their spans (the nearest surface wins:
    :func:`depthguard.render.composite.nearest_depth`'s rule), and the depth edges are found
    again in the spans grown by the edge test's reach (one pixel and one row); the per-row
    counts of valid and edge pixels follow, so the draws are known before any is made;
 3. the draws of :func:`depthguard.sources.noise.apply_noise`, in its order;
-4. :func:`measure_frame`: one pass over the image — the noise model, the range rule and the
-   invalid pixels' policy (``camera_sim``'s step 3) together.
+4. :func:`~depthguard.sources.frame_measure.measure_frame`: one pass over the image — the noise
+   model, the range rule and the invalid pixels' policy (``camera_sim``'s step 3) together.
 
 The result is bit for bit the frame of the former way (copy the static scene, ``nearest_depth``
 of each layer, ``apply_noise``, ``returns_beyond_the_model``), which stays as
 :func:`reference_frame` — with ``use_numpy=True`` on the plain-numpy twins — for the tests and
-the bench (``sim.ur3_cell.frame_noise_ms``). The kernels run on the calling thread and allocate
+the bench (``sim.ur3_cell.frame_cpu_ms``). The kernels run on the calling thread and allocate
 nothing; the frame's own image is the one allocation.
 """
 
@@ -29,6 +30,7 @@ import numba
 import numpy as np
 
 from depthguard.render.composite import nearest_depth
+from depthguard.sources.frame_measure import dark_layer, depth_of, measure_frame
 from depthguard.sources.noise import EDGE_JUMP_ABS, EDGE_JUMP_REL, _draws, _params, apply_noise
 
 __all__ = ["LayeredCamera", "layer_spans", "mesh_window", "compose_edges", "measure_frame", "reference_frame",
@@ -36,12 +38,6 @@ __all__ = ["LayeredCamera", "layer_spans", "mesh_window", "compose_edges", "meas
 
 #: the invalid pixels' policies (``camera_sim.INVALID_POLICIES``) as kernel codes
 POLICY_CODES = {None: 0, "unknown": 1, "free": 2}
-
-
-@numba.njit(cache=True, nogil=True, inline="always")
-def _depth(x):
-    """A float32 depth as the noise model reads it: float64 metres, 0 where not finite or <= 0."""
-    return np.float64(x) if (x > 0.0 and x < np.inf) else 0.0
 
 
 @numba.njit(cache=True, nogil=True)
@@ -157,7 +153,7 @@ def _edge_general(zu, zm, zd, u, up, down, W, jump_abs, jump_rel):
 @numba.njit(cache=True, nogil=True)
 def _edges_span(zu, zm, zd, up, down, a, b, jump_abs, jump_rel, erow, orow):
     """Edge test of pixels ``[a, b)`` of the row ``zm`` (W,) float64 m (0 = invalid: the composite
-    as :func:`_depth` reads it), with the rows above / below ``zu``, ``zd`` (``up`` / ``down``:
+    as :func:`~depthguard.sources.frame_measure.depth_of` reads it), with the rows above / below ``zu``, ``zd`` (``up`` / ``down``:
     whether they exist), into ``erow`` (W,) uint8 and ``orow`` (W,) float32 m, as
     :func:`depthguard.sources.noise.depth_edges` (neighbours left, right, up, down; an image
     border has none); the interior pixels in a loop of selects (vector instructions).
@@ -203,11 +199,11 @@ def static_edges(static, z, jump_abs, jump_rel, edge, other, valid_cum, edge_cum
     ``edge`` (H, W) uint8, ``other`` (H, W) float32 m (the depth across the edge, as
     :func:`depthguard.sources.noise.depth_edges`), and ``valid_cum``, ``edge_cum`` (H, W + 1)
     int32: per row the valid / edge pixels left of each column (``[v, W]``: the row's count).
-    ``z`` (H, W) float64: scratch (``static`` as the noise reads it, :func:`_depth`)."""
+    ``z`` (H, W) float64: scratch (``static`` as the noise reads it, :func:`~depthguard.sources.frame_measure.depth_of`)."""
     H, W = static.shape
     for v in range(H):
         for u in range(W):
-            z[v, u] = _depth(static[v, u])
+            z[v, u] = depth_of(static[v, u])
     for v in range(H):
         _edges_span(z[max(v - 1, 0)], z[v], z[min(v + 1, H - 1)], v > 0, v < H - 1, 0, W, jump_abs, jump_rel,
                     edge[v], other[v])
@@ -246,7 +242,7 @@ def compose_edges(static, s_edge, s_other, s_valid_cum, s_edge_cum, robot, r_spa
     ones, ``valid_row``, ``edge_row`` (H,) int64 the counts per row; ``c_spans``, ``e_spans`` (H,
     2) int32 the spans composed and edge-tested, on entry the previous frame's (restored from the
     static scene first), on return this frame's; ``rows`` (3, W) float64 scratch: three rows of
-    the composite as the edge test reads it (:func:`_depth`). ``do_edges`` False (noiseless): the
+    the composite as the edge test reads it (:func:`~depthguard.sources.frame_measure.depth_of`). ``do_edges`` False (noiseless): the
     composite alone. Row ``i`` is composed, row ``i - 2`` read into ``rows``, row ``i - 3``
     edge-tested — while the rows are in the cache.
     Returns ``(valid pixels, edge pixels)`` of the frame.
@@ -300,7 +296,7 @@ def compose_edges(static, s_edge, s_other, s_valid_cum, s_edge_cum, robot, r_spa
             a, b = _hull(c_spans, max(0, r - 2), min(H, r + 3), 2, W)
             zr = rows[r % 3]
             for u in range(a, b):
-                zr[u] = _depth(zc[r, u])
+                zr[u] = depth_of(zc[r, u])
         v = i - 3
         if v >= 0:                           # edge test of row v where the composite changed
             a, b = _hull(c_spans, max(0, v - 1), min(H, v + 2), 1, W)
@@ -322,146 +318,6 @@ def compose_edges(static, s_edge, s_other, s_valid_cum, s_edge_cum, robot, r_spa
             n_valid += valid_row[v]
             n_edge += edge_row[v]
     return n_valid, n_edge
-
-
-@numba.njit(cache=True, nogil=True, inline="always")
-def _noisy(kind, zp, g, g2, fb, steps, sigma_a, sigma_z2):
-    """The noise model's depth (m) of a valid pixel at ``zp`` m with its normals ``g``, ``g2``
-    (:func:`depthguard.sources.noise.measure_kernel`'s formulas, in its order)."""
-    if kind == 1:
-        d = fb / zp + sigma_z2 * fb * g
-        q = np.rint(d * steps) / steps
-        m = fb / q if q > 0.0 else 0.0
-        if sigma_a > 0.0 and m > 0.0:
-            m += sigma_a * g2
-        return m
-    if kind == 0:
-        return zp
-    return zp + (sigma_a + sigma_z2 * zp * zp) * g
-
-
-@numba.njit(cache=True, nogil=True, inline="always")
-def _finish(m, x, lo, hi, policy, fill):
-    """The range rule, then the invalid pixels' policy: the float32 value of a pixel measured
-    ``m`` m whose raw composite is ``x``."""
-    if m < lo or m > hi:
-        m = 0.0
-    r = np.float32(m)
-    if policy == 1:
-        if x <= 0.0:
-            r = fill
-    elif policy == 2:
-        if not r > 0.0:
-            r = fill
-    return r
-
-
-@numba.njit(cache=True, nogil=True, error_model="numpy")
-def _row_additive(zr, gr, sigma_a, sigma_z2, lo, hi, policy, fill, orow):
-    """A row of valid pixels (zr (W,) float32 m > 0) of the stereo / ToF law ``z + (sigma_a +
-    sigma_z2 z^2) g`` with its normals ``gr`` (W,), the range rule and the policy, into ``orow``;
-    selects only, so that the loop compiles to vector instructions (8x the pixel-by-pixel loop)."""
-    for u in range(zr.shape[0]):
-        zp = np.float64(zr[u])
-        m = zp + (sigma_a + sigma_z2 * zp * zp) * np.float64(gr[u])
-        m = 0.0 if (m < lo) | (m > hi) else m
-        r = np.float32(m)
-        orow[u] = fill if (policy == 2) & (not r > 0.0) else r
-
-
-@numba.njit(cache=True, nogil=True, error_model="numpy")
-def _row_disparity(zr, gr, g2r, fb, steps, sigma_a, sigma_z2, lo, hi, policy, fill, orow):
-    """:func:`_row_additive` for the structured-light law (disparity noise, quantisation,
-    ``sigma_a`` on top with the second normals ``g2r``)."""
-    for u in range(zr.shape[0]):
-        zp = np.float64(zr[u])
-        d = fb / zp + sigma_z2 * fb * np.float64(gr[u])
-        q = np.rint(d * steps) / steps
-        m = fb / q if q > 0.0 else 0.0
-        m = m + sigma_a * np.float64(g2r[u]) if (sigma_a > 0.0) & (m > 0.0) else m
-        m = 0.0 if (m < lo) | (m > hi) else m
-        r = np.float32(m)
-        orow[u] = fill if (policy == 2) & (not r > 0.0) else r
-
-
-@numba.njit(cache=True, nogil=True, error_model="numpy")
-def measure_frame(zc, edge, other, valid_row, edge_row, gauss, gauss2, u_fly, u_drop, kind, fb, steps,
-                  sigma_a, sigma_z2, flying_fraction, edge_dropout, lo, hi, policy, fill, out):
-    """Step 4 of the module docstring: ``out`` (H, W) float32 m, the measured frame.
-
-    zc, edge, other, valid_row, edge_row : the frame's composite, edges and counts per row
-    (:func:`compose_edges`); the draws and the model's terms as
-    :func:`depthguard.sources.noise.measure_kernel` (kind 0: the range rule alone, as
-    noiseless); policy : :data:`POLICY_CODES` — 1 ``"unknown"``: a pixel whose composite is <= 0
-    (nothing the scene models) reads ``fill``; 2 ``"free"``: every 0 reads ``fill``; 0: the raw
-    sensor. A row whose pixels are all valid is measured in a loop without branches (the
-    compiler's vector instructions), its edge pixels after; other rows pixel by pixel.
-    """
-    H, W = zc.shape
-    n_fly = u_fly.shape[0]
-    n_drop = u_drop.shape[0]
-    two = kind == 1 and sigma_a > 0.0
-    i = 0
-    k = 0
-    for v in range(H):
-        zr = zc[v]
-        orow = out[v]
-        if valid_row[v] == W and kind != 0:
-            gr = gauss[i:i + W]
-            g2r = gauss2[i:i + W] if two else gr
-            if kind == 1:
-                _row_disparity(zr, gr, g2r, fb, steps, sigma_a, sigma_z2, lo, hi, policy, fill, orow)
-            else:
-                _row_additive(zr, gr, sigma_a, sigma_z2, lo, hi, policy, fill, orow)
-            left = edge_row[v]
-            u = 0
-            while left > 0:                   # the row's edge pixels: flying pixels and dropout
-                if edge[v, u]:
-                    zp = np.float64(zr[u])
-                    m = _noisy(kind, zp, np.float64(gr[u]), np.float64(g2r[u]), fb, steps, sigma_a, sigma_z2)
-                    oz = np.float64(other[v, u])
-                    if n_fly > 0 and oz > 0.0 and u_fly[k] < flying_fraction:
-                        m = zp + (u_fly[k] / flying_fraction) * (oz - zp)
-                    if n_drop > 0 and u_drop[k] < edge_dropout:
-                        m = 0.0
-                    k += 1
-                    left -= 1
-                    orow[u] = _finish(m, zr[u], lo, hi, policy, fill)
-                u += 1
-            i += W
-            continue
-        for u in range(W):
-            x = zr[u]
-            zp = _depth(x)
-            m = 0.0
-            if zp > 0.0:
-                if kind == 0:
-                    m = zp
-                else:
-                    m = _noisy(kind, zp, np.float64(gauss[i]), np.float64(gauss2[i]) if two else 0.0, fb,
-                               steps, sigma_a, sigma_z2)
-                    i += 1
-                    if edge[v, u]:
-                        oz = np.float64(other[v, u])
-                        if n_fly > 0 and oz > 0.0 and u_fly[k] < flying_fraction:
-                            m = zp + (u_fly[k] / flying_fraction) * (oz - zp)
-                        if n_drop > 0 and u_drop[k] < edge_dropout:
-                            m = 0.0
-                        k += 1
-            orow[u] = _finish(m, x, lo, hi, policy, fill)
-    return out
-
-
-@numba.njit(cache=True, nogil=True)
-def dark_layer(out, person, zc, p_spans):
-    """``out`` 0 where ``person`` (H, W) float32 is seen (> 0 and not behind the composite ``zc``
-    by more than 1e-6 m, float32 as numpy computes ``ideal + 1e-6``): dark clothing."""
-    eps = np.float32(1e-6)
-    for v in range(out.shape[0]):
-        for u in range(p_spans[v, 0], p_spans[v, 1]):
-            p = person[v, u]
-            if p > 0.0 and p <= zc[v, u] + eps:
-                out[v, u] = 0.0
 
 
 class LayeredCamera:
