@@ -38,7 +38,7 @@ import numpy as np
 from depthguard.filtering.expected import ExpectedDepth
 from depthguard.geometry.decimate import SIM_CELL
 from depthguard.render import Renderer
-from depthguard.sources.layered import LayeredCamera, mesh_window
+from depthguard.sources.layered import LayeredCamera, layer_window
 from depthguard.sources.simulated import SimulatedCamera, frame_rng
 
 __all__ = ["CameraSim", "CameraSchedule", "Shot", "INVALID_POLICIES"]
@@ -128,20 +128,8 @@ class CameraSim:
         return Shot(d, robot_depth, t1 - t0, time.perf_counter() - t1)
 
     def _window(self, camera_id: str, meshes) -> tuple | None:
-        """The pixel window ``(v0, v1, u0, u1)`` that holds what ``meshes`` can draw in the camera
-        (:func:`~depthguard.sources.layered.mesh_window`), None: the whole image."""
-        near = self._robot[camera_id].near
-        cam = self.cams[camera_id]
-        R, tr = self._pose[camera_id]
-        win = self._win
-        win[:] = (1 << 30, -(1 << 30), 1 << 30, -(1 << 30))
-        for m in meshes:
-            v = getattr(m, "vertices", None)
-            if not (isinstance(v, np.ndarray) and v.dtype == np.float64 and v.ndim == 2 and v.shape[1] == 3):
-                return None
-            if not mesh_window(v, R, tr, float(cam.fx), float(cam.fy), float(cam.cx), float(cam.cy), near, win):
-                return None
-        return int(win[0]), int(win[1]), int(win[2]), int(win[3])
+        """The pixel window that holds what ``meshes`` can draw (:func:`~depthguard.sources.layered.layer_window`)."""
+        return layer_window(meshes, self.cams[camera_id], self._robot[camera_id].near, self._pose[camera_id], self._win)
 
     def depth(self, camera_id: str, t: float, q, moving: Sequence = (), dark: bool = False) -> np.ndarray:
         """The measured (H, W) float32 depth alone (:meth:`shot`)."""

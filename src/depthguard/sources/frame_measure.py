@@ -88,7 +88,8 @@ def measure_frame(zc, edge, other, valid_row, edge_row, gauss, gauss2, u_fly, u_
                   sigma_a, sigma_z2, flying_fraction, edge_dropout, lo, hi, policy, fill, out):
     """Step 4 of the module docstring: ``out`` (H, W) float32 m, the measured frame.
 
-    zc, edge, other, valid_row, edge_row : the frame's composite, edges and counts per row
+    zc, edge, other, valid_row, edge_row : the frame's composite, edges (``other``, the depths
+    across them, read only with flying pixels: ``u_fly`` not empty) and counts per row
     (:func:`compose_edges`); the draws and the model's terms as
     :func:`depthguard.sources.noise.measure_kernel` (kind 0: the range rule alone, as
     noiseless); policy : :data:`depthguard.sources.layered.POLICY_CODES` — 1 ``"unknown"``: a pixel whose composite is <= 0
@@ -118,9 +119,10 @@ def measure_frame(zc, edge, other, valid_row, edge_row, gauss, gauss2, u_fly, u_
                 if edge[v, u]:
                     zp = np.float64(zr[u])
                     m = _noisy(kind, zp, np.float64(gr[u]), np.float64(g2r[u]), fb, steps, sigma_a, sigma_z2)
-                    oz = np.float64(other[v, u])
-                    if n_fly > 0 and oz > 0.0 and u_fly[k] < flying_fraction:
-                        m = zp + (u_fly[k] / flying_fraction) * (oz - zp)
+                    if n_fly > 0:
+                        oz = np.float64(other[v, u])
+                        if oz > 0.0 and u_fly[k] < flying_fraction:
+                            m = zp + (u_fly[k] / flying_fraction) * (oz - zp)
                     if n_drop > 0 and u_drop[k] < edge_dropout:
                         m = 0.0
                     k += 1
@@ -141,9 +143,10 @@ def measure_frame(zc, edge, other, valid_row, edge_row, gauss, gauss2, u_fly, u_
                                steps, sigma_a, sigma_z2)
                     i += 1
                     if edge[v, u]:
-                        oz = np.float64(other[v, u])
-                        if n_fly > 0 and oz > 0.0 and u_fly[k] < flying_fraction:
-                            m = zp + (u_fly[k] / flying_fraction) * (oz - zp)
+                        if n_fly > 0:
+                            oz = np.float64(other[v, u])
+                            if oz > 0.0 and u_fly[k] < flying_fraction:
+                                m = zp + (u_fly[k] / flying_fraction) * (oz - zp)
                         if n_drop > 0 and u_drop[k] < edge_dropout:
                             m = 0.0
                         k += 1

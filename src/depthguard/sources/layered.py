@@ -33,7 +33,7 @@ from depthguard.render.composite import nearest_depth
 from depthguard.sources.frame_measure import dark_layer, depth_of, measure_frame
 from depthguard.sources.noise import EDGE_JUMP_ABS, EDGE_JUMP_REL, _draws, _params, apply_noise
 
-__all__ = ["LayeredCamera", "layer_spans", "mesh_window", "compose_edges", "measure_frame", "reference_frame",
+__all__ = ["LayeredCamera", "layer_spans", "mesh_window", "layer_window", "compose_edges", "measure_frame", "reference_frame",
            "POLICY_CODES"]
 
 #: the invalid pixels' policies (``camera_sim.INVALID_POLICIES``) as kernel codes
@@ -116,6 +116,24 @@ def mesh_window(vertices, R, t, fx, fy, cx, cy, near, win):
         win[2] = min(win[2], np.int64(np.floor(px)) - 2)
         win[3] = max(win[3], np.int64(np.ceil(px)) + 3)
     return True
+
+
+def layer_window(meshes, cam, near: float, pose=None, win=None) -> tuple | None:
+    """The pixel window ``(v0, v1, u0, u1)`` of camera ``cam`` that holds everything ``meshes``
+    (world :class:`~depthguard.geometry.Mesh`) can draw with a renderer's near plane ``near`` m
+    (:func:`mesh_window`), None: the whole image (also for meshes given another way). ``pose``:
+    the camera's ``(R, t)`` as C-contiguous float64, ``win`` (4,) int64 scratch, to reuse."""
+    R, tr = pose if pose is not None else (np.ascontiguousarray(cam.R, dtype=np.float64),
+                                           np.ascontiguousarray(cam.t, dtype=np.float64))
+    win = np.empty(4, np.int64) if win is None else win
+    win[:] = (1 << 30, -(1 << 30), 1 << 30, -(1 << 30))
+    for m in meshes:
+        v = getattr(m, "vertices", None)
+        if not (isinstance(v, np.ndarray) and v.dtype == np.float64 and v.ndim == 2 and v.shape[1] == 3):
+            return None
+        if not mesh_window(v, R, tr, float(cam.fx), float(cam.fy), float(cam.cx), float(cam.cy), float(near), win):
+            return None
+    return int(win[0]), int(win[1]), int(win[2]), int(win[3])
 
 
 @numba.njit(cache=True, nogil=True, inline="always")
@@ -206,7 +224,7 @@ def static_edges(static, z, jump_abs, jump_rel, edge, other, valid_cum, edge_cum
             z[v, u] = depth_of(static[v, u])
     for v in range(H):
         _edges_span(z[max(v - 1, 0)], z[v], z[min(v + 1, H - 1)], v > 0, v < H - 1, 0, W, jump_abs, jump_rel,
-                    edge[v], other[v])
+                    edge[v], other[v if other.shape[0] > 1 else 0])
         valid_cum[v, 0] = 0
         edge_cum[v, 0] = 0
         for u in range(W):
@@ -239,7 +257,7 @@ def compose_edges(static, s_edge, s_other, s_valid_cum, s_edge_cum, robot, r_spa
     ``robot``, ``person`` (H, W) float32 m with their spans ``r_spans``, ``p_spans`` (H, 2) int32
     (:func:`layer_spans`; all ``(0, 0)``: no layer, the image is then not read).
     The frame's state: ``zc`` (H, W) float32 the raw composite, ``edge``, ``other`` as the static
-    ones, ``valid_row``, ``edge_row`` (H,) int64 the counts per row; ``c_spans``, ``e_spans`` (H,
+    ones (``other`` and ``s_other`` (1, W): not kept, a scratch row — only flying pixels read them), ``valid_row``, ``edge_row`` (H,) int64 the counts per row; ``c_spans``, ``e_spans`` (H,
     2) int32 the spans composed and edge-tested, on entry the previous frame's (restored from the
     static scene first), on return this frame's; ``rows`` (3, W) float64 scratch: three rows of
     the composite as the edge test reads it (:func:`~depthguard.sources.frame_measure.depth_of`). ``do_edges`` False (noiseless): the
@@ -300,19 +318,23 @@ def compose_edges(static, s_edge, s_other, s_valid_cum, s_edge_cum, robot, r_spa
         v = i - 3
         if v >= 0:                           # edge test of row v where the composite changed
             a, b = _hull(c_spans, max(0, v - 1), min(H, v + 2), 1, W)
+            keep = other.shape[0] > 1            # the depths across the edges are kept (ToF)
             for u in range(e_spans[v, 0], min(e_spans[v, 1], a)):   # tested last frame, not now
                 edge[v, u] = s_edge[v, u]
-                other[v, u] = s_other[v, u]
             for u in range(max(e_spans[v, 0], b), e_spans[v, 1]):
                 edge[v, u] = s_edge[v, u]
-                other[v, u] = s_other[v, u]
+            if keep:
+                for u in range(e_spans[v, 0], min(e_spans[v, 1], a)):
+                    other[v, u] = s_other[v, u]
+                for u in range(max(e_spans[v, 0], b), e_spans[v, 1]):
+                    other[v, u] = s_other[v, u]
             e_spans[v, 0] = a
             e_spans[v, 1] = b
             valid_row[v] = s_valid_cum[v, W]
             edge_row[v] = s_edge_cum[v, W]
             if b > a:
                 nv, ne = _edges_span(rows[(v + 2) % 3], rows[v % 3], rows[(v + 1) % 3], v > 0, v < H - 1, a, b,
-                                     jump_abs, jump_rel, edge[v], other[v])
+                                     jump_abs, jump_rel, edge[v], other[v if keep else 0])
                 valid_row[v] += nv - (s_valid_cum[v, b] - s_valid_cum[v, a])
                 edge_row[v] += ne - (s_edge_cum[v, b] - s_edge_cum[v, a])
             n_valid += valid_row[v]
@@ -338,7 +360,9 @@ class LayeredCamera:
         self.policy = POLICY_CODES[invalid]
         self.fill = np.float32(BEYOND_RANGE * max_range if invalid == "unknown" else max_range - 1e-3)
         self.s_edge = np.zeros((H, W), np.uint8)
-        self.s_other = np.zeros((H, W), np.float32)
+        # the depth across an edge: only a ToF's flying pixels read it (else a scratch row)
+        flying = self.noise and self.params[5] > 0.0
+        self.s_other = np.zeros((H if flying else 1, W), np.float32)
         self.s_valid_cum = np.zeros((H, W + 1), np.int32)
         self.s_edge_cum = np.zeros((H, W + 1), np.int32)
         static_edges(self.static, np.zeros((H, W), np.float64), EDGE_JUMP_ABS, EDGE_JUMP_REL, self.s_edge,
@@ -393,6 +417,8 @@ class LayeredCamera:
             out = np.empty(self.shape, np.float32)
         if self.noise:
             g, g2, u_fly, u_drop = _draws(self.model, rng, self, int(n_edges), int(n_valid), bank)
+            if len(u_fly) and self.other.shape[0] != self.shape[0]:    # (never: one rule, _params)
+                raise RuntimeError("flying pixels drawn without the depths across the edges")
         else:
             g = g2 = self.gauss[:0]
             u_fly = u_drop = self.u_fly[:0]

@@ -13,7 +13,8 @@ default numba threads, the renders on one):
 - ``sim.ur3_cell.frame_cpu_ms``: CPU (``time.thread_time``, one numba thread) of one 640x480
   D435 frame of the ur3-cell besides its two renders — the static scene and the moving layers
   (robot, person) combined, the noise with a real-time run's normal bank, the invalid pixels as
-  the ``sim:`` source has them (:class:`~depthguard.sources.layered.LayeredCamera`), median
+  the ``sim:`` source has them (:class:`~depthguard.sources.layered.LayeredCamera`, with the
+  layers' windows from their meshes as ``CameraSim`` gives them), median
   over frames of 2 s of the scene, each call right after its layers' renders. Peer: the former way on the same layers and generators
   (:func:`~depthguard.sources.layered.reference_frame`: copy, ``nearest_depth`` twice,
   ``apply_noise``, the policy on whole images), alternated; the frames must be bit-identical.
@@ -107,7 +108,7 @@ def _frame_cpu_row(cell, n: int) -> BenchRow:
     from depthguard.geometry.decimate import SIM_CELL
     from depthguard.render import Renderer
     from depthguard.sensors import sensor_model
-    from depthguard.sources.layered import LayeredCamera, reference_frame
+    from depthguard.sources.layered import LayeredCamera, layer_window, reference_frame
     from depthguard.sources.noise import NormalBank
     from depthguard.sources.simulated import frame_rng
 
@@ -119,10 +120,15 @@ def _frame_cpu_row(cell, n: int) -> BenchRow:
     layered = LayeredCamera(ex.static, model, cam.fx, cam.min_range, hi, cam.max_range, invalid="unknown")
     bank = NormalBank(0)
     scene = cell.scene
+    pose = (np.ascontiguousarray(cam.R, dtype=np.float64), np.ascontiguousarray(cam.t, dtype=np.float64))
+    win = np.empty(4, np.int64)
+
+    robots = Renderer(cam)
 
     def layers(t):          # rendered just before the call, as in a shot (not timed)
         moving, _ = scene.moving_meshes_at(t)
-        return ex.robot(scene.robot_q(t)), (people.render(moving)[0] if moving else None)
+        links = scene.robot.render_link_meshes(scene.robot_q(t), SIM_CELL)
+        return robots.render(links)[0], (people.render(moving)[0] if moving else None), links, moving
 
     new, old = [], []
     previous = numba.get_num_threads()
@@ -131,11 +137,13 @@ def _frame_cpu_row(cell, n: int) -> BenchRow:
         for rep in range(3):
             for k in range(n):
                 t = 2.0 + 2.0 * k / n
-                robot, person = layers(t)
+                robot, person, links, moving = layers(t)
                 c0 = time.thread_time()
-                a = layered.frame(robot, person, frame_rng(0, cam.id, t), bank=bank)
+                a = layered.frame(robot, person, frame_rng(0, cam.id, t), bank=bank,
+                                  robot_window=layer_window(links, cam, robots.near, pose, win),
+                                  person_window=layer_window(moving, cam, people.near, pose, win) if moving else None)
                 c1 = time.thread_time()
-                robot, person = layers(t)
+                robot, person, _, _ = layers(t)
                 c2 = time.thread_time()
                 b = reference_frame(ex.static, robot, person, model, cam.fx, cam.min_range, hi, cam.max_range,
                                     frame_rng(0, cam.id, t), bank=bank)
