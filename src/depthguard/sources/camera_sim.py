@@ -15,8 +15,10 @@ rendered once, a renderer for what moves, the sensor's noise model); a frame is 
    the frame's own generator (``seed``, camera, capture stamp: ``simulated.frame_rng``).
    Steps 1-3 are one :class:`~depthguard.sources.layered.LayeredCamera` per camera: the static
    scene's edges and counts are made once, a frame works again only the rows' spans the moving
-   layers cover and measures the image in one pass (issue 29: 4.5 -> 1.3 ms of a 640x480 frame's
-   CPU besides the renders), bit for bit the frame of ``apply_noise`` on the composite;
+   layers cover and measures the image in one pass, bit for bit the frame of ``apply_noise`` on
+   the composite (issue 29: a ur3-cell 640x480 frame's CPU besides its renders 2.1x lower in
+   the bench row ``sim.ur3_cell.frame_cpu_ms``, 3x in a whole shot). The robot layer has its own
+   renderer, and each layer's meshes give the window its pixels lie in;
 3. the invalid pixels follow one vocabulary, the monitor's (``MonitorConfig.invalid``, R28):
    ``"unknown"`` — no return stays 0, and a ray that meets nothing the scene models returns
    from beyond the rated range, as a real cell's walls would; ``"free"`` — every invalid

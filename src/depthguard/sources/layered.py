@@ -377,6 +377,8 @@ class LayeredCamera:
         self.r_spans = np.zeros((H, 2), np.int32)
         self.p_spans = np.zeros((H, 2), np.int32)
         self._empty = np.zeros((1, 1), np.float32)
+        self._empty.flags.writeable = False
+        self._person = self._empty
         n = H * W
         self.gauss = np.empty(n, np.float32)     # the draws' buffers (noise._draws)
         self.gauss2 = np.empty(n, np.float32)
@@ -391,8 +393,10 @@ class LayeredCamera:
             raise ValueError(f"a layer must be a C-contiguous float32 {self.shape} image, got "
                              f"{layer.dtype} {layer.shape}")
         v0, v1, u0, u1 = (0, self.shape[0], 0, self.shape[1]) if window is None else window
-        layer_spans(layer.view(np.uint32), spans, int(v0), int(v1), int(u0), int(u1))
-        return layer
+        view = layer.view()                 # read-only, as a renderer may hand its images out:
+        view.flags.writeable = False        # the kernels see one type whoever made the layer
+        layer_spans(view.view(np.uint32), spans, int(v0), int(v1), int(u0), int(u1))
+        return view
 
     def compose(self, robot, person, robot_window=None, person_window=None) -> tuple[int, int]:
         """Steps 1-2 of the module docstring: the frame's composite and edges of the layers
@@ -400,7 +404,7 @@ class LayeredCamera:
         u0, u1)`` (pixel rows / columns, half-open; None: anywhere); returns its ``(valid, edge)``
         pixels."""
         r = self._layer(robot, self.r_spans, robot_window)
-        p = self._layer(person, self.p_spans, person_window)
+        p = self._person = self._layer(person, self.p_spans, person_window)
         return compose_edges(self.static, self.s_edge, self.s_other, self.s_valid_cum, self.s_edge_cum,
                              r, self.r_spans, p, self.p_spans, self.zc, self.edge, self.other,
                              self.valid_row, self.edge_row, self.c_spans, self.e_spans, self.rows, EDGE_JUMP_ABS,
@@ -426,7 +430,7 @@ class LayeredCamera:
         measure_frame(self.zc, self.edge, self.other, self.valid_row, self.edge_row, g, g2, u_fly, u_drop, kind, fb, steps, sa, sz2, ff,
                       ed, self.lo, self.hi, self.policy, self.fill, out)
         if dark and person is not None:
-            dark_layer(out, person, self.zc, self.p_spans)
+            dark_layer(out, self._person, self.zc, self.p_spans)
         return out
 
 
