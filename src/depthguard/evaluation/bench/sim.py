@@ -10,6 +10,14 @@ default numba threads, the renders on one):
 - ``sim.ur3_cell.frames_4x640x480_ms``: ``SimSource.frames(t)`` of the
   ur3-cell — the scene's meshes at t, four D435 renders and their noise.
   Peer: the four renders alone (``Renderer.render``) on the same meshes.
+- ``sim.ur3_cell.frame_cpu_ms``: CPU (``time.thread_time``, one numba thread) of one 640x480
+  D435 frame of the ur3-cell besides its two renders — the static scene and the moving layers
+  (robot, person) combined, the noise with a real-time run's normal bank, the invalid pixels as
+  the ``sim:`` source has them (:class:`~depthguard.sources.layered.LayeredCamera`, with the
+  layers' windows from their meshes as ``CameraSim`` gives them), median
+  over frames of 2 s of the scene, each call right after its layers' renders. Peer: the former way on the same layers and generators
+  (:func:`~depthguard.sources.layered.reference_frame`: copy, ``nearest_depth`` twice,
+  ``apply_noise``, the policy on whole images), alternated; the frames must be bit-identical.
 - ``sim.c_arm_room.occupancy_5cm_ms``: ground-truth occupancy (R24) of the
   4 x 4 x 2.5 m room at 5 cm (80 x 80 x 50 voxels, centre rule), robot included
   (quick mode: 10 cm, ``occupancy_10cm_ms``).
@@ -62,6 +70,8 @@ def sim_group(ctx: BenchContext) -> list[BenchRow]:
                          "4 renders alone", float(np.median(tp) * 1e3),
                          "scene meshes at t + render + D435 noise, 4 cameras"))
 
+    rows.append(_frame_cpu_row(cell, 20 if ctx.quick else 60))
+
     # ground-truth occupancy of the c-arm room (quick mode: 10 cm voxels)
     room = load_cell("c-arm-room")
     vs = 0.1 if ctx.quick else 0.05
@@ -86,3 +96,66 @@ def sim_group(ctx: BenchContext) -> list[BenchRow]:
                          "every SDF on every voxel", float(np.median(tp) * 1e3),
                          f"{len(prims)} primitives, {n[0]}x{n[1]}x{n[2]} voxels, centre rule"))
     return rows
+
+
+def _frame_cpu_row(cell, n: int) -> BenchRow:
+    """``sim.ur3_cell.frame_cpu_ms`` (module docstring) over ``n`` frames of camera 0."""
+    import time
+
+    import numba
+
+    from depthguard.filtering.expected import ExpectedDepth
+    from depthguard.geometry.decimate import SIM_CELL
+    from depthguard.render import Renderer
+    from depthguard.sensors import sensor_model
+    from depthguard.sources.layered import LayeredCamera, layer_window, reference_frame
+    from depthguard.sources.noise import NormalBank
+    from depthguard.sources.simulated import frame_rng
+
+    cam = cell.rig.cameras[0]
+    model = sensor_model(cam.sensor or "ideal")
+    ex = ExpectedDepth(cam, cell.scene.robot, cell.scene.static_meshes, robot_cell=SIM_CELL)
+    people = Renderer(cam)
+    hi = model.returns_to(cam.max_range)
+    layered = LayeredCamera(ex.static, model, cam.fx, cam.min_range, hi, cam.max_range, invalid="unknown")
+    bank = NormalBank(0)
+    scene = cell.scene
+    pose = (np.ascontiguousarray(cam.R, dtype=np.float64), np.ascontiguousarray(cam.t, dtype=np.float64))
+    win = np.empty(4, np.int64)
+
+    robots = Renderer(cam)
+
+    def layers(t):          # rendered just before the call, as in a shot (not timed)
+        moving, _ = scene.moving_meshes_at(t)
+        links = scene.robot.render_link_meshes(scene.robot_q(t), SIM_CELL)
+        return robots.render(links)[0], (people.render(moving)[0] if moving else None), links, moving
+
+    new, old = [], []
+    previous = numba.get_num_threads()
+    numba.set_num_threads(1)
+    try:
+        for rep in range(3):
+            for k in range(n):
+                t = 2.0 + 2.0 * k / n
+                robot, person, links, moving = layers(t)
+                c0 = time.thread_time()
+                a = layered.frame(robot, person, frame_rng(0, cam.id, t), bank=bank,
+                                  robot_window=layer_window(links, cam, robots.near, pose, win),
+                                  person_window=layer_window(moving, cam, people.near, pose, win) if moving else None)
+                c1 = time.thread_time()
+                robot, person, _, _ = layers(t)
+                c2 = time.thread_time()
+                b = reference_frame(ex.static, robot, person, model, cam.fx, cam.min_range, hi, cam.max_range,
+                                    frame_rng(0, cam.id, t), bank=bank)
+                c3 = time.thread_time()
+                if a.tobytes() != b.tobytes():
+                    raise AssertionError(f"sim bench: the layered frame at t = {t} differs from the former way")
+                if rep:
+                    new.append(c1 - c0)
+                    old.append(c3 - c2)
+    finally:
+        numba.set_num_threads(previous)
+    return BenchRow("sim.ur3_cell.frame_cpu_ms", 1e3 * float(np.median(new)), "ms", None,
+                    "the former way (copy, nearest_depth x2, apply_noise, policy)", 1e3 * float(np.median(old)),
+                    f"{cam.id} 640x480 D435 besides its 2 renders: composite + noise (bank) + invalid policy, "
+                    f"one numba thread, CPU, median of {len(new)}; bit-identical; goal <= 1.5 (issue 29)")
