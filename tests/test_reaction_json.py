@@ -16,8 +16,8 @@ from depthguard.runtime.result import CameraStatus, Reaction
 from depthguard.runtime.sinks import JsonlLog
 
 
-def _value(rng, scale=1.0):
-    kind = rng.integers(0, 8)
+def _value(rng, scale=1.0, tiny=True):
+    kind = rng.integers(0 if tiny else 2, 8)
     if kind == 0:
         return float(rng.choice([0.0, -0.0, 1.0, -1.0, 0.5e-6, -0.5e-6, 1.5e-6, 2.5e-7, 1e-5, 123456.7654321]))
     if kind == 1:
@@ -25,7 +25,15 @@ def _value(rng, scale=1.0):
     return float(rng.normal() * scale)
 
 
-def _reaction(rng, ssm: bool, part: bool) -> Reaction:
+def _reaction(rng, ssm: bool, part: bool, tiny: bool = True) -> Reaction:
+    global _value
+    if not tiny:                                     # ordinary values only: the fast path's lines
+        value = _value
+        _value = lambda rng, scale=1.0: value(rng, scale, tiny=False)   # noqa: E731
+        try:
+            return _reaction(rng, ssm, part, True)
+        finally:
+            _value = value
     m_cp = int(rng.integers(1, 10))
     n_watch = int(rng.integers(0, 3))
     m = m_cp + n_watch
@@ -59,10 +67,15 @@ def _reaction(rng, ssm: bool, part: bool) -> Reaction:
 
 
 def test_line_equals_the_json_of_the_record():
+    from depthguard.runtime.reaction_json import _fast
+
     rng = np.random.default_rng(29)
-    for k in range(600):
-        r = _reaction(rng, ssm=k % 3 == 1, part=k % 4 == 3)
+    fast = 0
+    for k in range(1200):
+        r = _reaction(rng, ssm=k % 3 == 1, part=k % 4 == 3, tiny=k % 2 == 0)
         assert reaction_json(r) == json.dumps(r.to_dict(), allow_nan=False), k
+        fast += _fast(r) is not None
+    assert fast > 500, fast                  # the template's lines, not only the reference path's
 
 
 def test_what_the_record_refuses_is_refused_the_same(tmp_path):

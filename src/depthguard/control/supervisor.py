@@ -89,7 +89,7 @@ def stop_reasons(ages, age_limit: float, camera_ids, observed, D, V, names) -> d
     return reasons
 
 
-@numba.njit(cache=True, nogil=True)
+@numba.njit(cache=True)      # microseconds: keeps the GIL (a release costs the control thread a hand-over)
 def points_hold_robot(observed, D, V) -> bool:
     """True when a control point gives :func:`stop_reasons` a reason (R26): one not observed, or
     one inside an obstacle frustum (finite ``D`` that is <= 0 or whose direction ``V`` (m, 3) has

@@ -35,7 +35,7 @@ import numpy as np
 __all__ = ["JointHistory", "OutsideHistory", "state_check", "state_check_numpy"]
 
 
-@numba.njit(cache=True, nogil=True)
+@numba.njit(cache=True)      # microseconds: keeps the GIL
 def state_check(q, lo, hi) -> int:
     """-1 when every joint of ``q`` (dof,) is finite and within ``[lo, hi]`` (dof,) rad, -2 when one is
     not finite, else the index of the first joint outside (R27: refused states). No allocation;

@@ -91,7 +91,7 @@ class DistanceSnapshot:
     generation: int = -1
 
 
-@numba.njit(cache=True, nogil=True)
+@numba.njit(cache=True)      # microseconds: keeps the GIL (a release costs the control thread a hand-over)
 def _bound_kernel(P0, D0, V0, obs0, P, rho, margin, R, t, pint, W, H, D, V, obs, strict):
     m = P.shape[0]
     for i in range(m):
@@ -167,7 +167,7 @@ def bound_distances_numpy(snap: DistanceSnapshot, P, rho: float, strict: bool = 
     return D, V, snap.observed & seen & ~undecided
 
 
-@numba.njit(cache=True, nogil=True)
+@numba.njit(cache=True)
 def moved_beyond(P0, P, r) -> bool:
     """True when a row of ``P`` (m, 3) m lies more than ``r`` m from the same row of ``P0`` (or the
     shapes differ): the distance worker's test of its newest answer (module docstring)."""
