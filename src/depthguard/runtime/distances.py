@@ -37,8 +37,8 @@ at every frame, :meth:`DistanceWorker.offer`): every period it compares the newe
 points with the newest answer's, and queries when one moved more than
 :data:`REQUERY_FRACTION` of the margin, when the front grid is newer than the answer's, or
 when the settings changed. An answer of the front grid at points that have not moved that far
-is still the newest answer: past half of ``max_age_s`` it is published again with a new wall
-time (``reused``) instead of being queried again — a query of the same grid at the same points
+is still the newest answer: older than a period it is published again with a new wall time
+(``reused``, ~10 us) instead of being queried again — a query of the same grid at the same points
 gives the same answer, and the cycles' bound covers the rest.
 
 The worker runs one priority below the control thread when that one is
@@ -302,7 +302,7 @@ class DistanceWorker:
     def _reuse(self, P) -> bool:
         """True when the newest answer stands for a query now (module docstring): the front grid's,
         with the current settings, at points within ``REQUERY_FRACTION * margin`` of ``P``;
-        published again with a new wall time when older than half ``max_age_s``."""
+        published again with a new wall time when older than a period."""
         snap = self._snap
         if snap is None or P is None:
             return False
@@ -313,7 +313,7 @@ class DistanceWorker:
             return False
         if moved_beyond(snap.P, P, REQUERY_FRACTION * self.margin):
             return False
-        if time.perf_counter() - snap.wall > 0.5 * self.max_age_s:
+        if time.perf_counter() - snap.wall > self.period:
             with self._snap_lock:
                 if self._snap is snap:
                     self._snap = dataclasses.replace(snap, wall=time.perf_counter())
