@@ -114,3 +114,28 @@ def test_nearest_equals_its_numpy_twin():
             r = Reaction(**{**r.__dict__, "distance": d})
         a, b = r.nearest(), r._nearest_numpy()
         assert a[0] == b[0] and (a[1] == b[1] or (math.isnan(a[1]) and math.isnan(b[1]))), k
+
+
+def test_results_mcap_messages_equal_rosbags_serialisation():
+    """issue 29: the results file's per-cycle messages written directly (runtime.reaction_cdr) are
+    byte for byte what rosbags serialises from the message objects McapResults builds."""
+    from types import SimpleNamespace
+
+    from depthguard.runtime.mcap_results import McapResults, _register
+    from depthguard.runtime.reaction_cdr import float64_cdr, reaction_cdr
+    from depthguard.transport import ros_messages as rosmsg
+
+    _register()
+    rng = np.random.default_rng(31)
+    me = SimpleNamespace(frame_id="world")
+    for k in range(300):
+        r = _reaction(rng, ssm=False, part=False)
+        r = Reaction(**{**r.__dict__, "t": abs(r.t),
+                        "cameras": {} if k % 17 == 0 else r.cameras,            # empty sequences too
+                        "qd_min": rng.normal(size=6), "qd_max": rng.normal(size=6)})
+        if k % 13 == 0:
+            r = Reaction(**{**r.__dict__, "names": (), "distance": np.zeros(0), "direction": np.zeros((0, 3)),
+                            "observed": np.zeros(0, bool), "is_watch": np.zeros(0, bool)})
+        assert reaction_cdr(r, "world") == rosmsg.serialize(McapResults.reaction_msg(me, r)), k
+        T = rosmsg.TYPESTORE.types
+        assert float64_cdr(r.override) == rosmsg.serialize(T[rosmsg.MSG["Float64"]](data=float(r.override)))
