@@ -152,4 +152,5 @@ class MonitorDistances:
 
     def _distance_settings(self):
         with self._settings_lock:
-            return self.config.query_rho, self.config.method
+            cfg = self.config
+        return self._derived(cfg)[1], cfg.method        # query_rho worked out once per configuration
