@@ -169,3 +169,26 @@ def test_latency_zero_uses_each_frame_at_its_capture_cycle():
     period = 1.0 / LoopConfig().camera_hz
     assert res.frame_age.min() == 0.0 and res.frame_age.max() < period + 2 * LoopConfig().dt
     assert s["ee_max_repulsion_m_s"] > 0.2 and not s["collision"]
+
+
+def test_points_hold_robot_kernel_equals_twin_and_the_reasons():
+    """issue 29: the control cycle asks the numba kernel whether a point gives a reason before it builds
+    the sentences; kernel, plain-numpy twin and the reasons themselves agree on random cycles,
+    with the edges (D = 0, -0, inf, NaN; zero and underflowing directions; unobserved points)."""
+    from depthguard.control.supervisor import points_hold_robot, points_hold_robot_numpy
+
+    rng = np.random.default_rng(5)
+    names = [f"p{i}" for i in range(9)]
+    held = 0
+    for k in range(400):
+        m = int(rng.integers(1, 10))
+        D = rng.choice([np.inf, 0.0, -0.0, np.nan, 0.1, 0.3, 1e-9], size=m)
+        V = rng.normal(size=(m, 3)) * rng.choice([1.0, 0.0, 1e-170], size=(m, 1))
+        obs = rng.random(m) < (0.97 if k % 2 else 0.7)
+        fast = points_hold_robot(obs, D, V)
+        assert fast == points_hold_robot_numpy(obs, D, V)
+        reasons = stop_reasons(np.zeros(1), 0.1, ["cam0"], obs, D, V, names[:m])
+        slow = stop_reasons(np.zeros(1), 0.1, ["cam0"], list(obs), list(D), V.tolist(), names[:m])   # the old path
+        assert reasons == slow and fast == bool(reasons)
+        held += fast
+    assert 0 < held < 400

@@ -127,3 +127,27 @@ def test_wait_at_with_no_time_left_refuses_a_lagging_stamp():
     with pytest.raises(OutsideHistory) as e:
         h.wait_at(0.5, timeout=0.0)
     assert e.value.kind == "future"
+
+
+def test_state_check_kernel_equals_its_twin_and_refuses_as_before():
+    """issue 29: ``push`` checks a state with one numba pass (``state_check``); it answers as its
+    numpy twin, and a refused state gets the sentence of the checks it replaced: the first joint
+    outside its limits, with 1e-6 rad of slack."""
+    from depthguard.robot.joint_history import state_check, state_check_numpy
+
+    rng = np.random.default_rng(2)
+    lo, hi = np.full(6, -1.0), np.full(6, 1.0)
+    for k in range(500):
+        q = rng.uniform(-1.2, 1.2, 6) * (k % 3 == 0) + rng.uniform(-0.99, 0.99, 6) * (k % 3 != 0)
+        if k % 11 == 0:
+            q[rng.integers(0, 6)] = rng.choice([np.nan, np.inf, -np.inf])
+        assert state_check(q, lo, hi) == state_check_numpy(q, lo, hi), q
+    h = JointHistory(3, q_min=[-1, -1, -1], q_max=[1, 1, 1])
+    assert h.push(0.0, np.array([1.0 + 0.9e-6, -1.0 - 0.9e-6, 0.0]))        # within the slack
+    assert not h.push(0.1, np.array([0.0, 1.0 + 2e-6, -2.0]))
+    assert h.last_refusal == "joint 1 = 1.0000 rad is outside its limits [-1.0000, 1.0000]"
+    assert not h.push(0.1, np.array([0.0, np.nan, -2.0]))
+    assert h.last_refusal == "joint state with a non-finite stamp or value"
+    assert not h.push(np.inf, np.zeros(3)) and h.refused == 3
+    view = np.zeros((3, 2))[:, 0]                                            # not contiguous: copied
+    assert h.push(0.2, view) and np.array_equal(h.latest()[1], view)

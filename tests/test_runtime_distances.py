@@ -15,8 +15,8 @@ import time
 import numpy as np
 import pytest
 
-from depthguard.runtime.distances import (DistanceSnapshot, DistanceWorker, bound_distances,
-                                          bound_distances_numpy)
+from depthguard.runtime.distances import (REQUERY_FRACTION, DistanceSnapshot, DistanceWorker, bound_distances,
+                                          bound_distances_numpy, moved_beyond, moved_beyond_numpy)
 from depthguard.runtime.monitor import Monitor, warm_up
 from depthguard.sim import load_cell
 from depthguard.sources.frame import Frame
@@ -138,10 +138,11 @@ def test_real_time_monitor_bounds_the_workers_answers_and_falls_back_when_it_has
         inline = mon.step(0.011, q)
         with mon.real_time():
             deadline = time.perf_counter() + 30.0
-            while mon._dist_worker.queries < 3 and time.perf_counter() < deadline:
+            w = mon._dist_worker           # a robot standing still: one query, then the answer reused (issue 29)
+            while (w.queries < 1 or w.queries + w.reused < 3) and time.perf_counter() < deadline:
                 mon.step(0.011, q)
                 time.sleep(0.002)
-            assert mon._dist_worker.queries >= 3, mon._dist_worker.last_error
+            assert w.queries >= 1 and w.queries + w.reused >= 3, w.last_error
             still = mon.step(0.011, q)
             # a robot that has not moved: the worker's answer itself
             assert np.array_equal(still.distance, inline.distance)
@@ -347,7 +348,58 @@ def test_a_cycle_does_not_query_itself_when_a_query_takes_more_than_half_a_perio
             mon._dist_worker.last_query_s = 0.5 * cfg.dt + 1e-4     # as a query of a large radius takes
             q_far = q.copy()
             q_far[:2] += (0.4, 0.3)
-            mon._dist_worker.request = lambda _q: None               # keep the answer at q
+            mon._dist_worker.request = lambda _q, _P=None: None               # keep the answer at q
             r = mon.step(0.012, q_far)
         assert any("_query_too_slow" in k for k in mon.distance_fallbacks), mon.distance_fallbacks
         assert r.frame_stamps and any(k.startswith("unobserved") for k in r.reasons)
+
+
+def test_moved_beyond_kernel_equals_its_twin():
+    rng = np.random.default_rng(11)
+    for k in range(300):
+        m = int(rng.integers(1, 12))
+        P0 = rng.normal(size=(m, 3))
+        P = P0 + rng.normal(0, 0.01, (m, 3)) * (rng.random((m, 1)) < 0.3)
+        if k % 10 == 0:
+            P[0, 1] = np.nan                      # a NaN point has moved (never "within")
+        r = float(rng.choice([0.0, 0.005, 0.01, 0.02]))
+        assert moved_beyond(P0, P, r) == moved_beyond_numpy(P0, P, r)
+    assert moved_beyond(np.zeros((2, 3)), np.zeros((3, 3)), 1.0) and moved_beyond_numpy(np.zeros((2, 3)),
+                                                                                        np.zeros((3, 3)), 1.0)
+
+
+def test_the_worker_queries_only_when_its_newest_answer_does_not_stand(setup):
+    """issue 29: a robot standing still costs the worker one query, after which its answer is
+    published again (same grid, same points: the same answer, young enough for the cycles); a
+    move beyond the requery band, or a new frame, makes it query again."""
+    rig, q, frames = setup
+    cfg = rig.monitor.with_changes(distance_hz=500.0, distance_margin=MARGIN)
+    with loaded(rig, q, frames, cfg) as mon:
+        with mon.real_time():
+            w = mon._dist_worker
+            deadline = time.perf_counter() + 30.0
+            while w.reused < 3 and time.perf_counter() < deadline:
+                mon.step(0.011, q)
+                time.sleep(0.004)
+            n, fb = w.queries, dict(mon.distance_fallbacks)
+            assert 1 <= n and w.reused >= 3, (w.queries, w.reused, w.last_error)
+            for _ in range(30):                          # 60 ms standing still: no new query
+                r = mon.step(0.011, q)
+                time.sleep(0.002)
+            assert w.queries == n and r.observed.all() and mon.distance_fallbacks == fb    # the bound answered
+            data = mon.robot.create_data()
+            # one joint turned until a control point moved past the band (and within the margin)
+            for dq in np.linspace(0.001, 0.05, 50):
+                q2 = q.copy()
+                q2[0] += dq
+                mon.robot.forward(q2, data)
+                moved = np.linalg.norm(data.cp_positions - w.newest().P[:len(data.cp_positions)], axis=1).max()
+                if moved > REQUERY_FRACTION * MARGIN * 1.2:
+                    break
+            assert REQUERY_FRACTION * MARGIN < moved < MARGIN
+            deadline = time.perf_counter() + 30.0
+            while w.queries == n and time.perf_counter() < deadline:
+                mon.step(0.012, q2)
+                time.sleep(0.002)
+            assert w.queries == n + 1
+            assert np.array_equal(w.newest().P[:len(data.cp_positions)], data.cp_positions)

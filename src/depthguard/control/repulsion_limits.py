@@ -27,7 +27,7 @@ from depthguard.control.repulsion import check_repulsion_params, repulsive_veloc
 __all__ = ["repulsion_and_limits", "repulsion_and_limits_numpy"]
 
 
-@numba.njit(cache=True, nogil=True)
+@numba.njit(cache=True)      # microseconds: keeps the GIL (a release costs the control thread a hand-over)
 def _repulsion_and_limits_kernel(D, V, J, q, q_min, q_max, qd_max, dt, rho, v_max, alpha, k, tol, rep, lo, hi):
     m = D.shape[0]
     n = q.shape[0]

@@ -31,6 +31,16 @@ points ``P`` (:func:`bound_distances`):
 * The frames' capture stamps that the supervision checks (R27) are those of
   the snapshot's grid: an old snapshot makes the cameras older, never younger.
 
+The worker queries only when the newest answer is not good enough (issue 29: a query of ur3-cell's
+grid takes 1.3–1.7 ms of CPU, and the fusion's builds already publish one at the newest joints
+at every frame, :meth:`DistanceWorker.offer`): every period it compares the newest cycle's
+points with the newest answer's, and queries when one moved more than
+:data:`REQUERY_FRACTION` of the margin, when the front grid is newer than the answer's, or
+when the settings changed. An answer of the front grid at points that have not moved that far
+is still the newest answer: older than a period it is published again with a new wall time
+(``reused``, ~10 us) instead of being queried again — a query of the same grid at the same points
+gives the same answer, and the cycles' bound covers the rest.
+
 The worker runs one priority below the control thread when that one is
 SCHED_FIFO (it preempts the camera and fusion workers, never the control
 cycle), else under normal scheduling.
@@ -38,6 +48,7 @@ cycle), else under normal scheduling.
 
 from __future__ import annotations
 
+import dataclasses
 import math
 import os
 import threading
@@ -47,7 +58,11 @@ from dataclasses import dataclass
 import numba
 import numpy as np
 
-__all__ = ["DistanceSnapshot", "DistanceWorker", "bound_distances", "bound_distances_numpy"]
+__all__ = ["DistanceSnapshot", "DistanceWorker", "bound_distances", "bound_distances_numpy", "moved_beyond",
+           "moved_beyond_numpy", "REQUERY_FRACTION"]
+
+#: a point that moved more than this share of the margin since the newest answer makes the worker query
+REQUERY_FRACTION = 0.25
 
 
 @dataclass(frozen=True)
@@ -76,7 +91,7 @@ class DistanceSnapshot:
     generation: int = -1
 
 
-@numba.njit(cache=True, nogil=True)
+@numba.njit(cache=True)      # microseconds: keeps the GIL (a release costs the control thread a hand-over)
 def _bound_kernel(P0, D0, V0, obs0, P, rho, margin, R, t, pint, W, H, D, V, obs, strict):
     m = P.shape[0]
     for i in range(m):
@@ -152,6 +167,29 @@ def bound_distances_numpy(snap: DistanceSnapshot, P, rho: float, strict: bool = 
     return D, V, snap.observed & seen & ~undecided
 
 
+@numba.njit(cache=True)
+def moved_beyond(P0, P, r) -> bool:
+    """True when a row of ``P`` (m, 3) m lies more than ``r`` m from the same row of ``P0`` (or the
+    shapes differ): the distance worker's test of its newest answer (module docstring)."""
+    if P0.shape[0] != P.shape[0]:
+        return True
+    r2 = r * r
+    for i in range(P.shape[0]):
+        dx = P[i, 0] - P0[i, 0]
+        dy = P[i, 1] - P0[i, 1]
+        dz = P[i, 2] - P0[i, 2]
+        if not dx * dx + dy * dy + dz * dz <= r2:
+            return True
+    return False
+
+
+def moved_beyond_numpy(P0, P, r) -> bool:
+    """Plain twin of :func:`moved_beyond`."""
+    if P0.shape[0] != P.shape[0]:
+        return True
+    return bool(np.any(~(np.sum((P - P0) ** 2, axis=1) <= r * r)))
+
+
 class DistanceWorker:
     """The thread that queries the monitor's front grid (module docstring).
 
@@ -168,11 +206,11 @@ class DistanceWorker:
         self.period = 1.0 / float(hz)
         self.margin = float(margin)
         self.max_age_s = 3.0 * self.period + 0.02
-        self._q: np.ndarray | None = None
+        self._req: tuple | None = None      # (q, P or None) of the newest control cycle
         self._snap: DistanceSnapshot | None = None
         self._snap_lock = threading.Lock()
         self.offered = 0                 # answers published by the fusion thread's builds
-        self._wake = threading.Event()
+        self.reused = 0                  # answers published again: same grid, points within the requery band
         self._stop = threading.Event()
         self.queries = 0
         self.last_query_s = 0.0          # wall seconds of the newest query, from the grid's lock on
@@ -188,10 +226,10 @@ class DistanceWorker:
         self._thread = threading.Thread(target=self._run, name="depthguard-distances", daemon=True)
         self._thread.start()
 
-    def request(self, q: np.ndarray) -> None:
-        """The joints of the newest control cycle (dof,) rad: the next query's."""
-        self._q = q
-        self._wake.set()
+    def request(self, q: np.ndarray, P: np.ndarray | None = None) -> None:
+        """The joints of the newest control cycle (dof,) rad: the next query's; ``P`` (m, 3) world m,
+        the cycle's points at ``q`` (``points(q)``; copied here), saves the worker their kinematics."""
+        self._req = (q, None if P is None else P.copy())
 
     def offer(self, buf, P, D, V, observed, rho: float, margin: float, method: str) -> None:
         """A fusion build's own query of grid buffer ``buf`` (held by the caller, just built):
@@ -226,7 +264,6 @@ class DistanceWorker:
 
     def close(self, timeout: float = 2.0) -> None:
         self._stop.set()
-        self._wake.set()
         if self._thread is not None:
             self._thread.join(timeout)
 
@@ -250,27 +287,48 @@ class DistanceWorker:
     def _run(self) -> None:
         self._priority()
         next_t = time.perf_counter()
-        while not self._stop.is_set():
-            self._wake.wait(self.period)
-            self._wake.clear()
-            if self._stop.is_set():
+        stop = self._stop
+        while True:
+            delay = next_t - time.perf_counter()
+            if delay > 0.0:
+                time.sleep(delay)            # a C sleep: cheaper than an Event's wait (close() waits a period)
+            if stop.is_set():
                 return
-            now = time.perf_counter()
-            if now < next_t:
-                time.sleep(next_t - now)
             next_t = max(next_t + self.period, time.perf_counter())
-            q = self._q
-            if q is None:
+            req = self._req
+            if req is None:
                 continue
             try:
-                self._query(q)
+                if not self._reuse(req[1]):
+                    self._query(req[0], req[1])
             except Exception as exc:               # reported; the control cycle queries itself
                 self.errors += 1
                 self.last_error = f"{type(exc).__name__}: {exc}"
 
-    def _query(self, q) -> None:
+    def _reuse(self, P) -> bool:
+        """True when the newest answer stands for a query now (module docstring): the front grid's,
+        with the current settings, at points within ``REQUERY_FRACTION * margin`` of ``P``;
+        published again with a new wall time when older than a period."""
+        snap = self._snap
+        if snap is None or P is None:
+            return False
+        fusion = self.fusion
+        with fusion.swap_lock:
+            buf = fusion.front
+        if buf is None or buf.generation != snap.generation or (snap.rho, snap.method) != self._settings():
+            return False
+        if moved_beyond(snap.P, P, REQUERY_FRACTION * self.margin):
+            return False
+        if time.perf_counter() - snap.wall > self.period:
+            with self._snap_lock:
+                if self._snap is snap:
+                    self._snap = dataclasses.replace(snap, wall=time.perf_counter())
+            self.reused += 1
+        return True
+
+    def _query(self, q, P=None) -> None:
         rho, method = self._settings()
-        P = np.ascontiguousarray(self._points(q), dtype=np.float64)
+        P = np.ascontiguousarray(self._points(q) if P is None else P, dtype=np.float64)
         fusion = self.fusion
         with fusion.swap_lock:
             buf = fusion.front

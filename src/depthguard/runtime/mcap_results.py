@@ -34,6 +34,7 @@ from pathlib import Path
 
 import numpy as np
 
+from depthguard.runtime.reaction_cdr import float64_cdr, reaction_cdr
 from depthguard.transport import ros_messages as rosmsg
 
 __all__ = ["McapResults", "REACTION_MSG", "REACTION_TYPE", "TOPICS"]
@@ -193,11 +194,11 @@ class McapResults:
         if not (math.isfinite(r.t) and r.t >= 0):
             return                                  # a ROS time cannot hold it (never on the monitor's clocks)
         ns = rosmsg.stamp_ns(r.t)
-        T = rosmsg.TYPESTORE.types
+        # the bytes rosbags serialises from reaction_msg(r) and a Float64, written directly (issue 29)
+        reaction, override = reaction_cdr(r, self.frame_id), float64_cdr(r.override)
         with self._lock:
-            self._writer.write(self._con["reaction"], ns, rosmsg.serialize(self.reaction_msg(r)))
-            self._writer.write(self._con["override"], ns,
-                               rosmsg.serialize(T[rosmsg.MSG["Float64"]](data=float(r.override))))
+            self._writer.write(self._con["reaction"], ns, reaction)
+            self._writer.write(self._con["override"], ns, override)
             if r.t >= self._next_marker:
                 self._writer.write(self._con["markers"], ns, rosmsg.serialize(self.markers_msg(r)))
                 self._next_marker = r.t + self.period - 1e-9

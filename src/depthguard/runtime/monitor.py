@@ -119,6 +119,7 @@ class Monitor(MonitorDistances, UnitStateInput, MonitorPaths, MonitorWatches):
         self._names = self._cp_names + tuple(w.name for w in cfg.watch_points)
         m = len(self._names)
         self._P = np.zeros((m, 3))
+        self._D_inf = np.full(m, np.inf)
         self._is_watch = np.arange(m) >= len(self._cp_names)
         self._q_min, self._q_max, self._qd_max = (np.ascontiguousarray(a, dtype=np.float64) for a in
                                                   (self.robot.q_min, self.robot.q_max, self.robot.qd_max))
@@ -132,8 +133,10 @@ class Monitor(MonitorDistances, UnitStateInput, MonitorPaths, MonitorWatches):
         self._D_none = np.full(m_cp, np.inf)          # no policy gives a box: the joint limits' alone
         self._box_buf = (np.empty(3), np.empty(self.robot.dof), np.empty(self.robot.dof))
         self._t_last: float | None = None
+        self._cfg_cache: tuple | None = None          # (config, query_rho, camera stale limit): _derived
         self._last_q: np.ndarray | None = None
         self._seen: dict[str, int] = {}          # camera -> version already used by a cycle
+        self._counted = None                      # the distance snapshot's versions last counted (_distances)
         self._refusal_marks: dict[str, tuple[int, int]] = {}   # runtime.refusals: refused since the frame in use
         self._dist_worker: DistanceWorker | None = None     # real_time(): distances off this thread
         self._worker_data = self.robot.create_data()
@@ -302,9 +305,18 @@ class Monitor(MonitorDistances, UnitStateInput, MonitorPaths, MonitorWatches):
             w = self._workers.pop(camera_id)
         w.close()
         self._seen.pop(camera_id, None)
+        self._counted = None
         self.fusion.notify()
 
     # ------------------------------------------------------------ the control cycle
+    def _derived(self, cfg) -> tuple:
+        """``(cfg, query_rho, camera_stale_limit)`` of the running configuration, worked out once per
+        configuration (each is a property that walks the policies: ~10 us a cycle, issue 29)."""
+        c = self._cfg_cache
+        if c is None or c[0] is not cfg:
+            c = self._cfg_cache = (cfg, float(cfg.query_rho), float(cfg.camera_stale_limit))
+        return c
+
     def step(self, t: float, q=None, qd=None) -> Reaction:
         """The reaction at time ``t`` (s) with the robot at ``q`` (dof,) rad — default: the newest
         joint state received. Never waits for a frame (module docstring). ``qd`` (dof,) rad/s:
@@ -312,6 +324,7 @@ class Monitor(MonitorDistances, UnitStateInput, MonitorPaths, MonitorWatches):
         (R33; default: the joints' rate between the last two cycles)."""
         t_wall = time.perf_counter()
         cfg = self.config
+        _, query_rho, limit = self._derived(cfg)
         robot, data = self.robot, self._data
         latest = self.joints.latest()
         joints_age = math.inf if latest is None else t - latest[0]
@@ -326,18 +339,17 @@ class Monitor(MonitorDistances, UnitStateInput, MonitorPaths, MonitorWatches):
         if len(self._watch):
             self._P[m_cp:] = self._watch
         m = len(self._names)
-        D = np.full(m, np.inf)
+        D = self._D_inf.copy()                        # fresh: the reaction keeps them
         V = np.zeros((m, 3))
         obs = np.zeros(m, dtype=bool)
-        stamps = self._distances(cfg, q, D, V, obs)
+        stamps = self._distances(cfg, q, D, V, obs, query_rho)
         remote = cfg.remote_cameras
         if remote:                                     # the units' voxel boxes (R20, R25)
             caps = robot.collision_segments(q, cfg.robot_padding)
-            stamps.update(self.voxels.nearest(self._P, cfg.query_rho, D, V, robot_capsules=caps))
+            stamps.update(self.voxels.nearest(self._P, query_rho, D, V, robot_capsules=caps))
         # supervision (R26, R27)
         with self._settings_lock:
-            ids = self._camera_ids + tuple(remote)
-        limit = cfg.camera_stale_limit
+            ids = self._camera_ids + tuple(remote) if remote else self._camera_ids
         cams: dict[str, CameraStatus] = {}
         ages = np.empty(len(ids))
         # an added camera is not awaited before its first frame only while some monitored camera

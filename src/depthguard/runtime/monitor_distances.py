@@ -19,7 +19,7 @@ __all__ = ["MonitorDistances"]
 class MonitorDistances:
     """The distance half of :class:`~depthguard.runtime.monitor.Monitor` (module docstring)."""
 
-    def _distances(self, cfg, q, D, V, obs) -> dict[str, float]:
+    def _distances(self, cfg, q, D, V, obs, query_rho=None) -> dict[str, float]:
         """Distances of ``self._P`` into ``D``, ``V``, ``obs``; returns the capture stamps of the
         frames used. With the distance worker (:meth:`real_time`): its newest answer bounded at
         ``self._P``; when that answer is older than the worker's ``max_age_s`` (the worker
@@ -31,15 +31,18 @@ class MonitorDistances:
         worker = self._dist_worker
         if worker is None:
             return self._query_front(cfg, D, V, obs)
-        worker.request(q.copy())
+        rho = cfg.query_rho if query_rho is None else query_rho     # the caller's, worked out once per config
+        worker.request(q.copy(), self._P)
         snap = worker.newest()
-        usable = snap is not None and snap.rho == cfg.query_rho and snap.method == cfg.method
+        usable = snap is not None and snap.rho == rho and snap.method == cfg.method
         if not usable:
             why = "no_answer" if snap is None else "settings_changed"
         elif time.perf_counter() - snap.wall > worker.max_age_s:
             why = "answer_too_old"
-        elif bound_distances(snap, self._P, cfg.query_rho, D, V, obs):
-            self._count_frames(snap.versions, snap.pushed_at)
+        elif bound_distances(snap, self._P, rho, D, V, obs):
+            if snap.versions is not self._counted:       # a snapshot's dicts are its own: counted once
+                self._count_frames(snap.versions, snap.pushed_at)
+                self._counted = snap.versions            # (a grid buffer's change in place: never kept)
             return dict(snap.stamps)
         else:
             why = "moved_beyond_margin"
@@ -51,8 +54,8 @@ class MonitorDistances:
             if not usable:
                 return {}                       # nothing to bound: unobserved, no frame in use
             why += busy
-            if not bound_distances(snap, self._P, cfg.query_rho, D, V, obs):
-                bound_distances(snap, self._P, cfg.query_rho, D, V, obs, strict=False)
+            if not bound_distances(snap, self._P, rho, D, V, obs):
+                bound_distances(snap, self._P, rho, D, V, obs, strict=False)
                 why += "_some_points_unjudged"
             self._count_frames(snap.versions, snap.pushed_at)
             stamps = dict(snap.stamps)
@@ -83,6 +86,7 @@ class MonitorDistances:
 
     def _count_frames(self, versions, pushed_at) -> None:
         """Frame-to-reaction times of the frames a cycle uses for the first time."""
+        self._counted = None
         now = time.perf_counter()
         for c, v in versions.items():
             if self._seen.get(c) != v:
@@ -148,4 +152,5 @@ class MonitorDistances:
 
     def _distance_settings(self):
         with self._settings_lock:
-            return self.config.query_rho, self.config.method
+            cfg = self.config
+        return self._derived(cfg)[1], cfg.method        # query_rho worked out once per configuration

@@ -23,13 +23,17 @@ def explain_stale(reasons: dict[str, str], workers: dict, marks: dict[str, tuple
         saw it); kept by the caller between cycles, updated here.
     """
     for cid, worker in list(workers.items()):
-        with worker.lock:
-            product, refused, last = worker.product, worker.refused, worker.last_refusal
-        version = 0 if product is None else product.version
-        mark = marks.get(cid)
-        if mark is None or mark[0] != version:
-            mark = marks[cid] = (version, refused if product is not None else 0)
-        key = f"stale:{cid}"
-        if key in reasons and last and refused > mark[1]:
+        key = "stale:" + cid
+        stale = key in reasons
+        with worker.lock:                    # the counters read once per new frame in use, or when stale
+            product = worker.product
+            version = 0 if product is None else product.version
+            mark = marks.get(cid)
+            if mark is None or mark[0] != version:
+                mark = marks[cid] = (version, worker.refused if product is not None else 0)
+            if not stale:
+                continue
+            refused, last = worker.refused, worker.last_refusal
+        if last and refused > mark[1]:
             why = last.removeprefix(f"camera {cid}: ")
             reasons[key] += f"; its frames are refused ({refused - mark[1]}): {why}"

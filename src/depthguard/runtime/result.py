@@ -107,7 +107,22 @@ class Reaction:
     def nearest(self) -> tuple[str | None, float]:
         """``(name, distance)`` of the nearest observed control point with an obstacle within
         rho, ``(None, inf)`` when there is none."""
-        d = np.where(self.observed & ~self.is_watch, self.distance, np.inf)
+        try:                                # a loop over the few points (issue 29: the runner asks every cycle)
+            dist, obs, watch = self.distance.tolist(), self.observed.tolist(), self.is_watch.tolist()
+        except AttributeError:
+            return self._nearest_numpy()
+        best, at = math.inf, -1
+        for i, x in enumerate(dist):
+            if obs[i] and not watch[i]:
+                if x != x or x == -math.inf:
+                    return self._nearest_numpy()
+                if x < best:
+                    best, at = x, i
+        return (None, math.inf) if at < 0 else (self.names[at], float(best))
+
+    def _nearest_numpy(self) -> tuple[str | None, float]:
+        """:meth:`nearest` with numpy (its twin, and the answer wherever a distance is NaN or -inf)."""
+        d = np.where(np.asarray(self.observed) & ~np.asarray(self.is_watch), self.distance, np.inf)
         if not np.any(np.isfinite(d)):
             return None, math.inf
         i = int(np.argmin(d))

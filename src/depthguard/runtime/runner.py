@@ -276,10 +276,11 @@ def _run_paced(monitor, frame_sources, joint_source, duration, stop, emit, all_d
     start = time.monotonic() - t0
     clock = lambda: time.monotonic() - start          # noqa: E731 - the run's clock, from t0
 
-    def pump(fn, push):
+    def pump(fn, push, stamped: bool = False):
         from depthguard.runtime.ingest import background_thread
 
         background_thread()              # one core, lower priority than the control thread
+        pace = _Pace() if stamped else None
         while not stop.is_set():
             try:
                 items = fn(clock())
@@ -290,8 +291,11 @@ def _run_paced(monitor, frame_sources, joint_source, duration, stop, emit, all_d
                 return
             for it in items:
                 push(it)
-            if not items:
-                time.sleep(0.0005)
+            if pace is not None:
+                pace.seen(items)
+                time.sleep(pace.wait(clock()))
+            elif not items:
+                time.sleep(POLL_S)
     threads = [threading.Thread(target=pump, args=(s.frames_until, monitor.push_frame), daemon=True,
                                 name=f"depthguard-source-{i}") for i, s in enumerate(frame_sources)]
     threads += [threading.Thread(target=pump, args=(s.voxels_until, lambda v: monitor.push_voxels(*v)),
@@ -301,8 +305,11 @@ def _run_paced(monitor, frame_sources, joint_source, duration, stop, emit, all_d
                                  name=f"depthguard-unit-states-{i}")
                 for i, s in enumerate(frame_sources) if hasattr(s, "states_until")]
     if joint_source is not None:
+        # a source on the run's clock (the simulator, a recording) is polled when its next state is
+        # due; a live one's stamps are on its own clock: polled every POLL_S as they may come
         threads.append(threading.Thread(target=pump, args=(joint_source.states_until,
-                                                           lambda s: monitor.push_joints(*s)),
+                                                           lambda s: monitor.push_joints(*s),
+                                                           not getattr(joint_source, "live", False)),
                                         daemon=True, name="depthguard-joints"))
     for th in threads:
         th.start()
@@ -317,6 +324,37 @@ def _run_paced(monitor, frame_sources, joint_source, duration, stop, emit, all_d
         for th in threads:
             th.join(2.0)
     return stats, time.perf_counter() - wall0
+
+
+#: the source threads' polling period when nothing came (s)
+POLL_S = 0.0005
+
+
+class _Pace:
+    """When to poll a joint source whose stamps are on the run's clock again (issue 29): at the
+    newest stamp plus the shortest interval seen between two states, never later than that
+    interval from now (a source that stamps ahead of the clock is still polled once a period)
+    and never sooner than :data:`POLL_S`; until two states have come, and while a state is
+    overdue, every :data:`POLL_S` as before. A 500 Hz stream is then polled about 500 times a
+    second instead of 2000, each empty poll of the simulator's stream ~25 us of CPU with its
+    sleep (measured 2026-11-26)."""
+
+    def __init__(self):
+        self.last = -math.inf
+        self.gap = math.inf
+
+    def seen(self, items) -> None:
+        for it in items:
+            s = float(it[0])
+            if s > self.last:
+                if math.isfinite(self.last):
+                    self.gap = min(self.gap, s - self.last)
+                self.last = s
+
+    def wait(self, now: float) -> float:
+        if not math.isfinite(self.gap):
+            return POLL_S
+        return min(max(self.last + self.gap - now, POLL_S), max(self.gap, POLL_S))
 
 
 def _paced_loop(monitor, stop, emit, all_done, clock, dt, t0, duration, next_status) -> None:

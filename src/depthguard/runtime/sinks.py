@@ -17,6 +17,7 @@ from pathlib import Path
 from typing import Callable, Sequence
 
 from depthguard.progress import log
+from depthguard.runtime.reaction_json import reaction_json
 from depthguard.runtime.result import Reaction
 
 __all__ = ["SinkError", "JsonlLog", "CallbackSink", "ZenohPublisher", "SinkFanout", "reaction_keys", "open_jsonl",
@@ -51,7 +52,7 @@ class JsonlLog:
     def __call__(self, reaction: Reaction) -> None:
         if self._fh is None:
             raise SinkError(f"log {self.path} is closed")
-        self._fh.write(json.dumps(reaction.to_dict(), allow_nan=False) + "\n")
+        self._fh.write(reaction_json(reaction) + "\n")         # = json.dumps(reaction.to_dict(), allow_nan=False)
         self.lines += 1
         if self.lines % self.flush_every == 0:
             self._fh.flush()

@@ -29,7 +29,7 @@ def warm_up(rig, config=None) -> float:
         mon.flush(timeout=600.0)
         mon.step(0.001)
         # the distance thread's band query and the cycles' bound of its answer (real_time())
-        from depthguard.runtime.distances import DistanceSnapshot, bound_distances
+        from depthguard.runtime.distances import DistanceSnapshot, bound_distances, moved_beyond
 
         cfg = mon.config
         grid = mon.fusion.front.grid
@@ -40,6 +40,7 @@ def warm_up(rig, config=None) -> float:
                                 cfg.distance_margin, cfg.method, {}, {}, {}, grid.principal_view(), 0.0)
         m = len(P)
         bound_distances(snap, P, cfg.query_rho, np.empty(m), np.empty((m, 3)), np.empty(m, dtype=bool))
+        moved_beyond(P, P.copy(), cfg.distance_margin)          # the worker's test of its newest answer
     from depthguard.runtime.voxel_input import VoxelObstacles
     units = VoxelObstacles()                      # the remote units' kernel
     units.push("warm-up", np.zeros((1, 3)), 0.05, 0.0)

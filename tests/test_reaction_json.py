@@ -1,0 +1,141 @@
+"""The log line's encoder (runtime.reaction_json, issue 29): byte for byte ``json.dumps(r.to_dict(),
+allow_nan=False)`` — the record of docs/MONITOR.md — on reactions drawn at random over the record's
+whole range (no obstacle, cannot judge, watch points, SSM terms, a policy's terms and record,
+reasons, cameras before their first frame, values that round to -0.0 or print in exponent form),
+and the same error where the record has none to give."""
+
+import json
+import math
+
+import numpy as np
+import pytest
+
+from depthguard.control.policy import Part
+from depthguard.runtime.reaction_json import reaction_json
+from depthguard.runtime.result import CameraStatus, Reaction
+from depthguard.runtime.sinks import JsonlLog
+
+
+def _value(rng, scale=1.0, tiny=True):
+    kind = rng.integers(0 if tiny else 2, 8)
+    if kind == 0:
+        return float(rng.choice([0.0, -0.0, 1.0, -1.0, 0.5e-6, -0.5e-6, 1.5e-6, 2.5e-7, 1e-5, 123456.7654321]))
+    if kind == 1:
+        return float(rng.normal() * 1e-5)            # exponent form after rounding
+    return float(rng.normal() * scale)
+
+
+def _reaction(rng, ssm: bool, part: bool, tiny: bool = True) -> Reaction:
+    global _value
+    if not tiny:                                     # ordinary values only: the fast path's lines
+        value = _value
+        _value = lambda rng, scale=1.0: value(rng, scale, tiny=False)   # noqa: E731
+        try:
+            return _reaction(rng, ssm, part, True)
+        finally:
+            _value = value
+    m_cp = int(rng.integers(1, 10))
+    n_watch = int(rng.integers(0, 3))
+    m = m_cp + n_watch
+    names = tuple(f"p{i}\u00e9" if i % 3 == 0 else f"cp_{i}" for i in range(m))
+    D = np.array([rng.choice([math.inf, _value(rng, 0.3)]) for _ in range(m)])
+    V = np.array([[_value(rng) for _ in range(3)] for _ in range(m)])
+    obs = rng.random(m) < 0.8
+    cams = {}
+    for c in range(int(rng.integers(1, 5))):
+        age = rng.choice([math.inf, abs(_value(rng, 0.05))])
+        cams[f"cam{c}"] = CameraStatus(float(age), str(rng.choice(["fresh", "stale", "waiting"])),
+                                       int(rng.integers(0, 500)), int(rng.integers(0, 3)), 0.0)
+    reasons = {} if rng.random() < 0.6 else {"stale:cam0": "camera cam0: no frame for more than 100 ms - \"stale\"",
+                                             "unobserved:cp_1": "control point cp_1 is not observed (R26)"}
+    parts = {}
+    terms = None
+    if ssm:
+        terms = np.array([[_value(rng) for _ in range(13)] for _ in range(m_cp)])
+        parts["ssm"] = Part(scale=_value(rng), terms=terms, record={})
+    if part:
+        parts["mine"] = Part(scale=0.25, stop=bool(rng.random() < 0.5),
+                             terms=np.array([[_value(rng), _value(rng)] for _ in range(m_cp)]),
+                             term_names=("a", "b\u00fc"), record={"near": True, "x": 0.1234567})
+    return Reaction(t=float(rng.random() * 100), override=float(rng.random()),
+                    repulsion=np.array([_value(rng) for _ in range(3)]), qd_min=-np.ones(6), qd_max=np.ones(6),
+                    names=names, distance=D, direction=V, observed=obs, is_watch=np.arange(m) >= m_cp,
+                    reasons=reasons, cameras=cams, joints_age_s=float(rng.choice([math.inf, _value(rng, 0.01)])),
+                    q=np.array([_value(rng, 2.0) for _ in range(6)]), reaction_mode="both" if ssm else "repulsion",
+                    speed_scale=float(rng.random()), protective_stop=bool(rng.random() < 0.2), ssm=terms,
+                    ssm_scale=float(rng.random()), parts=parts)
+
+
+def test_line_equals_the_json_of_the_record():
+    from depthguard.runtime.reaction_json import _fast
+
+    rng = np.random.default_rng(29)
+    fast = 0
+    for k in range(1200):
+        r = _reaction(rng, ssm=k % 3 == 1, part=k % 4 == 3, tiny=k % 2 == 0)
+        assert reaction_json(r) == json.dumps(r.to_dict(), allow_nan=False), k
+        fast += _fast(r) is not None
+    assert fast > 500, fast                  # the template's lines, not only the reference path's
+
+
+def test_what_the_record_refuses_is_refused_the_same(tmp_path):
+    rng = np.random.default_rng(7)
+    r = _reaction(rng, ssm=True, part=False)
+    bad_d = r.distance.copy()
+    bad_d[0] = math.nan
+    bad_ssm = r.ssm.copy()
+    bad_ssm[0, 3] = math.inf
+    bad_q = r.q.copy()
+    bad_q[2] = math.nan
+    for bad in (dict(distance=bad_d), dict(ssm=bad_ssm), dict(q=bad_q)):
+        b = Reaction(**{**r.__dict__, **bad})
+        with pytest.raises(ValueError) as ref:
+            json.dumps(b.to_dict(), allow_nan=False)
+        with pytest.raises(ValueError) as ours:
+            reaction_json(b)
+        assert str(ours.value) == str(ref.value)
+    # the log file holds the record's lines
+    log = JsonlLog(tmp_path / "log.jsonl")
+    rs = [_reaction(rng, ssm=bool(i % 2), part=False) for i in range(20)]
+    for x in rs:
+        log(x)
+    log.close()
+    assert (tmp_path / "log.jsonl").read_text().splitlines() == [json.dumps(x.to_dict(), allow_nan=False) for x in rs]
+
+
+def test_nearest_equals_its_numpy_twin():
+    """Reaction.nearest (a loop over the points, asked by the runner every cycle) answers as its twin."""
+    rng = np.random.default_rng(3)
+    for k in range(500):
+        r = _reaction(rng, ssm=False, part=False)
+        if k % 7 == 0:
+            d = r.distance.copy()
+            d[rng.integers(0, len(d))] = rng.choice([math.nan, -math.inf, 0.0])
+            r = Reaction(**{**r.__dict__, "distance": d})
+        a, b = r.nearest(), r._nearest_numpy()
+        assert a[0] == b[0] and (a[1] == b[1] or (math.isnan(a[1]) and math.isnan(b[1]))), k
+
+
+def test_results_mcap_messages_equal_rosbags_serialisation():
+    """issue 29: the results file's per-cycle messages written directly (runtime.reaction_cdr) are
+    byte for byte what rosbags serialises from the message objects McapResults builds."""
+    from types import SimpleNamespace
+
+    from depthguard.runtime.mcap_results import McapResults, _register
+    from depthguard.runtime.reaction_cdr import float64_cdr, reaction_cdr
+    from depthguard.transport import ros_messages as rosmsg
+
+    _register()
+    rng = np.random.default_rng(31)
+    me = SimpleNamespace(frame_id="world")
+    for k in range(300):
+        r = _reaction(rng, ssm=False, part=False)
+        r = Reaction(**{**r.__dict__, "t": abs(r.t),
+                        "cameras": {} if k % 17 == 0 else r.cameras,            # empty sequences too
+                        "qd_min": rng.normal(size=6), "qd_max": rng.normal(size=6)})
+        if k % 13 == 0:
+            r = Reaction(**{**r.__dict__, "names": (), "distance": np.zeros(0), "direction": np.zeros((0, 3)),
+                            "observed": np.zeros(0, bool), "is_watch": np.zeros(0, bool)})
+        assert reaction_cdr(r, "world") == rosmsg.serialize(McapResults.reaction_msg(me, r)), k
+        T = rosmsg.TYPESTORE.types
+        assert float64_cdr(r.override) == rosmsg.serialize(T[rosmsg.MSG["Float64"]](data=float(r.override)))
