@@ -90,11 +90,13 @@ def _check_path(cell: str) -> None:
     """``depthguard check-path`` of a two-waypoint path from the cell's joints (free space, R22)."""
     from depthguard.sim import load_cell
 
-    q0 = np.asarray(load_cell(cell).rig.robot_q0, dtype=np.float64)
+    rig = load_cell(cell).rig
+    q0 = np.asarray(rig.robot_q0, dtype=np.float64)
     with tempfile.TemporaryDirectory(prefix="depthguard-warm-up-") as tmp:
         path = Path(tmp) / "path.csv"
         rows = [[0.0, *q0], [0.5, *(q0 + 0.05)]]
-        path.write_text("\n".join(",".join(f"{v:.6f}" for v in r) for r in rows) + "\n")
+        path.write_text(",".join(["stamp", *rig.robot.joint_names]) + "\n"
+                        + "\n".join(",".join(f"{v:.6f}" for v in r) for r in rows) + "\n")
         _cli("check-path", "--cell", cell, "--path", str(path), "--settle", "0.2")   # any verdict will do
 
 
@@ -126,19 +128,27 @@ def _take(queue: Path) -> int:
         return i
 
 
-def _part(work: Path, part: int) -> None:
-    """One process: jobs from the queue until none is left; a line per job."""
+def _part(work: Path, part: int) -> int:
+    """One process: jobs from the queue until none is left; a line per job. Returns how many
+    failed (a failed job is named with its error; the others run all the same)."""
     from depthguard.runtime.warm_up import CompileCount, compile_locks
 
+    failed = 0
     with compile_locks(work / "locks"):
         while (i := _take(work / "queue")) < len(JOBS):
             name, fn, args = JOBS[i]
             t0, c0 = time.perf_counter(), time.process_time()
             with CompileCount() as cc:
-                fn(*args)
+                try:
+                    fn(*args)
+                except Exception as exc:          # noqa: BLE001 - one line, and the next job
+                    failed += 1
+                    typer.echo(f"warm-up [{part}] {name}: failed: {type(exc).__name__}: {exc}", err=True)
+                    continue
             typer.echo(f"warm-up [{part}] {name}: {time.perf_counter() - t0:.1f} s "
                        f"({time.process_time() - c0:.1f} CPU-s), {len(cc.kernels)} kernels compiled "
                        f"in {cc.seconds:.1f} s")
+    return failed
 
 
 @app.command("warm-up")
@@ -152,7 +162,8 @@ def warm_up_cmd(
     instead of compiling for minutes. With a warm cache it only loads them (seconds per process).
     The cache is numba's: next to the package's sources, or NUMBA_CACHE_DIR."""
     if work is not None:
-        _part(Path(work), part)
+        if _part(Path(work), part):
+            raise typer.Exit(1)
         return
     t0 = time.perf_counter()
     with tempfile.TemporaryDirectory(prefix="depthguard-warm-up-") as tmp:
@@ -161,6 +172,7 @@ def warm_up_cmd(
                                    "--work", tmp], env=os.environ.copy()) for k in range(jobs)]
         codes = [p.wait() for p in procs]
     if any(codes):
-        typer.echo(f"depthguard: error: warm-up: a process exited with {max(codes, key=abs)}", err=True)
+        typer.echo(f"depthguard: warm-up: {sum(1 for c in codes if c)} of {jobs} processes had a job fail "
+                   f"(above); what the others compiled is in the cache", err=True)
         raise typer.Exit(1)
     typer.echo(f"warm-up: {len(JOBS)} jobs in {jobs} processes, {time.perf_counter() - t0:.1f} s")
