@@ -20,7 +20,7 @@ import pytest
 
 from depthguard.cli import app
 
-pytestmark = pytest.mark.multiprocess
+pytestmark = [pytest.mark.multiprocess, pytest.mark.slow]
 
 KERNEL = textwrap.dedent("""
     import numba
