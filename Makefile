@@ -19,12 +19,12 @@ $(STAMP): pyproject.toml
 demo: $(STAMP)
 	$(VENV)/bin/depthguard demo --out $(OUT)/demo
 
-## numba's disk cache filled before the tests, in JOBS processes side by side (a fresh clone
+## numba's disk cache filled before the tests, in WARM_JOBS processes side by side (a fresh clone
 ## compiles ~300 CPU-s of kernels; with a warm cache this only loads them, seconds).
 ## A failed job is named and the tests run all the same (they then compile what it would have).
-JOBS ?= 2
+WARM_JOBS ?= 2
 warm-up: $(STAMP)
-	-$(VENV)/bin/depthguard warm-up --jobs $(JOBS)
+	-$(VENV)/bin/depthguard warm-up --jobs $(WARM_JOBS)
 
 ## Every test (slow and multi-process ones included); the 40 slowest are listed at the end (the suite must stay well under 15 min).
 test: warm-up
