@@ -66,23 +66,28 @@ def _locked_compile(orig, lock_dir: Path):
     import fcntl
     import hashlib
 
+    from numba.core.compiler_lock import global_compiler_lock
+
     def compile(self, sig):
         cache = getattr(self, "_cache", None)
         py_func = getattr(self, "py_func", None)
         if py_func is None or cache is None or type(cache).__name__ == "NullCache":
             return orig(self, sig)                        # not cached: nothing to share
         key = f"{py_func.__module__}.{py_func.__qualname__}"
-        if key in _held:                                  # a kernel's compilation needing itself
-            return orig(self, sig)
-        name = hashlib.sha1(key.encode()).hexdigest()[:20] + ".lock"
-        with open(lock_dir / name, "a") as f:
-            fcntl.flock(f, fcntl.LOCK_EX)
-            _held.add(key)
-            try:
+        # numba compiles one thing at a time per process (its global compiler lock, re-entrant):
+        # taken first, it leaves _held and the file locks to one thread of this process at a time
+        with global_compiler_lock:
+            if key in _held:                              # a kernel's compilation needing itself
                 return orig(self, sig)
-            finally:
-                _held.discard(key)
-                fcntl.flock(f, fcntl.LOCK_UN)
+            name = hashlib.sha1(key.encode()).hexdigest()[:20] + ".lock"
+            with open(lock_dir / name, "a") as f:
+                fcntl.flock(f, fcntl.LOCK_EX)
+                _held.add(key)
+                try:
+                    return orig(self, sig)
+                finally:
+                    _held.discard(key)
+                    fcntl.flock(f, fcntl.LOCK_UN)
 
     return compile
 
