@@ -39,7 +39,9 @@ def _monitor(cell: str) -> None:
 
     rig = load_cell(cell).rig
     if rig.robot is not None:                    # a cell without a robot has no monitor
-        warm_up(rig, rig.monitor)
+        # its fusion may wait for a kernel another process compiles (measured: 14 min for the two
+        # grid kernels at load 10 on 2 cores, past the monitor's own 600 s)
+        warm_up(rig, rig.monitor, timeout=3600.0)
 
 
 def _grid_one_thread(cell: str) -> None:

@@ -11,10 +11,12 @@ import numpy as np
 __all__ = ["warm_up", "compile_locks", "CompileCount"]
 
 
-def warm_up(rig, config=None) -> float:
+def warm_up(rig, config=None, timeout: float = 600.0) -> float:
     """Compile every kernel of the monitor's path (numba, ``cache=True``: from the disk cache
     after the first time) on a throwaway monitor fed with the known scene's expected depth, so
-    that no clock of a run includes compilation. Returns the seconds it took."""
+    that no clock of a run includes compilation. ``timeout`` (s): how long the frames may take
+    through the fusion (``depthguard warm-up`` gives more: another process may hold a kernel's
+    compile lock). Returns the seconds it took."""
     from depthguard.filtering.expected import ExpectedDepth
     from depthguard.runtime.monitor import Monitor
     from depthguard.sources.frame import Frame
@@ -28,7 +30,7 @@ def warm_up(rig, config=None) -> float:
             cam = rig.camera(cid)
             mon.push_frame(Frame(cid, np.array(ExpectedDepth(cam, rig.robot, rig.static_meshes()).known(q0)),
                                  0.0005))
-        mon.flush(timeout=600.0)
+        mon.flush(timeout=timeout)
         mon.step(0.001)
         # the distance thread's band query and the cycles' bound of its answer (real_time())
         from depthguard.runtime.distances import DistanceSnapshot, bound_distances
