@@ -5,7 +5,7 @@ PY     := $(VENV)/bin/python
 STAMP  := $(VENV)/.installed
 OUT    ?= out
 
-.PHONY: venv demo test test-fast soak bench clean
+.PHONY: venv demo warm-up test test-fast soak bench clean
 
 venv: $(STAMP)
 
@@ -19,12 +19,19 @@ $(STAMP): pyproject.toml
 demo: $(STAMP)
 	$(VENV)/bin/depthguard demo --out $(OUT)/demo
 
+## numba's disk cache filled before the tests, in WARM_JOBS processes side by side (a fresh clone
+## compiles ~300 CPU-s of kernels; with a warm cache this only loads them, seconds).
+## A failed job is named and the tests run all the same (they then compile what it would have).
+WARM_JOBS ?= 2
+warm-up: $(STAMP)
+	-$(VENV)/bin/depthguard warm-up --jobs $(WARM_JOBS)
+
 ## Every test (slow and multi-process ones included); the 40 slowest are listed at the end (the suite must stay well under 15 min).
-test: $(STAMP)
+test: warm-up
 	$(PY) -m pytest -q -p no:cacheprovider --durations=40
 
 ## Everything but the tests marked slow.
-test-fast: $(STAMP)
+test-fast: warm-up
 	$(PY) -m pytest -q -m "not slow" -p no:cacheprovider
 
 ## The long runs kept out of `make test` (its tests keep a short slice of each property).

@@ -63,7 +63,8 @@ def prismatic_urdf():
 # first one took 150 s in CI and ran past its 300 s timeout on a loaded machine), and processes
 # started together (a principal and its units) would each compile the same kernels. Such tests
 # ask for this fixture: the compilation happens here, once, in the test process, with no timeout,
-# and writes the cache the subprocesses then load.
+# and writes the cache the subprocesses then load. `make test` runs `depthguard warm-up` first
+# (these kernels and more, compiled in two processes side by side): the fixture then only loads.
 @pytest.fixture(scope="session")
 def monitor_kernels():
     from depthguard.runtime.warm_up import warm_up

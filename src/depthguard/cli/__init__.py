@@ -26,6 +26,7 @@ _COMMAND_MODULES = [
     "depthguard.cli.realsense",
     "depthguard.cli.calibrate",
     "depthguard.cli.learn_scene",
+    "depthguard.cli.warm_up",
 ]
 
 for _m in _COMMAND_MODULES:

@@ -64,6 +64,7 @@ OVERVIEW: dict[str, tuple[str, str]] = {
     "bench": (_DEV, "Speed beside the papers' figures and a peer's."),
     "fuzz": (_DEV, "Fuzz every decoder and loader of outside input (R35)."),
     "soak": (_DEV, "Soak the distributed mode on loopback (R35)."),
+    "warm-up": (_DEV, "Compile the kernels into numba's cache, in parallel."),
 }
 
 

@@ -3,16 +3,20 @@
 from __future__ import annotations
 
 import time
+from contextlib import contextmanager
+from pathlib import Path
 
 import numpy as np
 
-__all__ = ["warm_up"]
+__all__ = ["warm_up", "compile_locks", "CompileCount"]
 
 
-def warm_up(rig, config=None) -> float:
+def warm_up(rig, config=None, timeout: float = 600.0) -> float:
     """Compile every kernel of the monitor's path (numba, ``cache=True``: from the disk cache
     after the first time) on a throwaway monitor fed with the known scene's expected depth, so
-    that no clock of a run includes compilation. Returns the seconds it took."""
+    that no clock of a run includes compilation. ``timeout`` (s): how long the frames may take
+    through the fusion (``depthguard warm-up`` gives more: another process may hold a kernel's
+    compile lock). Returns the seconds it took."""
     from depthguard.filtering.expected import ExpectedDepth
     from depthguard.runtime.monitor import Monitor
     from depthguard.sources.frame import Frame
@@ -26,7 +30,7 @@ def warm_up(rig, config=None) -> float:
             cam = rig.camera(cid)
             mon.push_frame(Frame(cid, np.array(ExpectedDepth(cam, rig.robot, rig.static_meshes()).known(q0)),
                                  0.0005))
-        mon.flush(timeout=600.0)
+        mon.flush(timeout=timeout)
         mon.step(0.001)
         # the distance thread's band query and the cycles' bound of its answer (real_time())
         from depthguard.runtime.distances import DistanceSnapshot, bound_distances, moved_beyond
@@ -47,3 +51,101 @@ def warm_up(rig, config=None) -> float:
     units.nearest(np.ones((2, 3)), 0.4, np.full(2, np.inf), np.zeros((2, 3)),
                   robot_capsules=rig.robot.collision_segments(q0, 0.05))
     return time.perf_counter() - t0
+
+
+# ---------------------------------------------------------------- several processes, one cache (R29)
+# `depthguard warm-up --jobs N` compiles the package's kernels in N processes that share numba's
+# disk cache. Without coordination two processes that reach the same kernel compile it twice, and
+# two that save overloads of one kernel at once can lose an entry of its index (numba reads,
+# updates and rewrites the index). compile_locks() makes each process take an exclusive file lock
+# per kernel before compiling it: the second one waits, then loads what the first one saved.
+
+_held: set[str] = set()
+
+
+def _locked_compile(orig, lock_dir: Path):
+    """A ``Dispatcher.compile`` that holds ``lock_dir/<kernel>.lock`` (``fcntl.flock``) while the
+    original looks into the disk cache and, on a miss, compiles and saves."""
+    import fcntl
+    import hashlib
+
+    from numba.core.compiler_lock import global_compiler_lock
+
+    def compile(self, sig):
+        cache = getattr(self, "_cache", None)
+        py_func = getattr(self, "py_func", None)
+        if py_func is None or cache is None or type(cache).__name__ == "NullCache":
+            return orig(self, sig)                        # not cached: nothing to share
+        key = f"{py_func.__module__}.{py_func.__qualname__}"
+        # numba compiles one thing at a time per process (its global compiler lock, re-entrant):
+        # taken first, it leaves _held and the file locks to one thread of this process at a time
+        with global_compiler_lock:
+            if key in _held:                              # a kernel's compilation needing itself
+                return orig(self, sig)
+            name = hashlib.sha1(key.encode()).hexdigest()[:20] + ".lock"
+            with open(lock_dir / name, "a") as f:
+                fcntl.flock(f, fcntl.LOCK_EX)
+                _held.add(key)
+                try:
+                    return orig(self, sig)
+                finally:
+                    _held.discard(key)
+                    fcntl.flock(f, fcntl.LOCK_UN)
+
+    return compile
+
+
+@contextmanager
+def compile_locks(lock_dir):
+    """Within the ``with``: numba compiles a cached kernel (``cache=True``) only under an
+    exclusive lock per kernel in the folder ``lock_dir`` shared by the processes warming one
+    cache, so no kernel is compiled twice and no index entry is lost (R29, ``depthguard
+    warm-up``). Kernels without ``cache=True`` compile as before."""
+    from numba.core.dispatcher import Dispatcher
+
+    lock_dir = Path(lock_dir)
+    lock_dir.mkdir(parents=True, exist_ok=True)
+    orig = Dispatcher.compile
+    Dispatcher.compile = _locked_compile(orig, lock_dir)
+    try:
+        yield
+    finally:
+        Dispatcher.compile = orig
+
+
+class CompileCount:
+    """Counts numba's compilations (cache misses) of kernels, outermost only, while installed:
+    ``with CompileCount() as c: ...; c.kernels`` (names), ``c.seconds`` (wall seconds)."""
+
+    def __init__(self):
+        self.kernels: list[str] = []
+        self.seconds = 0.0
+
+    def __enter__(self):
+        from numba.core import event
+
+        count = self
+        depth = [0, 0.0]
+
+        class _Listener(event.Listener):
+            def on_start(self, ev):
+                if depth[0] == 0:
+                    depth[1] = time.perf_counter()
+                depth[0] += 1
+
+            def on_end(self, ev):
+                depth[0] -= 1
+                if depth[0] == 0:
+                    f = getattr(ev.data.get("dispatcher"), "py_func", None)
+                    count.kernels.append(f"{f.__module__}.{f.__qualname__}" if f is not None else "?")
+                    count.seconds += time.perf_counter() - depth[1]
+
+        self._listener = _Listener()
+        event.register("numba:compile", self._listener)
+        return self
+
+    def __exit__(self, *exc):
+        from numba.core import event
+
+        event.unregister("numba:compile", self._listener)
+        return False

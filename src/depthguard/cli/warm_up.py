@@ -1,0 +1,182 @@
+"""``depthguard warm-up``: compile the package's numba kernels into their disk cache, in parallel (R29).
+
+A fresh install has an empty cache: the first monitor, run or test then compiles for minutes
+(about 170 CPU-seconds for the monitor's path alone, two kernels of the lazy depth grid 120 of
+them). This command runs the real entry points on small inputs (:data:`JOBS`: the monitor's
+warm-up on the built-in cells, one-thread grid queries, a short closed-loop run...) in
+``--jobs`` processes that take the jobs in turn from one queue, so that the two large kernels
+compile side by side. :func:`depthguard.runtime.warm_up.compile_locks` keeps two processes
+from compiling one kernel twice. Which kernels and signatures are compiled is whatever the code
+calls; nothing here names a kernel. ``make test`` runs it before the tests.
+
+Measured 2026-11-26 from an empty cache (2 cores shared with other work, load 6-9): the two
+processes 127 and 121 CPU-seconds (255 CPU-s user + sys in all), where the monitor's warm-up
+alone takes 170 CPU-s in one process; again with the cache warm (loads only): 23 CPU-s in all.
+"""
+
+from __future__ import annotations
+
+import os
+import subprocess
+import sys
+import tempfile
+import time
+from pathlib import Path
+from typing import Optional
+
+import numpy as np
+import typer
+
+from depthguard.cli.app import app
+
+__all__ = ["warm_up_cmd", "JOBS"]
+
+
+def _monitor(cell: str) -> None:
+    """The monitor's own warm-up (R29) on a built-in cell: every kernel of its path."""
+    from depthguard.runtime.warm_up import warm_up
+    from depthguard.sim import load_cell
+
+    rig = load_cell(cell).rig
+    if rig.robot is not None:                    # a cell without a robot has no monitor
+        # its fusion may wait for a kernel another process compiles (measured: 14 min for the two
+        # grid kernels at load 10 on 2 cores, past the monitor's own 600 s)
+        warm_up(rig, rig.monitor, timeout=3600.0)
+
+
+def _grid_one_thread(cell: str) -> None:
+    """The lazy depth grid of a built-in cell queried from one thread on flat frames, as the
+    monitor's distance thread queries a frame the fusion has already classified (the lookup
+    classifies what is still missing): the other large kernel of the monitor's path, compiled
+    while :func:`_monitor` compiles the classification. (The first query of a frame classifies
+    first; marking the frame queried skips that here, the one use of the grid's insides: were it
+    renamed, this job would compile both kernels, one after the other, and nothing else change.)"""
+    import numba
+
+    from depthguard.fusion.depth_grid import DepthGridMap
+    from depthguard.sim import load_cell
+
+    rig = load_cell(cell).rig
+    cfg = rig.monitor
+    cams = [rig.camera(c) for c in rig.camera_ids]
+    if len(cams) < 2:
+        return
+    d_min, d_max = rig.workspace.depth_span(cams[0])
+    grid = DepthGridMap(cams, principal=cams[0].id, d_min=d_min, d_max=d_max, delta_d=cfg.delta_d,
+                        principal_bin=cfg.principal_bin)
+    q0 = np.asarray(rig.robot_q0, dtype=np.float64)
+    depths = {c.id: np.full((c.height, c.width), 0.5 * (d_min + d_max), np.float32) for c in cams}
+    caps = rig.robot.collision_segments(q0, 0.05)
+    grid.set_frames(depths, robot_capsules=caps, silhouette_px=cfg.silhouette_px)
+    if hasattr(grid, "_queried") and hasattr(grid, "_frame"):
+        grid._queried = grid._frame
+    prev = numba.get_num_threads()
+    numba.set_num_threads(1)
+    try:
+        grid.query(np.asarray(caps[0][:4], dtype=np.float64).reshape(-1, 3), rho=cfg.query_rho, method=cfg.method,
+                   threads=1)
+    finally:
+        numba.set_num_threads(prev)
+
+
+def _cli(*args: str) -> None:
+    """A ``depthguard`` command on a small input, its files in a temporary folder (``{tmp}``)."""
+    import contextlib
+    import io
+
+    from depthguard.cli import app as the_app
+
+    with tempfile.TemporaryDirectory(prefix="depthguard-warm-up-") as tmp:
+        argv = [a.replace("{tmp}", tmp) for a in args]
+        with contextlib.redirect_stdout(io.StringIO()):     # the command's report: not wanted here
+            the_app(argv, standalone_mode=False)
+
+
+def _check_path(cell: str) -> None:
+    """``depthguard check-path`` of a two-waypoint path from the cell's joints (free space, R22)."""
+    from depthguard.sim import load_cell
+
+    rig = load_cell(cell).rig
+    q0 = np.asarray(rig.robot_q0, dtype=np.float64)
+    with tempfile.TemporaryDirectory(prefix="depthguard-warm-up-") as tmp:
+        path = Path(tmp) / "path.csv"
+        rows = [[0.0, *q0], [0.5, *(q0 + 0.05)]]
+        path.write_text(",".join(["stamp", *rig.robot.joint_names]) + "\n"
+                        + "\n".join(",".join(f"{v:.6f}" for v in r) for r in rows) + "\n")
+        _cli("check-path", "--cell", cell, "--path", str(path), "--settle", "0.2")   # any verdict will do
+
+
+#: (name, callable, args): biggest first; the first two hold the two large kernels of the monitor's path
+JOBS: list[tuple[str, object, tuple]] = [
+    ("monitor flacco-cell", _monitor, ("flacco-cell",)),
+    ("grid query on one thread, flacco-cell", _grid_one_thread, ("flacco-cell",)),
+    ("run reach 0.3 s", _cli, ("run", "-s", "reach", "--duration", "0.3", "-o", "{tmp}/run", "--quiet")),
+    ("run reach ssm 0.3 s", _cli, ("run", "-s", "reach", "--reaction", "ssm", "--duration", "0.3", "-o", "{tmp}/run",
+                                   "--quiet")),
+    ("check-path flacco-cell", _check_path, ("flacco-cell",)),
+    ("placement c-arm-room", _cli, ("placement", "--cell", "c-arm-room", "--no-improve")),
+    ("monitor ur3-cell", _monitor, ("ur3-cell",)),
+]
+
+
+def _take(queue: Path) -> int:
+    """The next job's index from the counter file ``queue`` shared by the processes (flock)."""
+    import fcntl
+
+    with open(queue, "r+") as f:
+        fcntl.flock(f, fcntl.LOCK_EX)
+        i = int(f.read() or 0)
+        f.seek(0)
+        f.truncate()
+        f.write(str(i + 1))
+        return i
+
+
+def _part(work: Path, part: int) -> int:
+    """One process: jobs from the queue until none is left; a line per job. Returns how many
+    failed (a failed job is named with its error; the others run all the same)."""
+    from depthguard.runtime.warm_up import CompileCount, compile_locks
+
+    failed = 0
+    with compile_locks(work / "locks"):
+        while (i := _take(work / "queue")) < len(JOBS):
+            name, fn, args = JOBS[i]
+            t0, c0 = time.perf_counter(), time.process_time()
+            with CompileCount() as cc:
+                try:
+                    fn(*args)
+                except Exception as exc:          # noqa: BLE001 - one line, and the next job
+                    failed += 1
+                    typer.echo(f"warm-up [{part}] {name}: failed: {type(exc).__name__}: {exc}", err=True)
+                    continue
+            typer.echo(f"warm-up [{part}] {name}: {time.perf_counter() - t0:.1f} s "
+                       f"({time.process_time() - c0:.1f} CPU-s), {len(cc.kernels)} kernels compiled "
+                       f"in {cc.seconds:.1f} s")
+    return failed
+
+
+@app.command("warm-up")
+def warm_up_cmd(
+    jobs: int = typer.Option(2, "--jobs", "-j", min=1, max=64, help="Processes compiling side by side (the machine's cores)."),
+    part: int = typer.Option(0, "--part", hidden=True, help="Internal: this process's number."),
+    work: Optional[Path] = typer.Option(None, "--work", hidden=True, help="Internal: the queue's folder."),
+) -> None:
+    """Compile the numba kernels of the monitor, the grid and a closed-loop run into numba's disk
+    cache (R29), in JOBS processes sharing the work, so that the first run (or test) loads them
+    instead of compiling for minutes. With a warm cache it only loads them (seconds per process).
+    The cache is numba's: next to the package's sources, or NUMBA_CACHE_DIR."""
+    if work is not None:
+        if _part(Path(work), part):
+            raise typer.Exit(1)
+        return
+    t0 = time.perf_counter()
+    with tempfile.TemporaryDirectory(prefix="depthguard-warm-up-") as tmp:
+        (Path(tmp) / "queue").write_text("0")
+        procs = [subprocess.Popen([sys.executable, "-m", "depthguard", "warm-up", "--part", str(k + 1),
+                                   "--work", tmp], env=os.environ.copy()) for k in range(jobs)]
+        codes = [p.wait() for p in procs]
+    if any(codes):
+        typer.echo(f"depthguard: warm-up: {sum(1 for c in codes if c)} of {jobs} processes had a job fail "
+                   f"(above); what the others compiled is in the cache", err=True)
+        raise typer.Exit(1)
+    typer.echo(f"warm-up: {len(JOBS)} jobs in {jobs} processes, {time.perf_counter() - t0:.1f} s")
