@@ -124,4 +124,4 @@ def test_bench_share_rows_in_quick_mode():
     for cell in ("flacco-cell", "ur3-cell"):
         build = rows[f"share.build_cpu_ms.{cell}"]
         assert np.isfinite(build.value) and build.value > 0 and build.peer_value > 0
-        assert rows[f"share.state_cpu_ms.{cell}"].value > 0
+        assert rows[f"share.state_cpu_ms.{cell}"].value > 0 and rows[f"share.state_cpu_ms.{cell}"].peer_value > 0

@@ -16,6 +16,7 @@ from __future__ import annotations
 from pathlib import Path
 
 import numpy as np
+from numba import njit
 
 __all__ = ["read_depth", "write_depth", "DepthFileError", "depth_units_problem", "UNITS_SHARE", "NEAR_LIMIT_M"]
 
@@ -101,18 +102,21 @@ def depth_units_problem(depth: np.ndarray, cam) -> str | None:
     """
     from depthguard.camera import RETURN_LIMIT_FACTOR
 
-    d = np.asarray(depth)[::4, ::4]
-    with np.errstate(invalid="ignore"):
-        measured = np.isfinite(d) & (d > 0)
-        n = int(measured.sum())
-        if n == 0:
-            return None
-        far_limit = RETURN_LIMIT_FACTOR * float(cam.max_range)
-        far = int((measured & (d > far_limit)).sum())
-        near_limit = min(float(cam.min_range), NEAR_LIMIT_M)
-        near = int((measured & (d < near_limit)).sum())
+    full = np.asarray(depth)
+    d = full[::4, ::4]
+    far_limit = RETURN_LIMIT_FACTOR * float(cam.max_range)
+    near_limit = min(float(cam.min_range), NEAR_LIMIT_M)
+    if full.ndim == 2 and full.dtype in (np.float32, np.float64):
+        # one compiled loop over the sample (the limits in the image's dtype, as numpy compares)
+        n, far, near = _units_counts(full, 4, full.dtype.type(far_limit), full.dtype.type(near_limit))
+    else:
+        n, far, near = _units_counts_numpy(d, far_limit, near_limit)
+    if n == 0:
+        return None
     if far <= UNITS_SHARE * n and near <= UNITS_SHARE * n:
         return None                                    # every frame of a live camera: no median
+    with np.errstate(invalid="ignore"):
+        measured = np.isfinite(d) & (d > 0)
     median = float(np.median(d[measured]))
     if far > UNITS_SHARE * n:
         return (f"camera {cam.id}: {100 * far / n:.0f} % of the measured pixels lie beyond {far_limit:g} m "
@@ -122,6 +126,33 @@ def depth_units_problem(depth: np.ndarray, cam) -> str | None:
                 f"{near_limit:g} m (median {median:g} m): a depth PNG holds millimetres - does this image "
                 f"hold metres?")
     return None
+
+
+@njit(cache=True, nogil=True)
+def _units_counts(depth, step, far_limit, near_limit):
+    """``(measured, far, near)`` pixel counts of :func:`depth_units_problem` over every
+    ``step``-th pixel of ``depth`` (H, W) in both directions; the limits (m) of the image's dtype."""
+    H, W = depth.shape
+    n = 0
+    far = 0
+    near = 0
+    for v in range(0, H, step):
+        row = depth[v]
+        for u in range(0, W, step):
+            x = row[u]
+            if x == x and x > 0 and x != np.inf:
+                n += 1
+                far += x > far_limit
+                near += x < near_limit
+    return n, far, near
+
+
+def _units_counts_numpy(d: np.ndarray, far_limit: float, near_limit: float) -> tuple[int, int, int]:
+    """The plain-numpy twin of :func:`_units_counts` on the sampled image ``d``."""
+    with np.errstate(invalid="ignore"):
+        measured = np.isfinite(d) & (d > 0)
+        return (int(measured.sum()), int((measured & (d > far_limit)).sum()),
+                int((measured & (d < near_limit)).sum()))
 
 
 def write_depth(path: str | Path, depth: np.ndarray) -> Path:

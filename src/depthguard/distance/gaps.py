@@ -49,7 +49,7 @@ import numpy as np
 from numba import njit, prange
 
 from depthguard.camera import RETURN_LIMIT_FACTOR
-__all__ = ["gap_depth", "gap_depth_numpy", "GapBuffers", "check_gap_px"]
+__all__ = ["gap_depth", "gap_at", "gap_depth_numpy", "GapBuffers", "check_gap_px"]
 
 
 def check_gap_px(gap_px) -> int:
@@ -68,6 +68,60 @@ def _end_depth(m, min_range, max_range):
     if m == m and m > 0.0 and m >= min_range and m <= RETURN_LIMIT_FACTOR * max_range:
         return m if m <= max_range else max_range
     return 0.0
+
+
+@njit(cache=True, nogil=True, inline="always")
+def gap_at(depth, v, u, min_range, max_range, n):
+    """The small-gap rule at one pixel ``(v, u)`` of ``depth`` (H, W) m that is no end pixel
+    (no return): the free depth (m) of :func:`gap_depth` there, 0 where the rule does not
+    apply. It looks at most ``n + 1`` pixels each way along the pixel's row and column. The
+    one statement of the rule, shared by :func:`gap_depth` and the fused state pass
+    (:func:`~depthguard.fusion.depth_grid_state.frame_state_fused`), which calls it only at
+    the invalid pixels that need it."""
+    H, W = depth.shape
+    best = np.inf
+    # along the row: the nearest end on each side, at most n + 1 pixels away
+    a = -1
+    ea = 0.0
+    for k in range(1, n + 1):
+        uu = u - k
+        if uu < 0:
+            break
+        e = _end_depth(np.float64(depth[v, uu]), min_range, max_range)
+        if e > 0.0:
+            a = uu
+            ea = e
+            break
+    if a >= 0:
+        for k in range(1, n + 1 - (u - a - 1)):
+            uu = u + k
+            if uu >= W:
+                break
+            e = _end_depth(np.float64(depth[v, uu]), min_range, max_range)
+            if e > 0.0:
+                best = min(ea, e)
+                break
+    # along the column
+    a = -1
+    for k in range(1, n + 1):
+        vv = v - k
+        if vv < 0:
+            break
+        e = _end_depth(np.float64(depth[vv, u]), min_range, max_range)
+        if e > 0.0:
+            a = vv
+            ea = e
+            break
+    if a >= 0:
+        for k in range(1, n + 1 - (v - a - 1)):
+            vv = v + k
+            if vv >= H:
+                break
+            e = _end_depth(np.float64(depth[vv, u]), min_range, max_range)
+            if e > 0.0:
+                best = min(best, min(ea, e))
+                break
+    return best if best < np.inf else 0.0
 
 
 @njit(cache=True, parallel=True, nogil=True)
@@ -96,50 +150,8 @@ def gap_depth(depth, min_range, max_range, n, out):
         for u in range(W):
             if _end_depth(np.float64(depth[v, u]), min_range, max_range) > 0.0:
                 out[v, u] = 0.0
-                continue
-            best = np.inf
-            # along the row: the nearest end on each side, at most n + 1 pixels away
-            a = -1
-            ea = 0.0
-            for k in range(1, n + 1):
-                uu = u - k
-                if uu < 0:
-                    break
-                e = _end_depth(np.float64(depth[v, uu]), min_range, max_range)
-                if e > 0.0:
-                    a = uu
-                    ea = e
-                    break
-            if a >= 0:
-                for k in range(1, n + 1 - (u - a - 1)):
-                    uu = u + k
-                    if uu >= W:
-                        break
-                    e = _end_depth(np.float64(depth[v, uu]), min_range, max_range)
-                    if e > 0.0:
-                        best = min(ea, e)
-                        break
-            # along the column
-            a = -1
-            for k in range(1, n + 1):
-                vv = v - k
-                if vv < 0:
-                    break
-                e = _end_depth(np.float64(depth[vv, u]), min_range, max_range)
-                if e > 0.0:
-                    a = vv
-                    ea = e
-                    break
-            if a >= 0:
-                for k in range(1, n + 1 - (v - a - 1)):
-                    vv = v + k
-                    if vv >= H:
-                        break
-                    e = _end_depth(np.float64(depth[vv, u]), min_range, max_range)
-                    if e > 0.0:
-                        best = min(best, min(ea, e))
-                        break
-            out[v, u] = best if best < np.inf else 0.0
+            else:
+                out[v, u] = gap_at(depth, v, u, min_range, max_range, n)
 
 
 def gap_depth_numpy(depth, min_range: float, max_range: float, n: int) -> np.ndarray:

@@ -176,6 +176,7 @@ class SilhouetteBuffers:
     def __init__(self, shape: tuple[int, int]):
         self.shape = (int(shape[0]), int(shape[1]))
         self._buffers: dict = {}
+        self._rows = None
 
     def dilate(self, robot_depth: np.ndarray, n: int) -> np.ndarray:
         """(H, W) the robot depth dilated by ``n`` pixels (a view of a reused buffer,
@@ -191,3 +192,19 @@ class SilhouetteBuffers:
             robot_depth = robot_depth.astype(np.float64)
         dilate_robot_depth(robot_depth, check_silhouette_px(n), bufs[0], bufs[1])
         return bufs[1][:H, :W]
+
+    def scratch(self, dtype, shape: tuple[int, int]) -> tuple[np.ndarray, np.ndarray, np.ndarray]:
+        """``(tmp, masked, rows)``: the scratch of the fused state pass
+        (:func:`~depthguard.fusion.depth_grid_state.frame_state_fused`) for an image of ``shape``
+        — the two buffers of :meth:`dilate` of ``dtype`` (>= H, >= W) and (>= H, 2) int64 —
+        reused from call to call."""
+        H, W = int(shape[0]), int(shape[1])
+        if H > self.shape[0] or W > self.shape[1]:
+            raise ValueError(f"image {W}x{H} exceeds the buffers {self.shape[1]}x{self.shape[0]}")
+        dt = np.dtype(dtype).type
+        bufs = self._buffers.get(dt)
+        if bufs is None:
+            bufs = self._buffers[dt] = (np.zeros(self.shape, dt), np.zeros(self.shape, dt))
+        if self._rows is None:
+            self._rows = np.zeros((self.shape[0], 2), np.int64)
+        return bufs[0], bufs[1], self._rows

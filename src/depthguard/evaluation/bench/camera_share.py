@@ -19,7 +19,9 @@ monitor's fusion worker does.
   beside the build after a new frame.
 * ``share.state_cpu_ms.<cell>`` — what the camera's worker pays per frame for its share (the
   state; the pyramids stay with the build, as in the monitor: made into fresh memory per frame
-  they cost the worker several ms of page faults).
+  they cost the worker several ms of page faults). Peer: the same state made by the unfused
+  passes (:func:`~depthguard.fusion.depth_grid_state.state_into_unfused`), frame by frame
+  alternated with it.
 """
 
 from __future__ import annotations
@@ -58,12 +60,31 @@ def _frames(cell_name: str, t0: float, n: int):
                                            1 if other else cfg.principal_bin)))
     for cid, depth, rd, _q, role in out:                 # compiled and buffers touched: not timed
         makers[cid].make(depth, rd, *role)
+    unfused_s = []
+    for cid, depth, rd, _q, role in out:
+        _make_unfused(makers[cid], depth, rd, *role)
     for i, (cid, depth, rd, q, role) in enumerate(out):
-        c0 = time.thread_time()
+        c0 = time.thread_time()                          # today's fused pass and the unfused one, alternated
         st = makers[cid].make(depth, rd, *role)
         state_s.append(time.thread_time() - c0)
+        c0 = time.thread_time()
+        _make_unfused(makers[cid], depth, rd, *role)
+        unfused_s.append(time.thread_time() - c0)
         out[i] = (cid, depth, rd, q, st)
-    return cell, out, state_s
+    return cell, out, (state_s, unfused_s)
+
+
+def _make_unfused(maker, depth, rd, options, robot_free, _pyramids, b):
+    """``StateMaker.make`` (no pyramids) with the unfused passes
+    (:func:`~depthguard.fusion.depth_grid_state.state_into_unfused`): the peer of
+    ``share.state_cpu_ms``."""
+    from depthguard.fusion.depth_grid_state import state_into_unfused
+
+    cam = maker.camera
+    shape = (-(-cam.height // b), -(-cam.width // b))
+    free, kind = np.empty(shape), np.empty(shape, dtype=np.int8)
+    state_into_unfused(cam, depth, rd, options, robot_free, maker._silhouette, maker._gaps, free, kind, b)
+    return free, kind
 
 
 def _builds(grid, cell, frames, with_states: bool, unchanged: bool = False) -> float:
@@ -131,8 +152,12 @@ def bench_share(ctx: BenchContext) -> list[BenchRow]:
                                  note="the same build again with no camera changed: what every build pays whatever "
                                       "its frame changed (capsule intervals, finding and re-classifying the cells "
                                       "from the memo, the lookup); one numba thread, CPU, least median"))
-            rows.append(BenchRow(f"share.state_cpu_ms.{name}", 1e3 * float(np.median(state_s)), "ms",
-                                 note="a frame's state on its camera's worker, one numba thread"))
+            rows.append(BenchRow(f"share.state_cpu_ms.{name}", 1e3 * float(np.median(state_s[0])), "ms",
+                                 peer="the unfused passes (dilate + gaps + frame_state, before issue 29)",
+                                 peer_value=1e3 * float(np.median(state_s[1])),
+                                 note="a frame's state on its camera's worker (the fused pass, new arrays), one "
+                                      "numba thread, CPU (thread_time), median over the frames alternated with "
+                                      "the peer; goal: the worker's own passes <= 1.5 ms per 640x480 frame"))
     finally:
         numba.set_num_threads(previous)
     return rows

@@ -1,0 +1,303 @@
+"""A frame's per-pixel state in one pass over the image (R9, R28, R32): the camera worker's kernel.
+
+:func:`frame_state_fused` gives exactly the arrays of
+:func:`~depthguard.fusion.depth_grid_kernels.frame_state` (or, binned,
+:func:`~depthguard.fusion.depth_grid_state.frame_state_binned`) fed with the dilated robot depth
+(:func:`~depthguard.distance.silhouette.dilate_robot_depth`) and the small-gap depth
+(:func:`~depthguard.distance.gaps.gap_depth`), without making those two images: measured pixels
+(nearly all) go through a branch-free loop that LLVM vectorises, a chunk of a row holding an
+invalid pixel is gone over again by the whole rule between its first and last invalid pixel, and
+the two rules that only invalid pixels read are worked out there — the silhouette's column min
+over the robot's rows dilated within its bounding box (:func:`_robot_rows`), the small gap by
+:func:`~depthguard.distance.gaps.gap_at`. Measured on ``ur3-cell`` 640x480 frames (one thread):
+the state with both rules 3-4.7 ms before, about 1-1.5 ms after, on a loaded machine
+(``depthguard bench --only share``: ``share.state_cpu_ms``). The plain-numpy twin stays
+:func:`~depthguard.fusion.depth_grid_ref.frame_state_numpy`; the unfused passes stay as
+:func:`~depthguard.fusion.depth_grid_state.state_into_unfused` (tests hold the two equal, bit for bit).
+"""
+
+from __future__ import annotations
+
+import numpy as np
+from numba import njit, prange
+
+from depthguard.camera import RETURN_LIMIT_FACTOR
+from depthguard.distance.gaps import gap_at
+from depthguard.fusion.depth_grid_kernels import KIND_ROBOT, KIND_SURFACE, KIND_UNKNOWN
+
+__all__ = ["frame_state_fused"]
+
+
+@njit(cache=True, parallel=True, nogil=True)
+def _robot_rows(robot_depth, n, tmp, masked, rows):
+    """The robot's rows for the silhouette rule (R32) of :func:`frame_state_fused`: per row ``v``
+    of ``robot_depth`` (H, W) m the first and last column with a robot pixel (``> 0``) in
+    ``rows[v]`` (``-1, -2`` where none), and the box ``(v0, v1, u0, u1)`` of them returned
+    (``v1 < v0``: no robot); in ``tmp`` (>= H, >= W, the dtype of ``robot_depth``) rows
+    ``v0..v1`` over columns ``u0 - n .. u1 + n`` (clipped) hold the smallest robot depth within
+    ``n`` columns (+inf where none): the row pass of
+    :func:`~depthguard.distance.silhouette.dilate_robot_depth`, whose column pass the state
+    pass does at the invalid pixels alone; ``masked`` (like ``tmp``) is scratch."""
+    H, W = robot_depth.shape
+    inf = tmp.dtype.type(np.inf)
+    for v in prange(H):
+        row = robot_depth[v]
+        a = np.int32(W)
+        b = np.int32(-1)
+        for u in range(W):                 # branch-free in 32-bit lanes: LLVM vectorises it
+            pos = row[u] > 0.0
+            uu = np.int32(u)
+            a = min(a, uu if pos else np.int32(W))
+            b = max(b, uu if pos else np.int32(-1))
+        rows[v, 0] = a if b >= 0 else -1
+        rows[v, 1] = b if b >= 0 else -2
+    v0 = H
+    v1 = -1
+    u0 = W
+    u1 = -1
+    for v in range(H):
+        if rows[v, 0] >= 0:
+            v0 = min(v0, v)
+            v1 = v
+            u0 = min(u0, rows[v, 0])
+            u1 = max(u1, rows[v, 1])
+    if v1 < 0:
+        return v0, v1, u0, u1
+    ua = max(u0 - n, 0)
+    ub = min(u1 + n, W - 1)
+    L = ub - ua + 1
+    for v in prange(v0, v1 + 1):
+        trow = tmp[v, ua:ub + 1]
+        if rows[v, 0] < 0:
+            for i in range(L):
+                trow[i] = inf
+            continue
+        src = robot_depth[v, ua:ub + 1]
+        mrow = masked[v, ua:ub + 1]
+        for i in range(L):
+            x = src[i]
+            x = x if x > 0.0 else inf
+            mrow[i] = x
+            trow[i] = x
+        # the min over the window i - n .. i + n (clipped): a min selects, so these are the values
+        # of dilate_robot_depth's row pass (the views are indexed from 0: LLVM vectorises the loops)
+        for k in range(1, min(n, L - 1) + 1):
+            ahead = mrow[k:]
+            tk = trow[k:]
+            for i in range(L - k):
+                x = ahead[i]
+                trow[i] = x if x < trow[i] else trow[i]
+            for i in range(L - k):
+                x = mrow[i]
+                tk[i] = x if x < tk[i] else tk[i]
+    return v0, v1, u0, u1
+
+
+@njit(cache=True, nogil=True, inline="always")
+def _fused_pixel(depth, robot_depth, use_robot, min_range, max_range, robot_offset, invalid_free, robot_free,
+                 tmp, v0, v1, ga, gb, ua, ub, n_sil, n_gap, v, u):
+    """``(free depth, kind)`` of pixel ``(v, u)``: the rule of
+    :func:`~depthguard.fusion.depth_grid_kernels.pixel_state`, with the dilated robot depth
+    (rows of ``tmp`` from :func:`_robot_rows`, its column min here) and the small-gap depth
+    (:func:`~depthguard.distance.gaps.gap_at`) worked out at this pixel when the rule reads them."""
+    m = np.float64(depth[v, u])
+    if not ((m == m) and m > 0.0 and m >= min_range and m <= max_range):
+        if invalid_free:
+            return np.inf, KIND_UNKNOWN
+        if m > max_range and m <= RETURN_LIMIT_FACTOR * max_range:   # a return beyond the rated range
+            return max_range, KIND_UNKNOWN
+        if v >= ga and v <= gb and u >= ua and u <= ub:
+            ra = max(v - n_sil, v0)
+            rb = min(v + n_sil, v1)
+            x = tmp[ra, u]
+            for r in range(ra + 1, rb + 1):
+                y = tmp[r, u]
+                x = y if y < x else x
+            drd = np.float64(x)
+            if drd < np.inf:
+                return drd, KIND_ROBOT
+        if n_gap > 0:
+            g = gap_at(depth, v, u, min_range, max_range, n_gap)
+            if g > 0.0:
+                return g, KIND_UNKNOWN
+        return min_range, KIND_UNKNOWN
+    if use_robot:
+        dr = np.float64(robot_depth[v, u])
+        if dr > 0.0 and m >= dr - robot_offset:
+            return (np.inf if robot_free else dr), KIND_ROBOT
+    return m, KIND_SURFACE
+
+
+#: pixels per chunk of a row in :func:`frame_state_fused`: a chunk with an invalid pixel is
+#: gone over again by the whole rule
+_CHUNK = 64
+
+
+@njit(cache=True, nogil=True, inline="always")
+def _measured(m, dr, use_robot, min_range, max_range, robot_offset, robot_free):
+    """``(free depth, kind, measured)`` of a pixel measured ``m`` with robot depth ``dr`` (m) by
+    the rule of a measured pixel (:func:`_fused_pixel`'s last lines), and whether it is one
+    (``measured``; where it is not, the first two are meaningless). Branch-free."""
+    ok = (m == m) & (m > 0.0) & (m >= min_range) & (m <= max_range)
+    r = use_robot & (dr > 0.0) & (m >= dr - robot_offset)
+    f = (np.inf if robot_free else dr) if r else m
+    k = np.int8(KIND_ROBOT) if r else np.int8(KIND_SURFACE)
+    return f, k, ok
+
+
+@njit(cache=True, nogil=True, inline="always")
+def _valid_row(drow, rrow, use_robot, min_range, max_range, robot_offset, robot_free, frow, krow):
+    """The state of the pixels of a row's piece (views ``drow``, ``rrow`` in, ``frow``, ``krow``
+    out, indexed from 0 so that LLVM vectorises the loop; ``rrow`` is read whatever ``use_robot``:
+    a branch there stops the vectoriser), each taken as measured; ``(first, last)``: the first and
+    last index of a pixel that is not (``n, -1`` where none)."""
+    n = frow.shape[0]
+    first = np.int32(n)
+    last = np.int32(-1)
+    for u in range(n):
+        dr = np.float64(rrow[u])
+        f, k, ok = _measured(np.float64(drow[u]), dr, use_robot, min_range, max_range, robot_offset, robot_free)
+        frow[u] = f
+        krow[u] = k
+        uu = np.int32(u)
+        first = min(first, np.int32(n) if ok else uu)
+        last = max(last, np.int32(-1) if ok else uu)
+    return first, last
+
+
+@njit(cache=True, nogil=True, inline="always")
+def _valid_row_pairs(d0, d1, r0, r1, use_robot, min_range, max_range, robot_offset, robot_free, frow, krow):
+    """The 2 x 2 binned state (the block rule of :func:`bin_state`) of a piece of two rows (views
+    ``d0``, ``d1``, ``r0``, ``r1`` of twice the length of ``frow``, ``krow``), each pixel taken
+    as measured; ``(first, last)``: the first and last block with a pixel that is not (``n, -1``
+    where none; ``r0``, ``r1`` are read whatever ``use_robot``)."""
+    n = frow.shape[0]
+    first = np.int32(n)
+    last = np.int32(-1)
+    for i in range(n):
+        a0 = np.float64(r0[2 * i])
+        a1 = np.float64(r0[2 * i + 1])
+        a2 = np.float64(r1[2 * i])
+        a3 = np.float64(r1[2 * i + 1])
+        f0, k0, ok0 = _measured(np.float64(d0[2 * i]), a0, use_robot, min_range, max_range, robot_offset, robot_free)
+        f1, k1, ok1 = _measured(np.float64(d0[2 * i + 1]), a1, use_robot, min_range, max_range, robot_offset,
+                                robot_free)
+        f2, k2, ok2 = _measured(np.float64(d1[2 * i]), a2, use_robot, min_range, max_range, robot_offset, robot_free)
+        f3, k3, ok3 = _measured(np.float64(d1[2 * i + 1]), a3, use_robot, min_range, max_range, robot_offset,
+                                robot_free)
+        # the block's smallest (free, kind), pairwise: the same as bin_state's pixel-by-pixel order,
+        # since a measured pixel's free depth is never NaN (the order of a min does not matter)
+        fa, ka = _lexmin(f0, k0, f1, k1)
+        fb, kb = _lexmin(f2, k2, f3, k3)
+        m, k = _lexmin(fa, ka, fb, kb)
+        frow[i] = m
+        krow[i] = k
+        ok = ok0 & ok1 & ok2 & ok3
+        ii = np.int32(i)
+        first = min(first, np.int32(n) if ok else ii)
+        last = max(last, np.int32(-1) if ok else ii)
+    return first, last
+
+
+@njit(cache=True, nogil=True, inline="always")
+def _lexmin(f0, k0, f1, k1):
+    """The smaller of ``(f0, k0)`` and ``(f1, k1)``: the smaller free depth, the smaller kind where
+    they are equal (the rule of :func:`bin_state`); branch-free."""
+    take = (f1 < f0) | ((f1 == f0) & (k1 < k0))
+    return (f1 if take else f0), (k1 if take else k0)
+
+
+@njit(cache=True, parallel=True, nogil=True)
+def frame_state_fused(depth, robot_depth, use_robot, min_range, max_range, robot_offset, invalid_free, robot_free,
+                      n_sil, n_gap, b, tmp, masked, rows, out_free, out_kind):
+    """A frame's per-pixel state in one pass over the image (R9, R28, R32): exactly
+    :func:`~depthguard.fusion.depth_grid_kernels.frame_state` (``b = 1``) or
+    :func:`frame_state_binned` (``b > 1``) fed with
+    :func:`~depthguard.distance.silhouette.dilate_robot_depth` (``n_sil`` px, 0: off) and
+    :func:`~depthguard.distance.gaps.gap_depth` (``n_gap`` px, 0: off), without those images:
+    the robot's rows are dilated within its box (:func:`_robot_rows`) and both rules are
+    worked out at the invalid pixels that read them.
+
+    depth, robot_depth : (H, W) float m (``robot_depth`` read only when ``use_robot``);
+    tmp, masked : (>= H, >= W) scratch of ``robot_depth``'s dtype; rows : (>= H, 2) int64 scratch;
+    out_free (float64 m) / out_kind (int8) : (>= ceil(H / b), >= ceil(W / b)), the top-left
+    written. No allocation.
+    """
+    H, W = depth.shape
+    v0 = H
+    v1 = -1
+    ga = 0
+    gb = -1
+    ua = 0
+    ub = -1
+    if use_robot and n_sil > 0 and not invalid_free:
+        v0, v1, u0, u1 = _robot_rows(robot_depth, n_sil, tmp, masked, rows)
+        if v1 >= v0:
+            ga = max(v0 - n_sil, 0)
+            gb = min(v1 + n_sil, H - 1)
+            ua = max(u0 - n_sil, 0)
+            ub = min(u1 + n_sil, W - 1)
+    if b == 1:
+        for v in prange(H):
+            # chunks of a row: every pixel by the rule of a measured one (branch-free, vectorised),
+            # then the chunk's invalid pixels, if any (between the first and the last), by the whole rule
+            for u0 in range(0, W, _CHUNK):
+                u1 = min(u0 + _CHUNK, W)
+                first, last = _valid_row(depth[v, u0:u1], robot_depth[v, u0:u1] if use_robot else depth[v, u0:u1],
+                                         use_robot, min_range, max_range, robot_offset, robot_free,
+                                         out_free[v, u0:u1], out_kind[v, u0:u1])
+                for u in range(u0 + first, u0 + last + 1):
+                    m = np.float64(depth[v, u])
+                    if not ((m == m) and m > 0.0 and m >= min_range and m <= max_range):
+                        f, k = _fused_pixel(depth, robot_depth, use_robot, min_range, max_range, robot_offset,
+                                            invalid_free, robot_free, tmp, v0, v1, ga, gb, ua, ub, n_sil, n_gap,
+                                            v, u)
+                        out_free[v, u] = f
+                        out_kind[v, u] = k
+        return
+    hb = -(-H // b)
+    wb = -(-W // b)
+    if b == 2 and H % 2 == 0 and W % 2 == 0:
+        for j in prange(hb):               # the common case: blocks of measured pixels branch-free
+            for i0 in range(0, wb, _CHUNK // 2):
+                i1 = min(i0 + _CHUNK // 2, wb)
+                rr = robot_depth if use_robot else depth
+                first, last = _valid_row_pairs(depth[2 * j, 2 * i0:2 * i1], depth[2 * j + 1, 2 * i0:2 * i1],
+                                               rr[2 * j, 2 * i0:2 * i1], rr[2 * j + 1, 2 * i0:2 * i1], use_robot,
+                                               min_range, max_range, robot_offset, robot_free, out_free[j, i0:i1],
+                                               out_kind[j, i0:i1])
+                for i in range(i0 + first, i0 + last + 1):   # blocks with an invalid pixel: by the whole rule
+                    inv = False
+                    for c in range(4):
+                        m = np.float64(depth[2 * j + (c >> 1), 2 * i + (c & 1)])
+                        inv |= not ((m == m) and m > 0.0 and m >= min_range and m <= max_range)
+                    if not inv:
+                        continue
+                    m, k = _fused_pixel(depth, robot_depth, use_robot, min_range, max_range, robot_offset,
+                                        invalid_free, robot_free, tmp, v0, v1, ga, gb, ua, ub, n_sil, n_gap,
+                                        2 * j, 2 * i)
+                    for c in range(1, 4):
+                        f, kk = _fused_pixel(depth, robot_depth, use_robot, min_range, max_range, robot_offset,
+                                             invalid_free, robot_free, tmp, v0, v1, ga, gb, ua, ub, n_sil, n_gap,
+                                             2 * j + (c >> 1), 2 * i + (c & 1))
+                        if f < m or (f == m and kk < k):
+                            m = f
+                            k = kk
+                    out_free[j, i] = m
+                    out_kind[j, i] = k
+        return
+    for j in prange(hb):
+        vb = min(H, j * b + b)
+        for i in range(wb):
+            ue = min(W, i * b + b)
+            m = np.inf
+            k = -1
+            for v in range(j * b, vb):
+                for u in range(i * b, ue):
+                    f, kk = _fused_pixel(depth, robot_depth, use_robot, min_range, max_range, robot_offset,
+                                         invalid_free, robot_free, tmp, v0, v1, ga, gb, ua, ub, n_sil, n_gap, v, u)
+                    if f < m or k < 0 or (f == m and kk < k):
+                        m = f
+                        k = kk
+            out_free[j, i] = m
+            out_kind[j, i] = k

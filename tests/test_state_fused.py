@@ -1,0 +1,138 @@
+"""The camera worker's fused state pass (issue 29): :func:`frame_state_fused` (through
+:func:`state_into`) gives, bit for bit, the arrays of the unfused passes it replaced (the dilated
+robot depth and the small-gap depth as whole images, then ``frame_state`` / ``frame_state_binned``)
+and of the plain-numpy twin of R9/R28/R32, on images with every kind of pixel: dropout runs and
+single holes (the small-gap rule), invalid pixels next to the robot (the silhouette rule), NaN,
+inf, returns beyond the rated range, a robot touching the border, NaN / inf / negative robot
+depths, odd image sizes, float32 and float64 images."""
+
+from __future__ import annotations
+
+import numpy as np
+import pytest
+
+import depthguard as dg
+from depthguard.distance.gaps import GapBuffers
+from depthguard.distance.silhouette import SilhouetteBuffers
+from depthguard.fusion import depth_grid_ref as ref
+from depthguard.fusion.depth_grid_state import (StateOptions, bin_state_numpy, state_into,
+                                                state_into_unfused)
+
+
+def _cam(w, h, f=130.0):
+    return dg.Camera(id="c", width=w, height=h, fx=f, fy=f, cx=(w - 1) / 2, cy=(h - 1) / 2)
+
+
+def _images(rng, H, W, dtype):
+    """A depth image with every kind of pixel, and a robot depth image."""
+    depth = rng.uniform(0.6, 7.0, (H, W))
+    depth[rng.random((H, W)) < 0.04] = 0.0                       # single holes
+    for _ in range(12):                                          # dropout runs (gaps of 1-5 px) and blobs
+        v, u = rng.integers(0, H), rng.integers(0, W)
+        depth[v, u:u + rng.integers(1, 6)] = 0.0
+        depth[v:v + rng.integers(1, 6), u] = np.nan
+    depth[rng.random((H, W)) < 0.01] = np.inf
+    depth[rng.random((H, W)) < 0.01] = rng.uniform(8.0, 14.0)   # beyond the rated range (and beyond its limit)
+    depth[rng.random((H, W)) < 0.01] = 0.1                       # nearer than min_range
+    robot = np.zeros((H, W))
+    v0, u0 = H // 4, W // 3
+    robot[v0:v0 + H // 3, u0:u0 + W // 4] = rng.uniform(0.5, 6.0, (H // 3, W // 4))
+    robot[0:3, W - 5:] = 1.5                                     # touching the border
+    robot[v0 + 2, u0 + 2] = np.nan
+    robot[v0 + 3, u0 + 3] = np.inf
+    robot[v0 + 4, u0 + 4] = -1.0
+    # a dark object over the robot's outline: invalid pixels within silhouette_px of it
+    depth[v0 - 3:v0 + 6, u0 - 4:u0 + 9] = 0.0
+    # the robot seen where it is rendered, on part of it
+    near = (robot > 0) & np.isfinite(robot) & (rng.random((H, W)) < 0.5)
+    depth[near] = robot[near] + rng.uniform(-0.05, 0.05, near.sum())
+    return depth.astype(dtype), robot.astype(dtype)
+
+
+@pytest.mark.parametrize("shape", [(120, 160), (61, 87)])
+@pytest.mark.parametrize("dtype", [np.float32, pytest.param(np.float64, marks=pytest.mark.slow)])
+def test_fused_state_equals_unfused_passes_and_numpy_twin(shape, dtype):
+    rng = np.random.default_rng(7 + shape[1])
+    H, W = shape
+    cam = _cam(W, H)
+    depth, robot = _images(rng, H, W, dtype)
+    sil, gaps = SilhouetteBuffers(cam.shape), GapBuffers(cam.shape)
+    checked = 0
+    for n_sil, n_gap in ((4, 3), (0, 3), (2, 0), (0, 0), (7, 5)):
+        for invalid, robot_free in (("unknown", False), ("unknown", True), ("free", False)):
+            opts = StateOptions(0.03, invalid, "unknown", n_sil, n_gap)
+            for rd in (robot, None):
+                want_f, want_k = ref.frame_state_numpy(cam, depth, rd, 0.03, invalid, robot_free, n_sil, n_gap)
+                for b in (1, 2, 3):
+                    hb, wb = -(-H // b), -(-W // b)
+                    f1, k1 = np.full((hb, wb), -7.0), np.full((hb, wb), 9, np.int8)
+                    f2, k2 = np.full((hb, wb), -7.0), np.full((hb, wb), 9, np.int8)
+                    state_into(cam, depth, rd, opts, robot_free, sil, gaps, f1, k1, b)
+                    state_into_unfused(cam, depth, rd, opts, robot_free, sil, gaps, f2, k2, b)
+                    np.testing.assert_array_equal(f1, f2)
+                    np.testing.assert_array_equal(k1, k2)
+                    tf, tk = (want_f, want_k) if b == 1 else bin_state_numpy(want_f, want_k, b)
+                    np.testing.assert_array_equal(f1, tf)
+                    np.testing.assert_array_equal(k1, tk)
+                    checked += 1
+    assert checked == 5 * 3 * 2 * 3
+    # the images do exercise both rules: the silhouette and the gaps change the state
+    opts_on, opts_off = StateOptions(0.03, "unknown", "unknown", 4, 3), StateOptions(0.03, "unknown", "unknown", 0, 0)
+    on, off = np.empty((H, W)), np.empty((H, W))
+    kon, koff = np.empty((H, W), np.int8), np.empty((H, W), np.int8)
+    state_into(cam, depth, robot, opts_on, False, sil, gaps, on, kon)
+    state_into(cam, depth, robot, opts_off, False, sil, gaps, off, koff)
+    assert ((kon == 1) & (koff == 2)).sum() > 10                 # silhouette: unknown -> robot
+    assert ((kon == 2) & (on > cam.min_range) & (on < cam.max_range) & (off == cam.min_range)).sum() > 10  # gaps
+
+
+def test_fused_state_in_a_wider_buffer_and_robot_free_everywhere():
+    """The state written into the top-left of buffers wider than the image (the grid's
+    buffers are sized for its largest camera), and an image that is all robot or all invalid."""
+    rng = np.random.default_rng(3)
+    cam = _cam(40, 30)
+    sil, gaps = SilhouetteBuffers((50, 70)), GapBuffers((50, 70))
+    depth, robot = _images(rng, 30, 40, np.float32)
+    all_robot = np.full((30, 40), 2.0, np.float32)
+    all_invalid = np.zeros((30, 40), np.float32)
+    opts = StateOptions(0.03, "unknown", "unknown", 4, 3)
+    for d, rd in ((depth, robot), (depth, all_robot), (all_invalid, robot), (all_invalid, all_robot)):
+        for b in (1, 2):
+            f1, k1 = np.full((50, 70), -7.0), np.full((50, 70), 9, np.int8)
+            f2, k2 = np.full((50, 70), -7.0), np.full((50, 70), 9, np.int8)
+            state_into(cam, d, rd, opts, False, sil, gaps, f1, k1, b)
+            state_into_unfused(cam, d, rd, opts, False, sil, gaps, f2, k2, b)
+            np.testing.assert_array_equal(f1, f2)
+            np.testing.assert_array_equal(k1, k2)
+            hb, wb = -(-30 // b), -(-40 // b)
+            assert (f1[hb:, :] == -7.0).all() and (f1[:, wb:] == -7.0).all() and (f1[:hb, :wb] != -7.0).all()
+
+
+@pytest.mark.parametrize("dtype", [np.float32, np.float64])
+def test_units_counts_equal_numpy_twin_at_the_limits(dtype):
+    """The worker's units check counts in one compiled loop what numpy counted on the sample
+    (every 4th pixel), including pixels exactly at and one float step around both limits (numpy
+    compares a float32 image with the limit rounded to float32), NaN, inf and negative values."""
+    from depthguard.camera import RETURN_LIMIT_FACTOR
+    from depthguard.depth_io import NEAR_LIMIT_M, _units_counts, _units_counts_numpy, depth_units_problem
+
+    cam = dg.Camera(id="c", width=64, height=48, fx=50.0, fy=50.0, cx=31.5, cy=23.5, min_range=0.3,
+                    max_range=8.0)
+    far, near = RETURN_LIMIT_FACTOR * 8.0, min(0.3, NEAR_LIMIT_M)
+    rng = np.random.default_rng(5)
+    for share_far in (0.0, 0.3, 0.7):
+        d = rng.uniform(0.5, 7.0, (48, 64))
+        d[rng.random(d.shape) < share_far] = 1000.0                # millimetres read as metres
+        edge = []
+        for lim in (far, near):
+            x = dtype(lim)
+            edge += [x, np.nextafter(x, dtype(0)), np.nextafter(x, dtype(np.inf)), lim]
+        d[::4, ::4].flat[:len(edge)] = edge              # in the sample
+        d[::4, ::4][rng.random((12, 16)) < 0.1] = np.nan
+        d[::4, ::4][rng.random((12, 16)) < 0.05] = np.inf
+        d[::4, ::4][rng.random((12, 16)) < 0.05] = -1.0
+        d = d.astype(dtype)
+        got = _units_counts(d, 4, dtype(far), dtype(near))
+        want = _units_counts_numpy(d[::4, ::4], far, near)
+        assert tuple(int(x) for x in got) == want
+        assert (depth_units_problem(d, cam) is None) == (share_far < 0.5)
