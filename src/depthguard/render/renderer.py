@@ -257,10 +257,12 @@ def render_depth(cam, meshes: Sequence, near: float = 0.01, labels: bool = False
     -------
     depth : (H, W) float32, metres (camera-frame z), 0 where nothing is hit;
     or ``(depth, labels)`` with labels (H, W) int32 = index into ``meshes``, -1 where nothing.
+    The images are the caller's own (writable; the renderer's buffers are not kept).
 
     For repeated rendering into the same camera use :class:`Renderer`, which
-    keeps its buffers.
+    keeps its buffers (and hands out read-only views of them).
     """
     r = Renderer(cam, near=near)
-    depth, lab = r.render(meshes, cull_back=cull_back)
+    r.render(meshes, cull_back=cull_back)
+    depth, lab = r._depth, r._labels          # the one renderer's own arrays: nothing else holds them
     return (depth, lab) if labels else depth

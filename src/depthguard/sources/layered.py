@@ -29,6 +29,7 @@ from __future__ import annotations
 import numba
 import numpy as np
 
+from depthguard.config import PRODUCT_INVALID   # the product's defaults, defined once
 from depthguard.render.composite import nearest_depth
 from depthguard.sources.frame_measure import dark_layer, depth_of, measure_frame
 from depthguard.sources.noise import EDGE_JUMP_ABS, EDGE_JUMP_REL, _draws, _params, apply_noise
@@ -349,7 +350,7 @@ class LayeredCamera:
     (``camera_sim``: ``"unknown"``, ``"free"`` or None). One object per thread."""
 
     def __init__(self, static, model, fx: float, lo: float, hi: float, max_range: float,
-                 noiseless: bool = False, invalid: str | None = "unknown"):
+                 noiseless: bool = False, invalid: str | None = PRODUCT_INVALID):
         from depthguard.sources.simulated import BEYOND_RANGE
 
         self.static = np.ascontiguousarray(static, dtype=np.float32)
@@ -436,7 +437,7 @@ class LayeredCamera:
 
 def reference_frame(static, robot, person, model, fx: float, lo: float, hi: float, max_range: float,
                     rng: np.random.Generator, bank=None, noiseless: bool = False,
-                    invalid: str | None = "unknown", dark: bool = False, use_numpy: bool = False) -> np.ndarray:
+                    invalid: str | None = PRODUCT_INVALID, dark: bool = False, use_numpy: bool = False) -> np.ndarray:
     """The same frame the former way (module docstring): the static scene copied, each layer
     combined by ``nearest_depth``, ``apply_noise`` (its numpy twins with ``use_numpy``), the
     invalid policy and the dark pixels on whole images. The twin of :class:`LayeredCamera`."""
