@@ -171,22 +171,7 @@ def capsule_ends(robot, Qs: np.ndarray) -> tuple[np.ndarray, np.ndarray]:
 
 @numba.njit(cache=True, nogil=True)
 def _ends_kernel(Qs, base, xf, ints, axis, support, cap_link, cap_ab, A, B):
-    L = ints.shape[0]
-    n = Qs.shape[1]
-    poses = np.empty((L, 4, 4))
-    jf = np.empty((L, 2, 3))
-    scratch = np.empty((3, 4, 4))
-    cp_link = np.empty(0, np.int64)
-    cp_off = np.empty((0, 3))
-    cp_pos = np.empty((0, 3))
-    cp_jac = np.empty((0, 3, n))
-    for s in range(Qs.shape[0]):
-        forward_kernel(Qs[s], base, xf, ints, axis, support, cp_link, cp_off, poses, jf, scratch, cp_pos, cp_jac)
-        for k in range(cap_link.shape[0]):
-            T = poses[cap_link[k]]
-            for r in range(3):
-                A[s, k, r] = T[r, 0] * cap_ab[k, 0, 0] + T[r, 1] * cap_ab[k, 0, 1] + T[r, 2] * cap_ab[k, 0, 2] + T[r, 3]
-                B[s, k, r] = T[r, 0] * cap_ab[k, 1, 0] + T[r, 1] * cap_ab[k, 1, 1] + T[r, 2] * cap_ab[k, 1, 2] + T[r, 3]
+    _poses_ends(Qs, base, xf, ints, axis, support, cap_link, cap_ab, A, B, np.zeros(3))
 
 
 def sample_path(robot, Q: np.ndarray, max_move: float, padding: float):
