@@ -42,7 +42,7 @@ def test_hexagon_passes_corners_at_speed():
 
 
 def test_supervisor_ramps_and_reports():
-    sup = SafetySupervisor(dt=0.002, stop_time=0.5, resume_time=1.0)
+    sup = SafetySupervisor(dt=0.002, stop_time=0.5, resume_time=1.0, k0=1.0)
     ks = [sup.update(0.002 * i, {"stale:cam1": "camera cam1 stale"}) for i in range(300)]
     # 1 -> 0 in stop_time / dt = 250 cycles, linear
     assert ks[0] == pytest.approx(1 - 1 / 250)
@@ -52,6 +52,20 @@ def test_supervisor_ramps_and_reports():
     assert ep["t_stopped"] == pytest.approx(0.002 * 249)
     k = [sup.update(0.6 + 0.002 * i, {}) for i in range(500)][-1]
     assert k == pytest.approx(1.0) and ep["t_end"] == pytest.approx(0.6)
+
+
+def test_supervisor_starts_stopped_and_ramps_up_only_once_nothing_stops_it():
+    """R26/R27: before the first cycle without a stop reason nothing is known: the override is 0
+    from the first cycle on (never a ramp down from full speed while blind), and it rises over
+    ``resume_time`` only once no reason holds."""
+    sup = SafetySupervisor(dt=0.002, stop_time=0.5, resume_time=1.0)
+    blind = [sup.update(0.002 * i, {"stale:cam0": "camera cam0: none yet"}) for i in range(50)]
+    assert max(blind) == 0.0
+    seeing = [sup.update(0.1 + 0.002 * i, {}) for i in range(600)]
+    assert seeing[0] == pytest.approx(1 / 500) and seeing[498] < 1.0 and seeing[499] == pytest.approx(1.0)
+    assert all(b >= a for a, b in zip(seeing, seeing[1:]))
+    with pytest.raises(ValueError, match="k0"):
+        SafetySupervisor(dt=0.002, stop_time=0.5, resume_time=1.0, k0=1.5)
 
 
 def test_stop_reasons_rules():

@@ -143,6 +143,20 @@ def first(reactions, cond):
     return next((r for r in reactions if cond(r)), None)
 
 
+def started(d: Drive, cfg) -> list:
+    """Drive from t = 0 until the override is 1 and return the reactions. The start (R26, R27):
+    nothing is known before the first cycle without a stop reason, so the override is 0 until
+    then and rises to 1 within ``resume_time`` after it (+ one period)."""
+    rs = [d.step()]
+    while rs[-1].override < 1.0:
+        assert d.t <= 0.5 + cfg.resume_time, f"no full speed by t = {d.t:.3f} s: {rs[-1].reasons}"
+        rs.append(d.step())
+    go = first(rs, lambda r: r.reasons == {})
+    assert go is not None and all(r.override == 0.0 for r in rs if r.t < go.t - EPS), go
+    assert rs[-1].t <= go.t + cfg.resume_time + cfg.dt + EPS, (go.t, rs[-1].t)
+    return rs
+
+
 # --------------------------------------------------------------------------- 1. a camera stops
 # shorter ramps than the product's (0.5 s, 1 s) keep the tests short; the bounds are the config's
 RAMPS = {"stop_time": 0.2, "resume_time": 0.3}
@@ -153,8 +167,7 @@ def test_stopped_camera_stops_the_robot_within_its_limit_and_it_resumes(rig, sti
     dt, limit = cfg.dt, cfg.camera_stale_limit
     with Monitor(rig, cfg) as mon:
         d = still_drive(mon, still, q0)
-        d.until(0.3)
-        r = d.reactions[-1]
+        r = started(d, cfg)[-1]
         assert r.override == 1.0 and r.reasons == {}, r.reasons
         assert {c: s.state for c, s in r.cameras.items()} == {"cam0": "fresh", "cam1": "fresh"}
 
@@ -199,7 +212,7 @@ def test_stopped_joint_states_stop_the_robot_and_it_resumes(rig, still, q0):
     dt, limit = cfg.dt, cfg.joints_stale_s
     with Monitor(rig, cfg) as mon:
         d = still_drive(mon, still, q0)
-        d.until(0.3)
+        started(d, cfg)
         assert d.reactions[-1].override == 1.0 and d.reactions[-1].reasons == {}
 
         t_last = d.t - dt                           # the newest joint state pushed
@@ -290,7 +303,7 @@ def test_camera_added_while_running_is_not_awaited_before_its_first_frame(rig, s
     with Monitor(rig, cfg) as mon:
         assert mon.camera_ids == ("cam0",)
         d = still_drive(mon, still, q0, cams={"cam0"})
-        rs = d.until(0.3)
+        rs = started(d, cfg)
         assert set(rs[-1].cameras) == {"cam0"} and set(rs[-1].frame_stamps) == {"cam0"}
         assert rs[-1].override == 1.0 and rs[-1].reasons == {}
 
@@ -370,7 +383,7 @@ def test_removed_camera_that_stops_is_not_awaited(rig, still, q0):
     limit = cfg.camera_stale_limit
     with Monitor(rig, cfg) as mon:
         d = still_drive(mon, still, q0)
-        d.until(0.3)
+        started(d, cfg)
         mon.remove_camera("cam0")                 # the principal: cam1 takes over
         d.cams.discard("cam0")
         rs = d.until(d.t + 4 * limit)

@@ -189,7 +189,8 @@ def test_cli_monitor_exchanges_every_topic_with_a_zenoh_ros2_sdk_node(peer, rout
             ({k: len(v) for k, v in got.items()}, len(log))
         assert got["override"] == pytest.approx([r["override"] for r in log], abs=1e-6)
         assert got["scaling"] == pytest.approx([r["speed_scale"] for r in log], abs=1e-6)
-        assert {r["speed_scale"] for r in log} >= {0.0}                                     # the start's stop
+        blind = [r for r in log if any(r["cameras"][c]["age_s"] is None for c in ("cam0", "cam1"))]
+        assert all(r["speed_scale"] == 0.0 for r in blind), [{k: v for k, v in r.items() if k != "points"} for r in blind][:2]  # cannot judge: stop
         if any(not r["reasons"] for r in log[:-1]):    # and go, once nothing stops it (a loaded machine's
             assert max(r["speed_scale"] for r in log) > 0.0   # cameras can be stale the whole run: then no go)
         for msg, r in zip(got["reaction"], log):

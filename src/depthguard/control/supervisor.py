@@ -23,14 +23,21 @@ class SafetySupervisor:
     ``update(t, reasons)`` with ``reasons`` a dict ``key -> message`` of the
     conditions that hold now; returns ``k``. ``episodes`` lists each
     condition's first/last time and message.
+
+    ``k0`` is the override before the first cycle: 0 by default — before any cycle has
+    found nothing to stop for, nothing is known (R26, R27), so the robot starts stopped and
+    ramps up over ``resume_time`` once no reason holds, never down from full speed while
+    blind. ``k0=1`` only where the start is known to be safe (a unit test of the ramps).
     """
 
-    def __init__(self, dt: float, stop_time: float, resume_time: float):
+    def __init__(self, dt: float, stop_time: float, resume_time: float, k0: float = 0.0):
+        if not 0.0 <= k0 <= 1.0:
+            raise ValueError(f"k0 must be in [0, 1], got {k0}")
         self.dt = dt
         self.stop_time, self.resume_time = stop_time, resume_time
         self.down = dt / stop_time
         self.up = dt / resume_time
-        self.k = 1.0
+        self.k = float(k0)
         self.episodes: list[dict] = []
         self._open: dict[str, dict] = {}
 

@@ -65,11 +65,16 @@ class Monitor(MonitorDistances, UnitStateInput, MonitorPaths, MonitorWatches):
     sinks : callables ``sink(reaction)`` called with every reaction, from the
         thread that calls ``step`` — keep them quick, or wrap them in
         :class:`depthguard.runtime.sinks.SinkFanout`.
+    start_override : the override before the first cycle. 0 (the default, R26, R27): the robot
+        starts stopped and ramps up over ``resume_time`` once a cycle finds no stop reason.
+        1 only for a simulator whose cell is in steady state at t = 0 (the closed loop: the
+        papers' runs start with the robot moving and frames captured at t = 0 delivered); a
+        stop reason in the first cycle still ramps it down at once.
 
     Use as a context manager, or call :meth:`close`.
     """
 
-    def __init__(self, rig, config: MonitorConfig | None = None, *, sinks=()):
+    def __init__(self, rig, config: MonitorConfig | None = None, *, sinks=(), start_override: float = 0.0):
         if rig.robot is None:
             raise ValueError(f"rig {rig.name!r} has no robot: the monitor needs one (robot: in the rig file)")
         self.rig = rig
@@ -123,7 +128,7 @@ class Monitor(MonitorDistances, UnitStateInput, MonitorPaths, MonitorWatches):
         self._is_watch = np.arange(m) >= len(self._cp_names)
         self._q_min, self._q_max, self._qd_max = (np.ascontiguousarray(a, dtype=np.float64) for a in
                                                   (self.robot.q_min, self.robot.q_max, self.robot.qd_max))
-        self._sup = SafetySupervisor(cfg.dt, cfg.stop_time, cfg.resume_time)
+        self._sup = SafetySupervisor(cfg.dt, cfg.stop_time, cfg.resume_time, k0=start_override)
         # the reaction policies (control.policy, R13, R14, R33): fixed for the monitor's life
         m_cp = len(self._cp_names)
         setup = PolicySetup(cfg, self.robot, tuple(self._cameras[c] for c in self._camera_ids), self._cp_names,

@@ -314,7 +314,9 @@ class ClosedLoop:
                                   threaded=threaded)
         from depthguard.runtime.monitor import Monitor
 
-        mon = Monitor(self.cell.rig, self.monitor_config())
+        # the papers' runs start in steady state (the robot on its path, frames captured at t = 0
+        # delivered), so the override starts at 1; a live monitor starts at 0 (Monitor's docstring)
+        mon = Monitor(self.cell.rig, self.monitor_config(), start_override=1.0)
         try:
             with mon.replay():                     # frames flushed before each cycle: one grid
                 return self._run(T, steps, snapshot_times, cams_sim, timing, mon)
