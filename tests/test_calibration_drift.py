@@ -83,7 +83,8 @@ class Bench:
 
 
 def test_a_camera_turned_by_two_degrees_is_untrusted_and_the_robot_stopped_within_one_second(cell):
-    cfg = cell.rig.monitor.with_changes(invalid="free", control_hz=100.0)   # the watch runs per frame
+    # the watch runs per frame; a short resume ramp: the override starts at 0 and is 1 by 0.3 s
+    cfg = cell.rig.monitor.with_changes(invalid="free", control_hz=100.0, resume_time=0.2)
     b = Bench(cell, cfg)
     try:
         r = b.until(0.3)
@@ -119,7 +120,8 @@ def test_a_camera_turned_by_two_degrees_is_untrusted_and_the_robot_stopped_withi
 
 
 def test_a_camera_turned_by_a_fifth_of_a_degree_is_not_flagged(cell):
-    cfg = cell.rig.monitor.with_changes(invalid="free", control_hz=100.0)   # the watch runs per frame
+    # the watch runs per frame; a short resume ramp: the override starts at 0 and is 1 by 0.3 s
+    cfg = cell.rig.monitor.with_changes(invalid="free", control_hz=100.0, resume_time=0.2)
     b = Bench(cell, cfg)
     try:
         b.true["cam0"] = turned(cell.rig.camera("cam0"), "tilt", 0.2)

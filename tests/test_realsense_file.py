@@ -142,7 +142,9 @@ def test_monitor_from_the_recording_equals_the_simulated_frames(sim, recordings)
     for (da, oa, ka), (db, ob, kb), (dc, oc, _) in zip(a, b, c):
         np.testing.assert_array_equal(oa, ob)
         np.testing.assert_array_equal(da, db)
-        assert ka == kb
+        # the override ramps with the time between steps: the recording's stamps carry the SDK's
+        # rounding (below a microsecond), so the ramp agrees to far better than a step's share
+        assert ka == pytest.approx(kb, abs=1e-6)
         both = oa & oc & np.isfinite(da) & np.isfinite(dc)
         assert np.all(np.abs(da[both] - dc[both]) <= 0.015)
         near += int(np.isfinite(da[oa]).sum())
