@@ -190,8 +190,8 @@ class SinkFanout:
                  period_s: float = 0.02):
         if int(maxsize) < 1:
             raise SinkError(f"maxsize must be >= 1 (got {maxsize})")
-        if not period_s >= 0:
-            raise SinkError(f"period_s must be >= 0 (got {period_s})")
+        if not period_s > 0:
+            raise SinkError(f"period_s must be > 0 (got {period_s})")
         self.sinks = list(sinks)
         self.maxsize = int(maxsize)
         self.block = bool(block)          # wait for room instead of dropping (replays as fast as possible)
