@@ -139,3 +139,29 @@ def test_results_mcap_messages_equal_rosbags_serialisation():
         assert reaction_cdr(r, "world") == rosmsg.serialize(McapResults.reaction_msg(me, r)), k
         T = rosmsg.TYPESTORE.types
         assert float64_cdr(r.override) == rosmsg.serialize(T[rosmsg.MSG["Float64"]](data=float(r.override)))
+
+
+def test_results_mcap_markers_equal_rosbags_serialisation():
+    """issue 29: the markers written directly (runtime.reaction_cdr.markers_cdr) are byte for byte
+    what rosbags serialises from the MarkerArray McapResults.markers_msg builds: spheres of every
+    colour, arrows, watch points known and unknown, no points at all, at many alignments."""
+    from types import SimpleNamespace
+
+    from depthguard.runtime.mcap_results import McapResults
+    from depthguard.transport import ros_messages as rosmsg
+
+    rng = np.random.default_rng(37)
+    for k in range(200):
+        r = _reaction(rng, ssm=False, part=False)
+        r = Reaction(**{**r.__dict__, "t": abs(r.t) + (k % 5) * 1e-9})
+        if k % 11 == 0:
+            r = Reaction(**{**r.__dict__, "names": (), "distance": np.zeros(0), "direction": np.zeros((0, 3)),
+                            "observed": np.zeros(0, bool), "is_watch": np.zeros(0, bool)})
+        m_cp = int(np.count_nonzero(~r.is_watch))
+        cps = rng.normal(size=(m_cp + int(rng.integers(0, 3)), 3))
+        robot = SimpleNamespace(control_points=[SimpleNamespace(radius=float(x)) for x in rng.random(len(cps)) * 0.05],
+                                control_point_positions=lambda q, cps=cps: cps)
+        watch = {n: rng.normal(size=3) for n in r.names[m_cp:] if rng.random() < 0.7}
+        me = McapResults.__new__(McapResults)
+        me.robot, me._watch, me.frame_id = robot, watch, "world" if k % 3 else "base_link_x"
+        assert me.markers_cdr(r) == rosmsg.serialize(me.markers_msg(r)), k

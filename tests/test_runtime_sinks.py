@@ -107,6 +107,37 @@ def test_fanout_never_blocks_on_a_slow_sink_and_reports_dropped():
     assert seen[-100:] == [float(i) for i in range(900, 1000)] and seen == sorted(seen)
 
 
+def test_fanout_wakes_per_period_not_per_reaction_but_at_once_for_a_slowing_or_a_stop():
+    """issue 29: steady reactions are delivered in batches (the thread wakes every period_s), while
+    a lower override or another set of reasons is delivered without waiting for the period."""
+    got = []
+    fan = SinkFanout([got.append], period_s=30.0)
+    fan(reaction(t=0.0, override=1.0))                  # the first: at once
+    assert wait_until(lambda: len(got) == 1, 5.0)
+    for i in range(1, 6):
+        fan(reaction(t=i * 0.002, override=1.0))        # the same override and reasons: they wait
+    time.sleep(0.3)
+    assert len(got) == 1
+    fan(reaction(t=0.012, override=0.5))                # slowing: everything queued goes at once
+    assert wait_until(lambda: len(got) == 7, 5.0)
+    fan(reaction(t=0.014, override=0.8))                # faster again: waits
+    fan(reaction(t=0.016, override=0.8, reasons={"stale:cam1": "camera cam1: stale"}))   # a new reason: at once
+    assert wait_until(lambda: len(got) == 9, 5.0)
+    assert [r.t for r in got] == [i * 0.002 for i in range(9)] and fan.wakes == 3
+    fan(reaction(t=0.018, override=0.8, reasons={"stale:cam1": "camera cam1: stale"}))
+    fan.close()                                         # close delivers what waits
+    assert len(got) == 10 and fan.dropped == 0
+    # at 500 Hz with the default period the thread wakes about every 20 ms, not every 2 ms
+    fan = SinkFanout([got.append])
+    t0 = time.monotonic()
+    for i in range(150):
+        fan(reaction(t=i * 0.002))
+        time.sleep(0.002)
+    elapsed = time.monotonic() - t0
+    fan.close()
+    assert len(got) == 160 and fan.wakes <= elapsed / fan.period_s + 3, (fan.wakes, elapsed)
+
+
 def test_a_failing_sink_is_disabled_and_counted_the_others_go_on():
     good = []
     calls = []

@@ -34,7 +34,7 @@ from pathlib import Path
 
 import numpy as np
 
-from depthguard.runtime.reaction_cdr import float64_cdr, reaction_cdr
+from depthguard.runtime.reaction_cdr import float64_cdr, markers_cdr, reaction_cdr
 from depthguard.transport import ros_messages as rosmsg
 
 __all__ = ["McapResults", "REACTION_MSG", "REACTION_TYPE", "TOPICS"]
@@ -148,13 +148,10 @@ class McapResults:
             camera_age_s=np.array([_age(r.cameras[c].age_s) for c in cams], dtype=np.float64),
             joints_age_s=_age(r.joints_age_s), q=np.asarray(r.q, dtype=np.float64))
 
-    def markers_msg(self, r):
-        T = rosmsg.TYPESTORE.types
-        marker, point = T["visualization_msgs/msg/Marker"], T["geometry_msgs/msg/Point"]
-        pose = T["geometry_msgs/msg/Pose"](position=point(x=0.0, y=0.0, z=0.0),
-                                          orientation=T["geometry_msgs/msg/Quaternion"](x=0.0, y=0.0, z=0.0, w=1.0))
-        color = T["std_msgs/msg/ColorRGBA"]
-        hdr = rosmsg.header(r.t, self.frame_id)
+    def _marker_points(self, r):
+        """``(n_cp, positions, sizes)``: the number of control points (the first ones), each
+        point's marker position ((3,) m: a control point's at ``r.q``, a watch point's own)
+        and its sphere's diameter (m)."""
         n_cp = int(np.count_nonzero(~np.asarray(r.is_watch)))
         pts = np.asarray(self.robot.control_point_positions(r.q), dtype=np.float64)[:n_cp] if n_cp else np.zeros((0, 3))
         radii = [max(2.0 * float(cp.radius), 0.03) for cp in self.robot.control_points][:n_cp]
@@ -162,6 +159,23 @@ class McapResults:
         for name in r.names[n_cp:]:
             positions.append(self._watch.get(name, np.zeros(3)))
             sizes.append(0.05)
+        return n_cp, positions, sizes
+
+    def markers_cdr(self, r) -> bytes:
+        """The bytes of ``rosmsg.serialize(self.markers_msg(r))``, written directly
+        (:func:`~depthguard.runtime.reaction_cdr.markers_cdr`)."""
+        n_cp, positions, sizes = self._marker_points(r)
+        return markers_cdr(r.t, self.frame_id, r.names, n_cp, np.reshape(positions, (-1, 3)), sizes, r.observed,
+                           r.distance, r.direction)
+
+    def markers_msg(self, r):
+        T = rosmsg.TYPESTORE.types
+        marker, point = T["visualization_msgs/msg/Marker"], T["geometry_msgs/msg/Point"]
+        pose = T["geometry_msgs/msg/Pose"](position=point(x=0.0, y=0.0, z=0.0),
+                                          orientation=T["geometry_msgs/msg/Quaternion"](x=0.0, y=0.0, z=0.0, w=1.0))
+        color = T["std_msgs/msg/ColorRGBA"]
+        hdr = rosmsg.header(r.t, self.frame_id)
+        n_cp, positions, sizes = self._marker_points(r)
 
         def make(i, kind, ns, pos, scale, rgba, points=()):
             return marker(header=hdr, ns=ns, id=i, type=kind, action=0,
@@ -200,7 +214,7 @@ class McapResults:
             self._writer.write(self._con["reaction"], ns, reaction)
             self._writer.write(self._con["override"], ns, override)
             if r.t >= self._next_marker:
-                self._writer.write(self._con["markers"], ns, rosmsg.serialize(self.markers_msg(r)))
+                self._writer.write(self._con["markers"], ns, self.markers_cdr(r))
                 self._next_marker = r.t + self.period - 1e-9
         self.written += 1
 

@@ -177,21 +177,35 @@ class SinkFanout:
     waits for room instead. A sink that raises is disabled: its message
     goes to ``errors`` (``"<sink>: <message>"``) and to the log, the other sinks
     go on. :meth:`close` delivers what is queued, then closes every sink.
+
+    The thread wakes every ``period_s`` (default 20 ms: ten 500 Hz reactions) and delivers what
+    is queued, one reaction at a time, rather than once per reaction (issue 29: a wake-up per
+    control cycle took the GIL from the camera workers and the simulator 500 times a second); it
+    wakes at once for a reaction whose override is lower than the one queued before it or whose
+    reasons name other keys (a slowing or a stop reaches the sinks without the wait), and when
+    half the queue is full.
     """
 
-    def __init__(self, sinks: Sequence[Callable[[Reaction], None]], maxsize: int = 1024, block: bool = False):
+    def __init__(self, sinks: Sequence[Callable[[Reaction], None]], maxsize: int = 1024, block: bool = False,
+                 period_s: float = 0.02):
         if int(maxsize) < 1:
             raise SinkError(f"maxsize must be >= 1 (got {maxsize})")
+        if not period_s > 0:
+            raise SinkError(f"period_s must be > 0 (got {period_s})")
         self.sinks = list(sinks)
         self.maxsize = int(maxsize)
         self.block = bool(block)          # wait for room instead of dropping (replays as fast as possible)
+        self.period_s = float(period_s)
         self.dropped = 0
         self.delivered = 0
+        self.wakes = 0                    # times the thread woke to deliver (issue 29)
         self.errors: list[str] = []
         self._enabled = [True] * len(self.sinks)
         self._queue: deque[Reaction] = deque()
-        self._cond = threading.Condition()
+        self._cond = threading.Condition(threading.Lock())
         self._closing = False
+        self._urgent = False
+        self._last: tuple = (float("inf"), ())  # the newest queued reaction's override and reason keys
         self._thread = threading.Thread(target=self._run, name="depthguard-sinks", daemon=True)
         self._thread.start()
 
@@ -201,33 +215,49 @@ class SinkFanout:
         return [_name(s) for s, on in zip(self.sinks, self._enabled) if not on]
 
     def __call__(self, reaction: Reaction) -> None:
+        override, keys = reaction.override, tuple(reaction.reasons)
+        last_override, last_keys = self._last
+        self._last = (override, keys)
         with self._cond:
             if self._closing:
                 raise SinkError("SinkFanout is closed")
-            while self.block and len(self._queue) >= self.maxsize and self._thread.is_alive():
+            q = self._queue
+            while self.block and len(q) >= self.maxsize and self._thread.is_alive():
+                self._urgent = True
+                self._cond.notify()
                 self._cond.wait(0.1)
-            if len(self._queue) >= self.maxsize:
-                self._queue.popleft()
+            if len(q) >= self.maxsize:
+                q.popleft()
                 self.dropped += 1
-            self._queue.append(reaction)
-            self._cond.notify()
+            q.append(reaction)
+            if override < last_override or keys != last_keys or 2 * len(q) >= self.maxsize:
+                self._urgent = True
+                self._cond.notify()
 
     def _run(self) -> None:
+        cond, q = self._cond, self._queue
         while True:
-            with self._cond:
-                while not self._queue and not self._closing:
-                    self._cond.wait()
-                if not self._queue:
+            with cond:
+                if not (self._closing or self._urgent or 2 * len(q) >= self.maxsize):
+                    cond.wait(self.period_s)
+                self._urgent = False
+                if self._closing and not q:
                     return                          # closing and drained
-                reaction = self._queue.popleft()
-                self._cond.notify_all()              # room for a blocked producer
-            for i, sink in enumerate(self.sinks):
-                if self._enabled[i]:
-                    try:
-                        sink(reaction)
-                    except Exception as exc:  # noqa: BLE001 - a sink must never stop the others
-                        self._fail(i, exc)
-            self.delivered += 1
+                self.wakes += 1
+            while True:
+                with cond:
+                    if not q:
+                        break
+                    reaction = q.popleft()
+                    if self.block:
+                        cond.notify_all()           # room for a blocked producer
+                for i, sink in enumerate(self.sinks):
+                    if self._enabled[i]:
+                        try:
+                            sink(reaction)
+                        except Exception as exc:  # noqa: BLE001 - a sink must never stop the others
+                            self._fail(i, exc)
+                self.delivered += 1
 
     def _fail(self, i: int, exc: Exception, when: str = "") -> None:
         self._enabled[i] = False

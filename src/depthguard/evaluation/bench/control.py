@@ -14,6 +14,12 @@ on the calling thread, and ``time.thread_time`` measures it:
 - ``control.log_line_us`` — the ``log.jsonl`` line of one of those reactions
   (:func:`depthguard.runtime.reaction_json.reaction_json`), the peer the reference encoding
   ``json.dumps(reaction.to_dict(), allow_nan=False)`` of the same reactions, alternated.
+- ``control.sinks_cpu_us`` — what ``depthguard monitor``'s own sinks cost per control cycle: 500
+  of those reactions a second, in real time, through a :class:`~depthguard.runtime.sinks.SinkFanout`
+  to ``log.jsonl`` and ``results.mcap`` (markers at 30 Hz), the CPU of the sink thread per reaction
+  (it holds the GIL for most of it); the peer is the way before issue 29's sink work, in the same
+  run, alternated: the thread woken for every reaction and the markers serialised by ``rosbags``
+  from their message objects.
 """
 
 from __future__ import annotations
@@ -81,6 +87,7 @@ def bench_control(ctx: BenchContext) -> list[BenchRow]:
             ref.append(c2 - c1)
     finally:
         numba.set_num_threads(threads)
+    sinks, sinks_old = _sinks_cpu(rig, reactions[:1500], 0.6 if ctx.quick else 2.0)
     us = 1e6
     return [
         BenchRow("control.cycle_cpu_us", float(np.median(cpu)) * us, "us", None, None, None,
@@ -91,4 +98,54 @@ def bench_control(ctx: BenchContext) -> list[BenchRow]:
         BenchRow("control.log_line_us", float(np.median(line)) * us, "us", None,
                  "json.dumps(reaction.to_dict()), the same reactions", float(np.median(ref)) * us,
                  f"the log.jsonl line of {len(line)} of those reactions, thread CPU, byte-identical to the peer's"),
+        BenchRow("control.sinks_cpu_us", sinks * us, "us", None,
+                 "the thread woken per reaction, markers through rosbags (before issue 29)", sinks_old * us,
+                 f"{CELL}: log.jsonl + results.mcap (markers 30 Hz) through the sink fan-out at 500 reactions/s, "
+                 f"the sink thread's CPU per reaction, median of 3 alternated runs each"),
     ]
+
+
+def _sinks_cpu(rig, reactions, seconds: float) -> tuple[float, float]:
+    """Sink-thread CPU s per reaction, ``(now, before)`` (module docstring), medians of 3 alternated runs."""
+    import tempfile
+    from dataclasses import replace
+    from pathlib import Path
+
+    from depthguard.runtime.mcap_results import McapResults
+    from depthguard.runtime.sinks import JsonlLog, SinkFanout
+    from depthguard.transport import ros_messages as rosmsg
+
+    class OldMcap(McapResults):
+        def markers_cdr(self, r):
+            return rosmsg.serialize(self.markers_msg(r))
+
+    class PerReaction(SinkFanout):
+        def __call__(self, reaction):
+            super().__call__(reaction)
+            with self._cond:
+                self._urgent = True
+                self._cond.notify()
+
+    n = max(2, min(len(reactions), int(seconds * 500)))
+    rs = [replace(reactions[k % len(reactions)], t=k * 0.002) for k in range(n)]
+    watch = [(w.name, w.position) for w in rig.monitor.watch_points]
+    out: dict = {True: [], False: []}
+    with tempfile.TemporaryDirectory() as tmp:
+        for i in range(6):
+            new = i % 2 == 0
+            d = Path(tmp) / str(i)
+            d.mkdir()
+            clock = []
+            fan = (SinkFanout if new else PerReaction)(
+                [lambda r: clock.append(time.thread_time()), JsonlLog(d / "log.jsonl"),
+                 (McapResults if new else OldMcap)(d / "results.mcap", rig.robot, watch)], block=False)
+            t0 = time.perf_counter()
+            for k, r in enumerate(rs):
+                wait = t0 + k * 0.002 - time.perf_counter()
+                if wait > 0:
+                    time.sleep(wait)
+                fan(r)
+            fan(replace(rs[-1], t=n * 0.002))           # its clock reading ends the last one's work
+            fan.close()
+            out[new].append((clock[-1] - clock[0]) / max(fan.delivered - 1, 1))
+    return float(np.median(out[True])), float(np.median(out[False]))
