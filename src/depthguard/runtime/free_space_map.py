@@ -48,7 +48,6 @@ import numpy as np
 from depthguard.config import PRODUCT_ROBOT_OFFSET, PRODUCT_ROBOT_PADDING   # the product's defaults, defined once
 from depthguard.control.path_check import FREE, OCCUPIED, UNKNOWN, body_mask, check_path_states
 from depthguard.fusion.free_space import FreeSpaceMap
-from depthguard.fusion.free_space_kernels import robot_pixels
 from depthguard.geometry.voxel_grid import VoxelGrid
 
 __all__ = ["FreeSpaceSnapshot", "RuntimeFreeSpace", "FreeSpaceWorker", "map_margins", "FREE", "UNKNOWN", "OCCUPIED"]
@@ -157,7 +156,7 @@ class RuntimeFreeSpace:
         self.scene_padding = float(scene_padding)
         self.known = known_scene_mask(rig, self.grid)
         self.known.setflags(write=False)
-        self._robot_px = {c.id: np.zeros((c.height, c.width), bool) for c in self.cameras}
+        self._ids = frozenset(c.id for c in self.cameras)
 
     @property
     def grid(self) -> VoxelGrid:
@@ -169,16 +168,10 @@ class RuntimeFreeSpace:
         ``machine`` is the robot's body at ``q_now`` (dof,) rad (None: no body), never freed.
         Cameras left out say nothing."""
         t0 = time.perf_counter()
-        use, robot = {}, {}
-        for cid, d in depths.items():
-            if cid not in self._robot_px:
-                continue
-            use[cid] = d
-            rd = robot_depths.get(cid)
-            if rd is not None:
-                # the robot (or what touches it): no surface (one numba pass, no allocation)
-                robot[cid] = robot_pixels(d, rd, self.robot_offset, self._robot_px[cid])
-        self.map.update(use, robot=robot)
+        use = {cid: d for cid, d in depths.items() if cid in self._ids}
+        robot = {cid: rd for cid, rd in robot_depths.items() if cid in use and rd is not None}
+        # the robot (or what touches it): no surface, tested per pair as the map reads the image
+        self.map.update_robot_depth(use, robot, self.robot_offset)
         nf, ns = self.map.counts()
         occ = self.map.occupied
         state = np.where(occ, np.where(ns > 0, OCCUPIED, UNKNOWN), FREE).astype(np.uint8)
@@ -196,7 +189,7 @@ class RuntimeFreeSpace:
         """:meth:`build` from the newest product of each camera worker (None: no product yet)."""
         depths, robot_depths, stamps = {}, {}, {}
         for cid, w in list(workers.items()):
-            if cid not in self._robot_px:
+            if cid not in self._ids:
                 continue
             with w.lock:
                 p = w.product
