@@ -97,14 +97,14 @@ from typing import Mapping
 import numpy as np
 
 from depthguard.camera import Camera, check_depth_image
-from depthguard.fusion.free_space_kernels import (centre_counts, combine_counts, free_space_update, robot_pixels,
-                                                  negate_where as _negate_where)
+from depthguard.fusion.free_space_centre import CentrePairs
+from depthguard.fusion.free_space_kernels import combine_counts, free_space_update, robot_pixels
+from depthguard.fusion.free_space_kernels import negate_where as _negate_where
 from depthguard.geometry.voxel_grid import VoxelGrid
 
 __all__ = ["FreeSpaceMap"]
 
 _MAX_ENTRIES = 400_000_000  # cameras x voxels; ~4 GB of model beyond this
-_MASK_DEPTH = np.float32(np.finfo(np.float32).smallest_subnormal)  # a robot mask as a robot depth (offset 0)
 
 
 class FreeSpaceMap:
@@ -204,18 +204,8 @@ class FreeSpaceMap:
         for ci in range(C):
             a, b = self.start[ci], self.start[ci + 1]
             self.chunk[ci] = a + np.searchsorted(self.vox[a:b], self.vstart)
-        # centre pixel: each camera's pairs again, in increasing pixel order (the image read front to
-        # back, :func:`centre_counts`); spix is the pixel in the camera's own image
-        order = np.concatenate([a + np.argsort(self.pix[a:b], kind="stable")
-                                for a, b in zip(self.start[:-1], self.start[1:])]).astype(np.int64)
-        cam_of = np.repeat(np.arange(C), np.diff(self.start))
-        self.spix = (self.pix[order] - self.offs[cam_of]).astype(np.int32)
-        self.svox = self.vox[order]
-        self.szc = self.zc[order]
-        self._order = order
-        self._sbg = np.zeros(len(order), dtype=np.float32)       # the known shell's depth per sorted pair
         for a in (self.vstart, self.chunk, self.start, self.vox, self.pix, self.zc, self.ru, self.rv, self.half, self.far, self.grow,
-                  self.offs, self.widths, self.heights, self.rmin, self.rmax, self.spix, self.svox, self.szc, self._order):
+                  self.offs, self.widths, self.heights, self.rmin, self.rmax):
             a.setflags(write=False)
         # ---- data (preallocated workspace)
         self._depth = np.zeros(int(sizes.sum()), dtype=np.float32)
@@ -227,9 +217,8 @@ class FreeSpaceMap:
         self._use_bg = False
         self.background_tolerance = 0.0
         self.machine = np.zeros(self.grid.shape, dtype=bool)
-        self._zero_img = [None] * C          # a missing camera's image when it is judged (min_range 0)
-        self._conv = [None] * C              # a camera's image copied to float32 (not float32 given)
-        self._rmask = [None] * C             # a robot mask as a robot depth (offset 0)
+        # centre pixel: each camera's pairs in pixel order, read from the cameras' own images (issue 30)
+        self._centre = CentrePairs(cams, self.start, self.pix, self.vox, self.zc, self.offs) if footprint == "centre" else None
 
     # ------------------------------------------------------------------ model
     def _project(self, ci: int, cam: Camera, centres: np.ndarray, corners: np.ndarray | None):
@@ -354,7 +343,8 @@ class FreeSpaceMap:
         """
         if backgrounds is None:
             self._bg.fill(0.0)
-            self._sbg.fill(0.0)
+            if self._centre is not None:
+                self._centre.set_background(None, self.offs)
             self._use_bg = False
             self.background_tolerance = 0.0
             return
@@ -379,8 +369,7 @@ class FreeSpaceMap:
                 raise ValueError(f"background of camera {cam.id!r}: shape {b.shape}, expected "
                                  f"{(cam.height, cam.width)}")
             np.copyto(seg.reshape(cam.height, cam.width), np.where(np.isfinite(b) & (b > 0), b, 0.0))
-        self._sbg[...] = self._bg[self.offs[np.repeat(np.arange(len(self.cameras)), np.diff(self.start))]
-                                  + self.spix.astype(np.int64)]
+        self._centre.set_background(self._bg, self.offs)
         self.background_tolerance = tol
         self._use_bg = True
 
@@ -464,67 +453,18 @@ class FreeSpaceMap:
         return self.occupied
 
     def _update_centre(self, depths, masks, robot_depths, offset: float, accumulate: bool) -> np.ndarray:
-        """The centre-pixel update camera by camera from the callers' own images (:func:`centre_counts`:
-        pairs in pixel order, robot pixels tested per pair; a float32 image is not copied)."""
+        """The centre-pixel update camera by camera from the callers' own images (:mod:`.free_space_centre`)."""
         self._check_ids(depths, "depths", "images")
         if masks:
             self._check_ids(masks, "robot", "masks")
         if robot_depths:
             self._check_ids(robot_depths, "robot_depths", "robot depths")
-        work = []
-        for ci, cam in enumerate(self.cameras):          # every input checked before any buffer changes
-            img = depths.get(cam.id)
-            d = None if img is None else check_depth_image(cam, img)
-            m = masks.get(cam.id) if masks else None
-            if m is not None:
-                m = np.asarray(m)
-                if m.shape != (cam.height, cam.width) or m.dtype != np.bool_:
-                    raise ValueError(f"robot mask of camera {cam.id!r}: shape {m.shape} dtype {m.dtype}, expected bool "
-                                     f"{(cam.height, cam.width)}")
-                m = None if d is None else m
-            rd = None if (d is None or not robot_depths) else robot_depths.get(cam.id)
-            if rd is not None:
-                rd = check_depth_image(cam, rd, "robot depth")
-            work.append((d, m, rd))
-        self._nf.fill(0)
-        self._ns.fill(0)
-        for ci, (d, m, rd) in enumerate(work):
-            a, b = int(self.start[ci]), int(self.start[ci + 1])
-            if a == b:
-                continue
-            off = offset
-            if d is None:
-                if self.rmin[ci] > 0.0:
-                    continue              # an image of zeros: no pair passes d >= min_range
-                flat = self._buffer(self._zero_img, ci)
-            elif d.dtype == np.float32:
-                flat = d.reshape(-1)      # the caller's image itself (a view when C-contiguous)
-            else:                         # copied as the flat buffer would be (negatives 0)
-                flat = self._buffer(self._conv, ci)
-                np.maximum(d, np.float32(0.0), out=flat.reshape(d.shape), casting="unsafe")
-            if rd is not None and not (d.dtype == np.float32 and rd.dtype == np.float32):
-                m = robot_pixels(d, rd, offset, np.empty(d.shape, dtype=bool))   # on the caller's arrays, as before
-            if m is not None:             # a mask: robot depth "just above 0" at its pixels, offset 0
-                rflat = np.multiply(m.reshape(-1), _MASK_DEPTH, out=self._buffer(self._rmask, ci))
-                off = 0.0
-            elif rd is not None:
-                rflat = rd.reshape(-1)
-            else:
-                rflat = flat
-            centre_counts(flat, rflat, off, rd is not None or m is not None, self.spix[a:b], self.svox[a:b],
-                          self.szc[a:b], self._sbg[a:b], self._use_bg, self.background_tolerance,
-                          float(self.rmin[ci]), float(self.rmax[ci]), float(self.half[ci]),
-                          float(self.far[ci] + self.margin), float(self.grow[ci]), self._nf, self._ns)
+        work = self._centre.inputs(depths, masks, robot_depths)
+        self._centre.count(work, offset, self.rmin, self.rmax, self.half, self.far + self.margin, self.grow,
+                           self._use_bg, self.background_tolerance, self._nf, self._ns)
         self.machine[...] = False  # the machine moves: add its current volume after each update
         combine_counts(self._nf, self._ns, self.min_free_views, bool(accumulate), self._free, self._occ)
         return self.occupied
-
-    def _buffer(self, store: list, ci: int) -> np.ndarray:
-        """A (H*W,) float32 buffer of camera ``ci`` kept in ``store`` (made on first use, zeros)."""
-        if store[ci] is None:
-            c = self.cameras[ci]
-            store[ci] = np.zeros(c.width * c.height, dtype=np.float32)
-        return store[ci]
 
     @property
     def occupied(self) -> np.ndarray:

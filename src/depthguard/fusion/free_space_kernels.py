@@ -71,9 +71,12 @@ window holding the voxel's projection is valid and beyond the threshold (the
 nearest depth of the window is used for both tests); with ``full=False``
 only the centre pixel is read, as in the paper.
 
-The update runs in parallel over chunks of voxels; within a chunk camera
+:func:`free_space_update` runs in parallel over chunks of voxels; within a chunk camera
 after camera (one image stays in cache); each voxel's counters belong to one
-chunk, so they are written without races.
+chunk, so they are written without races. The centre-pixel mode of the map uses
+:func:`centre_counts` instead (issue 30): one camera at a time, its pairs in pixel
+order, read from the camera's own image with the robot pixels tested per pair, then
+:func:`combine_counts` — the same counts, about 5x less CPU (one thread).
 """
 
 from __future__ import annotations
@@ -83,7 +86,8 @@ import numpy as np
 
 from depthguard.camera import RETURN_LIMIT_FACTOR
 
-__all__ = ["free_space_update", "centre_counts", "combine_counts", "free_space_update_numpy", "voxel_counts_numpy",
+__all__ = ["free_space_update", "centre_counts", "combine_counts", "voxel_states", "voxel_states_numpy",
+           "free_space_update_numpy", "voxel_counts_numpy",
            "robot_pixels", "robot_pixels_numpy", "negate_where"]
 
 
@@ -276,6 +280,16 @@ def combine_counts(n_free, n_surf, min_free_views, accumulate, free_state, occup
         occupied[i] = not free
 
 
+@nb.njit(cache=True, nogil=True)
+def voxel_states(occupied, n_surf, free, unknown, seen, out):
+    """The map's three states in one pass: ``out`` (N,) uint8 = ``free`` where not ``occupied``,
+    else ``seen`` where a camera saw a surface (``n_surf > 0``), else ``unknown``; (N,) bool and
+    uint8 in. Twin: :func:`voxel_states_numpy`."""
+    for i in range(out.shape[0]):
+        out[i] = free if not occupied[i] else (seen if n_surf[i] > 0 else unknown)
+    return out
+
+
 # ----------------------------------------------------------------- numpy twins
 def voxel_counts_numpy(depths, n_voxels, rmin, rmax, start, vox, pix, offs, zc, ru, rv, half, far,
                        margin, full, background=None, bg_tol=0.0, grow=None):
@@ -372,9 +386,9 @@ def robot_pixels(depth, robot_depth, offset, out):
 
 
 def robot_pixels_numpy(depth, robot_depth, offset):
-    """Plain numpy twin of :func:`robot_pixels`."""
+    """Plain numpy twin of :func:`robot_pixels` (its arithmetic: the offset subtracted in float64)."""
     with np.errstate(invalid="ignore"):
-        return (robot_depth > 0) & (depth >= robot_depth - offset)
+        return (robot_depth > 0) & (depth >= np.asarray(robot_depth, dtype=np.float64) - offset)
 
 
 @nb.njit(cache=True, nogil=True)
@@ -385,3 +399,8 @@ def negate_where(seg, mask):
         for u in range(W):
             if mask[v, u]:
                 seg[v, u] = -seg[v, u]
+
+
+def voxel_states_numpy(occupied, n_surf, free, unknown, seen):
+    """Plain numpy twin of :func:`voxel_states`."""
+    return np.where(occupied, np.where(n_surf > 0, seen, unknown), free).astype(np.uint8)
