@@ -218,12 +218,13 @@ def centre_counts(depth, rdepth, offset, use_robot, spix, svox, szc, sbg, use_bg
     """R21, centre pixel: one camera's free and surface views, added to ``n_free``, ``n_surf``.
 
     The rules are those of :func:`free_space_update` with ``full=False`` (module docstring), read
-    straight from the camera's own image — no copy into a shared buffer, no pass over the pixels
-    no pair reads (issue 30: 175k pairs of four 640 x 480 cameras read 175k of 1.2M pixels):
+    straight from the camera's own image — no copy into a shared buffer, no pass over pixels that
+    no pair reads (issue 30: the 175k pairs of ur3-cell's four 640 x 480 cameras read 175k of 1.2M):
 
     depth : (H*W,) float32 m, the image as measured (NaN / 0 / negative invalid, a negative read as 0).
     rdepth : (H*W,) float32 m, the robot rendered at the frame's capture joints (0 = no robot), read
-        only when ``use_robot``: the pixel sees the robot (or what touches it; R9, R30) when
+        when ``use_robot`` and only for a pair that would count a surface (the test decides nothing
+        else; most pairs see free space or nothing): the pixel sees the robot (or what touches it; R9, R30) when
         ``rdepth > 0`` and ``depth >= rdepth - offset`` — :func:`robot_pixels` per pair — and it
         then frees in front of its depth and never counts a surface.
     offset : m. spix (K,) int32 the pairs' pixels ``v * W + u`` **in increasing order** (the image is
@@ -239,17 +240,12 @@ def centre_counts(depth, rdepth, offset, use_robot, spix, svox, szc, sbg, use_bg
     for k in range(spix.shape[0]):
         p = spix[k]
         x = depth[p]
-        rob = False
-        if use_robot:
-            r = rdepth[p]
-            rob = r > 0.0 and x >= r - offset
         if x < 0.0:                          # a negative depth is invalid: 0
             x = np.float32(0.0)
-        rob = rob and x > 0.0                # (the buffer's -0.0 is no robot pixel)
         d = np.float64(x)
-        if d > hi:                           # beyond the rated range: free up to it, no surface
+        beyond = d > hi
+        if beyond:                           # beyond the rated range: free up to it, no surface
             d = hi if d <= rl else -1.0
-            rob = True
         if not (d >= lo):
             continue
         z = np.float64(szc[k])
@@ -258,13 +254,20 @@ def centre_counts(depth, rdepth, offset, use_robot, spix, svox, szc, sbg, use_bg
             front = B <= 0.0 or z < B        # centre in front of the known shell
             if d > z + f + gz * z * z and front:
                 n_free[svox[k]] += 1
-            elif d >= z - h and not rob:
-                if not (B > 0.0 and front and abs(d - np.float64(B)) <= bg_tol):
-                    n_surf[svox[k]] += 1
+                continue
+            if not (d >= z - h) or beyond or (B > 0.0 and front and abs(d - np.float64(B)) <= bg_tol):
+                continue
         elif d > z + f + gz * z * z:
             n_free[svox[k]] += 1
-        elif d >= z - h and not rob:
-            n_surf[svox[k]] += 1
+            continue
+        elif not (d >= z - h) or beyond:
+            continue
+        # a surface unless the pixel sees the robot: its depth read only here (most pairs are no surface)
+        if use_robot and x > 0.0:
+            r = rdepth[p]
+            if r > 0.0 and x >= r - offset:
+                continue
+        n_surf[svox[k]] += 1
 
 
 @nb.njit(cache=True, nogil=True)
