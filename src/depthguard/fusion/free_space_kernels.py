@@ -275,10 +275,8 @@ def combine_counts(n_free, n_surf, min_free_views, accumulate, free_state, occup
     """R21: the voxels' verdicts from the views of all cameras (the paper's rule, module docstring):
     free when ``n_free >= min_free_views`` or ``n_free >= 1`` and ``n_surf == 0`` (or'ed with
     ``free_state`` when ``accumulate``); (N,) uint8 in, (N,) bool ``free_state`` and ``occupied`` out."""
-    for i in range(n_free.shape[0]):
-        free = n_free[i] >= min_free_views or (n_free[i] >= 1 and n_surf[i] == 0)
-        if accumulate and free_state[i]:
-            free = True
+    for i in range(n_free.shape[0]):          # no branch: the loop vectorises
+        free = (n_free[i] >= min_free_views) | ((n_free[i] >= 1) & (n_surf[i] == 0)) | (accumulate & free_state[i])
         free_state[i] = free
         occupied[i] = not free
 
