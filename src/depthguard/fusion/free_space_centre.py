@@ -110,7 +110,7 @@ class CentrePairs:
                 off = 0.0
             else:
                 rflat = flat if rd is None else rd.reshape(-1)
-            centre_counts(flat, rflat, off, rd is not None or m is not None, self.spix[a:b], self.svox[a:b],
+            centre_counts(_read_only(flat), _read_only(rflat), off, rd is not None or m is not None, self.spix[a:b], self.svox[a:b],
                           self.szc[a:b], self.sbg[a:b], use_bg, bg_tol, float(rmin[ci]), float(rmax[ci]),
                           float(half[ci]), float(f[ci]), float(grow[ci]), n_free, n_surf)
 
@@ -120,3 +120,12 @@ class CentrePairs:
             c = self.cameras[ci]
             store[ci] = np.zeros(c.width * c.height, dtype=np.float32)
         return store[ci]
+
+
+def _read_only(a: np.ndarray) -> np.ndarray:
+    """A flat read-only view of ``a`` (the image's own data): the kernel sees one array type
+    whatever the caller's flags (one compiled signature: a renderer's image is read-only, a
+    worker's copy is not)."""
+    v = a.reshape(-1)
+    v.flags.writeable = False
+    return v
