@@ -20,9 +20,11 @@ from depthguard.fusion.free_space_kernels import centre_counts, robot_pixels
 
 __all__ = ["CentrePairs"]
 
-# a robot mask read as a robot depth at offset 0: "depth >= the smallest float32 above 0" is
-# "depth > 0", exactly the pixels whose depth the flat buffer negates (a 0 stays 0 there)
-_MASK_DEPTH = np.float32(np.finfo(np.float32).smallest_subnormal)
+# a robot mask read as a robot depth at offset 0: "depth >= the smallest normal float32" is
+# "depth > 0" (the pixels whose depth the flat buffer negates; a 0 stays 0 there) for every depth
+# but a subnormal one (< 1.2e-38 m, below any camera's range); not the smallest subnormal, which a
+# process flushing subnormals to zero (a library built with -ffast-math) would read as 0: no robot
+_MASK_DEPTH = np.float32(np.finfo(np.float32).tiny)
 
 
 class CentrePairs:
