@@ -97,7 +97,9 @@ from typing import Mapping
 import numpy as np
 
 from depthguard.camera import Camera, check_depth_image
-from depthguard.fusion.free_space_kernels import free_space_update, negate_where as _negate_where
+from depthguard.fusion.free_space_centre import CentrePairs
+from depthguard.fusion.free_space_kernels import combine_counts, free_space_update, robot_pixels
+from depthguard.fusion.free_space_kernels import negate_where as _negate_where
 from depthguard.geometry.voxel_grid import VoxelGrid
 
 __all__ = ["FreeSpaceMap"]
@@ -215,6 +217,8 @@ class FreeSpaceMap:
         self._use_bg = False
         self.background_tolerance = 0.0
         self.machine = np.zeros(self.grid.shape, dtype=bool)
+        # centre pixel: each camera's pairs in pixel order, read from the cameras' own images (issue 30)
+        self._centre = CentrePairs(cams, self.start, self.pix, self.vox, self.zc, self.offs) if footprint == "centre" else None
 
     # ------------------------------------------------------------------ model
     def _project(self, ci: int, cam: Camera, centres: np.ndarray, corners: np.ndarray | None):
@@ -339,6 +343,8 @@ class FreeSpaceMap:
         """
         if backgrounds is None:
             self._bg.fill(0.0)
+            if self._centre is not None:
+                self._centre.set_background(None, self.offs)
             self._use_bg = False
             self.background_tolerance = 0.0
             return
@@ -363,6 +369,7 @@ class FreeSpaceMap:
                 raise ValueError(f"background of camera {cam.id!r}: shape {b.shape}, expected "
                                  f"{(cam.height, cam.width)}")
             np.copyto(seg.reshape(cam.height, cam.width), np.where(np.isfinite(b) & (b > 0), b, 0.0))
+        self._centre.set_background(self._bg, self.offs)
         self.background_tolerance = tol
         self._use_bg = True
 
@@ -398,15 +405,65 @@ class FreeSpaceMap:
         -------
         occupied : (nx, ny, nz) bool view of the map's buffer (valid until the next update).
         """
+        if self.footprint == "centre":
+            return self._update_centre(depths, robot, None, 0.0, accumulate)
         self._load_depths(depths)
         if robot:
             self._mark_robot(robot)
+        return self._update_full(accumulate)
+
+    def update_robot_depth(self, depths: Mapping[str, np.ndarray], robot_depths: Mapping[str, np.ndarray],
+                           offset: float, accumulate: bool = False) -> np.ndarray:
+        """:meth:`update` with the robot pixels (R9, R30) given as the robot rendered at each frame's
+        capture joints: ``robot_depths`` camera id -> (H, W) float m (0 = no robot; a camera left
+        out has none); a pixel sees the robot (or what touches it) when ``robot_depth > 0`` and
+        ``depth >= robot_depth - offset`` (m) — :func:`~depthguard.fusion.free_space_kernels.robot_pixels`.
+        Centre pixel: tested per pair as the image is read, no mask made (issue 30). Returns
+        ``occupied`` as :meth:`update`."""
+        off = float(offset)
+        if self.footprint == "centre":
+            return self._update_centre(depths, None, robot_depths, off, accumulate)
+        self._check_ids(robot_depths, "robot_depths", "robot depths")
+        masks = {}
+        for cid, rd in robot_depths.items():
+            if rd is not None and cid in depths:
+                ci = self._ids.index(cid)
+                masks[cid] = robot_pixels(check_depth_image(self.cameras[ci], depths[cid]),
+                                          check_depth_image(self.cameras[ci], rd, "robot depth"), off,
+                                          np.empty(self.cameras[ci].shape, dtype=bool))
+        self._load_depths(depths)
+        self._mark_robot(masks)
+        return self._update_full(accumulate)
+
+    def _check_ids(self, images, name: str, what: str) -> None:
+        if not isinstance(images, Mapping):
+            raise ValueError(f"{name} must be a dict camera id -> (H, W) image")
+        unknown = set(images) - set(self._ids)
+        if unknown:
+            raise ValueError(f"{name} has {what} for unknown camera ids {sorted(unknown)}; known: {self._ids}")
+
+    def _update_full(self, accumulate: bool) -> np.ndarray:
+        """The window mode (or any mode) from the map's flat buffer (:func:`free_space_update`)."""
         self.machine[...] = False  # the machine moves: add its current volume after each update
         free_space_update(self._depth, self.offs, self.widths, self.heights, self.rmin, self.rmax,
                           self.vstart, self.chunk, self.vox, self.pix, self.zc, self.ru, self.rv,
                           self.half, self.far, self._bg, self.background_tolerance, self._use_bg,
                           self.margin, self.grow, self.min_free_views, self.footprint == "full", bool(accumulate),
                           self._nf, self._ns, self._free, self._occ)
+        return self.occupied
+
+    def _update_centre(self, depths, masks, robot_depths, offset: float, accumulate: bool) -> np.ndarray:
+        """The centre-pixel update camera by camera from the callers' own images (:mod:`.free_space_centre`)."""
+        self._check_ids(depths, "depths", "images")
+        if masks:
+            self._check_ids(masks, "robot", "masks")
+        if robot_depths:
+            self._check_ids(robot_depths, "robot_depths", "robot depths")
+        work = self._centre.inputs(depths, masks, robot_depths)
+        self._centre.count(work, offset, self.rmin, self.rmax, self.half, self.far + self.margin, self.grow,
+                           self._use_bg, self.background_tolerance, self._nf, self._ns)
+        self.machine[...] = False  # the machine moves: add its current volume after each update
+        combine_counts(self._nf, self._ns, self.min_free_views, bool(accumulate), self._free, self._occ)
         return self.occupied
 
     @property

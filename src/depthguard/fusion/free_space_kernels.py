@@ -71,9 +71,12 @@ window holding the voxel's projection is valid and beyond the threshold (the
 nearest depth of the window is used for both tests); with ``full=False``
 only the centre pixel is read, as in the paper.
 
-The update runs in parallel over chunks of voxels; within a chunk camera
+:func:`free_space_update` runs in parallel over chunks of voxels; within a chunk camera
 after camera (one image stays in cache); each voxel's counters belong to one
-chunk, so they are written without races.
+chunk, so they are written without races. The centre-pixel mode of the map uses
+:func:`centre_counts` instead (issue 30): one camera at a time, its pairs in pixel
+order, read from the camera's own image with the robot pixels tested per pair, then
+:func:`combine_counts` — the same counts, about 5x less CPU (one thread).
 """
 
 from __future__ import annotations
@@ -83,8 +86,9 @@ import numpy as np
 
 from depthguard.camera import RETURN_LIMIT_FACTOR
 
-__all__ = ["free_space_update", "free_space_update_numpy", "voxel_counts_numpy", "robot_pixels",
-           "robot_pixels_numpy", "negate_where"]
+__all__ = ["free_space_update", "centre_counts", "combine_counts", "voxel_states", "voxel_states_numpy",
+           "free_space_update_numpy", "voxel_counts_numpy",
+           "robot_pixels", "robot_pixels_numpy", "negate_where"]
 
 
 @nb.njit(cache=True, parallel=True, nogil=True)
@@ -208,6 +212,85 @@ def free_space_update(depth, offs, widths, heights, rmin, rmax, vstart, chunk, v
             occupied[i] = not free
 
 
+@nb.njit(cache=True, nogil=True)
+def centre_counts(depth, rdepth, offset, use_robot, spix, svox, szc, sbg, use_bg, bg_tol, lo, hi, h, f, gz,
+                  n_free, n_surf):
+    """R21, centre pixel: one camera's free and surface views, added to ``n_free``, ``n_surf``.
+
+    The rules are those of :func:`free_space_update` with ``full=False`` (module docstring), read
+    straight from the camera's own image — no copy into a shared buffer, no pass over pixels that
+    no pair reads (issue 30: the 175k pairs of ur3-cell's four 640 x 480 cameras read 175k of 1.2M):
+
+    depth : (H*W,) float32 m, the image as measured (NaN / 0 / negative invalid, a negative read as 0).
+    rdepth : (H*W,) float32 m, the robot rendered at the frame's capture joints (0 = no robot), read
+        when ``use_robot`` and only for a pair that would count a surface (the test decides nothing
+        else; most pairs see free space or nothing): the pixel sees the robot (or what touches it; R9, R30) when
+        ``rdepth > 0`` and ``depth >= rdepth - offset`` — :func:`robot_pixels` per pair — and it
+        then frees in front of its depth and never counts a surface.
+    offset : m. spix (K,) int32 the pairs' pixels ``v * W + u`` **in increasing order** (the image is
+        read front to back), svox (K,) int32 their voxels, szc (K,) float32 the centre depths m,
+        sbg (K,) float32 the known shell's depth B at the pixel (0 = none), read when ``use_bg``.
+    bg_tol : m. lo, hi : the camera's range m; h : its half depth extent of a voxel m; f : ``far +
+        margin`` m; gz : its margin growth 1/m (the margin at depth z is ``margin + gz z^2``).
+    n_free, n_surf : (N,) uint8, in/out — one view added per pair that sees the voxel free / a surface.
+
+    The pair's result is bit for bit that of :func:`free_space_update` on the buffer it loads (a
+    robot pixel's depth negated there: a robot pixel counts only with a depth > 0)."""
+    rl = hi * RETURN_LIMIT_FACTOR
+    for k in range(spix.shape[0]):
+        p = spix[k]
+        x = depth[p]
+        if x < 0.0:                          # a negative depth is invalid: 0
+            x = np.float32(0.0)
+        d = np.float64(x)
+        beyond = d > hi
+        if beyond:                           # beyond the rated range: free up to it, no surface
+            d = hi if d <= rl else -1.0
+        if not (d >= lo):
+            continue
+        z = np.float64(szc[k])
+        if use_bg:
+            B = sbg[k]
+            front = B <= 0.0 or z < B        # centre in front of the known shell
+            if d > z + f + gz * z * z and front:
+                n_free[svox[k]] += 1
+                continue
+            if not (d >= z - h) or beyond or (B > 0.0 and front and abs(d - np.float64(B)) <= bg_tol):
+                continue
+        elif d > z + f + gz * z * z:
+            n_free[svox[k]] += 1
+            continue
+        elif not (d >= z - h) or beyond:
+            continue
+        # a surface unless the pixel sees the robot: its depth read only here (most pairs are no surface)
+        if use_robot and x > 0.0:
+            r = rdepth[p]
+            if r > 0.0 and x >= r - offset:
+                continue
+        n_surf[svox[k]] += 1
+
+
+@nb.njit(cache=True, nogil=True)
+def combine_counts(n_free, n_surf, min_free_views, accumulate, free_state, occupied):
+    """R21: the voxels' verdicts from the views of all cameras (the paper's rule, module docstring):
+    free when ``n_free >= min_free_views`` or ``n_free >= 1`` and ``n_surf == 0`` (or'ed with
+    ``free_state`` when ``accumulate``); (N,) uint8 in, (N,) bool ``free_state`` and ``occupied`` out."""
+    for i in range(n_free.shape[0]):          # no branch: the loop vectorises
+        free = (n_free[i] >= min_free_views) | ((n_free[i] >= 1) & (n_surf[i] == 0)) | (accumulate & free_state[i])
+        free_state[i] = free
+        occupied[i] = not free
+
+
+@nb.njit(cache=True, nogil=True)
+def voxel_states(occupied, n_surf, free, unknown, seen, out):
+    """The map's three states in one pass: ``out`` (N,) uint8 = ``free`` where not ``occupied``,
+    else ``seen`` where a camera saw a surface (``n_surf > 0``), else ``unknown``; (N,) bool and
+    uint8 in. Twin: :func:`voxel_states_numpy`."""
+    for i in range(out.shape[0]):
+        out[i] = free if not occupied[i] else (seen if n_surf[i] > 0 else unknown)
+    return out
+
+
 # ----------------------------------------------------------------- numpy twins
 def voxel_counts_numpy(depths, n_voxels, rmin, rmax, start, vox, pix, offs, zc, ru, rv, half, far,
                        margin, full, background=None, bg_tol=0.0, grow=None):
@@ -304,9 +387,9 @@ def robot_pixels(depth, robot_depth, offset, out):
 
 
 def robot_pixels_numpy(depth, robot_depth, offset):
-    """Plain numpy twin of :func:`robot_pixels`."""
+    """Plain numpy twin of :func:`robot_pixels` (its arithmetic: the offset subtracted in float64)."""
     with np.errstate(invalid="ignore"):
-        return (robot_depth > 0) & (depth >= robot_depth - offset)
+        return (robot_depth > 0) & (depth >= np.asarray(robot_depth, dtype=np.float64) - offset)
 
 
 @nb.njit(cache=True, nogil=True)
@@ -317,3 +400,8 @@ def negate_where(seg, mask):
         for u in range(W):
             if mask[v, u]:
                 seg[v, u] = -seg[v, u]
+
+
+def voxel_states_numpy(occupied, n_surf, free, unknown, seen):
+    """Plain numpy twin of :func:`voxel_states`."""
+    return np.where(occupied, np.where(n_surf > 0, seen, unknown), free).astype(np.uint8)

@@ -7,8 +7,8 @@ capture joints (R9, R30) — the same frames the distances use:
 
 - **robot removed at capture joints:** a pixel whose depth is at or behind the robot's rendered
   depth less ``robot_offset`` (the monitor's setting) sees the robot, or something touching it:
-  it frees the voxels in front of its depth but marks no surface (``FreeSpaceMap.update(...,
-  robot=)``), so the robot's surface, a hand on it and the robot's shadow stay unknown;
+  it frees the voxels in front of its depth but marks no surface
+  (``FreeSpaceMap.update_robot_depth``), so the robot's surface, a hand on it and the robot's shadow stay unknown;
 - **the known scene as background:** the rig's static meshes, rendered once per camera, are the
   map's background (:meth:`FreeSpaceMap.set_background`): a measurement of the known scene frees
   the voxels in front of it and marks no surface, while the voxels inside it keep their surface;
@@ -31,9 +31,11 @@ cameras).
 
 :class:`FreeSpaceWorker` runs :meth:`RuntimeFreeSpace.build` on its own background thread at
 ``hz`` (default 10) and swaps the newest snapshot in whole (one assignment); readers take
-``worker.snapshot`` and never see half of one. Cost: one projection gather per camera and voxel
-(numba, :mod:`depthguard.fusion.free_space_kernels`), bounded by cameras x voxels whatever the
-scene; ``depthguard bench --only monitor`` measures it (``monitor.freespace_update_ms``).
+``worker.snapshot`` and never see half of one. Cost: one read per camera and voxel, bounded by
+cameras x voxels whatever the scene (numba, :mod:`depthguard.fusion.free_space_centre`): each
+camera's pairs in pixel order, read from the worker's own depth and robot depth (no copy, no mask;
+the robot pixel test per pair), one pass to the states. ``depthguard bench --only monitor``
+measures it (``monitor.freespace_update_ms``, beside the way before issue 30's change).
 """
 
 from __future__ import annotations
@@ -48,7 +50,7 @@ import numpy as np
 from depthguard.config import PRODUCT_ROBOT_OFFSET, PRODUCT_ROBOT_PADDING   # the product's defaults, defined once
 from depthguard.control.path_check import FREE, OCCUPIED, UNKNOWN, body_mask, check_path_states
 from depthguard.fusion.free_space import FreeSpaceMap
-from depthguard.fusion.free_space_kernels import robot_pixels
+from depthguard.fusion.free_space_kernels import voxel_states
 from depthguard.geometry.voxel_grid import VoxelGrid
 
 __all__ = ["FreeSpaceSnapshot", "RuntimeFreeSpace", "FreeSpaceWorker", "map_margins", "FREE", "UNKNOWN", "OCCUPIED"]
@@ -157,7 +159,7 @@ class RuntimeFreeSpace:
         self.scene_padding = float(scene_padding)
         self.known = known_scene_mask(rig, self.grid)
         self.known.setflags(write=False)
-        self._robot_px = {c.id: np.zeros((c.height, c.width), bool) for c in self.cameras}
+        self._ids = frozenset(c.id for c in self.cameras)
 
     @property
     def grid(self) -> VoxelGrid:
@@ -169,19 +171,13 @@ class RuntimeFreeSpace:
         ``machine`` is the robot's body at ``q_now`` (dof,) rad (None: no body), never freed.
         Cameras left out say nothing."""
         t0 = time.perf_counter()
-        use, robot = {}, {}
-        for cid, d in depths.items():
-            if cid not in self._robot_px:
-                continue
-            use[cid] = d
-            rd = robot_depths.get(cid)
-            if rd is not None:
-                # the robot (or what touches it): no surface (one numba pass, no allocation)
-                robot[cid] = robot_pixels(d, rd, self.robot_offset, self._robot_px[cid])
-        self.map.update(use, robot=robot)
-        nf, ns = self.map.counts()
-        occ = self.map.occupied
-        state = np.where(occ, np.where(ns > 0, OCCUPIED, UNKNOWN), FREE).astype(np.uint8)
+        use = {cid: d for cid, d in depths.items() if cid in self._ids}
+        robot = {cid: rd for cid, rd in robot_depths.items() if cid in use and rd is not None}
+        # the robot (or what touches it): no surface, tested per pair as the map reads the image
+        self.map.update_robot_depth(use, robot, self.robot_offset)
+        state = np.empty(self.grid.shape, dtype=np.uint8)     # a new array: a snapshot is never written again
+        voxel_states(self.map.occupied.reshape(-1), self.map.counts()[1].reshape(-1), FREE, UNKNOWN, OCCUPIED,
+                     state.reshape(-1))
         machine = np.zeros(self.grid.shape, bool)
         q = None
         if q_now is not None and self.robot is not None:
@@ -196,7 +192,7 @@ class RuntimeFreeSpace:
         """:meth:`build` from the newest product of each camera worker (None: no product yet)."""
         depths, robot_depths, stamps = {}, {}, {}
         for cid, w in list(workers.items()):
-            if cid not in self._robot_px:
+            if cid not in self._ids:
                 continue
             with w.lock:
                 p = w.product
