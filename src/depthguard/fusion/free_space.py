@@ -65,10 +65,9 @@ supports a background.
 **Over time.** By default every :meth:`FreeSpaceMap.update` starts again from
 "all occupied": the map is a snapshot of the frames given, so a person who
 walks into space that was free is an obstacle in the next update (a sticky
-map would be stale data, R27). ``update(..., accumulate=True)`` keeps every
-voxel that was free since the last :meth:`reset` ("once free stays free"),
-meant for a static scene seen by cameras delivering frames at different
-times; it is unsafe for moving obstacles.
+map would be stale data, R27). ``update(..., accumulate=True)`` keeps every voxel that was free
+since the last :meth:`reset` ("once free stays free"), meant for a static scene seen by cameras
+delivering frames at different times; it is unsafe for moving obstacles.
 
 **Voxels larger than a pixel.** The paper reads only the pixel under the
 voxel centre. A thin object (thinner than the voxel, not on the centre ray
@@ -98,8 +97,7 @@ import numpy as np
 
 from depthguard.camera import Camera, check_depth_image
 from depthguard.fusion.free_space_centre import CentrePairs
-from depthguard.fusion.free_space_kernels import combine_counts, free_space_update, robot_pixels
-from depthguard.fusion.free_space_kernels import negate_where as _negate_where
+from depthguard.fusion.free_space_kernels import combine_counts, free_space_update, negate_where as _negate_where, robot_pixels
 from depthguard.geometry.voxel_grid import VoxelGrid
 
 __all__ = ["FreeSpaceMap"]
