@@ -148,6 +148,9 @@ class CameraWorker:
         return sum(self.refusals.values())
 
     def offer(self, frame, pushed_at: float) -> None:
+        """Hand ``frame`` over (any thread). Its depth array becomes the product's as it is when
+        float32 and C-contiguous (no copy, issue 29): the caller must not write into it afterwards
+        (every source of depthguard makes a new array per frame)."""
         with self._wake:
             if self._inbox is not None:
                 self.dropped += 1
@@ -254,16 +257,13 @@ class CameraWorker:
 
     def _own_depth(self, depth: np.ndarray) -> np.ndarray:
         """The frame's depth as the product holds it: the frame's own array when it is float32 and
-        C-contiguous (no copy; made read-only, so that a source that wrote into an array it handed
-        over would fail loudly instead of changing a frame in use), else converted into a pooled
-        float32 buffer."""
+        C-contiguous (no copy: a source hands a frame's array over and never writes into it again,
+        :meth:`offer`), else converted into a pooled float32 buffer. (Not made read-only: numba
+        compiles a read-only array as another type, every kernel that reads the frame twice.)"""
         if depth.dtype == np.float32 and depth.flags.c_contiguous:
-            if depth.flags.writeable:
-                depth.flags.writeable = False
             return depth
         d = self._depth_pool.take(self._rd_layout)[0]
         np.copyto(d, depth, casting="unsafe")    # float32 as np.array(depth, dtype=np.float32) rounds
-        d.flags.writeable = False
         return d
 
     def _maker(self):
