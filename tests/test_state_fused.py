@@ -34,6 +34,12 @@ def _images(rng, H, W, dtype):
     depth[rng.random((H, W)) < 0.01] = np.inf
     depth[rng.random((H, W)) < 0.01] = rng.uniform(8.0, 14.0)   # beyond the rated range (and beyond its limit)
     depth[rng.random((H, W)) < 0.01] = 0.1                       # nearer than min_range
+    # a far wall past the rated range (6 m; flacco-cell's room past a Kinect's 4 m): a band of rows
+    # returning beyond it, some beyond its limit (3 x 6 m), with holes; values at both limits
+    band = depth[H // 2:H // 2 + H // 5]
+    band[...] = rng.uniform(6.0, 19.0, band.shape)
+    band[rng.random(band.shape) < 0.05] = 0.0
+    band[0, :4] = (6.0, 18.0, np.nextafter(18.0, 19.0), np.nextafter(6.0, 7.0))
     robot = np.zeros((H, W))
     v0, u0 = H // 4, W // 3
     robot[v0:v0 + H // 3, u0:u0 + W // 4] = rng.uniform(0.5, 6.0, (H // 3, W // 4))

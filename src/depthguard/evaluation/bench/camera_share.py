@@ -25,10 +25,11 @@ monitor's fusion worker does.
 * ``share.worker_cpu_ms.<cell>`` — the whole camera worker per frame
   (:class:`~depthguard.runtime.ingest.CameraWorker` on its own thread, as in the monitor: the
   checks, the drift statistic, the joints at capture, the robot rendered, the state), CPU of that
-  thread (its ``pthread`` clock), median over every camera's frames. Peer: the same worker with
-  a pool that never reuses a set (new arrays per frame, the worker before issue 29's pool; on a
-  thread of its own they fault in their pages: about 620 per frame of a camera other than the
-  principal), frame by frame alternated with it. Linux (a thread's CPU clock); absent elsewhere.
+  thread (its ``pthread`` clock), median over every camera's frames. Peer: the worker before
+  issue 29's pool — new arrays per frame and the frame's depth copied (on a thread of its own,
+  5 MB allocated and freed per frame: glibc gives the heap back and faults it in again, about
+  620 pages per frame of a camera other than the principal) —, frame by frame alternated with
+  it, each first every other frame. Linux (a thread's CPU clock); absent elsewhere.
 """
 
 from __future__ import annotations
@@ -110,6 +111,10 @@ def _worker_cpu(cell, frames) -> tuple[list[float], list[float]]:
         def _unheld(arrays) -> bool:
             return False
 
+    class _Before(CameraWorker):              # and the frame's depth copied, as before the pool
+        def _own_depth(self, depth):
+            return np.array(depth, dtype=np.float32, copy=True)
+
     rig, cfg = cell.rig, cell.rig.monitor
     joints = JointHistory(rig.robot.dof, span_s=10.0)
     for t in np.arange(frames[0][0] - 0.1, frames[-1][0] + 0.01, 0.002):
@@ -119,16 +124,16 @@ def _worker_cpu(cell, frames) -> tuple[list[float], list[float]]:
     workers = {}
     for mode in ("pool", "fresh"):
         for cam in rig.cameras:
-            w = CameraWorker(cam, rig.robot, static, joints, 0.0, lambda _c: None, drift=drift,
-                             name=f"bench-{mode}-{cam.id}")
+            w = (CameraWorker if mode == "pool" else _Before)(cam, rig.robot, static, joints, 0.0, lambda _c: None,
+                                                              drift=drift, name=f"bench-{mode}-{cam.id}")
             if mode == "fresh":
                 w.pool = _Fresh(cap=1)
             workers[mode, cam.id] = w
     out: dict[str, list[float]] = {"pool": [], "fresh": []}
     seen: set = set()
     try:
-        for t, cid, depth, role in frames:
-            for mode in ("pool", "fresh"):
+        for k, (t, cid, depth, role) in enumerate(frames):
+            for mode in (("pool", "fresh") if k % 2 else ("fresh", "pool")):   # the second reads a warm frame
                 w = workers[mode, cid]
                 w.state_options = (lambda r=role: r)
                 clock = time.pthread_getcpuclockid(w._thread.ident)
@@ -223,7 +228,7 @@ def bench_share(ctx: BenchContext) -> list[BenchRow]:
                 again = [(t + r * span, *rest) for r in range(1 if ctx.quick else 2) for t, *rest in worker_frames]
                 pooled, fresh = _worker_cpu(cell, again)
                 rows.append(BenchRow(f"share.worker_cpu_ms.{name}", 1e3 * float(np.median(pooled)), "ms",
-                                     peer="the same worker with new arrays per frame (before its buffer pool)",
+                                     peer="the worker with new arrays per frame and the depth copied (before its pool)",
                                      peer_value=1e3 * float(np.median(fresh)),
                                      note=f"the whole camera worker per frame on its own thread (checks, drift, "
                                           f"joints, robot rendered, state), CPU of that thread, median over "
