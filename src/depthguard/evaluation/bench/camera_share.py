@@ -130,6 +130,7 @@ def _worker_cpu(cell, frames) -> tuple[list[float], list[float]]:
                 w.pool = _Fresh(cap=1)
             workers[mode, cam.id] = w
     out: dict[str, list[float]] = {"pool": [], "fresh": []}
+    faults: dict[str, list[int]] = {"pool": [], "fresh": []}
     seen: set = set()
     try:
         for k, (t, cid, depth, role) in enumerate(frames):
@@ -137,19 +138,30 @@ def _worker_cpu(cell, frames) -> tuple[list[float], list[float]]:
                 w = workers[mode, cid]
                 w.state_options = (lambda r=role: r)
                 clock = time.pthread_getcpuclockid(w._thread.ident)
+                f0 = _minor_faults(w._thread.native_id)
                 c0 = time.clock_gettime(clock)
                 w.offer(Frame(cid, depth, t), time.perf_counter())
                 while not w.idle():
                     time.sleep(0.0002)
                 if (mode, cid) in seen:            # each worker's first frame: compiled, pages touched
                     out[mode].append(time.clock_gettime(clock) - c0)
+                    faults[mode].append(_minor_faults(w._thread.native_id) - f0)
                 seen.add((mode, cid))
                 if w.refused:
                     raise RuntimeError(f"bench share: {w.last_refusal}")
     finally:
         for w in workers.values():
             w.close()
-    return out["pool"], out["fresh"]
+    return out["pool"], out["fresh"], float(np.median(faults["pool"])), float(np.median(faults["fresh"]))
+
+
+def _minor_faults(tid: int) -> int:
+    """Minor page faults of thread ``tid`` so far (Linux ``/proc``; 0 where unreadable)."""
+    try:
+        with open(f"/proc/self/task/{tid}/stat") as f:
+            return int(f.read().rsplit(")", 1)[1].split()[7])
+    except (OSError, ValueError, IndexError):
+        return 0
 
 
 def _builds(grid, cell, frames, with_states: bool, unchanged: bool = False) -> float:
@@ -226,13 +238,14 @@ def bench_share(ctx: BenchContext) -> list[BenchRow]:
             if hasattr(time, "pthread_getcpuclockid"):
                 span = worker_frames[-1][0] - worker_frames[0][0] + 1.0 / 30.0
                 again = [(t + r * span, *rest) for r in range(1 if ctx.quick else 2) for t, *rest in worker_frames]
-                pooled, fresh = _worker_cpu(cell, again)
+                pooled, fresh, f_pool, f_fresh = _worker_cpu(cell, again)
                 rows.append(BenchRow(f"share.worker_cpu_ms.{name}", 1e3 * float(np.median(pooled)), "ms",
                                      peer="the worker with new arrays per frame and the depth copied (before its pool)",
                                      peer_value=1e3 * float(np.median(fresh)),
                                      note=f"the whole camera worker per frame on its own thread (checks, drift, "
                                           f"joints, robot rendered, state), CPU of that thread, median over "
                                           f"{len(pooled)} frames of {len(cams)} cameras alternated with the peer; "
+                                          f"page faults per frame (median) {f_pool:.0f}, peer {f_fresh:.0f}; "
                                           f"goal: near the sum of its kernels (render + state)"))
     finally:
         numba.set_num_threads(previous)
