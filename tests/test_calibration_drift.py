@@ -15,7 +15,7 @@ from depthguard.sources.sim_source import sim_world
 
 from depthguard.calibration.refine import so3_exp
 from depthguard.filtering.expected import ExpectedDepth
-from depthguard.runtime.drift import DriftWatch
+from depthguard.runtime.drift import MIN_JUDGED, DriftWatch
 from depthguard.runtime.monitor import Monitor, warm_up
 from depthguard.sim import load_cell
 from depthguard.sources import SimulatedCamera
@@ -153,6 +153,41 @@ def test_drift_statistic_two_degrees_flagged_a_fifth_not_about_each_axis(cell_na
                     assert np.all(shares < dw.share_limit / 2), (cam.id, axis, shares)
                 else:
                     assert np.all(shares > dw.share_limit), (cam.id, axis, shares)
+
+
+@pytest.mark.parametrize("dtype", [np.float32, np.float64])
+def test_drift_counts_equal_numpy_twin_at_the_limits(dtype):
+    """The worker's compiled drift statistic counts what the plain-numpy twin counts, on frames
+    with samples exactly at and one float step around both limits (float32 limits against a
+    float32 or float64 frame), NaN, +-inf, zeros, and a frame too occluded to judge (nan)."""
+    rig = load_cell("flacco-cell").rig
+    cam = rig.cameras[0]
+    static = ExpectedDepth(cam, None, rig.static_meshes()).static
+    dw = DriftWatch(cam, static)
+    rng = np.random.default_rng(3)
+    idx, S = dw.index, dw.index.size
+    assert S > 1000
+    for trial in range(5):
+        d = static.astype(np.float64) + rng.normal(0.0, 0.01, static.shape)
+        flat = d.reshape(-1)
+        pick = rng.permutation(S)
+        k = S // 12
+        flat[idx[pick[:k]]] = dw.far_limit[pick[:k]]                                        # at: not far
+        flat[idx[pick[k:2 * k]]] = np.nextafter(dw.far_limit[pick[k:2 * k]], np.float32(np.inf))  # far
+        flat[idx[pick[2 * k:3 * k]]] = dw.near_limit[pick[2 * k:3 * k]]                     # at: seen
+        flat[idx[pick[3 * k:4 * k]]] = np.nextafter(dw.near_limit[pick[3 * k:4 * k]], np.float32(0))  # occluded
+        flat[idx[pick[4 * k:4 * k + 50]]] = np.nan
+        flat[idx[pick[4 * k + 50:4 * k + 100]]] = np.inf
+        flat[idx[pick[4 * k + 100:4 * k + 150]]] = -np.inf
+        flat[idx[pick[4 * k + 150:4 * k + 200]]] = 0.0
+        if trial == 4:
+            flat[idx[pick[MIN_JUDGED // 2:]]] = 0.1                              # all but a few occluded
+        d = d.astype(dtype)
+        got, want = dw.statistic(d), dw.statistic_numpy(d)
+        assert got[1] == want[1] and (got[0] == want[0] or (got[0] != got[0] and want[0] != want[0])), (got, want)
+        assert (got[0] != got[0]) == (trial == 4)
+        if trial < 4:                    # the limits' samples counted as the module docstring says
+            assert 0 < got[0] < 1
 
 
 def test_no_frame_of_the_scene_of_people_moving_comes_near_the_drift_threshold(cell):

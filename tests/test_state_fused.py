@@ -34,6 +34,12 @@ def _images(rng, H, W, dtype):
     depth[rng.random((H, W)) < 0.01] = np.inf
     depth[rng.random((H, W)) < 0.01] = rng.uniform(8.0, 14.0)   # beyond the rated range (and beyond its limit)
     depth[rng.random((H, W)) < 0.01] = 0.1                       # nearer than min_range
+    # a far wall past the rated range (6 m; flacco-cell's room past a Kinect's 4 m): a band of rows
+    # returning beyond it, some beyond its limit (3 x 6 m), with holes; values at both limits
+    band = depth[H // 2:H // 2 + H // 5]
+    band[...] = rng.uniform(6.0, 19.0, band.shape)
+    band[rng.random(band.shape) < 0.05] = 0.0
+    band[0, :4] = (6.0, 18.0, np.nextafter(18.0, 19.0), np.nextafter(6.0, 7.0))
     robot = np.zeros((H, W))
     v0, u0 = H // 4, W // 3
     robot[v0:v0 + H // 3, u0:u0 + W // 4] = rng.uniform(0.5, 6.0, (H // 3, W // 4))
@@ -110,29 +116,32 @@ def test_fused_state_in_a_wider_buffer_and_robot_free_everywhere():
             assert (f1[hb:, :] == -7.0).all() and (f1[:, wb:] == -7.0).all() and (f1[:hb, :wb] != -7.0).all()
 
 
-@pytest.mark.parametrize("dtype", [np.float32, np.float64])
-def test_units_counts_equal_numpy_twin_at_the_limits(dtype):
+@pytest.mark.parametrize("dtype,shape", [(np.float32, (48, 64)), (np.float64, (48, 64)), (np.float32, (45, 61))])
+def test_units_counts_equal_numpy_twin_at_the_limits(dtype, shape):
     """The worker's units check counts in one compiled loop what numpy counted on the sample
     (every 4th pixel), including pixels exactly at and one float step around both limits (numpy
     compares a float32 image with the limit rounded to float32), NaN, inf and negative values."""
     from depthguard.camera import RETURN_LIMIT_FACTOR
     from depthguard.depth_io import NEAR_LIMIT_M, _units_counts, _units_counts_numpy, depth_units_problem
 
-    cam = dg.Camera(id="c", width=64, height=48, fx=50.0, fy=50.0, cx=31.5, cy=23.5, min_range=0.3,
+    H, W = shape                  # (45, 61): the sample's last row and column on the image's edge
+    cam = dg.Camera(id="c", width=W, height=H, fx=50.0, fy=50.0, cx=31.5, cy=23.5, min_range=0.3,
                     max_range=8.0)
+    sample = (-(-H // 4), -(-W // 4))
     far, near = RETURN_LIMIT_FACTOR * 8.0, min(0.3, NEAR_LIMIT_M)
     rng = np.random.default_rng(5)
     for share_far in (0.0, 0.3, 0.7):
-        d = rng.uniform(0.5, 7.0, (48, 64))
+        d = rng.uniform(0.5, 7.0, (H, W))
         d[rng.random(d.shape) < share_far] = 1000.0                # millimetres read as metres
         edge = []
         for lim in (far, near):
             x = dtype(lim)
             edge += [x, np.nextafter(x, dtype(0)), np.nextafter(x, dtype(np.inf)), lim]
         d[::4, ::4].flat[:len(edge)] = edge              # in the sample
-        d[::4, ::4][rng.random((12, 16)) < 0.1] = np.nan
-        d[::4, ::4][rng.random((12, 16)) < 0.05] = np.inf
-        d[::4, ::4][rng.random((12, 16)) < 0.05] = -1.0
+        d[::4, ::4][rng.random(sample) < 0.1] = np.nan
+        d[::4, ::4][rng.random(sample) < 0.05] = np.inf
+        d[::4, ::4][rng.random(sample) < 0.05] = -1.0
+        d[-1, -1] = 1000.0 if (H - 1) % 4 == 0 and (W - 1) % 4 == 0 else d[-1, -1]   # the last sampled pixel
         d = d.astype(dtype)
         got = _units_counts(d, 4, dtype(far), dtype(near))
         want = _units_counts_numpy(d[::4, ::4], far, near)

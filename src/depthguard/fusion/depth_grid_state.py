@@ -256,29 +256,54 @@ class StateMaker:
         self.camera = cam
         self._silhouette = SilhouetteBuffers(cam.shape)
         self._gaps = GapBuffers(cam.shape)
+        self._pyr = None                   # pyramid_layout of the camera, made once
+
+    def layout(self, pyramids: bool = False, bin: int = 1) -> tuple:
+        """``((shape, dtype), ...)`` of the arrays :meth:`make` writes with these arguments:
+        ``free`` float64 and ``kind`` int8 at the camera's pixel (or, ``bin > 1``, the binned
+        one), then with ``pyramids`` the flat ``pmin`` and ``pmax`` float64
+        (:func:`pyramid_layout`) — the ``out`` a caller that reuses buffers passes in."""
+        cam = self.camera
+        b = max(int(bin), 1)
+        shape = (-(-cam.height // b), -(-cam.width // b)) if b > 1 else tuple(cam.shape)
+        out = ((shape, np.float64), (shape, np.int8))
+        if pyramids and b == 1:
+            size = pyramid_layout(cam.height, cam.width, pyramid_levels(cam.height, cam.width))[2]
+            out += (((size,), np.float64), ((size,), np.float64))
+        return out
 
     def make(self, depth, robot_depth, options: StateOptions, robot_free: bool = False,
-             pyramids: bool = False, bin: int = 1) -> CameraState:
+             pyramids: bool = False, bin: int = 1, out=None) -> CameraState:
         """The state of one frame, in new arrays (the grid copies them in; the frame's product
-        holds them); with ``pyramids`` (a camera other than the principal) its min / max
-        pyramids too; with ``bin > 1`` (the principal of a grid with ``principal_bin``) at
-        the binned pixel (:func:`bin_state`; no pyramids)."""
+        holds them) or in ``out`` (arrays of :meth:`layout`, e.g. from the worker's
+        :class:`~depthguard.runtime.frame_pool.BufferPool`: every element is written); with
+        ``pyramids`` (a camera other than the principal) its min / max pyramids too; with
+        ``bin > 1`` (the principal of a grid with ``principal_bin``) at the binned pixel
+        (:func:`bin_state`; no pyramids)."""
         cam = self.camera
-        b = int(bin)
+        b = max(int(bin), 1)
+        if out is None:
+            out = [np.empty(shape, dtype=dt) for shape, dt in self.layout(pyramids, b)]
+        else:
+            want = self.layout(pyramids, b)
+            if len(out) != len(want) or any(a.shape != shape or a.dtype != dt or not a.flags.c_contiguous
+                                             for a, (shape, dt) in zip(out, want)):
+                raise ValueError(f"out must be C-contiguous arrays of {want}")
+        free, kind = out[0], out[1]
         if b > 1:
-            shape = (-(-cam.height // b), -(-cam.width // b))
-            free = np.empty(shape, dtype=np.float64)
-            kind = np.empty(shape, dtype=np.int8)
             state_into(cam, depth, robot_depth, options, robot_free, self._silhouette, self._gaps, free, kind, b)
             return CameraState(free, kind, options, bool(robot_free), bin=b)
-        free = np.empty(cam.shape, dtype=np.float64)
-        kind = np.empty(cam.shape, dtype=np.int8)
         state_into(cam, depth, robot_depth, options, robot_free, self._silhouette, self._gaps, free, kind)
         if not pyramids:
             return CameraState(free, kind, options, bool(robot_free))
         levels = pyramid_levels(cam.height, cam.width)
-        offs, dims, size = pyramid_layout(cam.height, cam.width, levels)
-        pmin = np.empty(size)
-        pmax = np.empty(size)
+        offs, dims, _size = self._pyramid_layout()
+        pmin, pmax = out[2], out[3]
         build_pyramids(free, cam.height, cam.width, pmin, pmax, offs, dims)
         return CameraState(free, kind, options, bool(robot_free), pmin, pmax, levels)
+
+    def _pyramid_layout(self):
+        if self._pyr is None:
+            cam = self.camera
+            self._pyr = pyramid_layout(cam.height, cam.width, pyramid_levels(cam.height, cam.width))
+        return self._pyr

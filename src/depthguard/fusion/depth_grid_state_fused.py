@@ -134,19 +134,27 @@ _CHUNK = 64
 
 
 @njit(cache=True, nogil=True, inline="always")
-def _measured(m, dr, use_robot, min_range, max_range, robot_offset, robot_free):
-    """``(free depth, kind, measured)`` of a pixel measured ``m`` with robot depth ``dr`` (m) by
-    the rule of a measured pixel (:func:`_fused_pixel`'s last lines), and whether it is one
-    (``measured``; where it is not, the first two are meaningless). Branch-free."""
+def _measured(m, dr, use_robot, min_range, max_range, robot_offset, robot_free, beyond_free, limit):
+    """``(free depth, kind, ruled)`` of a pixel measured ``m`` with robot depth ``dr`` (m) by the
+    rule of :func:`_fused_pixel` for the pixels it decides without looking around: a measured
+    pixel (its last lines) and a return beyond the rated range up to ``limit`` (m,
+    ``RETURN_LIMIT_FACTOR * max_range``: free up to ``beyond_free`` — ``max_range``, or inf with
+    ``invalid="free"`` —, unknown behind); ``ruled`` False for the other pixels (no return,
+    nearer than ``min_range``, beyond ``limit``), where the first two are meaningless.
+    Branch-free."""
     ok = (m == m) & (m > 0.0) & (m >= min_range) & (m <= max_range)
+    beyond = (m > max_range) & (m <= limit)
     r = use_robot & (dr > 0.0) & (m >= dr - robot_offset)
     f = (np.inf if robot_free else dr) if r else m
     k = np.int8(KIND_ROBOT) if r else np.int8(KIND_SURFACE)
-    return f, k, ok
+    f = f if ok else beyond_free
+    k = k if ok else np.int8(KIND_UNKNOWN)
+    return f, k, ok | beyond
 
 
 @njit(cache=True, nogil=True, inline="always")
-def _valid_row(drow, rrow, use_robot, min_range, max_range, robot_offset, robot_free, frow, krow):
+def _valid_row(drow, rrow, use_robot, min_range, max_range, robot_offset, robot_free, beyond_free, limit, frow,
+               krow):
     """The state of the pixels of a row's piece (views ``drow``, ``rrow`` in, ``frow``, ``krow``
     out, indexed from 0 so that LLVM vectorises the loop; ``rrow`` is read whatever ``use_robot``:
     a branch there stops the vectoriser), each taken as measured; ``(first, last)``: the first and
@@ -156,7 +164,8 @@ def _valid_row(drow, rrow, use_robot, min_range, max_range, robot_offset, robot_
     last = np.int32(-1)
     for u in range(n):
         dr = np.float64(rrow[u])
-        f, k, ok = _measured(np.float64(drow[u]), dr, use_robot, min_range, max_range, robot_offset, robot_free)
+        f, k, ok = _measured(np.float64(drow[u]), dr, use_robot, min_range, max_range, robot_offset, robot_free,
+                             beyond_free, limit)
         frow[u] = f
         krow[u] = k
         uu = np.int32(u)
@@ -166,7 +175,8 @@ def _valid_row(drow, rrow, use_robot, min_range, max_range, robot_offset, robot_
 
 
 @njit(cache=True, nogil=True, inline="always")
-def _valid_row_pairs(d0, d1, r0, r1, use_robot, min_range, max_range, robot_offset, robot_free, frow, krow):
+def _valid_row_pairs(d0, d1, r0, r1, use_robot, min_range, max_range, robot_offset, robot_free, beyond_free, limit,
+                     frow, krow):
     """The 2 x 2 binned state (the block rule of :func:`bin_state`) of a piece of two rows (views
     ``d0``, ``d1``, ``r0``, ``r1`` of twice the length of ``frow``, ``krow``), each pixel taken
     as measured; ``(first, last)``: the first and last block with a pixel that is not (``n, -1``
@@ -179,12 +189,14 @@ def _valid_row_pairs(d0, d1, r0, r1, use_robot, min_range, max_range, robot_offs
         a1 = np.float64(r0[2 * i + 1])
         a2 = np.float64(r1[2 * i])
         a3 = np.float64(r1[2 * i + 1])
-        f0, k0, ok0 = _measured(np.float64(d0[2 * i]), a0, use_robot, min_range, max_range, robot_offset, robot_free)
+        f0, k0, ok0 = _measured(np.float64(d0[2 * i]), a0, use_robot, min_range, max_range, robot_offset, robot_free,
+                                beyond_free, limit)
         f1, k1, ok1 = _measured(np.float64(d0[2 * i + 1]), a1, use_robot, min_range, max_range, robot_offset,
-                                robot_free)
-        f2, k2, ok2 = _measured(np.float64(d1[2 * i]), a2, use_robot, min_range, max_range, robot_offset, robot_free)
+                                robot_free, beyond_free, limit)
+        f2, k2, ok2 = _measured(np.float64(d1[2 * i]), a2, use_robot, min_range, max_range, robot_offset, robot_free,
+                                beyond_free, limit)
         f3, k3, ok3 = _measured(np.float64(d1[2 * i + 1]), a3, use_robot, min_range, max_range, robot_offset,
-                                robot_free)
+                                robot_free, beyond_free, limit)
         # the block's smallest (free, kind), pairwise: the same as bin_state's pixel-by-pixel order,
         # since a measured pixel's free depth is never NaN (the order of a min does not matter)
         fa, ka = _lexmin(f0, k0, f1, k1)
@@ -224,6 +236,8 @@ def frame_state_fused(depth, robot_depth, use_robot, min_range, max_range, robot
     written. No allocation.
     """
     H, W = depth.shape
+    limit = RETURN_LIMIT_FACTOR * max_range    # a return beyond the rated range up to this: no look around
+    beyond_free = np.inf if invalid_free else np.float64(max_range)
     v0 = H
     v1 = -1
     ga = 0
@@ -244,11 +258,12 @@ def frame_state_fused(depth, robot_depth, use_robot, min_range, max_range, robot
             for u0 in range(0, W, _CHUNK):
                 u1 = min(u0 + _CHUNK, W)
                 first, last = _valid_row(depth[v, u0:u1], robot_depth[v, u0:u1] if use_robot else depth[v, u0:u1],
-                                         use_robot, min_range, max_range, robot_offset, robot_free,
-                                         out_free[v, u0:u1], out_kind[v, u0:u1])
+                                         use_robot, min_range, max_range, robot_offset, robot_free, beyond_free,
+                                         limit, out_free[v, u0:u1], out_kind[v, u0:u1])
                 for u in range(u0 + first, u0 + last + 1):
                     m = np.float64(depth[v, u])
-                    if not ((m == m) and m > 0.0 and m >= min_range and m <= max_range):
+                    if not (((m == m) and m > 0.0 and m >= min_range and m <= max_range) or
+                            (m > max_range and m <= limit)):
                         f, k = _fused_pixel(depth, robot_depth, use_robot, min_range, max_range, robot_offset,
                                             invalid_free, robot_free, tmp, v0, v1, ga, gb, ua, ub, n_sil, n_gap,
                                             v, u)
@@ -264,13 +279,14 @@ def frame_state_fused(depth, robot_depth, use_robot, min_range, max_range, robot
                 rr = robot_depth if use_robot else depth
                 first, last = _valid_row_pairs(depth[2 * j, 2 * i0:2 * i1], depth[2 * j + 1, 2 * i0:2 * i1],
                                                rr[2 * j, 2 * i0:2 * i1], rr[2 * j + 1, 2 * i0:2 * i1], use_robot,
-                                               min_range, max_range, robot_offset, robot_free, out_free[j, i0:i1],
-                                               out_kind[j, i0:i1])
+                                               min_range, max_range, robot_offset, robot_free, beyond_free, limit,
+                                               out_free[j, i0:i1], out_kind[j, i0:i1])
                 for i in range(i0 + first, i0 + last + 1):   # blocks with an invalid pixel: by the whole rule
                     inv = False
                     for c in range(4):
                         m = np.float64(depth[2 * j + (c >> 1), 2 * i + (c & 1)])
-                        inv |= not ((m == m) and m > 0.0 and m >= min_range and m <= max_range)
+                        inv |= not (((m == m) and m > 0.0 and m >= min_range and m <= max_range) or
+                                    (m > max_range and m <= limit))
                     if not inv:
                         continue
                     m, k = _fused_pixel(depth, robot_depth, use_robot, min_range, max_range, robot_offset,

@@ -36,6 +36,7 @@ import threading
 from collections import deque
 
 import numpy as np
+from numba import njit
 
 from depthguard.calibration.residuals import depth_sigma_of, edge_mask
 
@@ -102,15 +103,31 @@ class DriftWatch:
 
     def statistic(self, depth: np.ndarray) -> tuple[float, int]:
         """``(share farther than expected, judged samples)`` of one (H, W) frame (module docstring);
-        ``(nan, n)`` when fewer than :data:`MIN_JUDGED` samples can be judged."""
-        m = np.asarray(depth).ravel()[self.index]
+        ``(nan, n)`` when fewer than :data:`MIN_JUDGED` samples can be judged. One compiled loop
+        over the samples (:func:`_drift_counts`; nothing allocated for a C-contiguous float
+        frame), the same counts as :meth:`statistic_numpy`."""
+        d = np.asarray(depth)
+        if d.dtype in (np.float32, np.float64) and d.flags.c_contiguous:
+            far, n = _drift_counts(d.reshape(-1), self.index, self.near_limit, self.far_limit)
+        else:
+            far, n = self._counts_numpy(d)
+        if n < MIN_JUDGED:
+            return float("nan"), int(n)
+        return float(far) / n, int(n)
+
+    def statistic_numpy(self, depth: np.ndarray) -> tuple[float, int]:
+        """The plain-numpy twin of :meth:`statistic`."""
+        far, n = self._counts_numpy(np.asarray(depth))
+        if n < MIN_JUDGED:
+            return float("nan"), n
+        return float(far) / n, n
+
+    def _counts_numpy(self, depth: np.ndarray) -> tuple[int, int]:
+        m = depth.ravel()[self.index]
         with np.errstate(invalid="ignore"):
             far = m > self.far_limit
             seen = (m >= self.near_limit) & np.isfinite(m)      # valid and not occluded
-        n = int(seen.sum())
-        if n < MIN_JUDGED:
-            return float("nan"), n
-        return float(far.sum()) / n, n
+        return int(far.sum()), int(seen.sum())
 
     def update(self, depth: np.ndarray, stamp: float) -> bool:
         """Judge one frame; True when this frame flagged the camera."""
@@ -148,3 +165,19 @@ class DriftWatch:
             self.message = ""
             self._run = 0
             self.flagged_at = float("nan")
+
+
+@njit(cache=True, nogil=True)
+def _drift_counts(flat, index, near_limit, far_limit):
+    """``(far, seen)`` of :meth:`DriftWatch.statistic` over the samples ``index`` (S,) int64 of the
+    frame ``flat`` (H * W,) m: ``far`` the samples measured beyond ``far_limit`` (S,) float32 m
+    (+inf included, as numpy counts it), ``seen`` those at or beyond ``near_limit`` (S,) and
+    finite (valid and not occluded; a NaN fails the compare). Compared in float32 as numpy
+    compares a float32 frame with the float32 limits (a float64 frame: in float64)."""
+    far = 0
+    seen = 0
+    for i in range(index.shape[0]):
+        m = flat[index[i]]
+        far += m > far_limit[i]
+        seen += (m >= near_limit[i]) & (m != np.inf)
+    return far, seen

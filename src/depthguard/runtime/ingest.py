@@ -43,6 +43,7 @@ import numpy as np
 from depthguard.camera import check_depth_image
 from depthguard.filtering.expected import ExpectedDepth
 from depthguard.runtime.drift import DriftWatch
+from depthguard.runtime.frame_pool import BufferPool
 from depthguard.robot.joint_history import JointHistory, OutsideHistory
 from depthguard.robot.volume import robot_volume
 
@@ -104,6 +105,10 @@ class CameraWorker:
         # pyramids, bin) or None (no state made here; the build works it out)
         self.state_options = state_options
         self._state_maker = None
+        # issue 29: the frame's arrays (robot depth, state) reused once nothing refers to them
+        self.pool = BufferPool()
+        self._depth_pool = BufferPool(cap=3)      # a depth that is not float32 C-contiguous, converted
+        self._rd_layout = ((tuple(cam.shape), np.float32),)
         self.id = cam.id
         # the known static scene: the CAD and the learned scene (issue 31: a LearnedScene or None), nearer wins
         self.expected = ExpectedDepth(cam, robot, static_meshes,
@@ -143,6 +148,9 @@ class CameraWorker:
         return sum(self.refusals.values())
 
     def offer(self, frame, pushed_at: float) -> None:
+        """Hand ``frame`` over (any thread). Its depth array becomes the product's as it is when
+        float32 and C-contiguous (no copy, issue 29): the caller must not write into it afterwards
+        (every source of depthguard makes a new array per frame)."""
         with self._wake:
             if self._inbox is not None:
                 self.dropped += 1
@@ -216,7 +224,10 @@ class CameraWorker:
             self._refuse("out_of_order", f"frame at {stamp:.6f} s is not newer than the frame in use "
                                          f"({newest:.6f} s)")
             return
-        rd = np.array(self.expected.robot(q), copy=True)
+        wanted = self.state_options() if self.state_options is not None else None
+        bufs = self._buffers(wanted)
+        rd = bufs[0]
+        np.copyto(rd, self.expected.robot(q))     # the renderer's buffer is overwritten by its next call
         if self.scene_change is not None:
             self.scene_change.update(depth, rd, stamp)
         if self.ssm_muted is not None:            # R17's filter: the known scene and the robot removed
@@ -226,8 +237,8 @@ class CameraWorker:
             nearest_depth(self._known, rd)
             vs = vfilter.filter(depth, expected=self._known)
             push(self.id, vs.centres(), vs.voxel_size, stamp)
-        d = np.array(depth, dtype=np.float32, copy=True)
-        state = self._state(d, rd)
+        d = self._own_depth(depth)
+        state = self._state(d, rd, wanted, bufs[1:])
         with self.lock:
             self._version += 1
             self.product = CameraProduct(d, rd, stamp, q, pushed_at, self._version, state)
@@ -235,19 +246,42 @@ class CameraWorker:
         self.on_product(self.id)
 
 
-    def _state(self, depth, robot_depth):
+    def _buffers(self, wanted) -> list:
+        """This frame's arrays from the worker's pool (:mod:`depthguard.runtime.frame_pool`): the
+        robot depth (H, W) float32, then the state's (:meth:`StateMaker.layout
+        <depthguard.fusion.depth_grid_state.StateMaker.layout>`) when ``wanted``."""
+        layout = self._rd_layout
+        if wanted is not None:
+            layout = layout + self._maker().layout(wanted[2], wanted[3])
+        return self.pool.take(layout)
+
+    def _own_depth(self, depth: np.ndarray) -> np.ndarray:
+        """The frame's depth as the product holds it: the frame's own array when it is float32 and
+        C-contiguous (no copy: a source hands a frame's array over and never writes into it again,
+        :meth:`offer`), else converted into a pooled float32 buffer. (Not made read-only: numba
+        compiles a read-only array as another type, every kernel that reads the frame twice.)"""
+        if depth.dtype == np.float32 and depth.flags.c_contiguous:
+            return depth
+        d = self._depth_pool.take(self._rd_layout)[0]
+        np.copyto(d, depth, casting="unsafe")    # float32 as np.array(depth, dtype=np.float32) rounds
+        return d
+
+    def _maker(self):
+        if self._state_maker is None:
+            from depthguard.fusion.depth_grid_state import StateMaker
+
+            self._state_maker = StateMaker(self.camera)
+        return self._state_maker
+
+    def _state(self, depth, robot_depth, wanted, out=None):
         """The frame's per-pixel state for the depth grid, made here on the camera's thread rather
         than in the fusion's build (R36: the camera's share, in parallel with the other cameras'
-        fusion); None where the monitor asks for none."""
-        wanted = self.state_options() if self.state_options is not None else None
+        fusion), into ``out`` (pooled arrays of the maker's layout; None: new ones); None where
+        the monitor asks for none (``wanted`` None)."""
         if wanted is None:
             return None
-        from depthguard.fusion.depth_grid_state import StateMaker
-
-        if self._state_maker is None:
-            self._state_maker = StateMaker(self.camera)
         options, robot_free, pyramids, bin_px = wanted
-        return self._state_maker.make(depth, robot_depth, options, robot_free, pyramids, bin_px)
+        return self._maker().make(depth, robot_depth, options, robot_free, pyramids, bin_px, out=out or None)
 
 
 @dataclass

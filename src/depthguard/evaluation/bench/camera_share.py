@@ -22,6 +22,14 @@ monitor's fusion worker does.
   they cost the worker several ms of page faults). Peer: the same state made by the unfused
   passes (:func:`~depthguard.fusion.depth_grid_state.state_into_unfused`), frame by frame
   alternated with it.
+* ``share.worker_cpu_ms.<cell>`` — the whole camera worker per frame
+  (:class:`~depthguard.runtime.ingest.CameraWorker` on its own thread, as in the monitor: the
+  checks, the drift statistic, the joints at capture, the robot rendered, the state), CPU of that
+  thread (its ``pthread`` clock), median over every camera's frames. Peer: the worker before
+  issue 29's pool — new arrays per frame and the frame's depth copied (on a thread of its own,
+  5 MB allocated and freed per frame: glibc gives the heap back and faults it in again, about
+  620 pages per frame of a camera other than the principal) —, frame by frame alternated with
+  it, each first every other frame. Linux (a thread's CPU clock); absent elsewhere.
 """
 
 from __future__ import annotations
@@ -48,7 +56,7 @@ def _frames(cell_name: str, t0: float, n: int):
     expected = {c.id: ExpectedDepth(c, rig.robot, rig.static_meshes()) for c in cams}
     makers = {c.id: StateMaker(c) for c in cams}
     options = StateOptions.of(cfg)
-    out, state_s = [], []
+    out, state_s, stamps = [], [], []
     for k in range(n):
         cam = cams[k % len(cams)]
         t = t0 + k / (30.0 * len(cams))
@@ -58,6 +66,8 @@ def _frames(cell_name: str, t0: float, n: int):
         other = cam.id != cams[0].id
         out.append((cam.id, depth, rd, q, (options, cfg.robot_in_others == "free" and other, False,
                                            1 if other else cfg.principal_bin)))
+        stamps.append(t)
+    worker_frames = [(t, cid, depth, role) for t, (cid, depth, _rd, _q, role) in zip(stamps, out)]
     for cid, depth, rd, _q, role in out:                 # compiled and buffers touched: not timed
         makers[cid].make(depth, rd, *role)
     unfused_s = []
@@ -71,7 +81,7 @@ def _frames(cell_name: str, t0: float, n: int):
         _make_unfused(makers[cid], depth, rd, *role)
         unfused_s.append(time.thread_time() - c0)
         out[i] = (cid, depth, rd, q, st)
-    return cell, out, (state_s, unfused_s)
+    return cell, out, (state_s, unfused_s), worker_frames
 
 
 def _make_unfused(maker, depth, rd, options, robot_free, _pyramids, b):
@@ -85,6 +95,73 @@ def _make_unfused(maker, depth, rd, options, robot_free, _pyramids, b):
     free, kind = np.empty(shape), np.empty(shape, dtype=np.int8)
     state_into_unfused(cam, depth, rd, options, robot_free, maker._silhouette, maker._gaps, free, kind, b)
     return free, kind
+
+
+def _worker_cpu(cell, frames) -> tuple[list[float], list[float]]:
+    """CPU seconds per frame of each camera's worker thread with its pool and with new arrays per
+    frame (module docstring, ``share.worker_cpu_ms``), alternated frame by frame; ``frames``:
+    ``(stamp, camera id, depth, state role)`` in stamp order."""
+    from depthguard.robot.joint_history import JointHistory
+    from depthguard.runtime.frame_pool import BufferPool
+    from depthguard.runtime.ingest import CameraWorker
+    from depthguard.sources.frame import Frame
+
+    class _Fresh(BufferPool):                 # never reuses a set: new arrays every frame
+        @staticmethod
+        def _unheld(arrays) -> bool:
+            return False
+
+    class _Before(CameraWorker):              # and the frame's depth copied, as before the pool
+        def _own_depth(self, depth):
+            return np.array(depth, dtype=np.float32, copy=True)
+
+    rig, cfg = cell.rig, cell.rig.monitor
+    joints = JointHistory(rig.robot.dof, span_s=10.0)
+    for t in np.arange(frames[0][0] - 0.1, frames[-1][0] + 0.01, 0.002):
+        joints.push(float(t), np.asarray(cell.scene.robot_q(float(t)), dtype=np.float64))
+    drift = dict(k_sigma=cfg.drift_sigma, share=cfg.drift_share, frames=cfg.drift_frames) if cfg.drift_watch else None
+    static = rig.static_meshes()
+    workers = {}
+    for mode in ("pool", "fresh"):
+        for cam in rig.cameras:
+            w = (CameraWorker if mode == "pool" else _Before)(cam, rig.robot, static, joints, 0.0, lambda _c: None,
+                                                              drift=drift, name=f"bench-{mode}-{cam.id}")
+            if mode == "fresh":
+                w.pool = _Fresh(cap=1)
+            workers[mode, cam.id] = w
+    out: dict[str, list[float]] = {"pool": [], "fresh": []}
+    faults: dict[str, list[int]] = {"pool": [], "fresh": []}
+    seen: set = set()
+    try:
+        for k, (t, cid, depth, role) in enumerate(frames):
+            for mode in (("pool", "fresh") if k % 2 else ("fresh", "pool")):   # the second reads a warm frame
+                w = workers[mode, cid]
+                w.state_options = (lambda r=role: r)
+                clock = time.pthread_getcpuclockid(w._thread.ident)
+                f0 = _minor_faults(w._thread.native_id)
+                c0 = time.clock_gettime(clock)
+                w.offer(Frame(cid, depth, t), time.perf_counter())
+                while not w.idle():
+                    time.sleep(0.0002)
+                if (mode, cid) in seen:            # each worker's first frame: compiled, pages touched
+                    out[mode].append(time.clock_gettime(clock) - c0)
+                    faults[mode].append(_minor_faults(w._thread.native_id) - f0)
+                seen.add((mode, cid))
+                if w.refused:
+                    raise RuntimeError(f"bench share: {w.last_refusal}")
+    finally:
+        for w in workers.values():
+            w.close()
+    return out["pool"], out["fresh"], float(np.median(faults["pool"])), float(np.median(faults["fresh"]))
+
+
+def _minor_faults(tid: int) -> int:
+    """Minor page faults of thread ``tid`` so far (Linux ``/proc``; 0 where unreadable)."""
+    try:
+        with open(f"/proc/self/task/{tid}/stat") as f:
+            return int(f.read().rsplit(")", 1)[1].split()[7])
+    except (OSError, ValueError, IndexError):
+        return 0
 
 
 def _builds(grid, cell, frames, with_states: bool, unchanged: bool = False) -> float:
@@ -127,7 +204,7 @@ def bench_share(ctx: BenchContext) -> list[BenchRow]:
     numba.set_num_threads(1)
     try:
         for name, t0 in CELLS:
-            cell, frames, state_s = _frames(name, t0, 8 if ctx.quick else 24)
+            cell, frames, state_s, worker_frames = _frames(name, t0, 8 if ctx.quick else 24)
             rig = cell.rig
             cams = list(rig.cameras)
             d_min, d_max = rig.workspace.depth_span(cams[0])
@@ -158,6 +235,18 @@ def bench_share(ctx: BenchContext) -> list[BenchRow]:
                                  note="a frame's state on its camera's worker (the fused pass, new arrays), one "
                                       "numba thread, CPU (thread_time), median over the frames alternated with "
                                       "the peer; goal: the worker's own passes <= 1.5 ms per 640x480 frame"))
+            if hasattr(time, "pthread_getcpuclockid"):
+                span = worker_frames[-1][0] - worker_frames[0][0] + 1.0 / 30.0
+                again = [(t + r * span, *rest) for r in range(1 if ctx.quick else 2) for t, *rest in worker_frames]
+                pooled, fresh, f_pool, f_fresh = _worker_cpu(cell, again)
+                rows.append(BenchRow(f"share.worker_cpu_ms.{name}", 1e3 * float(np.median(pooled)), "ms",
+                                     peer="the worker with new arrays per frame and the depth copied (before its pool)",
+                                     peer_value=1e3 * float(np.median(fresh)),
+                                     note=f"the whole camera worker per frame on its own thread (checks, drift, "
+                                          f"joints, robot rendered, state), CPU of that thread, median over "
+                                          f"{len(pooled)} frames of {len(cams)} cameras alternated with the peer; "
+                                          f"page faults per frame (median) {f_pool:.0f}, peer {f_fresh:.0f}; "
+                                          f"goal: near the sum of its kernels (render + state)"))
     finally:
         numba.set_num_threads(previous)
     return rows

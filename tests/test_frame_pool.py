@@ -1,0 +1,233 @@
+"""The camera worker's buffer pool (issue 29): a frame's arrays are reused only once nothing refers
+to them, so a depth grid that reads a principal's state in place, and a reader holding a product,
+never see it overwritten; the worker's products are those of fresh arrays, bit for bit.
+
+Truth: a second depth grid loaded with private copies of the same frames (it works the states
+out itself, shares no array with the worker), the state made into new arrays by
+:class:`~depthguard.fusion.depth_grid_state.StateMaker`, the robot rendered by a second
+:class:`~depthguard.filtering.expected.ExpectedDepth`. A pool that ignores the references (the
+test patches it so) fails the same checks: they are not vacuous.
+"""
+
+from __future__ import annotations
+
+import hashlib
+from typing import NamedTuple
+
+import numpy as np
+import pytest
+
+from depthguard.runtime.frame_pool import BufferPool
+
+LAYOUT = (((6, 5), np.float32), ((3, 3), np.float64), ((3, 3), np.int8))
+
+
+def _addr(a) -> int:
+    return a.__array_interface__["data"][0]
+
+
+class _Holder(NamedTuple):
+    free: np.ndarray
+
+
+def test_a_set_is_given_out_again_only_when_nothing_refers_to_any_of_its_arrays():
+    pool = BufferPool(cap=3)
+    first = pool.take(LAYOUT)
+    assert [a.shape for a in first] == [(6, 5), (3, 3), (3, 3)]
+    assert [a.dtype for a in first] == [np.float32, np.float64, np.int8]
+    home = [_addr(a) for a in first]
+    # each way a reader may hold one array of the set keeps the whole set out of the pool
+    holders = {"the array": lambda s: s[1], "a view": lambda s: s[0][2:, 1:], "a tuple": lambda s: _Holder(s[2]),
+               "a memoryview": lambda s: memoryview(s[1])}
+    for how, hold in holders.items():
+        held = hold(first)
+        del first
+        other = pool.take(LAYOUT)
+        assert not set(home) & {_addr(a) for a in other}, how
+        del other
+        del held                                   # released: the same memory comes back (recycled)
+        first = pool.take(LAYOUT)
+        assert [_addr(a) for a in first] == home, how
+    assert pool.made == 2 and pool.kept == 2 and pool.reused == 7
+
+
+def test_beyond_its_cap_the_pool_makes_sets_it_does_not_keep_and_a_new_layout_drops_the_kept():
+    pool = BufferPool(cap=2)
+    held = [pool.take(LAYOUT) for _ in range(4)]
+    addrs = {_addr(s[0]) for s in held}
+    assert len(addrs) == 4 and pool.made == 4 and pool.overflow == 2 and pool.kept == 2
+    del held
+    again = pool.take(LAYOUT)
+    assert pool.made == 4 and pool.reused == 1
+    del again
+    pool.take((((7, 5), np.float32),))
+    assert pool.kept == 1 and pool.made == 5
+    with pytest.raises(ValueError, match="at least one set"):
+        BufferPool(cap=0)
+
+
+# ---------------------------------------------------------------------------- the worker and the grid
+def _digest(*arrays) -> str:
+    h = hashlib.sha256()
+    for a in arrays:
+        h.update(np.ascontiguousarray(a).tobytes())
+    return h.hexdigest()
+
+
+@pytest.fixture(scope="module")
+def cell_frames():
+    """flacco-cell: noisy frames of both cameras along the robot's path (the monitor's settings)."""
+    from depthguard.sim.cells import load_cell
+    from depthguard.sources.sim_source import SimFrames, SimWorld
+
+    cell = load_cell("flacco-cell")
+    sim = SimFrames(SimWorld("flacco-cell", seed=0))
+    frames = []
+    for k in range(12):
+        t = 8.5 + k / 15.0                              # the arm moves: every frame's state differs
+        q = np.asarray(cell.scene.robot_q(t), dtype=np.float64)
+        frames.append((t, q, {c.id: sim.render(c.id, t, q).copy() for c in cell.rig.cameras}))
+    return cell, frames
+
+
+class _Driver:
+    """The monitor's camera workers and fusion build driven on the test's thread, frame by frame."""
+
+    def __init__(self, cell):
+        from depthguard.runtime.monitor import Monitor
+
+        self.rig = cell.rig
+        self.scene = cell.scene
+        self.mon = Monitor(self.rig, self.rig.monitor)
+        self.mon.fusion.close()            # builds happen when the test says (FusionWorker._build)
+        self.jt = None
+        self.kept = {}                     # (camera, version) -> private copies (depth, robot depth)
+        self._truth = {}
+
+    def frame(self, t, q, depths, cids):
+        from depthguard.sources.frame import Frame
+
+        if self.jt is None:
+            self.jt = t - 0.5
+        while self.jt <= t + 0.004:
+            self.mon.push_joints(self.jt, np.asarray(self.scene.robot_q(self.jt), dtype=np.float64))
+            self.jt += 0.002
+        for cid in cids:
+            w = self.mon._workers[cid]
+            w._process(Frame(cid, depths[cid].copy(), t), 0.0)
+            p = w.product
+            assert p is not None and p.stamp == t, w.last_refusal
+            self.kept[cid, p.version] = (p.depth.copy(), p.robot_depth.copy())
+
+    def truth(self, buf):
+        """A grid over ``buf``'s cameras loaded with private copies of the frames ``buf`` holds."""
+        from depthguard.robot.volume import robot_volume
+
+        cfg = self.mon.config
+        if buf.camera_ids not in self._truth:
+            self._truth[buf.camera_ids] = self.mon._make_grid(buf.camera_ids)
+        grid = self._truth[buf.camera_ids]         # loaded whole each time (changed=None)
+        frames = {c: self.kept[c, buf.versions[c]] for c in buf.camera_ids}
+        caps = robot_volume(self.rig.robot, [buf.q_caps[c] for c in buf.camera_ids], cfg.robot_padding)
+        grid.set_frames({c: f[0] for c, f in frames.items()}, {c: f[1] for c, f in frames.items()},
+                        robot_offset=cfg.robot_offset, robot_capsules=caps, invalid=cfg.invalid,
+                        robot_in_others=cfg.robot_in_others, silhouette_px=cfg.silhouette_px, gap_px=cfg.gap_px)
+        return grid
+
+    def same_answers(self, buf, points) -> bool:
+        cfg = self.mon.config
+        want = self.truth(buf).query(points, rho=cfg.query_rho, method=cfg.method)
+        got = buf.grid.query(points, rho=cfg.query_rho, method=cfg.method)
+        return bool(np.array_equal(got.distance, want.distance) and np.array_equal(got.direction, want.direction)
+                    and np.array_equal(got.observed, want.observed))
+
+
+def _scenario(cell, frames) -> list[bool]:
+    """Two grids (front, back) each holding a principal state in place while the worker makes
+    more frames; per check: does the grid still answer as its frames' private copies do."""
+    d = _Driver(cell)
+    try:
+        fusion = d.mon.fusion
+        p, o = d.mon.camera_ids[:2]
+        rng = np.random.default_rng(0)
+        ws = d.rig.workspace
+        points = rng.uniform(ws.lo, ws.hi, (60, 3))
+        checks = []
+        d.frame(*frames[0], (p, o))
+        assert fusion._build()
+        a = fusion.front
+        for k in (1, 2, 3):                         # the principal's frames come, no build
+            d.frame(*frames[k], (p,))
+        checks.append(d.same_answers(a, points))
+        assert fusion._build()                      # into the other grid: a stays the back one
+        b = fusion.front
+        assert b is not a and fusion._back is a
+        for k in (4, 5, 6, 7):
+            d.frame(*frames[k], (p, o))
+        checks.append(d.same_answers(a, points))
+        checks.append(d.same_answers(b, points))
+        assert fusion._build() and fusion.front is a
+        for k in (8, 9, 10, 11):
+            d.frame(*frames[k], (p,))
+        checks.append(d.same_answers(a, points))
+        checks.append(d.same_answers(b, points))
+        pool = d.mon._workers[p].pool
+        checks.append(pool.reused > 0 and pool.made <= pool.cap)
+        return checks
+    finally:
+        d.mon.close()
+
+
+def test_no_frame_buffer_is_overwritten_while_a_grid_reads_it(cell_frames, monkeypatch):
+    """The front and back grids keep reading their principal's state in place (no copy) while
+    the principal's worker makes 4 more frames each time; both grids answer exactly as grids
+    loaded with private copies of their frames, and the pool recycled sets all the while. The
+    same run with a pool that ignores references answers otherwise (the check can fail)."""
+    cell, frames = cell_frames
+    assert all(_scenario(cell, frames))
+    monkeypatch.setattr(BufferPool, "_unheld", staticmethod(lambda arrays: True))
+    assert not all(_scenario(cell, frames)[:-1])
+
+
+def test_the_workers_products_are_those_of_new_arrays_and_held_products_keep_their_content(cell_frames):
+    """Each product's robot depth is the robot rendered at its capture joints (a second renderer),
+    its state that of StateMaker into new arrays, bit for bit; the frame's float32 depth is held
+    as it came (no copy), a float64 one converted as numpy converts it; products a
+    reader holds keep their content while the worker makes more."""
+    from depthguard.filtering.expected import ExpectedDepth
+    from depthguard.fusion.depth_grid_state import StateMaker
+    from depthguard.sources.frame import Frame
+
+    cell, frames = cell_frames
+    d = _Driver(cell)
+    try:
+        held = []
+        expected = {c.id: ExpectedDepth(c, cell.rig.robot, cell.rig.static_meshes()) for c in cell.rig.cameras}
+        makers = {c.id: StateMaker(c) for c in cell.rig.cameras}
+        d.jt = frames[0][0] - 0.5
+        for k, (t, q, depths) in enumerate(frames):
+            while d.jt <= t + 0.004:
+                d.mon.push_joints(d.jt, np.asarray(cell.scene.robot_q(d.jt), dtype=np.float64))
+                d.jt += 0.002
+            for cid in d.mon.camera_ids:
+                w = d.mon._workers[cid]
+                src = depths[cid].copy() if k % 3 else depths[cid].astype(np.float64)
+                w._process(Frame(cid, src, t), 0.0)
+                p = w.product
+                assert p.stamp == t, w.last_refusal
+                if src.dtype == np.float32:
+                    assert p.depth is src
+                else:
+                    np.testing.assert_array_equal(p.depth, np.array(src, dtype=np.float32))
+                rd = np.array(expected[cid].robot(p.q), copy=True)
+                np.testing.assert_array_equal(p.robot_depth, rd)
+                st = makers[cid].make(np.array(src, dtype=np.float32), rd, *w.state_options())
+                np.testing.assert_array_equal(p.state.free, st.free)
+                np.testing.assert_array_equal(p.state.kind, st.kind)
+                if k % 2 == 0:
+                    held.append((p, _digest(p.depth, p.robot_depth, p.state.free, p.state.kind)))
+        for p, digest in held:
+            assert _digest(p.depth, p.robot_depth, p.state.free, p.state.kind) == digest
+        assert all(w.pool.reused > 0 for w in d.mon._workers.values())
+    finally:
+        d.mon.close()
