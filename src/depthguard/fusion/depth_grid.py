@@ -272,7 +272,7 @@ class DepthGridMap(GridRobot, GridQuery):
         content as it is; returns the bytes touched. The system maps a page of a new array on its
         first write, so without this the first frames pay for it: about 150 MB for two 640x480
         cameras, 30-270 ms (R29: the frames' path; the monitor calls it off that path,
-        :meth:`~depthguard.runtime.ingest.FusionWorker.prepare`)."""
+        :meth:`~depthguard.runtime.fusion_worker.FusionWorker.prepare`)."""
         arrays = (self._pfree_own, self._pkind_own, self._kfree, self._kkind, self._band, self._cap_lo, self._cap_hi,
                   self._cap_n, self._obits, self._cbits, self._stamp, *self._kmemo, self._clear, self._free_to,
                   self._span, self._kpmin, self._kpmax)

@@ -22,7 +22,7 @@ points ``P`` (:func:`bound_distances`):
   than ``max_age_s`` of wall time (the worker starved or failed), another ρ
   or method than the cycle's: the cycle queries the grid itself, as without
   the worker — unless the grid is being built (one grid,
-  :meth:`~depthguard.runtime.ingest.FusionWorker.set_single`) or a query takes
+  :meth:`~depthguard.runtime.fusion_worker.FusionWorker.set_single`) or a query takes
   more than half a control period (the worker's last one did: a large radius,
   as speed and separation monitoring asks): the cycle does not wait; it keeps
   the bound where it holds and reports the other points unobserved (R26:
@@ -193,7 +193,7 @@ def moved_beyond_numpy(P0, P, r) -> bool:
 class DistanceWorker:
     """The thread that queries the monitor's front grid (module docstring).
 
-    fusion : the monitor's :class:`~depthguard.runtime.ingest.FusionWorker` (its ``front``).
+    fusion : the monitor's :class:`~depthguard.runtime.fusion_worker.FusionWorker` (its ``front``).
     points : ``points(q) -> (m, 3)`` world m, the control points at ``q`` then the watch points.
     settings : ``() -> (rho, method)``, read before every query.
     hz : queries per second; margin : m, the band beyond ρ (module docstring).

@@ -47,7 +47,8 @@ from depthguard.control.supervisor import SafetySupervisor, stop_reasons
 from depthguard.runtime.monitor_distances import MonitorDistances
 from depthguard.runtime.monitor_paths import MonitorPaths
 from depthguard.runtime.monitor_watches import MonitorWatches
-from depthguard.runtime.ingest import CameraWorker, FusionWorker
+from depthguard.runtime.fusion_worker import FusionWorker
+from depthguard.runtime.ingest import CameraWorker
 from depthguard.robot.joint_history import JointHistory
 from depthguard.runtime.result import CameraStatus, Reaction
 from depthguard.runtime.refusals import explain_stale

@@ -134,7 +134,7 @@ class MonitorDistances:
     def replay(self):
         """``with monitor.replay(): ...`` for runs that ``flush()`` before every ``step`` (the
         simulated closed loop, fast replays): one grid instead of two
-        (:meth:`~depthguard.runtime.ingest.FusionWorker.set_single` — the same answers at half
+        (:meth:`~depthguard.runtime.fusion_worker.FusionWorker.set_single` — the same answers at half
         the work per frame when cameras take turns); a cycle then waits for a build in progress,
         which a real-time loop must never do."""
         single = self.fusion.single
