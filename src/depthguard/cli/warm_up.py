@@ -12,6 +12,8 @@ calls; nothing here names a kernel. ``make test`` runs it before the tests.
 Measured 2026-11-26 from an empty cache (2 cores shared with other work, load 6-9): the two
 processes 127 and 121 CPU-seconds (255 CPU-s user + sys in all), where the monitor's warm-up
 alone takes 170 CPU-s in one process; again with the cache warm (loads only): 23 CPU-s in all.
+With the bag replay and the scenes' render added (9 jobs; load 5-12): 330 CPU-s, 601 s; the two
+new jobs 11 CPU-s, taken by the process that finished first while the other still compiled.
 """
 
 from __future__ import annotations
