@@ -4,7 +4,9 @@ loads it and runs each command of the tutorial on it").
 The commands are taken from the tutorial itself (every line of its ```sh blocks), so the
 tutorial cannot drift from the program. They run in order (the replay reads the bag the record
 wrote) from a scratch folder that sees the repository's ``examples/``, with the CLI of this
-checkout; each must exit 0 and leave what the tutorial says it writes. The ```sh device block
+checkout, each through the program's entry point as written, one after another in one process
+(tests/tutorial_shell.py: one import and one load of numba's cache instead of one per command);
+each must exit 0 and leave what the tutorial says it writes. The ```sh device block
 needs a RealSense camera: without one each of its commands must stop with one line (exit 2,
 no traceback). The rig's numbers are checked against the file's own YAML (independent of the
 loader): the robot's joints from the URDF, the fixture in metres.
@@ -38,12 +40,25 @@ def blocks(kind: str) -> list[list[str]]:
             for info, body in found if info.strip() == kind]
 
 
+def _env() -> dict:
+    return {**os.environ, "PYTHONPATH": str(ROOT / "src") + os.pathsep + os.environ.get("PYTHONPATH", ""),
+            "COLUMNS": "200"}
+
+
 def _run(line: str, cwd: Path) -> subprocess.CompletedProcess:
     args = shlex.split(line)
     assert args[0] == "depthguard", line
-    env = {**os.environ, "PYTHONPATH": str(ROOT / "src") + os.pathsep + os.environ.get("PYTHONPATH", ""),
-           "COLUMNS": "200"}
-    return subprocess.run(DG + args[1:], cwd=cwd, env=env, capture_output=True, text=True, timeout=900)
+    return subprocess.run(DG + args[1:], cwd=cwd, env=_env(), capture_output=True, text=True, timeout=900)
+
+
+def _run_all(lines: list[str], cwd: Path) -> list[dict]:
+    """``lines`` run in order by tests/tutorial_shell.py in one process from ``cwd``: per line run
+    (up to the first that fails) its exit status and what it wrote."""
+    results = cwd / ".tutorial-results.json"
+    res = subprocess.run([sys.executable, str(Path(__file__).with_name("tutorial_shell.py")), str(results), *lines],
+                         cwd=cwd, env=_env(), capture_output=True, text=True, timeout=1800)
+    assert res.returncode == 0 and results.is_file(), f"{res.stdout[-2000:]}\n{res.stderr[-3000:]}"
+    return json.loads(results.read_text())
 
 
 def test_the_tutorial_names_its_rig_and_the_rig_is_what_it_says():
@@ -79,12 +94,13 @@ def test_every_command_of_the_tutorial_runs(tmp_path):
     (tmp_path / "examples").symlink_to(ROOT / "examples")
     commands = [ln for b in blocks("sh") for ln in b]
     assert len(commands) >= 8, commands
-    for line in commands:
-        if "--screenshot" in line and shutil.which("chromium") is None and shutil.which("chromium-browser") is None:
-            continue                                          # the view's photograph needs Chromium
-        res = _run(line, tmp_path)
-        assert res.returncode == 0, f"{line}\n{res.stdout[-2000:]}\n{res.stderr[-3000:]}"
-        assert "Traceback" not in res.stderr, res.stderr
+    if shutil.which("chromium") is None and shutil.which("chromium-browser") is None:
+        commands = [ln for ln in commands if "--screenshot" not in ln]     # the view's photograph needs Chromium
+    done = _run_all(commands, tmp_path)
+    for res in done:
+        assert res["code"] == 0, f"{res['line']}\n{res['stdout'][-2000:]}\n{res['stderr'][-3000:]}"
+        assert "Traceback" not in res["stderr"], res["stderr"]
+    assert [r["line"] for r in done] == commands
     out = tmp_path / "out" / "own_cell"
     assert {p.name for p in (out / "render").iterdir()} >= {"left.png", "right.png", "contact_sheet.png"}
     for run in ("sim", "replay"):

@@ -12,6 +12,8 @@ calls; nothing here names a kernel. ``make test`` runs it before the tests.
 Measured 2026-11-26 from an empty cache (2 cores shared with other work, load 6-9): the two
 processes 127 and 121 CPU-seconds (255 CPU-s user + sys in all), where the monitor's warm-up
 alone takes 170 CPU-s in one process; again with the cache warm (loads only): 23 CPU-s in all.
+With the bag replay and the scenes' render added (9 jobs; load 5-12): 330 CPU-s, 601 s; the two
+new jobs 11 CPU-s, taken by the process that finished first while the other still compiled.
 """
 
 from __future__ import annotations
@@ -92,6 +94,17 @@ def _cli(*args: str) -> None:
             the_app(argv, standalone_mode=False)
 
 
+def _bag_replay(cell: str) -> None:
+    """``depthguard record`` of the cell's simulator for 0.2 s, then ``depthguard monitor`` on that
+    bag (``--fast``): the simulator's noise (R25), the bag's reading and the monitor on joints as a
+    recording or a driver decodes them from a message (read-only arrays: kernels of their own
+    signature, which the monitor's warm-up on its own arrays does not compile)."""
+    with tempfile.TemporaryDirectory(prefix="depthguard-warm-up-") as tmp:
+        bag = str(Path(tmp) / "bag")
+        _cli("record", "--cell", cell, "--duration", "0.2", "--out", bag)
+        _cli("monitor", "--cell", cell, "--source", f"bag:{bag}", "--fast", "--quiet", "--out", str(Path(tmp) / "run"))
+
+
 def _check_path(cell: str) -> None:
     """``depthguard check-path`` of a two-waypoint path from the cell's joints (free space, R22)."""
     from depthguard.sim import load_cell
@@ -114,6 +127,8 @@ JOBS: list[tuple[str, object, tuple]] = [
     ("run reach ssm 0.3 s", _cli, ("run", "-s", "reach", "--reaction", "ssm", "--duration", "0.3", "-o", "{tmp}/run",
                                    "--quiet")),
     ("check-path flacco-cell", _check_path, ("flacco-cell",)),
+    ("record 0.2 s and monitor the bag, flacco-cell", _bag_replay, ("flacco-cell",)),
+    ("scenes render flacco-cell", _cli, ("scenes", "render", "flacco-cell", "--out", "{tmp}/render")),
     ("placement c-arm-room", _cli, ("placement", "--cell", "c-arm-room", "--no-improve")),
     ("monitor ur3-cell", _monitor, ("ur3-cell",)),
 ]

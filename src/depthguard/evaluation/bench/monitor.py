@@ -117,9 +117,10 @@ class _Script:
                     key = (cid, self._key(s))
                     if key not in self._frames:
                         tau = self.tau(s)
-                        d = self._sim.render(cid, tau, self.cell.scene.robot_q(tau))
-                        d.setflags(write=False)
-                        self._frames[key] = d
+                        # writable, as a camera driver's frame: a read-only array is another numba
+                        # signature of the grid's kernels, which today's code (_run_today) would then
+                        # compile inside its clock, and no product path passes one
+                        self._frames[key] = self._sim.render(cid, tau, self.cell.scene.robot_q(tau))
 
     def tau(self, t: float) -> float:
         """Scene time at run time ``t``: forth and back over the path."""
