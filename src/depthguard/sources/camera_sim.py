@@ -40,7 +40,8 @@ import numpy as np
 from depthguard.filtering.expected import ExpectedDepth
 from depthguard.geometry.decimate import SIM_CELL
 from depthguard.render import Renderer
-from depthguard.sources.layered import LayeredCamera, layer_window
+from depthguard.sim.posed import PackedMeshes
+from depthguard.sources.layered import LayeredCamera, layer_window, mesh_window
 from depthguard.sources.simulated import SimulatedCamera, frame_rng
 
 __all__ = ["CameraSim", "CameraSchedule", "Shot", "INVALID_POLICIES"]
@@ -86,6 +87,18 @@ class CameraSim:
         self._moving = {c.id: Renderer(c, parallel=parallel) for c in cams}
         self._robot = {c.id: Renderer(c, parallel=parallel) for c in cams}     # the robot layer's own
         self._win = np.zeros(4, np.int64)
+        # the robot's clustered links packed once; their world vertices posed once per joint
+        # values, for every camera (RobotModel.render_link_vertices: the bits of render_link_meshes)
+        self._robot_vw = self._robot_q = None
+        if hasattr(robot, "render_link_vertices") and hasattr(robot, "render_link_topology"):   # a RobotModel
+            links = robot.render_link_topology(SIM_CELL)
+            off = np.zeros((len(links) + 1, 2), np.int64)
+            np.cumsum([len(m.vertices) for m in links], out=off[1:, 0])
+            np.cumsum([len(m.faces) for m in links], out=off[1:, 1])
+            self._robot_off = off
+            self._robot_faces = (np.ascontiguousarray(np.concatenate([m.faces for m in links]), dtype=np.int32)
+                                 if links else np.zeros((0, 3), np.int32))
+            self._robot_vw = np.zeros((int(off[-1, 0]), 3))
         self._pose = {c.id: (np.ascontiguousarray(c.R, dtype=np.float64), np.ascontiguousarray(c.t, dtype=np.float64))
                       for c in cams}
         self.layered = {c.id: LayeredCamera(self.expected[c.id].static, self.sims[c.id].model, c.fx, c.min_range,
@@ -106,20 +119,29 @@ class CameraSim:
              keep_robot: bool = False) -> Shot:
         """Camera ``camera_id``'s frame captured at ``t`` (s, the noise's stamp) with the robot at
         ``q`` (dof,) rad (None: no robot in the image) and the moving obstacles' world meshes
-        ``moving`` (module docstring)."""
+        ``moving`` (module docstring): a list of meshes, or a
+        :class:`~depthguard.sim.posed.PackedMeshes` (posed in place once per time step, rendered
+        where it lies)."""
         t0 = time.perf_counter()
         rd = rwin = None
-        if self.robot is not None and q is not None:
+        if self.robot is not None and q is not None and self._robot_vw is not None:
+            vw = self._robot_vertices(q)                             # as ExpectedDepth.robot renders it
+            rd = self._robot[camera_id].render_arrays(vw, self._robot_faces, self._robot_off)[0]  # its buffer
+            rwin = self._packed_window(camera_id, vw)
+        elif self.robot is not None and q is not None:               # another machine (sim/carm.py)
             qa = np.asarray(q, dtype=np.float64).reshape(-1)
             if qa.shape[0] != self.robot.dof or not np.all(np.isfinite(qa)):
                 raise ValueError(f"expected {self.robot.dof} finite joint values, got {qa.tolist()}")
-            meshes = self.robot.render_link_meshes(qa, SIM_CELL)     # as ExpectedDepth.robot renders it
+            meshes = self.robot.render_link_meshes(qa, SIM_CELL)
             rd = self._robot[camera_id].render(meshes)[0]            # the renderer's buffer
             rwin = self._window(camera_id, meshes)
         robot_depth = np.array(rd, copy=True) if keep_robot and rd is not None else None
         t1 = time.perf_counter()
         person = pwin = None
-        if moving:
+        if isinstance(moving, PackedMeshes):
+            person = self._moving[camera_id].render_arrays(moving.vertices, moving.faces, moving.mesh_off)[0]
+            pwin = self._packed_window(camera_id, moving.vertices)
+        elif moving:
             moving = moving if isinstance(moving, list) else list(moving)
             person = self._moving[camera_id].render(moving)[0]      # the renderer's buffer
             pwin = self._window(camera_id, moving)
@@ -128,6 +150,28 @@ class CameraSim:
         d = self.layered[camera_id].frame(rd, person, frame_rng(sim.seed, camera_id, t), bank=sim.bank, dark=dark,
                                           robot_window=rwin, person_window=pwin)
         return Shot(d, robot_depth, t1 - t0, time.perf_counter() - t1)
+
+    def _robot_vertices(self, q) -> np.ndarray:
+        """The robot's (V, 3) world vertices at ``q`` (dof,) rad, all clustered links one after
+        the other; posed again only when ``q`` changes (the cameras of one time step share them)."""
+        qa = np.asarray(q, dtype=np.float64).reshape(-1)
+        if qa.shape[0] != self.robot.dof or not np.all(np.isfinite(qa)):
+            raise ValueError(f"expected {self.robot.dof} finite joint values, got {qa.tolist()}")
+        if self._robot_q is None or not np.array_equal(self._robot_q, qa):
+            self.robot.render_link_vertices(qa, SIM_CELL, self._robot_vw)
+            self._robot_q = qa.copy()
+        return self._robot_vw
+
+    def _packed_window(self, camera_id: str, vertices: np.ndarray) -> tuple | None:
+        """:meth:`_window` of packed world ``vertices`` (V, 3) float64 (the same window)."""
+        c = self.cams[camera_id]
+        win = self._win
+        win[:] = (1 << 30, -(1 << 30), 1 << 30, -(1 << 30))
+        R, tr = self._pose[camera_id]
+        if not mesh_window(vertices, R, tr, float(c.fx), float(c.fy), float(c.cx), float(c.cy),
+                           float(self._robot[camera_id].near), win):
+            return None
+        return int(win[0]), int(win[1]), int(win[2]), int(win[3])
 
     def _window(self, camera_id: str, meshes) -> tuple | None:
         """The pixel window that holds what ``meshes`` can draw (:func:`~depthguard.sources.layered.layer_window`)."""
