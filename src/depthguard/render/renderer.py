@@ -79,9 +79,11 @@ class Renderer:
     buffers** (``self.depth``, ``self.labels``): the next call overwrites them,
     so copy what you keep. ``self.face_ids`` holds the packed index of the face
     owning each pixel (see :meth:`face_index` for the index within its mesh).
-    A call reads out only the window of pixels its triangles and the last call's
-    can cover (outside it the images hold 0 / -1 already): the views are read-only
-    so that nothing else can write there. One renderer per thread: its buffers are
+    A call reads out only each row's span of the pixels its triangles and the last
+    call's cover (outside it the images hold 0 / -1 already): the views are read-only
+    so that nothing else can write there. ``self.spans`` (H, 2) int32 (read-only) holds
+    per row the span ``[a, b)`` of the last call's pixels (``(0, 0)``: none): outside
+    it the row's depth is 0 (a layer's spans, :class:`~depthguard.sources.layered.LayeredCamera`). One renderer per thread: its buffers are
     not shared safely.
     """
 
@@ -113,7 +115,10 @@ class Renderer:
         self.depth = _read_only(self._depth)
         self.labels = _read_only(self._labels)
         self.face_ids = _read_only(self._face_ids)
-        self._dirty = np.array([1 << 30, -1, 1 << 30, -1], dtype=np.int64)   # last call's window (empty)
+        # per row the span [a, b) of the last call's pixels (outside it: 0 / -1), and the kernel's scratch
+        self._spans = np.zeros((H, 2), dtype=np.int32)
+        self._rows = np.zeros((H, 2), dtype=np.int32)
+        self.spans = _read_only(self._spans)
         self._wbuf = np.zeros((H, W))                       # 1/z z-buffer (workspace, clear between calls)
         self._sbuf = np.full((H, W), -1, dtype=np.int32)    # winning slot (workspace)
         self._mesh_off = np.zeros((1, 2), dtype=np.int64)
@@ -258,15 +263,15 @@ class Renderer:
         if self.parallel:
             status, _, _ = render_packed_parallel(*args, self._tri, self._box, self.n_bands, self._wbuf,
                                                   self._sbuf, self._depth, self._labels, self._face_ids,
-                                                  self._dirty)
+                                                  self._rows, self._spans)
         else:
             status, _, _ = render_packed(*args, self._wbuf, self._sbuf, self._depth, self._labels,
-                                         self._face_ids, self._dirty)
+                                         self._face_ids, self._rows, self._spans)
         if status != 0:     # nothing was drawn (the z-buffer is clear); clear what the last call drew
             self._depth[:] = 0.0
             self._labels[:] = -1
             self._face_ids[:] = -1
-            self._dirty[:] = (1 << 30, -1, 1 << 30, -1)
+            self._spans[:] = 0
         return status
 
     def face_index(self) -> np.ndarray:
