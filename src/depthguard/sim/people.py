@@ -138,6 +138,7 @@ class Person:
     gait: bool = True   # swing the legs while walking (1.8 steps/s, up to ±25°)
     _memo: tuple | None = field(default=None, init=False, repr=False, compare=False)
     _pose_memo: tuple | None = field(default=None, init=False, repr=False, compare=False)
+    _key_times: tuple | None = field(default=None, init=False, repr=False, compare=False)
 
     def __post_init__(self):
         if not self.keys:
@@ -171,7 +172,10 @@ class Person:
             return ks[0], ks[0], 0.0
         if t >= ks[-1].t:
             return ks[-1], ks[-1], 0.0
-        i = bisect.bisect_right([k.t for k in ks], t) - 1
+        kt = self._key_times
+        if kt is None or kt[0] is not ks:                # the keys' times, listed once per key list
+            kt = self._key_times = (ks, [k.t for k in ks])
+        i = bisect.bisect_right(kt[1], t) - 1
         a, b = ks[i], ks[i + 1]
         if self.interp == "step":
             return a, a, 0.0
