@@ -113,3 +113,19 @@ def test_schedule_captures_each_camera_on_its_own_phase():
     # a camera far behind skips to its latest capture due
     s = CameraSchedule(2, hz)
     assert s.skip_to_latest(1, 0.5) == 14 and abs(s.next[1] - (0.37 * period + 14 * period)) < 1e-12
+
+
+def test_people_posed_in_place_give_the_whole_scene(cell):
+    """The people and props as the ``sim:`` source hands them over — packed once, posed in
+    place once per time (:class:`~depthguard.sim.posed.PosedMeshes`) — at times where the
+    person walks, reaches and leaves: every frame is the whole scene rendered at once."""
+    from depthguard.sim.posed import PosedMeshes
+
+    cam = cell.rig.cameras[0]
+    sim = CameraSim([cam], robot=cell.scene.robot, static_meshes=cell.scene.static_meshes, seed=1, invalid=None)
+    posed = PosedMeshes(cell.scene)
+    for t in (T, 6.5, 10.5, 15.5):
+        moving = posed.at(t)
+        assert moving is not None
+        np.testing.assert_array_equal(sim.depth(cam.id, t, cell.scene.robot_q(t), moving),
+                                      _whole_scene(cell, cam, t))

@@ -18,8 +18,9 @@ Pipeline (SPEC §1 conventions, SPEC §5 R16):
 :func:`render_packed` runs on one core: each vertex is transformed and
 projected once, then each face is culled, clipped, set up and drawn in turn
 (its setup stays in registers; a face whose pixel box holds no pixel centre
-costs no edge setup); the images are read out only inside the window of
-pixels this call's and the last call's triangles can cover (``dirty``).
+costs no edge setup); the images are read out only over each row's span of
+the pixels this call's and the last call's triangles cover
+(:mod:`depthguard.render.raster_fill`, which holds the fill and the read-out).
 :func:`render_packed_parallel` runs steps 1–2 over vertices / faces (into
 slots) and step 3 over disjoint bands of rows with numba threads (no two tasks
 write the same pixel: race-free, and the same image as the serial kernel).
@@ -68,9 +69,11 @@ Buffers (all preallocated by the caller, nothing is allocated here):
   packed face (workspace; all 0 / -1 between calls).
 - ``depth`` (H, W) float32 metres (0 = nothing), ``labels`` (H, W) int32
   mesh label (-1 = nothing), ``face_ids`` (H, W) int32 packed face index
-  (-1 = nothing): written only inside the window, so they must hold 0 / -1
-  outside the last call's window (``dirty`` (4,) int64 ``v0, v1, u0, u1``,
-  inclusive, empty when ``v0 > v1``; updated by the kernel).
+  (-1 = nothing): written only inside the rows' spans, so they must hold 0 / -1
+  outside the last call's spans (``spans`` (H, 2) int32, per row ``[a, b)``,
+  ``(0, 0)`` = none; updated by the kernel: this call's on return, so that
+  every pixel of row ``v`` outside ``spans[v]`` is 0 / -1); ``rows`` (H, 2)
+  int32 workspace (the spans as the triangles are drawn).
 """
 
 from __future__ import annotations
@@ -79,6 +82,8 @@ import math
 
 import numpy as np
 from numba import njit, prange
+
+from depthguard.render.raster_fill import _fill, read_out_rows, reset_rows
 
 __all__ = ["render_packed", "render_packed_parallel", "check_and_label"]
 
@@ -224,121 +229,6 @@ def _clip_face(vc, ia, ib, ic, near, cull_back, fx, fy, cx, cy):
             x2 * fx * inear + cx, y2 * fy * inear + cy, inear, 0., 0.)
 
 
-@njit(cache=True, error_model="numpy", inline="always")
-def _inside(x, A0, X0, r0, t0, A1, X1, r1, t1, A2, X2, r2, t2):
-    """Pixel centre at column ``x`` of a row covered (edge values ``A (x - X) + r``, top-left ties)."""
-    e0 = A0 * (x - X0) + r0
-    if e0 < 0.0 or (e0 == 0.0 and not t0):
-        return False
-    e1 = A1 * (x - X1) + r1
-    if e1 < 0.0 or (e1 == 0.0 and not t1):
-        return False
-    e2 = A2 * (x - X2) + r2
-    if e2 < 0.0 or (e2 == 0.0 and not t2):
-        return False
-    return True
-
-
-@njit(cache=True, error_model="numpy", inline="always")
-def _fill(key, A0, B0, X0, Y0, A1, B1, X1, Y1, A2, B2, X2, Y2, Pa, Pb, xw, yw, w0, tl, ua, ub, va, vb,
-          wbuf, sbuf):
-    """Z-buffer one set-up triangle (``key`` = its face) into rows ``va .. vb``, columns
-    ``ua .. ub``: where it covers a pixel centre with a larger ``w = 1/z`` (strictly: on an
-    exact tie the triangle drawn first keeps the pixel), ``wbuf = w`` and ``sbuf = key``."""
-    t0 = (tl & 1) != 0
-    t1 = (tl & 2) != 0
-    t2 = (tl & 4) != 0
-    if ub - ua < 4:  # a few columns: test each pixel, without branches (the tests of
-        nt0 = not t0  # _inside, evaluated in full: most faces here cover a pixel or two)
-        nt1 = not t1
-        nt2 = not t2
-        for v in range(va, vb + 1):
-            y = float(v)
-            r0e = B0 * (y - Y0)
-            r1e = B1 * (y - Y1)
-            r2e = B2 * (y - Y2)
-            rp = w0 + Pb * (y - yw)
-            for u in range(ua, ub + 1):
-                x = float(u)
-                e0 = A0 * (x - X0) + r0e
-                e1 = A1 * (x - X1) + r1e
-                e2 = A2 * (x - X2) + r2e
-                out = (int(e0 < 0.0) | int((e0 == 0.0) & nt0) | int(e1 < 0.0) | int((e1 == 0.0) & nt1)
-                       | int(e2 < 0.0) | int((e2 == 0.0) & nt2))
-                w = Pa * (x - xw) + rp
-                old = wbuf[v, u]
-                win = int(w > old) & (1 - out)
-                wbuf[v, u] = max(old, w * win)     # w > old >= 0 where it wins, else old
-                s0 = sbuf[v, u]
-                sbuf[v, u] = s0 + (key - s0) * win
-        return
-    i0 = 1.0 / A0 if A0 != 0.0 else 0.0
-    i1 = 1.0 / A1 if A1 != 0.0 else 0.0
-    i2 = 1.0 / A2 if A2 != 0.0 else 0.0
-    for v in range(va, vb + 1):
-        y = float(v)
-        r0e = B0 * (y - Y0)
-        r1e = B1 * (y - Y1)
-        r2e = B2 * (y - Y2)
-        rp = w0 + Pb * (y - yw)
-        # The covered pixels of a row form one interval (each edge test is monotone
-        # in x, also in floating point). Estimate its ends from the edge crossings,
-        # settle them with the exact tests, then fill without testing.
-        lo = float(ua)
-        hi = float(ub)
-        if A0 > 0.0:
-            lo = max(lo, X0 - r0e * i0)
-        elif A0 < 0.0:
-            hi = min(hi, X0 - r0e * i0)
-        elif r0e < 0.0 or (r0e == 0.0 and not t0):
-            continue
-        if A1 > 0.0:
-            lo = max(lo, X1 - r1e * i1)
-        elif A1 < 0.0:
-            hi = min(hi, X1 - r1e * i1)
-        elif r1e < 0.0 or (r1e == 0.0 and not t1):
-            continue
-        if A2 > 0.0:
-            lo = max(lo, X2 - r2e * i2)
-        elif A2 < 0.0:
-            hi = min(hi, X2 - r2e * i2)
-        elif r2e < 0.0 or (r2e == 0.0 and not t2):
-            continue
-        if lo > hi + 1.0:
-            continue
-        a = max(ua, int(math.ceil(lo)) - 1)
-        e = min(ub, int(math.floor(hi)) + 1)
-        while a <= e and not _inside(float(a), A0, X0, r0e, t0, A1, X1, r1e, t1, A2, X2, r2e, t2):
-            a += 1
-        while e >= a and not _inside(float(e), A0, X0, r0e, t0, A1, X1, r1e, t1, A2, X2, r2e, t2):
-            e -= 1
-        for u in range(a, e + 1):
-            w = Pa * (float(u) - xw) + rp
-            if w > wbuf[v, u]:
-                wbuf[v, u] = w
-                sbuf[v, u] = key
-
-
-@njit(cache=True, error_model="numpy", nogil=True)
-def _read_out(r0, r1, u0, u1, wbuf, sbuf, face_label, depth, labels, face_ids):
-    """Rows ``r0 .. r1-1``, columns ``u0 .. u1`` of ``depth = float32(1/w)`` (0 = nothing),
-    ``labels`` (mesh) and ``face_ids`` (packed face; -1 = nothing) from the z-buffer, which is
-    cleared on the way (0 / -1: ready for the next call, one pass over memory less)."""
-    for v in range(r0, r1):
-        for u in range(u0, u1 + 1):
-            k = sbuf[v, u]
-            if k >= 0:
-                depth[v, u] = np.float32(1.0 / wbuf[v, u])
-                labels[v, u] = face_label[k]
-                face_ids[v, u] = k
-                wbuf[v, u] = 0.0
-                sbuf[v, u] = -1
-            else:
-                depth[v, u] = 0.0
-                labels[v, u] = -1
-                face_ids[v, u] = -1
-
-
 @njit(cache=True, error_model="numpy", nogil=True)
 def check_and_label(vw, n_v, faces, mesh_off, n_meshes, face_label):
     """Check the packed input and write ``face_label``.
@@ -362,15 +252,16 @@ def check_and_label(vw, n_v, faces, mesh_off, n_meshes, face_label):
 
 @njit(cache=True, error_model="numpy", nogil=True)
 def render_packed(vw, n_v, faces, n_f, mesh_off, n_meshes, face_label, R, t, fx, fy, cx, cy,
-                  near, cull_back, vc, wbuf, sbuf, depth, labels, face_ids, dirty):
+                  near, cull_back, vc, wbuf, sbuf, depth, labels, face_ids, rows, spans):
     """Render packed buffers on one core (see the module docstring for shapes).
 
     The input is checked as it is used (each vertex before it is transformed, a face's
     indices before it is drawn), all before anything is drawn (a bad index returns
     before the z-buffer is read out). Each face is culled, clipped, set up and drawn in
-    turn (its setup stays in registers), then the images are read out inside the window
-    of this call's and the last call's triangles (``dirty``). Returns ``(status, mesh,
-    triangles drawn)``: status 0 = done, else the error of :func:`check_and_label`.
+    turn (its setup stays in registers), then the images are read out over the rows' spans
+    of this call's and the last call's pixels (``rows``, ``spans``:
+    :mod:`~depthguard.render.raster_fill`). Returns ``(status, mesh, triangles drawn)``:
+    status 0 = done, else the error of :func:`check_and_label`.
     """
     H, W = depth.shape
     for i in range(n_v):
@@ -386,7 +277,7 @@ def render_packed(vw, n_v, faces, n_f, mesh_off, n_meshes, face_label, R, t, fx,
                     or faces[f, 2] < 0 or faces[f, 2] >= nv):
                 return 1, k, 0
     n = 0
-    wv0, wv1, wu0, wu1 = 1 << 30, -1, 1 << 30, -1
+    reset_rows(rows, 0, H, W)
     for k in range(n_meshes):
         vo = mesh_off[k, 0]
         for f in range(mesh_off[k, 1], mesh_off[k + 1, 1]):
@@ -402,25 +293,16 @@ def render_packed(vw, n_v, faces, n_f, mesh_off, n_meshes, face_label, R, t, fx,
                 if not ok:
                     continue
                 _fill(f, A0, B0, X0, Y0, A1, B1, X1, Y1, A2, B2, X2, Y2, Pa, Pb, px, py, pz, tl,
-                      u0, u1, v0, v1, wbuf, sbuf)
+                      u0, u1, v0, v1, wbuf, sbuf, rows)
                 n += 1
-                wv0 = min(wv0, v0)
-                wv1 = max(wv1, v1)
-                wu0 = min(wu0, u0)
-                wu1 = max(wu1, u1)
-    _read_out(min(wv0, dirty[0]), max(wv1, dirty[1]) + 1, min(wu0, dirty[2]), max(wu1, dirty[3]),
-              wbuf, sbuf, face_label, depth, labels, face_ids)
-    dirty[0] = wv0
-    dirty[1] = wv1
-    dirty[2] = wu0
-    dirty[3] = wu1
+    read_out_rows(0, H, wbuf, sbuf, face_label, depth, labels, face_ids, rows, spans)
     return 0, -1, n
 
 
 @njit(cache=True, error_model="numpy", parallel=True, nogil=True)
 def render_packed_parallel(vw, n_v, faces, n_f, mesh_off, n_meshes, face_label, R, t, fx, fy, cx, cy,
                            near, cull_back, vc, tri, box, n_bands, wbuf, sbuf,
-                           depth, labels, face_ids, dirty):
+                           depth, labels, face_ids, rows, spans):
     """Render packed buffers with numba threads: vertices and faces in parallel (face ``f``
     sets up slots ``2f, 2f+1`` of ``tri`` / ``box``), then ``n_bands`` disjoint bands of rows
     in parallel (no two tasks write the same pixel, so there are no races), drawing the slots
@@ -473,19 +355,14 @@ def render_packed_parallel(vw, n_v, faces, n_f, mesh_off, n_meshes, face_label, 
             box[s, 2] = v0
             box[s, 3] = v1
     n = 0
-    wv0, wv1, wu0, wu1 = 1 << 30, -1, 1 << 30, -1
     for s in range(2 * n_f):
         if box[s, 2] <= box[s, 3]:
             n += 1
-            wv0 = min(wv0, box[s, 2])
-            wv1 = max(wv1, box[s, 3])
-            wu0 = min(wu0, box[s, 0])
-            wu1 = max(wu1, box[s, 1])
-    rv0, rv1, ru0, ru1 = min(wv0, dirty[0]), max(wv1, dirty[1]), min(wu0, dirty[2]), max(wu1, dirty[3])
-    rows = (H + n_bands - 1) // n_bands
+    band = (H + n_bands - 1) // n_bands
     for b in prange(n_bands):
-        r0 = b * rows
-        r1 = min(H, r0 + rows)
+        r0 = b * band
+        r1 = min(H, r0 + band)
+        reset_rows(rows, r0, r1, W)
         for s in range(2 * n_f):
             va = box[s, 2]
             vb = box[s, 3]
@@ -494,10 +371,6 @@ def render_packed_parallel(vw, n_v, faces, n_f, mesh_off, n_meshes, face_label, 
             _fill(s >> 1, tri[s, 0], tri[s, 1], tri[s, 2], tri[s, 3], tri[s, 4], tri[s, 5], tri[s, 6],
                   tri[s, 7], tri[s, 8], tri[s, 9], tri[s, 10], tri[s, 11], tri[s, 12], tri[s, 13],
                   tri[s, 14], tri[s, 15], tri[s, 16], int(tri[s, 17]), box[s, 0], box[s, 1],
-                  max(va, r0), min(vb, r1 - 1), wbuf, sbuf)
-        _read_out(max(r0, rv0), min(r1, rv1 + 1), ru0, ru1, wbuf, sbuf, face_label, depth, labels, face_ids)
-    dirty[0] = wv0
-    dirty[1] = wv1
-    dirty[2] = wu0
-    dirty[3] = wu1
+                  max(va, r0), min(vb, r1 - 1), wbuf, sbuf, rows)
+        read_out_rows(r0, r1, wbuf, sbuf, face_label, depth, labels, face_ids, rows, spans)
     return 0, -1, n

@@ -79,9 +79,11 @@ class Renderer:
     buffers** (``self.depth``, ``self.labels``): the next call overwrites them,
     so copy what you keep. ``self.face_ids`` holds the packed index of the face
     owning each pixel (see :meth:`face_index` for the index within its mesh).
-    A call reads out only the window of pixels its triangles and the last call's
-    can cover (outside it the images hold 0 / -1 already): the views are read-only
-    so that nothing else can write there. One renderer per thread: its buffers are
+    A call reads out only each row's span of the pixels its triangles and the last
+    call's cover (outside it the images hold 0 / -1 already): the views are read-only
+    so that nothing else can write there. ``self.spans`` (H, 2) int32 (read-only) holds
+    per row the span ``[a, b)`` of the last call's pixels (``(0, 0)``: none): outside
+    it the row's depth is 0 (a layer's spans, :class:`~depthguard.sources.layered.LayeredCamera`). One renderer per thread: its buffers are
     not shared safely.
     """
 
@@ -113,7 +115,10 @@ class Renderer:
         self.depth = _read_only(self._depth)
         self.labels = _read_only(self._labels)
         self.face_ids = _read_only(self._face_ids)
-        self._dirty = np.array([1 << 30, -1, 1 << 30, -1], dtype=np.int64)   # last call's window (empty)
+        # per row the span [a, b) of the last call's pixels (outside it: 0 / -1), and the kernel's scratch
+        self._spans = np.zeros((H, 2), dtype=np.int32)
+        self._rows = np.zeros((H, 2), dtype=np.int32)
+        self.spans = _read_only(self._spans)
         self._wbuf = np.zeros((H, W))                       # 1/z z-buffer (workspace, clear between calls)
         self._sbuf = np.full((H, W), -1, dtype=np.int32)    # winning slot (workspace)
         self._mesh_off = np.zeros((1, 2), dtype=np.int64)
@@ -130,10 +135,17 @@ class Renderer:
         if n_v > len(self._vw):
             cap = max(n_v, 2 * len(self._vw), 1024)
             self._vw = np.zeros((cap, 3))
-            self._vc = np.zeros((cap, 6))
         if n_f > len(self._faces):
             cap = max(n_f, 2 * len(self._faces), 1024)
             self._faces = np.zeros((cap, 3), dtype=np.int32)
+        self._reserve_work(n_v, n_f)
+
+    def _reserve_work(self, n_v: int, n_f: int) -> None:
+        """The kernel's workspace for ``n_v`` vertices and ``n_f`` faces (grown, never shrunk)."""
+        if n_v > len(self._vc):
+            self._vc = np.zeros((max(n_v, 2 * len(self._vc), 1024), 6))
+        if n_f > len(self._face_label):
+            cap = max(n_f, 2 * len(self._face_label), 1024)
             self._face_label = np.zeros(cap, dtype=np.int32)
             if self.parallel:
                 self._tri = np.zeros((2 * cap, 18))
@@ -180,6 +192,37 @@ class Renderer:
                                            else "vertices must be finite"))
         return self.depth, self.labels
 
+    # ------------------------------------------------- packed by the caller
+    def render_arrays(self, vertices: np.ndarray, faces: np.ndarray, mesh_off: np.ndarray,
+                      cull_back: bool = True) -> tuple[np.ndarray, np.ndarray]:
+        """:meth:`render` of meshes the caller keeps packed (R16): ``vertices`` (V, 3) float64 m
+        world and ``faces`` (F, 3) int32 (indices local to their mesh) of all meshes one after
+        the other, ``mesh_off`` (M + 1, 2) int64 the first vertex and face of each mesh and the
+        totals (e.g. :class:`~depthguard.sim.posed.PackedMeshes`), all C-contiguous. The kernel
+        reads them where they are: nothing is packed or copied (the same images as
+        :meth:`render` of those meshes). Labels index the packed meshes."""
+        if not (isinstance(vertices, np.ndarray) and vertices.dtype == np.float64 and vertices.ndim == 2
+                and vertices.shape[1] == 3 and vertices.flags.c_contiguous):
+            raise ValueError("vertices must be a C-contiguous float64 (V, 3) array")
+        if not (isinstance(faces, np.ndarray) and faces.dtype == np.int32 and faces.ndim == 2
+                and faces.shape[1] == 3 and faces.flags.c_contiguous):
+            raise ValueError("faces must be a C-contiguous int32 (F, 3) array")
+        if not (isinstance(mesh_off, np.ndarray) and mesh_off.dtype == np.int64 and mesh_off.ndim == 2
+                and mesh_off.shape[1] == 2 and len(mesh_off) >= 1 and mesh_off.flags.c_contiguous
+                and 0 <= mesh_off[-1, 0] <= len(vertices) and 0 <= mesh_off[-1, 1] <= len(faces)
+                and np.all(np.diff(mesh_off, axis=0) >= 0) and mesh_off[0, 0] == 0 and mesh_off[0, 1] == 0):
+            raise ValueError("mesh_off must be a C-contiguous int64 (M + 1, 2) array of increasing "
+                             "offsets from 0 within the vertices and faces")
+        self._bound = None
+        n_v, n_f = int(mesh_off[-1, 0]), int(mesh_off[-1, 1])
+        self._reserve_work(n_v, n_f)
+        self._mesh_off = mesh_off
+        status = self._draw(n_v, n_f, len(mesh_off) - 1, bool(cull_back), vertices, faces)
+        if status != 0:
+            raise ValueError("meshes: " + ("a face index lies outside its mesh" if status == 1
+                                           else "vertices must be finite"))
+        return self.depth, self.labels
+
     # --------------------------------------------------------------- render
     def render(self, meshes: Sequence, cull_back: bool = True) -> tuple[np.ndarray, np.ndarray]:
         """Render ``meshes`` (world coordinates) into the camera (R16).
@@ -208,25 +251,27 @@ class Renderer:
                                            else "vertices must be finite"))
         return self.depth, self.labels
 
-    def _draw(self, n_v: int, n_f: int, n_meshes: int, cull_back: bool) -> int:
-        """Run the kernel on the packed buffers; its status (0 = drawn; else nothing was drawn
-        and the images are cleared)."""
+    def _draw(self, n_v: int, n_f: int, n_meshes: int, cull_back: bool, vw=None, faces=None) -> int:
+        """Run the kernel on the packed buffers (the renderer's own, or ``vw``, ``faces``); its
+        status (0 = drawn; else nothing was drawn and the images are cleared)."""
         c = self.cam
-        args = (self._vw, n_v, self._faces, n_f, self._mesh_off, n_meshes, self._face_label,
+        vw = self._vw if vw is None else vw
+        faces = self._faces if faces is None else faces
+        args = (vw, n_v, faces, n_f, self._mesh_off, n_meshes, self._face_label,
                 self._R, self._t, float(c.fx), float(c.fy), float(c.cx), float(c.cy), self.near,
                 cull_back, self._vc)
         if self.parallel:
             status, _, _ = render_packed_parallel(*args, self._tri, self._box, self.n_bands, self._wbuf,
                                                   self._sbuf, self._depth, self._labels, self._face_ids,
-                                                  self._dirty)
+                                                  self._rows, self._spans)
         else:
             status, _, _ = render_packed(*args, self._wbuf, self._sbuf, self._depth, self._labels,
-                                         self._face_ids, self._dirty)
+                                         self._face_ids, self._rows, self._spans)
         if status != 0:     # nothing was drawn (the z-buffer is clear); clear what the last call drew
             self._depth[:] = 0.0
             self._labels[:] = -1
             self._face_ids[:] = -1
-            self._dirty[:] = (1 << 30, -1, 1 << 30, -1)
+            self._spans[:] = 0
         return status
 
     def face_index(self) -> np.ndarray:

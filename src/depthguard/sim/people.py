@@ -18,6 +18,7 @@ origin is on the floor under the pelvis.
 from __future__ import annotations
 
 import bisect
+import functools
 import math
 from dataclasses import dataclass, field
 from typing import Sequence
@@ -56,15 +57,25 @@ class BodyShape:
         return 0.82 * self.height
 
     def shoulder(self, side: str) -> np.ndarray:
-        """Shoulder joint in the body frame."""
-        s = 1.0 if side == "left" else -1.0
-        return np.array([0.0, s * (self.torso_width / 2 + self.arm_radius), self.shoulder_z - 0.04])
+        """Shoulder joint in the body frame (a read-only (3,) array, made once per shape and side)."""
+        return _body_points(self, side)[0]
 
     def rest_hand(self, side: str) -> np.ndarray:
-        """Hand centre of a relaxed, hanging arm in the body frame."""
-        sh = self.shoulder(side)
-        reach = 0.97 * (self.upper_arm + self.forearm)
-        return sh + np.array([0.06, 0.02 * np.sign(sh[1]), -math.sqrt(reach ** 2 - 0.06 ** 2 - 0.02 ** 2)])
+        """Hand centre of a relaxed, hanging arm in the body frame (read-only, as :meth:`shoulder`)."""
+        return _body_points(self, side)[1]
+
+
+@functools.lru_cache(maxsize=64)
+def _body_points(shape: BodyShape, side: str) -> tuple[np.ndarray, np.ndarray]:
+    """``(shoulder, rest hand)`` of :class:`BodyShape` in the body frame: fixed by the shape,
+    so made once (a person is posed at every simulated frame)."""
+    s = 1.0 if side == "left" else -1.0
+    sh = np.array([0.0, s * (shape.torso_width / 2 + shape.arm_radius), shape.shoulder_z - 0.04])
+    reach = 0.97 * (shape.upper_arm + shape.forearm)
+    rest = sh + np.array([0.06, 0.02 * np.sign(sh[1]), -math.sqrt(reach ** 2 - 0.06 ** 2 - 0.02 ** 2)])
+    for a in (sh, rest):
+        a.setflags(write=False)
+    return sh, rest
 
 
 @dataclass(frozen=True)
@@ -126,6 +137,8 @@ class Person:
     interp: str = "linear"
     gait: bool = True   # swing the legs while walking (1.8 steps/s, up to ±25°)
     _memo: tuple | None = field(default=None, init=False, repr=False, compare=False)
+    _pose_memo: tuple | None = field(default=None, init=False, repr=False, compare=False)
+    _key_times: tuple | None = field(default=None, init=False, repr=False, compare=False)
 
     def __post_init__(self):
         if not self.keys:
@@ -145,8 +158,12 @@ class Person:
         return pose(rot_z(heading), [xy[0], xy[1], self.floor_z])
 
     def pose_at(self, t: float) -> PersonPose:
-        """Floor position, heading and world hand targets at time ``t``."""
-        return self._resolve(*self._between(t))
+        """Floor position, heading and world hand targets at time ``t`` (the last time's answer is
+        kept: a frame asks for the body and for the hand that carries a prop at the same time)."""
+        memo = self._pose_memo                           # one read: safe if another thread asks too
+        if memo is None or memo[0] != t:
+            memo = self._pose_memo = (t, self._resolve(*self._between(t)), {})
+        return memo[1]
 
     def _between(self, t: float) -> tuple[Key, Key, float]:
         """The keys around ``t`` and the eased blend ``s`` from the first to the second."""
@@ -155,7 +172,10 @@ class Person:
             return ks[0], ks[0], 0.0
         if t >= ks[-1].t:
             return ks[-1], ks[-1], 0.0
-        i = bisect.bisect_right([k.t for k in ks], t) - 1
+        kt = self._key_times
+        if kt is None or kt[0] is not ks:                # the keys' times, listed once per key list
+            kt = self._key_times = (ks, [k.t for k in ks])
+        i = bisect.bisect_right(kt[1], t) - 1
         a, b = ks[i], ks[i + 1]
         if self.interp == "step":
             return a, a, 0.0
@@ -186,7 +206,19 @@ class Person:
         return PersonPose(xy, heading, hands["left"], hands["right"])
 
     def arm_points(self, p: PersonPose, side: str) -> tuple[np.ndarray, np.ndarray, np.ndarray]:
-        """World shoulder, elbow and hand centre of one arm (two-link IK towards the target)."""
+        """World shoulder, elbow and hand centre of one arm (two-link IK towards the target);
+        kept for the pose :meth:`pose_at` last returned (read-only arrays then)."""
+        memo = self._pose_memo
+        if memo is not None and memo[1] is p:
+            arm = memo[2].get(side)
+            if arm is None:
+                arm = memo[2][side] = self._arm_points(p, side)
+                for a in arm:
+                    a.setflags(write=False)
+            return arm
+        return self._arm_points(p, side)
+
+    def _arm_points(self, p: PersonPose, side: str) -> tuple[np.ndarray, np.ndarray, np.ndarray]:
         sh = self.shape
         T = self.body_frame(p.xy, p.heading)
         R, o = T[:3, :3], T[:3, 3]

@@ -18,7 +18,11 @@ rendered once, a renderer for what moves, the sensor's noise model); a frame is 
    layers cover and measures the image in one pass, bit for bit the frame of ``apply_noise`` on
    the composite (issue 29: a ur3-cell 640x480 frame's CPU besides its renders 2.1x lower in
    the bench row ``sim.ur3_cell.frame_cpu_ms``, 3x in a whole shot). The robot layer has its own
-   renderer, and each layer's meshes give the window its pixels lie in;
+   renderer; each renderer hands over per row the span of the pixels it drew
+   (``Renderer.spans``), so the layers are not scanned again. The robot's vertices are posed
+   once per joint values and the people and props once per time
+   (:class:`~depthguard.sim.posed.PosedMeshes`), in place, and rendered where they lie
+   (``Renderer.render_arrays``): no mesh is made per frame;
 3. the invalid pixels follow one vocabulary, the monitor's (``MonitorConfig.invalid``, R28):
    ``"unknown"`` — no return stays 0, and a ray that meets nothing the scene models returns
    from beyond the rated range, as a real cell's walls would; ``"free"`` — every invalid
@@ -40,7 +44,8 @@ import numpy as np
 from depthguard.filtering.expected import ExpectedDepth
 from depthguard.geometry.decimate import SIM_CELL
 from depthguard.render import Renderer
-from depthguard.sources.layered import LayeredCamera, layer_window
+from depthguard.sim.posed import PackedMeshes
+from depthguard.sources.layered import LayeredCamera
 from depthguard.sources.simulated import SimulatedCamera, frame_rng
 
 __all__ = ["CameraSim", "CameraSchedule", "Shot", "INVALID_POLICIES"]
@@ -85,9 +90,18 @@ class CameraSim:
         self.sims = {c.id: SimulatedCamera(c, seed=seed, noiseless=noiseless) for c in cams}
         self._moving = {c.id: Renderer(c, parallel=parallel) for c in cams}
         self._robot = {c.id: Renderer(c, parallel=parallel) for c in cams}     # the robot layer's own
-        self._win = np.zeros(4, np.int64)
-        self._pose = {c.id: (np.ascontiguousarray(c.R, dtype=np.float64), np.ascontiguousarray(c.t, dtype=np.float64))
-                      for c in cams}
+        # the robot's clustered links packed once; their world vertices posed once per joint
+        # values, for every camera (RobotModel.render_link_vertices: the bits of render_link_meshes)
+        self._robot_vw = self._robot_q = None
+        if hasattr(robot, "render_link_vertices") and hasattr(robot, "render_link_topology"):   # a RobotModel
+            links = robot.render_link_topology(SIM_CELL)
+            off = np.zeros((len(links) + 1, 2), np.int64)
+            np.cumsum([len(m.vertices) for m in links], out=off[1:, 0])
+            np.cumsum([len(m.faces) for m in links], out=off[1:, 1])
+            self._robot_off = off
+            self._robot_faces = (np.ascontiguousarray(np.concatenate([m.faces for m in links]), dtype=np.int32)
+                                 if links else np.zeros((0, 3), np.int32))
+            self._robot_vw = np.zeros((int(off[-1, 0]), 3))
         self.layered = {c.id: LayeredCamera(self.expected[c.id].static, self.sims[c.id].model, c.fx, c.min_range,
                                             self.sims[c.id].model.returns_to(c.max_range), c.max_range,
                                             noiseless=noiseless, invalid=invalid) for c in cams}
@@ -106,32 +120,48 @@ class CameraSim:
              keep_robot: bool = False) -> Shot:
         """Camera ``camera_id``'s frame captured at ``t`` (s, the noise's stamp) with the robot at
         ``q`` (dof,) rad (None: no robot in the image) and the moving obstacles' world meshes
-        ``moving`` (module docstring)."""
+        ``moving`` (module docstring): a list of meshes, or a
+        :class:`~depthguard.sim.posed.PackedMeshes` (posed in place once per time step, rendered
+        where it lies)."""
         t0 = time.perf_counter()
-        rd = rwin = None
-        if self.robot is not None and q is not None:
+        rd = rsp = psp = None
+        if self.robot is not None and q is not None and self._robot_vw is not None:
+            vw = self._robot_vertices(q)                             # as ExpectedDepth.robot renders it
+            rd = self._robot[camera_id].render_arrays(vw, self._robot_faces, self._robot_off)[0]  # its buffer
+            rsp = self._robot[camera_id].spans
+        elif self.robot is not None and q is not None:               # another machine (sim/carm.py)
             qa = np.asarray(q, dtype=np.float64).reshape(-1)
             if qa.shape[0] != self.robot.dof or not np.all(np.isfinite(qa)):
                 raise ValueError(f"expected {self.robot.dof} finite joint values, got {qa.tolist()}")
-            meshes = self.robot.render_link_meshes(qa, SIM_CELL)     # as ExpectedDepth.robot renders it
+            meshes = self.robot.render_link_meshes(qa, SIM_CELL)
             rd = self._robot[camera_id].render(meshes)[0]            # the renderer's buffer
-            rwin = self._window(camera_id, meshes)
+            rsp = self._robot[camera_id].spans
         robot_depth = np.array(rd, copy=True) if keep_robot and rd is not None else None
         t1 = time.perf_counter()
-        person = pwin = None
-        if moving:
+        person = None
+        if isinstance(moving, PackedMeshes):
+            person = self._moving[camera_id].render_arrays(moving.vertices, moving.faces, moving.mesh_off)[0]
+            psp = self._moving[camera_id].spans                    # the layer's spans, as drawn
+        elif moving:
             moving = moving if isinstance(moving, list) else list(moving)
             person = self._moving[camera_id].render(moving)[0]      # the renderer's buffer
-            pwin = self._window(camera_id, moving)
+            psp = self._moving[camera_id].spans
         sim = self.sims[camera_id]
         # the robot occludes, as on a real cell; a user's rig without walls: R28 (module docstring)
         d = self.layered[camera_id].frame(rd, person, frame_rng(sim.seed, camera_id, t), bank=sim.bank, dark=dark,
-                                          robot_window=rwin, person_window=pwin)
+                                          robot_spans=rsp, person_spans=psp)
         return Shot(d, robot_depth, t1 - t0, time.perf_counter() - t1)
 
-    def _window(self, camera_id: str, meshes) -> tuple | None:
-        """The pixel window that holds what ``meshes`` can draw (:func:`~depthguard.sources.layered.layer_window`)."""
-        return layer_window(meshes, self.cams[camera_id], self._robot[camera_id].near, self._pose[camera_id], self._win)
+    def _robot_vertices(self, q) -> np.ndarray:
+        """The robot's (V, 3) world vertices at ``q`` (dof,) rad, all clustered links one after
+        the other; posed again only when ``q`` changes (the cameras of one time step share them)."""
+        qa = np.asarray(q, dtype=np.float64).reshape(-1)
+        if qa.shape[0] != self.robot.dof or not np.all(np.isfinite(qa)):
+            raise ValueError(f"expected {self.robot.dof} finite joint values, got {qa.tolist()}")
+        if self._robot_q is None or not np.array_equal(self._robot_q, qa):
+            self.robot.render_link_vertices(qa, SIM_CELL, self._robot_vw)
+            self._robot_q = qa.copy()
+        return self._robot_vw
 
     def depth(self, camera_id: str, t: float, q, moving: Sequence = (), dark: bool = False) -> np.ndarray:
         """The measured (H, W) float32 depth alone (:meth:`shot`)."""

@@ -386,38 +386,47 @@ class LayeredCamera:
         self.u_fly = np.empty(n, np.float64)
         self.u_drop = np.empty(n, np.float64)
 
-    def _layer(self, layer, spans, window):
+    def _layer(self, layer, spans, window, given=None):
         if layer is None:
             spans.fill(0)
             return self._empty
         if layer.shape != self.shape or layer.dtype != np.float32 or not layer.flags.c_contiguous:
             raise ValueError(f"a layer must be a C-contiguous float32 {self.shape} image, got "
                              f"{layer.dtype} {layer.shape}")
-        v0, v1, u0, u1 = (0, self.shape[0], 0, self.shape[1]) if window is None else window
         view = layer.view()                 # read-only, as a renderer may hand its images out:
         view.flags.writeable = False        # the kernels see one type whoever made the layer
+        if given is not None:               # the renderer's own spans (Renderer.spans): taken as they are
+            if given.shape != spans.shape:
+                raise ValueError(f"a layer's spans must be ({self.shape[0]}, 2), got {given.shape}")
+            np.copyto(spans, given, casting="same_kind")
+            return view
+        v0, v1, u0, u1 = (0, self.shape[0], 0, self.shape[1]) if window is None else window
         layer_spans(view.view(np.uint32), spans, int(v0), int(v1), int(u0), int(u1))
         return view
 
-    def compose(self, robot, person, robot_window=None, person_window=None) -> tuple[int, int]:
+    def compose(self, robot, person, robot_window=None, person_window=None, robot_spans=None,
+                person_spans=None) -> tuple[int, int]:
         """Steps 1-2 of the module docstring: the frame's composite and edges of the layers
         ``robot`` and ``person`` ((H, W) float32 m or None), each 0 outside its window ``(v0, v1,
         u0, u1)`` (pixel rows / columns, half-open; None: anywhere); returns its ``(valid, edge)``
-        pixels."""
-        r = self._layer(robot, self.r_spans, robot_window)
-        p = self._person = self._layer(person, self.p_spans, person_window)
+        pixels. ``robot_spans``, ``person_spans`` (H, 2) int32: per row the span ``[a, b)``
+        outside which the layer is 0, when its renderer knows it (``Renderer.spans``: step 1
+        is then skipped; the same spans, as every pixel a renderer draws has a depth > 0)."""
+        r = self._layer(robot, self.r_spans, robot_window, robot_spans)
+        p = self._person = self._layer(person, self.p_spans, person_window, person_spans)
         return compose_edges(self.static, self.s_edge, self.s_other, self.s_valid_cum, self.s_edge_cum,
                              r, self.r_spans, p, self.p_spans, self.zc, self.edge, self.other,
                              self.valid_row, self.edge_row, self.c_spans, self.e_spans, self.rows, EDGE_JUMP_ABS,
                              EDGE_JUMP_REL, self.noise)
 
     def frame(self, robot, person, rng: np.random.Generator, bank=None, dark: bool = False,
-              out: np.ndarray | None = None, robot_window=None, person_window=None) -> np.ndarray:
+              out: np.ndarray | None = None, robot_window=None, person_window=None, robot_spans=None,
+              person_spans=None) -> np.ndarray:
         """The measured (H, W) float32 m frame (``out``, or a new image) of the static scene with
         the layers ``robot`` and ``person`` ((H, W) float32 m or None), the noise drawn from
         ``rng`` (its normals from ``bank``, a :class:`~depthguard.sources.noise.NormalBank`, when
-        given); ``dark``: the person's pixels return nothing; the windows: :meth:`compose`."""
-        n_valid, n_edges = self.compose(robot, person, robot_window, person_window)
+        given); ``dark``: the person's pixels return nothing; the windows and spans: :meth:`compose`."""
+        n_valid, n_edges = self.compose(robot, person, robot_window, person_window, robot_spans, person_spans)
         if out is None:
             out = np.empty(self.shape, np.float32)
         if self.noise:

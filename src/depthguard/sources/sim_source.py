@@ -48,6 +48,7 @@ import numpy as np
 from depthguard.config import PRODUCT_CAMERA_HZ
 from depthguard.robot.joint_history import JointHistory
 from depthguard.sim.obeying_robot import ObeyingRobot, PathFollower
+from depthguard.sim.posed import PosedMeshes
 from depthguard.sources.base import register_joints, register_source
 from depthguard.sources.camera_sim import CameraSchedule, CameraSim
 from depthguard.sources.frame import Frame
@@ -231,6 +232,7 @@ class SimFrames:
         self.sim = CameraSim(cams, robot=world.robot, static_meshes=rig.static_meshes(), seed=world.seed,
                              noiseless=world.noiseless, invalid="unknown")
         self.schedule = CameraSchedule(len(cams), world.camera_hz)
+        self._posed = PosedMeshes(world.scene, alone=world.alone)   # the people and props, posed in place
         self._stopped: dict[str, float] = {}
         self.skip_behind = False        # set by a real-time run: frames a slow machine cannot render are dropped
         self.skipped = 0
@@ -278,7 +280,7 @@ class SimFrames:
 
     def render(self, camera_id: str, t: float, q: np.ndarray) -> np.ndarray:
         """The measured (H, W) float32 depth of camera ``camera_id`` at run time ``t``, robot at ``q``."""
-        moving = [p.mesh() for p in self.world.dynamic(t)]
+        moving = self._posed.at(self.world.scene_time(t))       # world.dynamic(t), packed in place
         return self.sim.depth(camera_id, t, q, moving, dark=self.world.dark)
 
     def frames_until(self, t: float) -> list[Frame]:

@@ -124,6 +124,8 @@ class SimSource:
         self.sim = CameraSim(cams, robot=scene.robot, static_meshes=scene.static_meshes, seed=seed,
                              noiseless=noiseless, invalid=None)
         self.cameras = self.sim.sims            # {camera id: SimulatedCamera}
+        from depthguard.sim.posed import PosedMeshes
+        self._posed = PosedMeshes(scene)
 
     def frames(self, t: float, labels: bool = False, robot: bool = True) -> dict[str, Frame]:
         """``{camera id: Frame}`` at scene time ``t`` (robot included unless ``robot=False``).
@@ -138,6 +140,6 @@ class SimSource:
                 d, lab = sc.capture_with_labels(meshes, stamp=t)
                 out[cid] = Frame(cid, d, float(t), lab)
             return out
-        moving, _names = self.scene.moving_meshes_at(t)
+        moving = self._posed.at(float(t))            # posed once for all cameras (sim/posed.py)
         q = self.scene.robot_q(t) if (robot and self.scene.robot is not None) else None
         return {cid: Frame(cid, self.sim.depth(cid, t, q, moving), float(t)) for cid in self.cameras}

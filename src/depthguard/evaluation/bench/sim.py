@@ -18,6 +18,14 @@ default numba threads, the renders on one):
   over frames of 2 s of the scene, each call right after its layers' renders. Peer: the former way on the same layers and generators
   (:func:`~depthguard.sources.layered.reference_frame`: copy, ``nearest_depth`` twice,
   ``apply_noise``, the policy on whole images), alternated; the frames must be bit-identical.
+- ``sim.ur3_cell.person_cpu_ms``: CPU (``time.thread_time``, one numba thread) of the moving
+  layer of one 640x480 D435 frame of the ur3-cell with the person reaching, each camera in turn:
+  the people and props posed in place (:class:`~depthguard.sim.posed.PosedMeshes`), rendered
+  where they lie (``Renderer.render_arrays``), the layer's spans as drawn. Peer: the former way
+  on the same poses, alternated — ``Primitive.mesh()`` per part, ``Renderer.render`` of the
+  list, the layer's window from its meshes and its spans scanned (``layer_window``,
+  ``layer_spans``); the images and spans must be bit-identical. (Both posings use today's
+  ``Person``, whose pose memo is part of the change: the peer understates the gain.)
 - ``sim.c_arm_room.occupancy_5cm_ms``: ground-truth occupancy (R24) of the
   4 x 4 x 2.5 m room at 5 cm (80 x 80 x 50 voxels, centre rule), robot included
   (quick mode: 10 cm, ``occupancy_10cm_ms``).
@@ -71,6 +79,7 @@ def sim_group(ctx: BenchContext) -> list[BenchRow]:
                          "scene meshes at t + render + D435 noise, 4 cameras"))
 
     rows.append(_frame_cpu_row(cell, 20 if ctx.quick else 60))
+    rows.append(_person_cpu_row(cell, 10 if ctx.quick else 30))
 
     # ground-truth occupancy of the c-arm room (quick mode: 10 cm voxels)
     room = load_cell("c-arm-room")
@@ -159,3 +168,67 @@ def _frame_cpu_row(cell, n: int) -> BenchRow:
                     "the former way (copy, nearest_depth x2, apply_noise, policy)", 1e3 * float(np.median(old)),
                     f"{cam.id} 640x480 D435 besides its 2 renders: composite + noise (bank) + invalid policy, "
                     f"one numba thread, CPU, median of {len(new)}; bit-identical; goal <= 1.5 (issue 29)")
+
+
+def _person_cpu_row(cell, n: int) -> BenchRow:
+    """``sim.ur3_cell.person_cpu_ms`` (module docstring) over ``n`` times per camera."""
+    import time
+
+    import numba
+
+    from depthguard.render import Renderer
+    from depthguard.sim.posed import PosedMeshes
+    from depthguard.sources.layered import layer_spans, layer_window
+
+    scene = cell.scene
+    t0 = cell.situations["arm_reaching"].time
+    new, old = [], []
+    previous = numba.get_num_threads()
+    numba.set_num_threads(1)
+    try:
+        for cam in cell.rig.cameras:
+            posed = PosedMeshes(scene)
+            ra, rb = Renderer(cam), Renderer(cam)
+            pose = (np.ascontiguousarray(cam.R, dtype=np.float64), np.ascontiguousarray(cam.t, dtype=np.float64))
+            win = np.empty(4, np.int64)
+            spans = np.zeros((cam.height, 2), np.int32)
+            for rep in range(3):
+                for k in range(n):
+                    t = t0 + 2.0 * k / n
+                    posed._last = None                   # pose again: each frame has its own time
+                    c0 = time.thread_time()
+                    pk = posed.at(t)
+                    a = ra.render_arrays(pk.vertices, pk.faces, pk.mesh_off)[0]
+                    c1 = time.thread_time()
+                    pose_s, prims = _pose(scene, t)
+                    c2 = time.thread_time()
+                    meshes = [p.mesh() for p in prims]
+                    b = rb.render(meshes)[0]
+                    w = layer_window(meshes, cam, rb.near, pose, win)
+                    layer_spans(b.view(np.uint32), spans, *(w or (0, cam.height, 0, cam.width)))
+                    c3 = time.thread_time()
+                    if a.tobytes() != b.tobytes() or ra.spans.tobytes() != spans.tobytes():
+                        raise AssertionError(f"sim bench: the posed person at t = {t} differs from the former way")
+                    if rep:
+                        new.append(c1 - c0)
+                        old.append(c3 - c2 + pose_s)
+    finally:
+        numba.set_num_threads(previous)
+    return BenchRow("sim.ur3_cell.person_cpu_ms", 1e3 * float(np.median(new)), "ms", None,
+                    "the former way (mesh() per part, render of the list, window + spans scanned)",
+                    1e3 * float(np.median(old)),
+                    f"the person and the box of one 640x480 D435 frame: posed in place + rendered + spans, "
+                    f"one numba thread, CPU, median of {len(new)} over the 4 cameras; bit-identical")
+
+
+def _pose(scene, t: float) -> tuple[float, list]:
+    """``(CPU seconds, primitives)`` of posing the scene's people and props at ``t`` afresh
+    (``dynamic_at``, the memos of the last time forgotten)."""
+    import time
+
+    for person in scene.people:
+        person._pose_memo = None
+        person._memo = None
+    c0 = time.thread_time()
+    prims = scene.dynamic_at(t)
+    return time.thread_time() - c0, prims
