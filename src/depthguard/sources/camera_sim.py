@@ -41,6 +41,7 @@ from typing import NamedTuple, Sequence
 
 import numpy as np
 
+from depthguard.config import PRODUCT_INVALID
 from depthguard.filtering.expected import ExpectedDepth
 from depthguard.geometry.decimate import SIM_CELL
 from depthguard.render import Renderer
@@ -70,14 +71,15 @@ class CameraSim:
     robot : the :class:`~depthguard.robot.RobotModel` the frames show (None: no robot).
     static_meshes : world meshes that never move, rendered once per camera.
     seed, noiseless : the noise (:class:`~depthguard.sources.simulated.SimulatedCamera`).
-    invalid : ``"unknown"`` | ``"free"`` | None (module docstring, step 3).
+    invalid : ``"unknown"`` | ``"free"`` | None (module docstring, step 3); default the
+        product's (:data:`depthguard.config.PRODUCT_INVALID`).
     parallel : the renderers' numba threads (False: one, e.g. on a camera thread).
 
     One object per thread: each camera's buffers are reused from frame to frame.
     """
 
     def __init__(self, cams: Sequence, robot=None, static_meshes=(), seed: int = 0, noiseless: bool = False,
-                 invalid: str | None = "unknown", parallel: bool = False):
+                 invalid: str | None = PRODUCT_INVALID, parallel: bool = False):
         if invalid not in INVALID_POLICIES:
             raise ValueError(f"invalid must be 'unknown', 'free' or None, got {invalid!r}")
         static = list(static_meshes)
