@@ -100,3 +100,42 @@ def test_a_fast_run_whose_camera_never_had_a_frame_accepted_exits_2_naming_why(t
     summary = json.loads((out / "summary.json").read_text())
     assert summary["stats"]["cameras"]["cam0"]["frames"] == 0
     assert summary["stats"]["cameras"]["cam1"]["frames"] > 0
+
+
+def test_frames_refused_one_by_one_for_one_cause_are_told_once_per_camera_until_accepted():
+    """Frames arriving before any joint state (simulated cameras with live joints that have not
+    started, issue 33's first-contact check) are each refused with their own stamp in the reason;
+    the command told each one (60 lines a second). Told: once per camera, again after a frame is
+    accepted and the refusals start over. The truth: the monitor's own reasons, cycle by cycle."""
+    from depthguard.cli.monitor import RefusalTeller
+
+    rig = load_cell("flacco-cell").rig
+    q0 = np.asarray(rig.robot_q0, dtype=np.float64)
+    still = {c.id: _still(rig, c, q0) for c in rig.cameras}
+    lines: list[str] = []
+    tell = RefusalTeller(lines.append)
+    reasons_seen = {c.id: set() for c in rig.cameras}
+    with Monitor(rig, rig.monitor.with_changes(invalid="free")) as mon:
+        for k in range(6):                                   # no joint state yet: every frame refused
+            for c in rig.cameras:
+                mon.push_frame(Frame(c.id, still[c.id], 0.01 + k / 30))
+            mon.flush(timeout=FLUSH_S)
+            r = mon.step(0.02 + k / 30)
+            tell(r)
+            for c in rig.cameras:
+                reasons_seen[c.id].add(r.reasons.get(f"stale:{c.id}", ""))
+        for c in rig.cameras:                                # each frame's own stamp: the reasons differ
+            assert len(reasons_seen[c.id]) >= 3 and all("refused" in m for m in reasons_seen[c.id]), reasons_seen
+            assert sum(f"camera {c.id} refuses" in x for x in lines) == 1, lines
+        assert len(lines) == len(rig.cameras)
+        for j in range(200):                                 # joints come; the next frames are accepted
+            mon.push_joints(0.2 + j * 0.002, q0)
+        for c in rig.cameras:
+            mon.push_frame(Frame(c.id, still[c.id], 0.3))
+        mon.flush(timeout=FLUSH_S)
+        tell(mon.step(0.31))
+        assert len(lines) == len(rig.cameras)                # accepted: nothing new to tell
+        mon.push_frame(Frame(rig.cameras[0].id, still[rig.cameras[0].id] / 1000.0, 0.4))   # metres: refused again
+        mon.flush(timeout=FLUSH_S)
+        tell(mon.step(0.41))
+        assert len(lines) == len(rig.cameras) + 1 and "hold metres" in lines[-1], lines

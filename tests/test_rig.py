@@ -100,6 +100,21 @@ def test_broken_rigs_name_file_field_and_problem(tmp_path, what, data, pattern):
     assert re.search(pattern, msg), msg
 
 
+def test_a_malformed_rig_file_is_one_line_naming_where(tmp_path):
+    """PyYAML's own message spans 7 lines with the source echoed (issue 33's first-contact check:
+    a workspace line missing its closing brace); the rig's error is one line with the line and
+    column where the parser gave up and where the unclosed mapping began."""
+    text = ("version: 1\nname: c\nworkspace: {min: [-1, -1, 0], max: [1, 1, 2]\n"
+            "cameras:\n  - {id: a, sensor: kinect_v1, pose: {translation: [0, 0, 1]}}\n")
+    p = write(tmp_path, text, "unclosed.yaml")
+    with pytest.raises(dg.RigError) as exc:
+        dg.Rig.load(p)
+    msg = str(exc.value)
+    assert "\n" not in msg, msg
+    assert msg.startswith(f"{p}: not valid YAML: ") and "at line 4, column 1" in msg, msg
+    assert "flow mapping at line 3, column 12" in msg, msg
+
+
 def test_not_yaml_and_missing_file(tmp_path):
     with pytest.raises(dg.RigError, match="rig file not found"):
         dg.Rig.load(tmp_path / "nope.yaml")

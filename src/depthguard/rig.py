@@ -28,6 +28,22 @@ from depthguard.rig_schema import (RIG_SCHEMA_VERSION, BoxShape, CameraSpec, Con
 
 __all__ = ["Rig", "RigError", "Workspace", "StaticObject", "RIG_SCHEMA_VERSION", "joint_limits_problem"]
 
+
+def _yaml_problem(exc: Exception) -> str:
+    """A YAML parser's error on one line (the user's one clear line): the problem where it was
+    found (1-based line and column) and what it was parsing since where, without the echoed
+    source lines PyYAML prints."""
+    problem = getattr(exc, "problem", None)
+    if not problem:
+        return " ".join(str(exc).split())
+    mark = getattr(exc, "problem_mark", None)
+    text = problem if mark is None else f"{problem} at line {mark.line + 1}, column {mark.column + 1}"
+    context, cmark = getattr(exc, "context", None), getattr(exc, "context_mark", None)
+    if context:
+        text += f" ({context}" + ("" if cmark is None else f" at line {cmark.line + 1}, column {cmark.column + 1}") + ")"
+    return text
+
+
 class RigError(ValueError):
     """A rig file is missing, unreadable or invalid; the message names file and field."""
 
@@ -154,7 +170,7 @@ class Rig:
         try:
             data = yaml.safe_load(p.read_text())
         except yaml.YAMLError as exc:
-            raise RigError(f"{p}: not valid YAML: {exc}") from None
+            raise RigError(f"{p}: not valid YAML: {_yaml_problem(exc)}") from None
         except UnicodeDecodeError:
             raise RigError(f"{p}: not a text file") from None
         return cls.from_dict(data, source=p)

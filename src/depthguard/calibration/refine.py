@@ -32,8 +32,9 @@ metres at range ``L``) or ``lambda < 1e-9 lambda_max``. The step is
 taken in the constrained subspace only: an unconstrained direction keeps
 the rig's value and is reported, never "fixed" by noise.
 
-Convergence: a step below ``tol_t`` (m) and ``tol_r`` (rad), or
-``max_iter`` iterations (then ``converged`` is False and the pose returned
+Convergence: a step below ``tol_t`` (m) and ``tol_r`` (rad), or a step that undoes
+the previous one to within them (both under ten times them: a two-pose cycle, the
+better pose kept), or ``max_iter`` iterations (then ``converged`` is False and the pose returned
 is the iterate with the lowest robust cost — the mean over the sampled
 pixels of ``min((e / 4.685)^2, 1)``, an unpaired pixel counting 1 —
 never one that ran off). Each step is clipped to ``MAX_STEP_T`` / ``MAX_STEP_R``.
@@ -159,6 +160,7 @@ def refine_pose(cam, measured: np.ndarray, scene, robot_depth=None, stride: int 
     scale_cols = np.array([1.0, 1.0, 1.0, 1.0 / L, 1.0 / L, 1.0 / L])
     out = Refinement(T.copy(), 0, False, 0, 0, math.nan, L=L)
     best_cost, best_T = math.inf, T.copy()
+    prev = None                              # the previous step (dt, dw)
     for it in range(1, max_iter + 1):
         c = cam.with_pose(T)
         view = scene.view(c)
@@ -220,6 +222,16 @@ def refine_pose(cam, measured: np.ndarray, scene, robot_depth=None, stride: int 
         if np.linalg.norm(dt) < tol_t and np.linalg.norm(dw) < tol_r:
             out.converged = True
             break
+        # a two-step cycle: the step undoes the previous one (the pixels paired with the scene
+        # change between the two poses) and both are within 10x the tolerances; the fit is at
+        # its optimum to within one step (issue 33's first-contact check: a simulated camera at
+        # its exact pose cycled +-1.6e-5 rad for 40 iterations and was called "suspicious")
+        if (prev is not None and np.linalg.norm(dt + prev[0]) < tol_t and np.linalg.norm(dw + prev[1]) < tol_r
+                and np.linalg.norm(dt) < 10 * tol_t and np.linalg.norm(dw) < 10 * tol_r):
+            out.converged = True
+            out.world_from_camera = best_T       # the better of the cycle's two poses
+            break
+        prev = (dt, dw)
     if not out.converged:
         out.world_from_camera = best_T       # never worse than where it started (by the robust cost)
     return out

@@ -8,6 +8,7 @@ from __future__ import annotations
 
 import json
 import os
+import re
 import signal
 import threading
 from pathlib import Path
@@ -56,6 +57,34 @@ def _status_line(r) -> str:
 
 
 _REFUSED = "; its frames are refused"
+
+
+_NUMBER = re.compile(r"[-+]?\d+(?:\.\d+)?(?:[eE][-+]?\d+)?")
+
+
+class RefusalTeller:
+    """Called with every cycle's reaction: a camera's refused frames (R27, R30), logged through
+    ``log`` in full once when they start and again only when their cause changes kind — the
+    cause with its numbers (a frame's stamp, a share of pixels) left out. Each refusal naming its
+    frame's stamp ('frame at 1795686387.497 s refused: no joint state received yet') was a line
+    per frame, 60 a second with two cameras (issue 33's first-contact check)."""
+
+    def __init__(self, log):
+        self.log = log
+        self.told: dict[str, str] = {}
+
+    def __call__(self, r) -> None:
+        refusing = set()
+        for k, m in r.reasons.items():
+            if k.startswith("stale:") and _REFUSED in m:
+                refusing.add(k)
+                why = m.split(_REFUSED, 1)[1].split(": ", 1)[-1]
+                kind = _NUMBER.sub("#", why)
+                if self.told.get(k) != kind:
+                    self.told[k] = kind
+                    self.log(f"monitor: camera {k.split(':', 1)[1]} refuses its frames: {why}")
+        for k in [k for k in self.told if k not in refusing]:     # accepted again: a new refusal is told
+            del self.told[k]
 
 
 def _short_reasons(reasons: dict) -> list[str]:
@@ -173,16 +202,7 @@ def monitor(
                 log(f"monitor: {x.describe}")
         tty = is_terminal() and not quiet
 
-        told: dict[str, str] = {}
-
-        def tell_refusals(r):
-            """Every cycle: a camera's refused frames, logged in full once as they start (or change cause)."""
-            for k, m in r.reasons.items():
-                if k.startswith("stale:") and _REFUSED in m:
-                    why = m.split(_REFUSED, 1)[1].split(": ", 1)[-1]
-                    if told.get(k) != why:
-                        told[k] = why
-                        log(f"monitor: camera {k.split(':', 1)[1]} refuses its frames: {why}")
+        tell_refusals = RefusalTeller(log)
 
         changes_told: set = set()
 

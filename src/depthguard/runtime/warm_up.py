@@ -2,35 +2,94 @@
 
 from __future__ import annotations
 
+import threading
 import time
 from contextlib import contextmanager
 from pathlib import Path
 
 import numpy as np
 
-__all__ = ["warm_up", "compile_locks", "CompileCount"]
+__all__ = ["warm_up", "wait_idle", "CompileActivity", "compile_locks", "CompileCount"]
+
+
+class CompileActivity:
+    """numba at work in this process (compiling a kernel or loading it from the disk cache, on
+    any thread), from its ``numba:compile`` events, while installed: ``with CompileActivity() as
+    a: ...; a.quiet_s()`` is 0 while a compilation runs, else the seconds since the last one
+    ended (or since the ``with`` began)."""
+
+    def __init__(self):
+        self._lock = threading.Lock()
+        self._active = 0
+        self._last = time.perf_counter()
+        self.compiles = 0
+
+    def quiet_s(self) -> float:
+        with self._lock:
+            return 0.0 if self._active else time.perf_counter() - self._last
+
+    def __enter__(self):
+        from numba.core import event
+
+        act = self
+
+        class _Listener(event.Listener):
+            def on_start(self, ev):
+                with act._lock:
+                    act._active += 1
+                    act._last = time.perf_counter()
+
+            def on_end(self, ev):
+                with act._lock:
+                    act._active -= 1
+                    act.compiles += 1
+                    act._last = time.perf_counter()
+
+        self._listener = _Listener()
+        event.register("numba:compile", self._listener)
+        return self
+
+    def __exit__(self, *exc):
+        from numba.core import event
+
+        event.unregister("numba:compile", self._listener)
+        return False
+
+
+def wait_idle(target, timeout: float, activity: CompileActivity, poll_s: float = 0.0002) -> None:
+    """Wait until ``target.idle()`` (a :class:`Monitor`: every frame pushed is in the front grid).
+    ``timeout`` (s) counts only the time in which numba compiles nothing (``activity``): a cold
+    disk cache on a loaded machine compiles for many minutes (a fresh clone's ``depthguard run``
+    at load 9 on 2 cores: over 600 s wall, issue 33), which is work, not a hang. ``TimeoutError``
+    when the target stays busy ``timeout`` s after the last compilation ended."""
+    while not target.idle():
+        quiet = activity.quiet_s()
+        if quiet > timeout:
+            raise TimeoutError(f"monitor: frames still in processing {timeout:g} s after the last kernel "
+                               f"compilation ({activity.compiles} compiled or loaded)")
+        time.sleep(poll_s)
 
 
 def warm_up(rig, config=None, timeout: float = 600.0) -> float:
     """Compile every kernel of the monitor's path (numba, ``cache=True``: from the disk cache
     after the first time) on a throwaway monitor fed with the known scene's expected depth, so
-    that no clock of a run includes compilation. ``timeout`` (s): how long the frames may take
-    through the fusion (``depthguard warm-up`` gives more: another process may hold a kernel's
-    compile lock). Returns the seconds it took."""
+    that no clock of a run includes compilation (R29). ``timeout`` (s): how long the frames may
+    take through the fusion once numba compiles nothing more (:func:`wait_idle`; compiling from
+    a cold cache takes as long as it takes). Returns the seconds it took."""
     from depthguard.filtering.expected import ExpectedDepth
     from depthguard.runtime.monitor import Monitor
     from depthguard.sources.frame import Frame
 
     t0 = time.perf_counter()
     q0 = np.asarray(rig.robot_q0, dtype=np.float64)
-    with Monitor(rig, config) as mon:
+    with CompileActivity() as activity, Monitor(rig, config) as mon:
         mon.push_joints(0.0, q0)
         mon.push_joints(0.001, q0)
         for cid in mon.camera_ids:
             cam = rig.camera(cid)
             mon.push_frame(Frame(cid, np.array(ExpectedDepth(cam, rig.robot, rig.static_meshes()).known(q0)),
                                  0.0005))
-        mon.flush(timeout=timeout)
+        wait_idle(mon, timeout, activity)
         mon.step(0.001)
         # the distance thread's band query and the cycles' bound of its answer (real_time())
         from depthguard.runtime.distances import DistanceSnapshot, bound_distances, moved_beyond
