@@ -271,17 +271,16 @@ def monitor(
     summary["scene_changes"] = mon.scene_changes()       # issue 31: where the cell no longer matches its learned scene
     (out / "summary.json").write_text(json.dumps(summary, indent=1, allow_nan=False) + "\n")
     near = summary["nearest_distance_m"]
-    if near is not None:
-        near_text = f"{near * 100:.1f} cm"
-    elif summary["unobserved_cycles"]:
-        near_text = (f"none within rho where it could judge ({summary['unobserved_cycles']} of {summary['cycles']} "
-                     f"cycles could not judge every point)")
-    else:
-        near_text = "none within rho"
+    blind = (f" ({summary['unobserved_cycles']} of {summary['cycles']} cycles could not judge every point)"
+             if summary["unobserved_cycles"] else "")               # "no obstacle" is not "cannot judge" (R26)
+    near_text = (f"{near * 100:.1f} cm" if near is not None else "none within rho") + \
+        (" where it could judge" + blind if blind else "")
+    f2r = summary["frame_to_reaction_ms"]["p99"]
     typer.echo(f"monitor: {summary['cycles']} cycles over {summary['run_time_s']:.2f} s "
                f"({'interrupted' if stats.interrupted else 'done'}); override min {summary['override_min']:.2f}, "
                f"stopped {summary['stopped_s']:.2f} s; nearest {near_text}; "
-               f"step p99 {summary['step_ms']['p99']} ms; frame to reaction p99 {summary['frame_to_reaction_ms']['p99']} ms"
+               f"step p99 {summary['step_ms']['p99']} ms; frame to reaction p99 "
+               f"{'n/a (no frame used)' if f2r is None else f'{f2r} ms'}"
                + f"; wrote {out}/log.jsonl, summary.json and results.mcap")
     refused = never_accepted(summary["stats"]) if fast else None
     if refused:                         # a recording none of whose frames could be used: bad input
