@@ -242,8 +242,9 @@ class Monitor(MonitorDistances, UnitStateInput, MonitorPaths, MonitorWatches):
 
     def push_frame(self, frame) -> None:
         """A depth frame (:class:`~depthguard.sources.Frame`: camera id, (H, W) metres, capture
-        stamp). Returns at once; the frame is processed on its camera's worker thread. A frame of
-        a camera that is not monitored (removed) is counted as refused."""
+        stamp). Returns at once; the frame is processed on its camera's worker thread, which keeps
+        a float32 C-contiguous depth without copying it: do not write into it afterwards. A frame
+        of a camera that is not monitored (removed) is counted as refused."""
         w = self._workers.get(frame.camera_id)
         if w is None:
             if frame.camera_id not in self._cameras:
