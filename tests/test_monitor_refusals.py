@@ -139,3 +139,36 @@ def test_frames_refused_one_by_one_for_one_cause_are_told_once_per_camera_until_
         mon.flush(timeout=FLUSH_S)
         tell(mon.step(0.41))
         assert len(lines) == len(rig.cameras) + 1 and "hold metres" in lines[-1], lines
+
+
+def test_a_camera_that_delivers_nothing_is_named_when_the_run_ends(tmp_path):
+    """A recording with cam1's frames only, on the two-camera rig: cam0 never delivers, so the robot
+    is stopped for it all along (R27) — the run's last lines say which camera and why, not only
+    "override min 0.00"."""
+    from typer.testing import CliRunner
+
+    from depthguard.cli import app
+    from depthguard.sim.cells import cell_rig_path
+    from depthguard.sources.images import write_image_dir
+    from depthguard.sources.sim_source import SimFrames, SimWorld
+
+    world = SimWorld("flacco-cell", alone=True, noiseless=True)
+    sim = SimFrames(world)
+    T0, dur = 1.7e9, 0.3
+    world.advance(dur + 0.05)
+    frames = [Frame("cam1", sim.render("cam1", k / 30 + 0.005, world.history.at(k / 30 + 0.005)), T0 + k / 30 + 0.005)
+              for k in range(int(dur * 30) + 1)]
+    write_image_dir(tmp_path / "rec", frames)
+    rows = ["stamp," + ",".join(f"q{j + 1}" for j in range(world.robot.dof))]
+    rows += [f"{T0 + k / 500!r}," + ",".join(repr(float(x)) for x in world.history.at(k / 500))
+             for k in range(int((dur + 0.05) * 500))]
+    (tmp_path / "joints.csv").write_text("\n".join(rows) + "\n")
+    out = tmp_path / "out"
+    res = CliRunner().invoke(app, ["monitor", "--rig", str(cell_rig_path("flacco-cell")), "--source",
+                                   f"images:{tmp_path / 'rec'}", "--joints", f"csv:{tmp_path / 'joints.csv'}",
+                                   "--fast", "--quiet", "--out", str(out)])
+    summary = json.loads((out / "summary.json").read_text())
+    assert summary["stats"]["cameras"]["cam0"]["frames"] == 0 and not summary["stats"]["cameras"]["cam0"]["refused"]
+    assert summary["stats"]["cameras"]["cam1"]["frames"] > 0 and summary["stopped_s"] > 0.9 * summary["run_time_s"]
+    said = [x for x in res.output.splitlines() if "delivered no frame" in x]
+    assert len(said) == 1 and "camera cam0 delivered no frame" in said[0] and "cam1" not in said[0], res.output

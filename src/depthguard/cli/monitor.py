@@ -104,6 +104,17 @@ def never_accepted(stats: dict) -> str | None:
     return "; ".join(bad) or None
 
 
+def never_delivered(stats: dict) -> str | None:
+    """One line naming every monitored camera that delivered no frame at all in the run (none
+    accepted, none refused): the robot was stopped for it throughout (R27); None when there is none."""
+    silent = [c for c, s in stats["cameras"].items() if s["frames"] == 0 and not s["refused"]]
+    if not silent:
+        return None
+    return (f"camera{'s' if len(silent) > 1 else ''} {', '.join(silent)} delivered no frame in this run: the robot "
+            f"was stopped for {'them' if len(silent) > 1 else 'it'} throughout (R27); a camera the cell does not "
+            f"have leaves the rig's monitor: cameras list")
+
+
 @app.command("monitor")
 def monitor(
     rig: Optional[Path] = typer.Option(None, "--rig", help="Rig file (YAML) of your cell; its monitor: section sets the runtime."),
@@ -282,6 +293,9 @@ def monitor(
                f"step p99 {summary['step_ms']['p99']} ms; frame to reaction p99 "
                f"{'n/a (no frame used)' if f2r is None else f'{f2r} ms'}"
                + f"; wrote {out}/log.jsonl, summary.json and results.mcap")
+    silent = never_delivered(summary["stats"])
+    if silent:
+        typer.echo(f"monitor: {silent}", err=True)
     refused = never_accepted(summary["stats"]) if fast else None
     if refused:                         # a recording none of whose frames could be used: bad input
         typer.echo(f"depthguard: error: {refused}", err=True)
