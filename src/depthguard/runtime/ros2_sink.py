@@ -45,7 +45,7 @@ SCALING_MSG = "float64 factor\n"
 
 class _Messages:
     """The message builders of ``McapResults`` without its file: they read only ``robot``,
-    ``_watch`` and ``frame_id``."""
+    ``_watch``, ``frame_id`` and ``McapResults._marker_points``."""
 
     def __init__(self, robot, watch_points, frame_id: str):
         import numpy as np
@@ -56,6 +56,7 @@ class _Messages:
         self.robot, self.frame_id = robot, frame_id
         self._watch = {n: np.asarray(p, dtype=np.float64) for n, p in watch_points}
         self.reaction = McapResults.reaction_msg.__get__(self)
+        self._marker_points = McapResults._marker_points.__get__(self)    # what markers_msg calls
         self.markers = McapResults.markers_msg.__get__(self)
 
 
