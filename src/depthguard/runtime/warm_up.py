@@ -12,11 +12,43 @@ import numpy as np
 __all__ = ["warm_up", "wait_idle", "CompileActivity", "compile_locks", "CompileCount"]
 
 
-class CompileActivity:
+class _CompileEvents:
+    """numba's ``numba:compile`` events (compiling a kernel or loading it from the disk cache)
+    handed to ``started(ev)`` / ``ended(ev)`` while installed as a context manager."""
+
+    def started(self, ev) -> None:
+        pass
+
+    def ended(self, ev) -> None:
+        pass
+
+    def __enter__(self):
+        from numba.core import event
+
+        owner = self
+
+        class _Listener(event.Listener):
+            def on_start(self, ev):
+                owner.started(ev)
+
+            def on_end(self, ev):
+                owner.ended(ev)
+
+        self._listener = _Listener()
+        event.register("numba:compile", self._listener)
+        return self
+
+    def __exit__(self, *exc):
+        from numba.core import event
+
+        event.unregister("numba:compile", self._listener)
+        return False
+
+
+class CompileActivity(_CompileEvents):
     """numba at work in this process (compiling a kernel or loading it from the disk cache, on
-    any thread), from its ``numba:compile`` events, while installed: ``with CompileActivity() as
-    a: ...; a.quiet_s()`` is 0 while a compilation runs, else the seconds since the last one
-    ended (or since the ``with`` began)."""
+    any thread), while installed: ``with CompileActivity() as a: ...; a.quiet_s()`` is 0 while a
+    compilation runs, else the seconds since the last one ended (or since the ``with`` began)."""
 
     def __init__(self):
         self._lock = threading.Lock()
@@ -28,32 +60,16 @@ class CompileActivity:
         with self._lock:
             return 0.0 if self._active else time.perf_counter() - self._last
 
-    def __enter__(self):
-        from numba.core import event
+    def started(self, ev) -> None:
+        with self._lock:
+            self._active += 1
+            self._last = time.perf_counter()
 
-        act = self
-
-        class _Listener(event.Listener):
-            def on_start(self, ev):
-                with act._lock:
-                    act._active += 1
-                    act._last = time.perf_counter()
-
-            def on_end(self, ev):
-                with act._lock:
-                    act._active -= 1
-                    act.compiles += 1
-                    act._last = time.perf_counter()
-
-        self._listener = _Listener()
-        event.register("numba:compile", self._listener)
-        return self
-
-    def __exit__(self, *exc):
-        from numba.core import event
-
-        event.unregister("numba:compile", self._listener)
-        return False
+    def ended(self, ev) -> None:
+        with self._lock:
+            self._active -= 1
+            self.compiles += 1
+            self._last = time.perf_counter()
 
 
 def wait_idle(target, timeout: float, activity: CompileActivity, poll_s: float = 0.0002) -> None:
@@ -172,39 +188,23 @@ def compile_locks(lock_dir):
         Dispatcher.compile = orig
 
 
-class CompileCount:
+class CompileCount(_CompileEvents):
     """Counts numba's compilations (cache misses) of kernels, outermost only, while installed:
     ``with CompileCount() as c: ...; c.kernels`` (names), ``c.seconds`` (wall seconds)."""
 
     def __init__(self):
         self.kernels: list[str] = []
         self.seconds = 0.0
+        self._depth, self._t0 = 0, 0.0
 
-    def __enter__(self):
-        from numba.core import event
+    def started(self, ev) -> None:
+        if self._depth == 0:
+            self._t0 = time.perf_counter()
+        self._depth += 1
 
-        count = self
-        depth = [0, 0.0]
-
-        class _Listener(event.Listener):
-            def on_start(self, ev):
-                if depth[0] == 0:
-                    depth[1] = time.perf_counter()
-                depth[0] += 1
-
-            def on_end(self, ev):
-                depth[0] -= 1
-                if depth[0] == 0:
-                    f = getattr(ev.data.get("dispatcher"), "py_func", None)
-                    count.kernels.append(f"{f.__module__}.{f.__qualname__}" if f is not None else "?")
-                    count.seconds += time.perf_counter() - depth[1]
-
-        self._listener = _Listener()
-        event.register("numba:compile", self._listener)
-        return self
-
-    def __exit__(self, *exc):
-        from numba.core import event
-
-        event.unregister("numba:compile", self._listener)
-        return False
+    def ended(self, ev) -> None:
+        self._depth -= 1
+        if self._depth == 0:
+            f = getattr(ev.data.get("dispatcher"), "py_func", None)
+            self.kernels.append(f"{f.__module__}.{f.__qualname__}" if f is not None else "?")
+            self.seconds += time.perf_counter() - self._t0
