@@ -6,13 +6,20 @@ mode and in the timestamp domain given — not the ones depthguard would choose 
 and with the metadata a D400 attaches to each frame (``time_of_arrival``: the
 host's clock in ms when the frame arrived, ``frame_timestamp``: the device's clock
 in us). :func:`count_depth_messages` counts the depth images in a ``.db3`` with
-``sqlite3`` alone: the written truth the playback is compared with, read without
-the SDK. :func:`run_monitor` runs ``depthguard monitor`` on one in a subprocess, as a user
+``sqlite3`` alone, in a ``.bag`` with ``rosbags``' ROS 1 reader: the written truth
+the playback is compared with, read without the SDK.
+
+The installed SDK (>= 2.58) writes only ROS 2 ``.db3``; the ROS 1 ``.bag`` that most
+recordings in circulation are comes from an older SDK: :func:`write_bag_recording`
+runs :func:`write_recording` in a subprocess with pyrealsense2 :data:`BAG_SDK_VERSION`,
+which ``make venv`` installs into ``.venv/realsense-2.57`` (``pip install --target``;
+never downloaded by a test: without it the test skips, saying so). :func:`run_monitor` runs ``depthguard monitor`` on one in a subprocess, as a user
 does; :func:`error_line` is the one line a user error must print.
 """
 
 from __future__ import annotations
 
+import json
 import os
 import sqlite3
 import subprocess
@@ -24,16 +31,23 @@ import numpy as np
 
 DEPTH_TOPIC = "/device_0/sensor_0/Depth_0/image/data"
 
+#: the pyrealsense2 that writes ROS 1 ``.bag`` recordings (2.57 is the last; 2.58 moved to ROS 2 ``.db3``)
+BAG_SDK_VERSION = "2.57.7.10387"
+#: the start of the sentence a test skips with when that SDK is absent (tests/conftest.py: required in CI)
+NO_BAG_SDK = "no RealSense SDK that writes .bag"
+
 
 def write_recording(rs, path, *, width: int, height: int, fps: int, frames: int, domain: str = "hardware_clock",
                     colour: bool = True, arrival: bool = True, depth: bool = True, hw0_ms: float = 81234.567,
-                    fx: float | None = None, cx: float | None = None, cy: float | None = None) -> list[dict]:
+                    fx: float | None = None, cx: float | None = None, cy: float | None = None,
+                    compressed: bool = False) -> list[dict]:
     """Write ``frames`` depth frames (and as many colour ones when ``colour``) at ``path`` (must
     end in what the SDK's recorder accepts). Depth frame ``i`` holds ``1000 + i`` mm everywhere,
     is numbered ``i + 1`` and stamped ``hw0_ms + i * 1000 / fps`` ms in ``domain``
     (``hardware_clock``, ``global_time`` or ``system_time``); with ``arrival`` it carries the
     metadata ``time_of_arrival`` = the host clock (ms) when it was handed to the SDK.
-    ``depth=False``: the colour stream only. Returns per depth frame ``{number, stamp_ms,
+    ``depth=False``: the colour stream only. ``compressed``: the recorder's LZ4 compression, as
+    the SDK's own tools record by default (else raw). Returns per depth frame ``{number, stamp_ms,
     arrival_ms}``. Frames are injected one period apart (the recorder drops frames injected
     back to back)."""
     path = Path(path)
@@ -60,7 +74,7 @@ def write_recording(rs, path, *, width: int, height: int, fps: int, frames: int,
         sensors.append(("colour", cs, cs.add_video_stream(vs), 3))
     dev.register_info(rs.camera_info.serial_number, "843112070001")
     dev.register_info(rs.camera_info.name, "Intel RealSense D435")
-    recorder = rs.recorder(str(path), dev, False)
+    recorder = rs.recorder(str(path), dev, bool(compressed))
     queues = []
     for _, sensor, profile, _ in sensors:
         q = rs.frame_queue(4)
@@ -107,17 +121,58 @@ def write_recording(rs, path, *, width: int, height: int, fps: int, frames: int,
 
 
 def count_depth_messages(path) -> int:
-    """The depth images in a ``.db3`` recording, counted with sqlite3 (not the SDK)."""
+    """The depth images in a ``.db3`` recording, counted with sqlite3 (a compressed one holds them
+    as ``sensor_msgs/CompressedImage`` on ``.../image/data/compressedDepth``), or in a ``.bag``
+    (ROS 1, LZ4 chunks when compressed), counted with ``rosbags.rosbag1`` (not the SDK)."""
+    if Path(path).suffix == ".bag":
+        from rosbags.rosbag1 import Reader
+
+        with Reader(Path(path)) as reader:
+            conns = [c for c in reader.connections if c.topic == DEPTH_TOPIC]
+            return sum(1 for _ in reader.messages(connections=conns)) if conns else 0
     con = sqlite3.connect(f"file:{path}?mode=ro", uri=True)
     try:
-        (n,) = con.execute("SELECT COUNT(*) FROM messages m JOIN topics t ON m.topic_id = t.id WHERE t.name = ?",
-                           (DEPTH_TOPIC,)).fetchone()
+        (n,) = con.execute("SELECT COUNT(*) FROM messages m JOIN topics t ON m.topic_id = t.id WHERE t.name IN (?, ?)",
+                           (DEPTH_TOPIC, DEPTH_TOPIC + "/compressedDepth")).fetchone()
     finally:
         con.close()
     return int(n)
 
 
 SRC = Path(__file__).resolve().parents[1] / "src"
+TESTS = Path(__file__).resolve().parent
+
+
+def bag_sdk_dir() -> Path | None:
+    """Where pyrealsense2 :data:`BAG_SDK_VERSION` is installed for :func:`write_bag_recording`:
+    ``$DEPTHGUARD_BAG_SDK``, else ``realsense-2.57`` in the venv running the tests (``make venv``);
+    None when absent."""
+    d = Path(os.environ.get("DEPTHGUARD_BAG_SDK") or Path(sys.prefix) / "realsense-2.57")
+    return d if (d / "pyrealsense2" / "__init__.py").is_file() else None
+
+
+def write_bag_recording(path, **mode) -> list[dict]:
+    """:func:`write_recording` of ``mode`` at ``path`` (``.bag``), by the SDK's own recorder of
+    pyrealsense2 :data:`BAG_SDK_VERSION` in a subprocess (the installed SDK cannot write ``.bag``);
+    a skip naming what to run when that SDK is absent. The subprocess checks that it imported that
+    SDK, not the installed one."""
+    import pytest
+
+    sdk = bag_sdk_dir()
+    if sdk is None:
+        pytest.skip(f"{NO_BAG_SDK} here: `make venv` installs pyrealsense2 {BAG_SDK_VERSION} into "
+                    f"{Path(sys.prefix) / 'realsense-2.57'} (or set DEPTHGUARD_BAG_SDK to such a directory)")
+    code = ("import json, sys\n"
+            f"sys.path[:0] = [{str(sdk)!r}, {str(TESTS)!r}]\n"
+            "import pyrealsense2 as rs\n"
+            f"assert rs.__file__.startswith({str(sdk)!r}), rs.__file__\n"
+            "from realsense_recordings import write_recording\n"
+            "mode = json.loads(sys.argv[2])\n"
+            "print(json.dumps(write_recording(rs, sys.argv[1], **mode)))\n")
+    r = subprocess.run([sys.executable, "-c", code, str(path), json.dumps(mode)], capture_output=True, text=True,
+                       timeout=120, env={k: v for k, v in os.environ.items() if k != "PYTHONPATH"})
+    assert r.returncode == 0, f"pyrealsense2 {BAG_SDK_VERSION} could not write {path}: {r.stderr[-2000:]}"
+    return json.loads(r.stdout.splitlines()[-1])
 
 
 def run_monitor(tmp_path, source: str, joints: Path, cell: str = "flacco-cell"):
