@@ -40,14 +40,16 @@ NO_BAG_SDK = "no RealSense SDK that writes .bag"
 def write_recording(rs, path, *, width: int, height: int, fps: int, frames: int, domain: str = "hardware_clock",
                     colour: bool = True, arrival: bool = True, depth: bool = True, hw0_ms: float = 81234.567,
                     fx: float | None = None, cx: float | None = None, cy: float | None = None,
-                    compressed: bool = False) -> list[dict]:
+                    compressed: bool = False, wrap_ms: float | None = None) -> list[dict]:
     """Write ``frames`` depth frames (and as many colour ones when ``colour``) at ``path`` (must
     end in what the SDK's recorder accepts). Depth frame ``i`` holds ``1000 + i`` mm everywhere,
     is numbered ``i + 1`` and stamped ``hw0_ms + i * 1000 / fps`` ms in ``domain``
     (``hardware_clock``, ``global_time`` or ``system_time``); with ``arrival`` it carries the
     metadata ``time_of_arrival`` = the host clock (ms) when it was handed to the SDK.
     ``depth=False``: the colour stream only. ``compressed``: the recorder's LZ4 compression, as
-    the SDK's own tools record by default (else raw). Returns per depth frame ``{number, stamp_ms,
+    the SDK's own tools record by default (else raw). ``wrap_ms``: the stamps injected wrap around
+    at that many ms, as a D400's 32-bit microsecond hardware counter does (the ``stamp_ms``
+    returned stay unwrapped: the truth). Returns per depth frame ``{number, stamp_ms,
     arrival_ms}``. Frames are injected one period apart (the recorder drops frames injected
     back to back)."""
     path = Path(path)
@@ -96,14 +98,16 @@ def write_recording(rs, path, *, width: int, height: int, fps: int, frames: int,
                 kept.append(pixels)                          # the SDK reads the buffer later
                 f = rs.software_video_frame()
                 f.pixels, f.bpp, f.stride = pixels, bpp, width * bpp
-                f.timestamp, f.domain, f.frame_number = stamp + (0.3 if kind == "colour" else 0.0), dom, i + 1
+                raw = stamp + (0.3 if kind == "colour" else 0.0)
+                raw = raw % wrap_ms if wrap_ms else raw
+                f.timestamp, f.domain, f.frame_number = raw, dom, i + 1
                 f.profile = profile.as_video_stream_profile()
-                if kind == "depth":
+                if kind == "depth" and hasattr(f, "depth_units"):      # not in SDK 2.54's frames
                     f.depth_units = 0.001
                 arrival_ms = int(time.time() * 1000)
                 if arrival:
                     sensor.set_metadata(rs.frame_metadata_value.time_of_arrival, arrival_ms)
-                    sensor.set_metadata(rs.frame_metadata_value.frame_timestamp, int(stamp * 1000))
+                    sensor.set_metadata(rs.frame_metadata_value.frame_timestamp, int(raw * 1000))
                 sensor.on_video_frame(f)
                 if kind == "depth":
                     written.append({"number": i + 1, "stamp_ms": stamp, "arrival_ms": arrival_ms})
