@@ -120,3 +120,16 @@ def test_the_hardware_counter_wrapping_in_the_recording_is_unwrapped(tmp_path):
     assert "unwrapped 1 time" in stats["clock"]
     got, stats = play(f"realsense-file:cam0={path}:device_clock")
     assert [f.stamp for f in got] == pytest.approx([w["stamp_ms"] * 1e-3 for w in written], abs=1e-6)
+
+
+@pytest.mark.parametrize("domain", ["global_time", "system_time"])
+def test_a_host_clock_recording_without_metadata_plays_as_stamped(tmp_path, domain):
+    """Frames without any metadata (a camera on a kernel without the metadata patch: the SDK stamps
+    them in system_time) need none: on the host clock they play with the stamps injected, every one."""
+    path = tmp_path / "bare.db3"
+    written = write_recording(rs, path, width=640, height=480, fps=30, frames=6, domain=domain, arrival=False,
+                              hw0_ms=time.time() * 1e3, fx=CAM.fx, cx=CAM.cx, cy=CAM.cy)
+    got, stats = play(f"realsense-file:cam0={path}")
+    assert [f.stamp for f in got] == pytest.approx([w["stamp_ms"] * 1e-3 for w in written], abs=1e-6)
+    assert len(got) == count_depth_messages(path) and stats["problem"] is None
+    assert stats["clock"].startswith("the host clock")
