@@ -40,7 +40,7 @@ NO_BAG_SDK = "no RealSense SDK that writes .bag"
 def write_recording(rs, path, *, width: int, height: int, fps: int, frames: int, domain: str = "hardware_clock",
                     colour: bool = True, arrival: bool = True, depth: bool = True, hw0_ms: float = 81234.567,
                     fx: float | None = None, cx: float | None = None, cy: float | None = None,
-                    compressed: bool = False, wrap_ms: float | None = None) -> list[dict]:
+                    compressed: bool = False, wrap_ms: float | None = None, d435i: bool = False) -> list[dict]:
     """Write ``frames`` depth frames (and as many colour ones when ``colour``) at ``path`` (must
     end in what the SDK's recorder accepts). Depth frame ``i`` holds ``1000 + i`` mm everywhere,
     is numbered ``i + 1`` and stamped ``hw0_ms + i * 1000 / fps`` ms in ``domain``
@@ -49,7 +49,9 @@ def write_recording(rs, path, *, width: int, height: int, fps: int, frames: int,
     ``depth=False``: the colour stream only. ``compressed``: the recorder's LZ4 compression, as
     the SDK's own tools record by default (else raw). ``wrap_ms``: the stamps injected wrap around
     at that many ms, as a D400's 32-bit microsecond hardware counter does (the ``stamp_ms``
-    returned stay unwrapped: the truth). Returns per depth frame ``{number, stamp_ms,
+    returned stay unwrapped: the truth). ``d435i``: the other streams a D435i's recording holds
+    too, each frame beside each depth frame: infrared 1 (y8) in the depth sensor, opened with
+    depth, and a "Motion Module" with gyro and accel (``motion_xyz32f``). Returns per depth frame ``{number, stamp_ms,
     arrival_ms}``. Frames are injected one period apart (the recorder drops frames injected
     back to back)."""
     path = Path(path)
@@ -68,19 +70,32 @@ def write_recording(rs, path, *, width: int, height: int, fps: int, frames: int,
         vs.width, vs.height, vs.fps, vs.bpp, vs.fmt, vs.intrinsics = width, height, fps, 2, rs.format.z16, intr
         sensors.append(("depth", ds, ds.add_video_stream(vs), 2))
         ds.add_read_only_option(rs.option.depth_units, 0.001)
+        if d435i:
+            vs = rs.video_stream()
+            vs.type, vs.index, vs.uid = rs.stream.infrared, 1, 2
+            vs.width, vs.height, vs.fps, vs.bpp, vs.fmt, vs.intrinsics = width, height, fps, 1, rs.format.y8, intr
+            sensors.append(("infrared", ds, ds.add_video_stream(vs), 1))
     if colour:
         cs = dev.add_sensor("RGB Camera")
         vs = rs.video_stream()
         vs.type, vs.index, vs.uid = rs.stream.color, 0, 1
         vs.width, vs.height, vs.fps, vs.bpp, vs.fmt, vs.intrinsics = width, height, fps, 3, rs.format.rgb8, intr
         sensors.append(("colour", cs, cs.add_video_stream(vs), 3))
+    if d435i:
+        ms = dev.add_sensor("Motion Module")
+        for kind, stream, uid, rate in (("gyro", rs.stream.gyro, 3, 200), ("accel", rs.stream.accel, 4, 100)):
+            mst = rs.motion_stream()
+            mst.type, mst.index, mst.uid, mst.fps, mst.fmt = stream, 0, uid, rate, rs.format.motion_xyz32f
+            sensors.append((kind, ms, ms.add_motion_stream(mst), 0))
     dev.register_info(rs.camera_info.serial_number, "843112070001")
     dev.register_info(rs.camera_info.name, "Intel RealSense D435")
     recorder = rs.recorder(str(path), dev, bool(compressed))
-    queues = []
-    for _, sensor, profile, _ in sensors:
-        q = rs.frame_queue(4)
-        sensor.open(profile)
+    queues, opened = [], {}
+    for _, sensor, profile, _ in sensors:                   # each sensor opened once, with all its streams
+        opened.setdefault(id(sensor), (sensor, []))[1].append(profile)
+    for sensor, profiles in opened.values():
+        q = rs.frame_queue(16)
+        sensor.open(profiles if len(profiles) > 1 else profiles[0])
         sensor.start(q)
         queues.append(q)
     kept, written = [], []
@@ -91,8 +106,18 @@ def write_recording(rs, path, *, width: int, height: int, fps: int, frames: int,
             t0 = time.perf_counter()
             stamp = hw0_ms + i * 1000.0 / fps
             for kind, sensor, profile, bpp in sensors:
+                if kind in ("gyro", "accel"):
+                    m = rs.software_motion_frame()
+                    m.data = rs.vector()
+                    m.data.x, m.data.y, m.data.z = 0.0, -9.81 if kind == "accel" else 0.0, 0.0
+                    m.timestamp, m.domain, m.frame_number = stamp % wrap_ms if wrap_ms else stamp, dom, i + 1
+                    m.profile = profile.as_motion_stream_profile()
+                    sensor.on_motion_frame(m)
+                    continue
                 if kind == "depth":
                     pixels = np.full((height, width), 1000 + i, dtype=np.uint16)
+                elif kind == "infrared":
+                    pixels = np.full((height, width), (7 * i) % 256, dtype=np.uint8)
                 else:
                     pixels = np.full((height, width, 3), i % 256, dtype=np.uint8)
                 kept.append(pixels)                          # the SDK reads the buffer later
@@ -117,7 +142,7 @@ def write_recording(rs, path, *, width: int, height: int, fps: int, frames: int,
             time.sleep(max(0.0, period - (time.perf_counter() - t0)))
         time.sleep(0.1)
     finally:
-        for _, sensor, _, _ in sensors:
+        for sensor, _ in opened.values():
             sensor.stop()
             sensor.close()
         del recorder                                         # closes the file

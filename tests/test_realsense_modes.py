@@ -8,7 +8,9 @@ compressed, in both containers: ROS 2 ``.db3`` by the installed SDK, ROS 1
 ``.bag`` (most recordings in circulation) by pyrealsense2 2.57 in a subprocess
 (``make venv`` installs it; a skip saying so without it), both played by the
 installed SDK. The truth: the depth images in the file, counted with sqlite3 or
-rosbags' ROS 1 reader (not the SDK), and the stamps injected. Every depth frame must come out of the source once, in order,
+rosbags' ROS 1 reader (not the SDK), and the stamps injected. Two recordings
+also hold what a D435i records beside depth: infrared in the depth sensor and a
+motion module (gyro, accel). Every depth frame must come out of the source once, in order,
 with its stamp on the host clock (global time: as injected; hardware clock: the
 device's stamp moved onto the host clock by the first frame's arrival time, see
 docs/REALSENSE.md). Skipped, with the reason, when ``import pyrealsense2`` fails.
@@ -33,17 +35,19 @@ from realsense_recordings import count_depth_messages, write_bag_recording, writ
 from depthguard.sim.cells import load_cell  # noqa: E402
 from depthguard.sources.base import open_source  # noqa: E402
 
-MODES = [  # (fps, width, height, domain, frames, container, compressed); .bag: written by the older SDK
-    pytest.param(6, 640, 480, "hardware_clock", 6, ".db3", False, id="6Hz-640x480-hardware-db3"),
-    pytest.param(6, 640, 480, "hardware_clock", 6, ".bag", False, id="6Hz-640x480-hardware-bag"),
-    pytest.param(15, 424, 240, "global_time", 8, ".db3", False, id="15Hz-424x240-global"),
-    pytest.param(15, 424, 240, "hardware_clock", 8, ".db3", True, id="15Hz-424x240-hardware-lz4"),
-    pytest.param(15, 1280, 720, "global_time", 6, ".bag", True, id="15Hz-1280x720-global-bag-lz4"),
-    pytest.param(30, 1280, 720, "hardware_clock", 8, ".db3", False, id="30Hz-1280x720-hardware"),
-    pytest.param(30, 848, 480, "global_time", 8, ".bag", False, id="30Hz-848x480-global-bag"),
-    pytest.param(90, 848, 480, "global_time", 18, ".db3", False, id="90Hz-848x480-global"),
-    pytest.param(90, 424, 240, "hardware_clock", 18, ".db3", False, id="90Hz-424x240-hardware"),
-    pytest.param(90, 424, 240, "hardware_clock", 18, ".bag", True, id="90Hz-424x240-hardware-bag-lz4"),
+MODES = [  # (fps, width, height, domain, frames, container, compressed, D435i's other streams too); .bag: SDK 2.57
+    pytest.param(6, 640, 480, "hardware_clock", 6, ".db3", False, False, id="6Hz-640x480-hardware-db3"),
+    pytest.param(6, 640, 480, "hardware_clock", 6, ".bag", False, False, id="6Hz-640x480-hardware-bag"),
+    pytest.param(15, 424, 240, "global_time", 8, ".db3", False, False, id="15Hz-424x240-global"),
+    pytest.param(15, 424, 240, "hardware_clock", 8, ".db3", True, False, id="15Hz-424x240-hardware-lz4"),
+    pytest.param(15, 1280, 720, "global_time", 6, ".bag", True, False, id="15Hz-1280x720-global-bag-lz4"),
+    pytest.param(30, 1280, 720, "hardware_clock", 8, ".db3", False, False, id="30Hz-1280x720-hardware"),
+    pytest.param(30, 848, 480, "global_time", 8, ".bag", False, False, id="30Hz-848x480-global-bag"),
+    pytest.param(90, 848, 480, "global_time", 18, ".db3", False, False, id="90Hz-848x480-global"),
+    pytest.param(90, 424, 240, "hardware_clock", 18, ".db3", False, False, id="90Hz-424x240-hardware"),
+    pytest.param(90, 424, 240, "hardware_clock", 18, ".bag", True, False, id="90Hz-424x240-hardware-bag-lz4"),
+    pytest.param(30, 848, 480, "hardware_clock", 8, ".db3", False, True, id="30Hz-848x480-hardware-d435i-db3"),
+    pytest.param(6, 640, 480, "global_time", 6, ".bag", True, True, id="6Hz-640x480-global-d435i-bag-lz4"),
 ]
 
 
@@ -75,11 +79,11 @@ def drain(src, limit_s: float = 30.0, dt: float = 1 / 90):
     return got
 
 
-@pytest.mark.parametrize("fps, width, height, domain, frames, suffix, compressed", MODES)
-def test_every_depth_frame_of_an_sdk_recording_plays(tmp_path, suffix, compressed, fps, width, height, domain,
+@pytest.mark.parametrize("fps, width, height, domain, frames, suffix, compressed, d435i", MODES)
+def test_every_depth_frame_of_an_sdk_recording_plays(tmp_path, suffix, compressed, d435i, fps, width, height, domain,
                                                      frames):
     path, written = recording(tmp_path, suffix, width=width, height=height, fps=fps, frames=frames, domain=domain,
-                              compressed=compressed)
+                              compressed=compressed, d435i=d435i)
     in_file = count_depth_messages(path)
     assert in_file >= frames - 1, f"the recorder kept {in_file} of {frames} frames"
     src = open_source(f"realsense-file:cam0={path}", rig_for(width, height))
