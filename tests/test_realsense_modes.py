@@ -116,9 +116,11 @@ def test_every_depth_frame_of_an_sdk_recording_plays(tmp_path, suffix, compresse
 
 
 @pytest.mark.slow
-def test_monitor_fast_runs_a_d435_hardware_clock_recording(tmp_path):
+@pytest.mark.parametrize("suffix", [".db3", ".bag"])
+def test_monitor_fast_runs_a_d435_hardware_clock_recording(tmp_path, suffix):
     """The user's command on the issue's recording: D435 depth 640x480 at 6 Hz, colour beside it,
-    stamps in the device's hardware clock; joints on the host clock (a CSV); ``--fast``."""
+    stamps in the device's hardware clock, ``.bag`` (SDK 2.57's LZ4, as most in circulation) or
+    ``.db3``; joints on the host clock (a CSV); ``--fast``."""
     import json
 
     from typer.testing import CliRunner
@@ -127,9 +129,12 @@ def test_monitor_fast_runs_a_d435_hardware_clock_recording(tmp_path):
 
     rig = load_cell("flacco-cell").rig
     cam = rig.camera("cam0")
-    path = tmp_path / "d435.db3"
-    written = write_recording(rs, path, width=640, height=480, fps=6, frames=6, domain="hardware_clock",
-                              fx=cam.fx, cx=cam.cx, cy=cam.cy)
+    path = tmp_path / f"d435{suffix}"
+    mode = dict(width=640, height=480, fps=6, frames=6, domain="hardware_clock", fx=cam.fx, cx=cam.cx, cy=cam.cy)
+    if suffix == ".bag":
+        written = write_bag_recording(path, compressed=True, **mode)
+    else:
+        written = write_recording(rs, path, **mode)
     in_file = count_depth_messages(path)
     t0, t1 = written[0]["arrival_ms"] * 1e-3 - 1.0, written[-1]["arrival_ms"] * 1e-3 + 1.0
     q0 = [float(v) for v in rig.robot_q0]
