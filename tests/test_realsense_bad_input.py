@@ -90,3 +90,15 @@ def test_an_sdk_recording_given_to_bag_names_realsense_file(tmp_path, suffix):
     with pytest.raises(BagError, match=r"RealSense SDK recording .*realsense-file:") as err:
         BagFrames(BagReplay(path), load_cell("flacco-cell").rig)
     assert f"--source realsense-file:{path}" in str(err.value) and "\n" not in str(err.value)
+
+
+def test_a_truncated_bag_recording_is_one_sentence_saying_so(tmp_path):
+    """A ``.bag`` cut short (its recorder killed before it wrote the index at the end): the SDK's
+    reason and what probably happened (the source's sentence; the CLI's line as above)."""
+    whole = tmp_path / "whole.bag"
+    write_bag_recording(whole, width=640, height=480, fps=30, frames=4, fx=585.0, cx=319.5, cy=239.5)
+    cut = tmp_path / "cut.bag"
+    cut.write_bytes(whole.read_bytes()[: whole.stat().st_size // 2])
+    with pytest.raises(ValueError, match=r"cannot read it as a recording \(.*truncated or damaged\?") as err:
+        open_source(f"realsense-file:cam0={cut}", load_cell("flacco-cell").rig)
+    assert str(cut) in str(err.value) and "\n" not in str(err.value)
