@@ -111,8 +111,10 @@ def test_every_depth_frame_of_an_sdk_recording_plays(tmp_path, suffix, compresse
             truth = w["stamp_ms"]
         assert f.stamp == pytest.approx(truth * 1e-3, abs=1e-6)
     if domain == "hardware_clock":         # and that clock is the host's: near each frame's arrival
+        # (the device's clock is 81 s from the host's here; the bound leaves room for the writer falling
+        # behind its schedule on a loaded machine: it did by 0.6 s at 90 Hz, load 15 on 2 cores)
         lag = [by_number[n]["arrival_ms"] * 1e-3 - f.stamp for f, n in zip(got, numbers)]
-        assert max(abs(x) for x in lag) < 0.5
+        assert max(abs(x) for x in lag) < 5.0
 
 
 @pytest.mark.slow
