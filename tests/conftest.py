@@ -100,6 +100,7 @@ def pytest_collection_modifyitems(config, items):
 _REQUIRED_SKIPS = {
     "chromium": "no Chromium",
     "realsense": "RealSense SDK not importable",
+    "realsense-bag": "no RealSense SDK that writes .bag",     # tests/realsense_recordings.py (make venv)
 }
 _required_skipped: list[str] = []
 

@@ -32,10 +32,21 @@ RIG = load_cell("flacco-cell").rig
 CAM = RIG.camera("cam0")
 
 
-def d435(path, *, arrival=True, frames=6, fps=30):
+def d435(path, *, arrival=True, frames=6, fps=30, **more):
     """A hardware-clock recording of flacco-cell's cam0 (640x480), colour beside depth."""
     return write_recording(rs, path, width=640, height=480, fps=fps, frames=frames, domain="hardware_clock",
-                           arrival=arrival, fx=CAM.fx, cx=CAM.cx, cy=CAM.cy)
+                           arrival=arrival, fx=CAM.fx, cx=CAM.cx, cy=CAM.cy, **more)
+
+
+def play(spec: str):
+    src = open_source(spec, RIG)
+    try:
+        got = []
+        while not src.done:
+            got.extend(src.frames_until(float("inf")))
+        return got, src.stats()["cam0"]
+    finally:
+        src.close()
 
 
 def joints_csv(path, t0: float, t1: float) -> Path:
@@ -90,3 +101,35 @@ def test_device_clock_runs_with_joints_on_that_clock(tmp_path):
     st = summary["stats"]["cameras"]["cam0"]
     assert summary["source_errors"] == [] and st["refused"] == {}
     assert st["frames"] == count_depth_messages(path) >= 5
+
+
+def test_the_hardware_counter_wrapping_in_the_recording_is_unwrapped(tmp_path):
+    """A D400's hardware stamps are a 32-bit microsecond counter: a recording that crosses its turn
+    (frames 0-2 before, 3-7 after) plays with rising stamps, each frame where it was captured, on the
+    derived clock and on the device's own clock (the truth: the unwrapped stamps injected)."""
+    from depthguard.sources.realsense_clock import HW_WRAP_MS
+
+    path = tmp_path / "wrap.db3"
+    written = d435(path, frames=8, hw0_ms=2.0**32 * 1e-3 - 2.5 * 1000 / 30, wrap_ms=2.0**32 * 1e-3)
+    assert HW_WRAP_MS == 2.0**32 * 1e-3
+    assert count_depth_messages(path) == 8
+    got, stats = play(f"realsense-file:cam0={path}")
+    first = written[0]
+    truth = [(first["arrival_ms"] + w["stamp_ms"] - first["stamp_ms"]) * 1e-3 for w in written]
+    assert [f.stamp for f in got] == pytest.approx(truth, abs=1e-6)
+    assert "unwrapped 1 time" in stats["clock"]
+    got, stats = play(f"realsense-file:cam0={path}:device_clock")
+    assert [f.stamp for f in got] == pytest.approx([w["stamp_ms"] * 1e-3 for w in written], abs=1e-6)
+
+
+@pytest.mark.parametrize("domain", ["global_time", "system_time"])
+def test_a_host_clock_recording_without_metadata_plays_as_stamped(tmp_path, domain):
+    """Frames without any metadata (a camera on a kernel without the metadata patch: the SDK stamps
+    them in system_time) need none: on the host clock they play with the stamps injected, every one."""
+    path = tmp_path / "bare.db3"
+    written = write_recording(rs, path, width=640, height=480, fps=30, frames=6, domain=domain, arrival=False,
+                              hw0_ms=time.time() * 1e3, fx=CAM.fx, cx=CAM.cx, cy=CAM.cy)
+    got, stats = play(f"realsense-file:cam0={path}")
+    assert [f.stamp for f in got] == pytest.approx([w["stamp_ms"] * 1e-3 for w in written], abs=1e-6)
+    assert len(got) == count_depth_messages(path) and stats["problem"] is None
+    assert stats["clock"].startswith("the host clock")

@@ -3,9 +3,14 @@
 Each recording is written through the SDK's own ``software_device`` and
 recorder at a mode depthguard did not choose (6 to 90 Hz, 424x240 to 1280x720),
 with a colour stream beside depth, stamped in the device's hardware clock or in
-the SDK's global time, with the per-frame metadata a D400 attaches. The truth:
-the depth images in the file, counted with sqlite3 (not the SDK), and the
-stamps injected. Every depth frame must come out of the source once, in order,
+the SDK's global time, with the per-frame metadata a D400 attaches, raw or LZ4
+compressed, in both containers: ROS 2 ``.db3`` by the installed SDK, ROS 1
+``.bag`` (most recordings in circulation) by pyrealsense2 2.57 in a subprocess
+(``make venv`` installs it; a skip saying so without it), both played by the
+installed SDK. The truth: the depth images in the file, counted with sqlite3 or
+rosbags' ROS 1 reader (not the SDK), and the stamps injected. Two recordings
+also hold what a D435i records beside depth: infrared in the depth sensor and a
+motion module (gyro, accel). Every depth frame must come out of the source once, in order,
 with its stamp on the host clock (global time: as injected; hardware clock: the
 device's stamp moved onto the host clock by the first frame's arrival time, see
 docs/REALSENSE.md). Skipped, with the reason, when ``import pyrealsense2`` fails.
@@ -25,20 +30,24 @@ try:
 except RealSenseUnavailable as _exc:
     pytest.skip(f"RealSense SDK not importable here: {_exc}", allow_module_level=True)
 
-from realsense_recordings import count_depth_messages, write_recording  # noqa: E402
+from realsense_recordings import count_depth_messages, write_bag_recording, write_recording  # noqa: E402
 
 from depthguard.sim.cells import load_cell  # noqa: E402
 from depthguard.sources.base import open_source  # noqa: E402
 
-MODES = [  # (fps, width, height, domain, frames, container); .bag: where this SDK writes it
-    pytest.param(6, 640, 480, "hardware_clock", 6, ".db3", id="6Hz-640x480-hardware-db3"),
-    pytest.param(6, 640, 480, "hardware_clock", 6, ".bag", id="6Hz-640x480-hardware-bag"),
-    pytest.param(15, 424, 240, "global_time", 8, ".db3", id="15Hz-424x240-global"),
-    pytest.param(15, 424, 240, "hardware_clock", 8, ".db3", id="15Hz-424x240-hardware"),
-    pytest.param(30, 1280, 720, "hardware_clock", 8, ".db3", id="30Hz-1280x720-hardware"),
-    pytest.param(30, 848, 480, "global_time", 8, ".bag", id="30Hz-848x480-global-bag"),
-    pytest.param(90, 848, 480, "global_time", 18, ".db3", id="90Hz-848x480-global"),
-    pytest.param(90, 424, 240, "hardware_clock", 18, ".db3", id="90Hz-424x240-hardware"),
+MODES = [  # (fps, width, height, domain, frames, container, compressed, D435i's other streams too); .bag: SDK 2.57
+    pytest.param(6, 640, 480, "hardware_clock", 6, ".db3", False, False, id="6Hz-640x480-hardware-db3"),
+    pytest.param(6, 640, 480, "hardware_clock", 6, ".bag", False, False, id="6Hz-640x480-hardware-bag"),
+    pytest.param(15, 424, 240, "global_time", 8, ".db3", False, False, id="15Hz-424x240-global"),
+    pytest.param(15, 424, 240, "hardware_clock", 8, ".db3", True, False, id="15Hz-424x240-hardware-lz4"),
+    pytest.param(15, 1280, 720, "global_time", 6, ".bag", True, False, id="15Hz-1280x720-global-bag-lz4"),
+    pytest.param(30, 1280, 720, "hardware_clock", 8, ".db3", False, False, id="30Hz-1280x720-hardware"),
+    pytest.param(30, 848, 480, "global_time", 8, ".bag", False, False, id="30Hz-848x480-global-bag"),
+    pytest.param(90, 848, 480, "global_time", 18, ".db3", False, False, id="90Hz-848x480-global"),
+    pytest.param(90, 424, 240, "hardware_clock", 18, ".db3", False, False, id="90Hz-424x240-hardware"),
+    pytest.param(90, 424, 240, "hardware_clock", 18, ".bag", True, False, id="90Hz-424x240-hardware-bag-lz4"),
+    pytest.param(30, 848, 480, "hardware_clock", 8, ".db3", False, True, id="30Hz-848x480-hardware-d435i-db3"),
+    pytest.param(6, 640, 480, "global_time", 6, ".bag", True, True, id="6Hz-640x480-global-d435i-bag-lz4"),
 ]
 
 
@@ -51,14 +60,12 @@ def rig_for(width: int, height: int):
 
 
 def recording(tmp_path, suffix: str, **mode):
-    """A recording at ``tmp_path/rec{suffix}``, or a skip saying that this SDK does not write that container."""
+    """A recording at ``tmp_path/rec{suffix}`` by the SDK's own recorder: ``.db3`` by the installed
+    SDK, ``.bag`` (ROS 1) by pyrealsense2 2.57 in a subprocess (a skip saying so where it is absent)."""
     path = tmp_path / f"rec{suffix}"
-    try:
-        return path, write_recording(rs, path, **mode)
-    except RuntimeError as exc:
-        if suffix != ".db3" and "extension" in str(exc):
-            pytest.skip(f"pyrealsense2 {rs.__version__} does not write {suffix} recordings ({exc})")
-        raise
+    if suffix == ".bag":
+        return path, write_bag_recording(path, **mode)
+    return path, write_recording(rs, path, **mode)
 
 
 def drain(src, limit_s: float = 30.0, dt: float = 1 / 90):
@@ -72,9 +79,11 @@ def drain(src, limit_s: float = 30.0, dt: float = 1 / 90):
     return got
 
 
-@pytest.mark.parametrize("fps, width, height, domain, frames, suffix", MODES)
-def test_every_depth_frame_of_an_sdk_recording_plays(tmp_path, suffix, fps, width, height, domain, frames):
-    path, written = recording(tmp_path, suffix, width=width, height=height, fps=fps, frames=frames, domain=domain)
+@pytest.mark.parametrize("fps, width, height, domain, frames, suffix, compressed, d435i", MODES)
+def test_every_depth_frame_of_an_sdk_recording_plays(tmp_path, suffix, compressed, d435i, fps, width, height, domain,
+                                                     frames):
+    path, written = recording(tmp_path, suffix, width=width, height=height, fps=fps, frames=frames, domain=domain,
+                              compressed=compressed, d435i=d435i)
     in_file = count_depth_messages(path)
     assert in_file >= frames - 1, f"the recorder kept {in_file} of {frames} frames"
     src = open_source(f"realsense-file:cam0={path}", rig_for(width, height))
@@ -102,14 +111,18 @@ def test_every_depth_frame_of_an_sdk_recording_plays(tmp_path, suffix, fps, widt
             truth = w["stamp_ms"]
         assert f.stamp == pytest.approx(truth * 1e-3, abs=1e-6)
     if domain == "hardware_clock":         # and that clock is the host's: near each frame's arrival
+        # (the device's clock is 81 s from the host's here; the bound leaves room for the writer falling
+        # behind its schedule on a loaded machine: it did by 0.6 s at 90 Hz, load 15 on 2 cores)
         lag = [by_number[n]["arrival_ms"] * 1e-3 - f.stamp for f, n in zip(got, numbers)]
-        assert max(abs(x) for x in lag) < 0.5
+        assert max(abs(x) for x in lag) < 5.0
 
 
 @pytest.mark.slow
-def test_monitor_fast_runs_a_d435_hardware_clock_recording(tmp_path):
+@pytest.mark.parametrize("suffix", [".db3", ".bag"])
+def test_monitor_fast_runs_a_d435_hardware_clock_recording(tmp_path, suffix):
     """The user's command on the issue's recording: D435 depth 640x480 at 6 Hz, colour beside it,
-    stamps in the device's hardware clock; joints on the host clock (a CSV); ``--fast``."""
+    stamps in the device's hardware clock, ``.bag`` (SDK 2.57's LZ4, as most in circulation) or
+    ``.db3``; joints on the host clock (a CSV); ``--fast``."""
     import json
 
     from typer.testing import CliRunner
@@ -118,9 +131,12 @@ def test_monitor_fast_runs_a_d435_hardware_clock_recording(tmp_path):
 
     rig = load_cell("flacco-cell").rig
     cam = rig.camera("cam0")
-    path = tmp_path / "d435.db3"
-    written = write_recording(rs, path, width=640, height=480, fps=6, frames=6, domain="hardware_clock",
-                              fx=cam.fx, cx=cam.cx, cy=cam.cy)
+    path = tmp_path / f"d435{suffix}"
+    mode = dict(width=640, height=480, fps=6, frames=6, domain="hardware_clock", fx=cam.fx, cx=cam.cx, cy=cam.cy)
+    if suffix == ".bag":
+        written = write_bag_recording(path, compressed=True, **mode)
+    else:
+        written = write_recording(rs, path, **mode)
     in_file = count_depth_messages(path)
     t0, t1 = written[0]["arrival_ms"] * 1e-3 - 1.0, written[-1]["arrival_ms"] * 1e-3 + 1.0
     q0 = [float(v) for v in rig.robot_q0]

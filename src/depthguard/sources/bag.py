@@ -52,7 +52,7 @@ import numpy as np
 from depthguard.transport import ros_messages as rosmsg
 from depthguard.sources.bag_replay import INTRINSICS_TOL_PX, _ImageEntry  # noqa: F401 (for the live ROS 2 source)
 from depthguard.sources.bag_replay import (BagConsumer, BagError, BagReplay, camera_depth_scale, check_camera_info,
-                                           default_topic, info_topic, open_bag)
+                                           default_topic, info_topic, open_bag, sdk_recording_hint)
 from depthguard.sources.bag_stream import StampQueue
 from depthguard.sources.base import register_joints, register_source
 from depthguard.sources.frame import Frame
@@ -100,6 +100,8 @@ class BagFrames(BagConsumer):
         images = replay.topic_counts(rosmsg.MSG["Image"])
         infos = replay.topic_counts(rosmsg.MSG["CameraInfo"])
         for cid, topic in self._topics.items():
+            if topic not in images and replay.is_sdk_recording():
+                raise BagError(f"bag {replay.path}: {sdk_recording_hint(replay.path)}")
             if topic not in images:
                 raise BagError(f"bag {replay.path}: camera {cid}: no Image on {topic} (image topics in the bag: "
                                f"{', '.join(sorted(images)) or 'none'}); set the camera's topic: in the rig")

@@ -2,7 +2,10 @@
 
 :class:`BagReplay` is what the ``bag:`` sources of one run share (:mod:`depthguard.sources.bag`
 describes the sources, their topics and their checks); :func:`open_bag` opens a bag with
-``rosbags`` and turns its failures into one :class:`BagError` sentence.
+``rosbags`` and turns its failures into one :class:`BagError` sentence — among them the
+recordings that are not ROS 2 bags of a driver (:func:`other_recording`): a ROS 1 ``.bag``
+(``bag:`` reads ROS 2; ``rosbags-convert`` converts a driver's ROS 1 bag) and a RealSense SDK
+recording, ROS 1 ``.bag`` or ROS 2 ``.db3`` (topics ``/device_0/...``: ``realsense-file:`` plays it).
 """
 
 from __future__ import annotations
@@ -43,6 +46,43 @@ def camera_depth_scale(rig, camera_id: str) -> float | None:
     return (getattr(rig, "depth_scales", None) or {}).get(camera_id)
 
 
+def is_sdk_recording(topics) -> bool:
+    """True for the topics of a RealSense SDK recording (``/file_version`` and ``/device_0/...``),
+    whichever its container."""
+    topics = set(topics)
+    return "/file_version" in topics and any(t.startswith("/device_0/") for t in topics)
+
+
+def sdk_recording_hint(path) -> str:
+    """What to do with a RealSense SDK recording given to ``bag:``."""
+    return (f"it is a RealSense SDK recording (topics /device_0/...), not a ROS 2 driver's bag: play it with "
+            f"--source realsense-file:{path}")
+
+
+def other_recording(p: Path) -> str | None:
+    """The reason a file given to ``bag:`` is not a ROS 2 bag it can read, when it is a ROS 1 bag
+    (``#ROSBAG V2.0``: a RealSense SDK recording, or a ROS 1 driver's bag), else None."""
+    try:
+        with open(p, "rb") as f:
+            head = f.read(13)
+    except OSError:
+        return None
+    if not head.startswith(b"#ROSBAG V2.0"):
+        return None
+    try:
+        from rosbags.rosbag1 import Reader
+
+        with Reader(p) as r:
+            topics = [c.topic for c in r.connections]
+    except Exception as exc:  # noqa: BLE001 - rosbags raises its own error types
+        return (f"it is a ROS 1 bag (bag: reads ROS 2 bags) and cannot be read ({exc}; truncated or damaged? "
+                "a recorder killed before it closed the file leaves it without its index)")
+    if is_sdk_recording(topics):
+        return sdk_recording_hint(p)
+    return (f"it is a ROS 1 bag; bag: reads ROS 2 bags: convert it with rosbags-convert --src {p} --dst DIR "
+            "(installed with depthguard) and give bag:DIR")
+
+
 def open_bag(path: str | Path):
     """An opened ``rosbags.rosbag2.Reader``; :class:`BagError` for a missing, truncated or
     damaged bag."""
@@ -51,6 +91,9 @@ def open_bag(path: str | Path):
     p = Path(path)
     if not p.exists():
         raise BagError(f"bag {p} does not exist")
+    other = other_recording(p) if p.is_file() else None
+    if other is not None:
+        raise BagError(f"bag {p}: {other}")
     if p.is_file() and p.suffix.lower() not in (".mcap", ".db3"):
         raise BagError(f"bag {p}: a bag is a rosbag2 directory or one .mcap / .db3 file")
     if p.is_dir() and not (p / "metadata.yaml").is_file():
@@ -117,6 +160,12 @@ class BagReplay:
         self._lock = threading.Lock()
 
     # ----------------------------------------------------------- index
+    def is_sdk_recording(self) -> bool:
+        """True for a RealSense SDK recording (:func:`is_sdk_recording`)."""
+        if self.reader is None:
+            self.reader = open_bag(self.path)
+        return is_sdk_recording(c.topic for c in self.reader.connections)
+
     def topic_counts(self, msgtype: str) -> dict[str, int]:
         if self.reader is None:
             self.reader = open_bag(self.path)

@@ -236,7 +236,9 @@ class RealSenseFileSource(_Frames):
                 try:
                     device = self._ctx.load_device(str(path))
                 except RuntimeError as exc:
-                    raise ValueError(f"{where}: the SDK cannot read it as a recording ({exc})") from None
+                    raise ValueError(f"{where}: the SDK cannot read it as a recording ({exc}; truncated or "
+                                     "damaged? a recorder stopped before it closed the file leaves it "
+                                     "unreadable)") from None
                 playback = device.as_playback()
                 playback.set_real_time(False)         # as fast as taken: the callback waits for room
                 self._devices.append(playback)

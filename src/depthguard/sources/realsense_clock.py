@@ -28,11 +28,24 @@ A RealSense frame is stamped in one of the SDK's timestamp domains:
 A ``hardware_clock`` frame without either arrival time, and without
 ``device_clock``, is a :class:`ClockError`: its clock cannot be related to the
 joints' (never guessed).
+
+**Wrap-around.** A D400's hardware stamps are a 32-bit microsecond counter
+(:data:`HW_WRAP_MS`: it wraps every 71.6 min), so a recording of a camera that
+has been on for a while can jump back by 4294967.296 ms in its middle. A
+``hardware_clock`` stamp more than half that period behind the previous one is
+taken as one more turn of the counter and unwrapped (counted in ``wraps``), in
+both the derived and the device clock: the stamps keep rising, each frame keeps
+its place (a frame 71 minutes in the past would be refused as stale, and every
+frame after it with it). With ``:device_clock`` the joints must be on that
+unwrapped clock.
 """
 
 from __future__ import annotations
 
-__all__ = ["ClockError", "RecordingClock", "DEVICE_CLOCK_HINT"]
+__all__ = ["ClockError", "RecordingClock", "DEVICE_CLOCK_HINT", "HW_WRAP_MS"]
+
+#: one turn of a D400's 32-bit microsecond hardware clock (ms): 2**32 us, 71.6 min
+HW_WRAP_MS = 2.0 ** 32 * 1e-3
 
 #: what to do about a clock that cannot be related to the host's
 DEVICE_CLOCK_HINT = ("give the joint states on the camera's clock and add the option :device_clock "
@@ -46,13 +59,16 @@ class ClockError(ValueError):
 class RecordingClock:
     """Stamps (s) of one recording's frames (module docstring). ``mode``: None before the first
     frame, then ``"host"``, ``"derived"`` or ``"device"``; ``offset_ms`` the device → host offset
-    of a derived clock (the stream that uses it names the recording in messages)."""
+    of a derived clock; ``wraps`` the turns of the hardware counter unwrapped (module docstring). The
+    stream that uses it names the recording in messages."""
 
     def __init__(self, rs, *, device_clock: bool = False):
         self.rs = rs
         self.device_clock = bool(device_clock)
         self.mode: str | None = "device" if device_clock else None
         self.offset_ms: float | None = None
+        self.wraps = 0
+        self._last_hw_ms: float | None = None
         self._arrival_keys = (rs.frame_metadata_value.backend_timestamp, rs.frame_metadata_value.time_of_arrival)
 
     def _arrival_ms(self, frame) -> float | None:
@@ -63,12 +79,22 @@ class RecordingClock:
                     return value
         return None
 
+    def _unwrapped(self, ms: float) -> float:
+        """A hardware-clock stamp (ms) with the counter's turns so far added (module docstring)."""
+        if self._last_hw_ms is not None and ms < self._last_hw_ms - HW_WRAP_MS / 2:
+            self.wraps += 1
+        self._last_hw_ms = ms
+        return ms + self.wraps * HW_WRAP_MS
+
     def __call__(self, frame) -> float:
         """The frame's stamp in seconds; :class:`ClockError` when its clock cannot be related."""
         ms = float(frame.get_timestamp())
+        hardware = frame.get_frame_timestamp_domain() == self.rs.timestamp_domain.hardware_clock
+        if hardware:
+            ms = self._unwrapped(ms)
         if self.device_clock:
             return ms * 1e-3
-        if frame.get_frame_timestamp_domain() != self.rs.timestamp_domain.hardware_clock:
+        if not hardware:
             self.mode = self.mode or "host"
             return ms * 1e-3
         if self.offset_ms is None:
@@ -83,8 +109,11 @@ class RecordingClock:
 
     def describe(self) -> str:
         """One phrase for logs and stats: which clock the stamps are on."""
+        turns = f", its 32-bit counter unwrapped {self.wraps} time(s)" if self.wraps else ""
         if self.mode == "derived":
-            return f"the camera's clock + {self.offset_ms:.1f} ms (from the first frame's arrival)"
+            return f"the camera's clock + {self.offset_ms:.1f} ms (from the first frame's arrival{turns})"
+        if self.mode == "device" and turns:
+            return f"the recording's own clock{turns}"
         return {"host": "the host clock (global or system time)", "device": "the recording's own clock",
                 None: "not known yet"}[self.mode]
 
