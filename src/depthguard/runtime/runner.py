@@ -22,9 +22,11 @@ Returns the run's summary (:func:`summarise`), which ``--out DIR`` writes to
 
 from __future__ import annotations
 
+import gc
 import math
 import threading
 import time
+from contextlib import contextmanager
 from typing import Callable
 
 import numpy as np
@@ -263,6 +265,37 @@ def _run_real_time(monitor, frame_sources, joint_source, duration, stop, emit, a
         sys.setswitchinterval(old)
 
 
+_frozen_lock = threading.Lock()
+_frozen_runs = 0
+
+
+@contextmanager
+def frozen_heap():
+    """The objects made before a real-time run (modules, numba's dispatchers, the rig, the monitor's
+    state: ~155k on flacco-cell) left out of the cyclic garbage collector for the run's length
+    (``gc.collect()`` then ``gc.freeze()``; ``gc.unfreeze()`` when the last such run ends), R29.
+
+    Issue 29: without it, a full (generation 2) collection during the run walked all of them —
+    40-115 ms of CPU holding the GIL, on whichever thread allocated (often the joints pump at
+    the workers' low priority), collecting under 200 objects — and every thread, the control
+    thread too, waited: the joints went stale (``stale:joints``, > 50 ms). Frozen, a full
+    collection walks only what the run itself keeps. Garbage made of frozen objects is still
+    freed by reference counting; only frozen reference cycles wait for the unfreeze."""
+    global _frozen_runs
+    with _frozen_lock:
+        if _frozen_runs == 0:
+            gc.collect()
+            gc.freeze()
+        _frozen_runs += 1
+    try:
+        yield
+    finally:
+        with _frozen_lock:
+            _frozen_runs -= 1
+            if _frozen_runs == 0:
+                gc.unfreeze()
+
+
 def _run_paced(monitor, frame_sources, joint_source, duration, stop, emit, all_done, stats, wall0, t0=0.0):
     dt = monitor.config.dt
     for src in frame_sources:
@@ -272,6 +305,12 @@ def _run_paced(monitor, frame_sources, joint_source, duration, stop, emit, all_d
             src.use_noise_bank()            # and draws its noise from a pre-drawn bank (sources/noise.py)
         if hasattr(src, "warm_up"):
             src.warm_up()                   # its first frame's one-off costs paid before the clock starts
+    with frozen_heap():
+        return _run_threads(monitor, frame_sources, joint_source, duration, stop, emit, all_done, stats, wall0, t0)
+
+
+def _run_threads(monitor, frame_sources, joint_source, duration, stop, emit, all_done, stats, wall0, t0):
+    dt = monitor.config.dt
     next_status = 0.0
     start = time.monotonic() - t0
     clock = lambda: time.monotonic() - start          # noqa: E731 - the run's clock, from t0
