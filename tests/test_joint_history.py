@@ -187,6 +187,35 @@ def test_wake_makes_a_waiter_ask_stop_again():
     assert not t.is_alive() and res["kind"] == "future"
 
 
+def test_a_unit_feeding_its_own_history_sleeps_until_its_stream_receives():
+    """The camera unit drains its joint stream on its own thread (``feed``); with ``arrived`` (the
+    stream's wait, here a :class:`StampedQueue` filled by a receiving thread as ``zenoh:`` is)
+    it looks again when a state is received, not every ``poll_s``: over a 0.3 s wait, two
+    look-ups and two feeds, not ~300."""
+    from depthguard.sources.stamped_queue import StampedQueue
+
+    h = JointHistory(1, span_s=1.0)
+    stream = StampedQueue(64)
+    stream.offer(0.0, (0.0, [0.0]))
+    fed = []
+
+    def feed():
+        fed.append(1)
+        for st, q in stream.until(float("inf")):
+            h.push(st, q)
+
+    def receiver():
+        time.sleep(0.3)
+        stream.offer(0.1, (0.1, [1.0]))
+
+    t = threading.Thread(target=receiver)
+    t.start()
+    q = h.wait_at(0.025, timeout=30.0, feed=feed, poll_s=0.001, arrived=stream.wait)
+    t.join()
+    assert q[0] == pytest.approx(0.25)
+    assert len(fed) == 2, len(fed)
+
+
 def test_state_check_kernel_equals_its_twin_and_refuses_as_before():
     """issue 29: ``push`` checks a state with one numba pass (``state_check``); it answers as its
     numpy twin, and a refused state gets the sentence of the checks it replaced: the first joint

@@ -219,7 +219,7 @@ class JointHistory:
 
     def wait_at(self, stamp: float, timeout: float, stop: Callable[[], bool] | None = None, *,
                 feed: Callable[[], None] | None = None, poll_s: float = 0.0005,
-                stop_poll_s: float = 0.005) -> np.ndarray:
+                stop_poll_s: float = 0.005, arrived: Callable[[float], object] | None = None) -> np.ndarray:
         """(dof,) joints at capture ``stamp`` (R30), waiting up to ``timeout`` s for states that
         lag the frame: while the stamp is after the newest state (``"future"``) or no state came
         yet (``"no_joints"``), look again when :meth:`push` adds a state at or after ``stamp``
@@ -230,7 +230,9 @@ class JointHistory:
         newer frame, or is closing): it is asked again at each state pushed, at :meth:`wake`, and
         at least every ``stop_poll_s`` s. ``feed()`` (optional) is called before each look-up,
         for a caller that pulls its joint stream on the same thread: no other thread pushes
-        then, so it looks again every ``poll_s`` s. Raises :class:`OutsideHistory` (its ``kind``
+        then, so it looks again when ``arrived(seconds)`` returns (the stream's wait for its next
+        state, at most ``seconds``: e.g. ``ZenohJointSource.wait_for_states``), or without it
+        every ``poll_s`` s. Raises :class:`OutsideHistory` (its ``kind``
         the refusal's name) when the stamp is too old, in a gap, or still outside the history
         when the wait ends.
         """
@@ -248,7 +250,10 @@ class JointHistory:
                 if not lagging or left <= 0.0 or (stop is not None and stop()):
                     raise
             if feed is not None:
-                time.sleep(poll_s)
+                if arrived is not None:
+                    arrived(left if stop is None else min(left, stop_poll_s))
+                else:
+                    time.sleep(poll_s)
                 continue
             with self._pushed:
                 if self._pushes == seen or self._newest() < wanted:   # nothing that answers came yet
