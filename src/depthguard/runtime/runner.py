@@ -9,7 +9,9 @@ source is done, or the caller stops it (Ctrl-C, ``stop`` event).
   when a source is live; a source with ``start_clock(t0)``, the simulator, is
   told where that clock starts) and pushes what it returns; the calling
   thread steps the monitor every ``1 / control_hz`` s. The control thread
-  never waits for a frame.
+  never waits for a frame. For the run's length the objects made before it are
+  left out of the cyclic garbage collector (:func:`frozen_heap`): a full
+  collection then walks only what the run made.
 - **Fast** (``fast=True``): one thread; at each control cycle ``t = k dt``
   the joint states and frames due by ``t`` are pushed (a frame once a joint
   state at or after its capture has been), the frames are processed to the
@@ -31,7 +33,7 @@ from typing import Callable
 
 import numpy as np
 
-__all__ = ["run", "summarise", "RunStats", "reaction_subscribers", "open_run_sinks"]
+__all__ = ["run", "summarise", "RunStats", "reaction_subscribers", "open_run_sinks", "frozen_heap"]
 
 
 def reaction_subscribers(*sources) -> list:
