@@ -4,6 +4,7 @@ states that lag a frame, used by the monitor's camera workers and the camera uni
 from __future__ import annotations
 
 import threading
+import time
 
 import numpy as np
 import pytest
@@ -127,6 +128,92 @@ def test_wait_at_with_no_time_left_refuses_a_lagging_stamp():
     with pytest.raises(OutsideHistory) as e:
         h.wait_at(0.5, timeout=0.0)
     assert e.value.kind == "future"
+
+
+def test_a_waiter_sleeps_until_a_push_wakes_it():
+    """issue 29: the wait is a condition notified by ``push``, not a poll. Over a 0.3 s wait the
+    waiter looks the stamp up once before and once after the push (a poll every 0.5 ms looked
+    ~600 times: 14-18 ms of CPU against 0.14-0.25 ms now, measured), and it answers with the
+    pushed state's interpolation — the push itself is the wake-up (without ``stop`` there is no
+    backstop wake-up at all)."""
+
+    class Counted(JointHistory):
+        looks = 0
+
+        def at(self, stamp, out=None):
+            self.looks += 1
+            return super().at(stamp, out)
+
+    h = Counted(1, span_s=1.0)
+    h.push(0.0, [0.0])
+    out = {}
+
+    def waiter():
+        out["q"] = h.wait_at(0.025, timeout=30.0)
+        out["woke"] = time.perf_counter()
+
+    t = threading.Thread(target=waiter)
+    t.start()
+    time.sleep(0.3)
+    assert t.is_alive() and "q" not in out               # still waiting for a state at or after 0.025
+    pushed = time.perf_counter()
+    h.push(0.1, [1.0])
+    t.join(30.0)
+    assert out["q"][0] == pytest.approx(0.25)
+    assert out["woke"] >= pushed
+    assert h.looks == 2, h.looks
+
+
+def test_wake_makes_a_waiter_ask_stop_again():
+    """A newer frame (``wake``) ends the wait of the older one at once, not at its timeout."""
+    h = JointHistory(1, span_s=1.0)
+    h.push(0.0, [0.0])
+    newer = threading.Event()
+    res = {}
+
+    def waiter():
+        try:
+            h.wait_at(0.5, timeout=60.0, stop=newer.is_set, stop_poll_s=60.0)
+        except OutsideHistory as exc:
+            res["kind"] = exc.kind
+
+    t = threading.Thread(target=waiter)
+    t.start()
+    time.sleep(0.1)
+    assert t.is_alive()
+    newer.set()
+    h.wake()
+    t.join(5.0)                                           # the backstop is 60 s: only wake() ends it
+    assert not t.is_alive() and res["kind"] == "future"
+
+
+def test_a_unit_feeding_its_own_history_sleeps_until_its_stream_receives():
+    """The camera unit drains its joint stream on its own thread (``feed``); with ``arrived`` (the
+    stream's wait, here a :class:`StampedQueue` filled by a receiving thread as ``zenoh:`` is)
+    it looks again when a state is received, not every ``poll_s``: over a 0.3 s wait, two
+    look-ups and two feeds, not ~300."""
+    from depthguard.sources.stamped_queue import StampedQueue
+
+    h = JointHistory(1, span_s=1.0)
+    stream = StampedQueue(64)
+    stream.offer(0.0, (0.0, [0.0]))
+    fed = []
+
+    def feed():
+        fed.append(1)
+        for st, q in stream.until(float("inf")):
+            h.push(st, q)
+
+    def receiver():
+        time.sleep(0.3)
+        stream.offer(0.1, (0.1, [1.0]))
+
+    t = threading.Thread(target=receiver)
+    t.start()
+    q = h.wait_at(0.025, timeout=30.0, feed=feed, poll_s=0.001, arrived=stream.wait)
+    t.join()
+    assert q[0] == pytest.approx(0.25)
+    assert len(fed) == 2, len(fed)
 
 
 def test_state_check_kernel_equals_its_twin_and_refuses_as_before():

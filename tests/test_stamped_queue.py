@@ -1,6 +1,7 @@
 """The live sources' hand-over queue (depthguard.sources.stamped_queue): order, bound, take."""
 
 import threading
+import time
 
 import pytest
 
@@ -61,3 +62,15 @@ def test_concurrent_offers_keep_the_order_and_lose_nothing_within_the_bound():
     taken += q.until(1e9)
     assert taken == sorted(taken)                          # never out of order
     assert len(taken) + len(refused) == 20000              # each accepted or refused, none lost
+
+
+def test_stamped_queue_wait_wakes_on_an_offer_and_takes_nothing():
+    sq = StampedQueue(4)
+    t0 = time.perf_counter()
+    assert sq.wait(0.05) is False and time.perf_counter() - t0 >= 0.04     # nothing came: the timeout
+    th = threading.Timer(0.1, lambda: sq.offer(1.0, "a"))
+    th.start()
+    assert sq.wait(30.0) is True                                           # woken by the offer
+    th.join()
+    assert sq.wait(30.0) is True and len(sq) == 1                           # waiting already: at once
+    assert sq.until(2.0) == ["a"]

@@ -222,7 +222,8 @@ class CameraNode:
         from depthguard.robot.joint_history import OutsideHistory
 
         try:
-            return self.history.wait_at(stamp, self.joint_wait_s, feed=self._drain_joints, poll_s=0.001)
+            return self.history.wait_at(stamp, self.joint_wait_s, feed=self._drain_joints, poll_s=0.001,
+                                        arrived=getattr(self.joint_source, "wait_for_states", None))
         except OutsideHistory as exc:
             first = exc.kind not in self.skipped
             self.skipped[exc.kind] = self.skipped.get(exc.kind, 0) + 1

@@ -12,7 +12,8 @@ joints linearly interpolated at ``stamp``, or the reason why it cannot —
 before the oldest state kept ("too old") or after the newest ("in the
 future"). Nothing is ever extrapolated: a frame outside the history is
 refused by the monitor and counted, never used with the wrong joints.
-:meth:`JointHistory.wait_at` waits a bounded time for states that lag the frame.
+:meth:`JointHistory.wait_at` waits a bounded time for states that lag the frame, woken by
+the ``push`` of each new state (a condition, not a poll: issue 29).
 
 The reasons (``OutsideHistory.kind``) are the names under which the monitor and the
 camera units count refused frames: ``"too_old"``, ``"future"``, ``"joint_gap"``,
@@ -91,6 +92,10 @@ class JointHistory:
         self._n = 0            # states stored (<= cap)
         self._head = 0         # index of the next write
         self._lock = threading.Lock()
+        self._pushed = threading.Condition(self._lock)   # wait_at's waiters, notified by push and wake
+        self._pushes = 0         # states accepted so far (a waiter's check for one it missed)
+        self._waiters = 0        # threads in wait_at's wait
+        self._wake_at = math.inf  # the earliest stamp a waiter waits for: a push at or after it wakes them
         self.q_min = None if q_min is None else np.asarray(q_min, dtype=np.float64)
         self.q_max = None if q_max is None else np.asarray(q_max, dtype=np.float64)
         # the limits as push compares them (1e-6 rad of slack), or unbounded
@@ -129,7 +134,19 @@ class JointHistory:
             self._q[self._head] = qa
             self._head = (self._head + 1) % len(self._t)
             self._n = min(self._n + 1, len(self._t))
+            self._pushes += 1
+            if stamp >= self._wake_at:
+                self._wake_at = math.inf        # each waiter woken says again what it waits for
+                self._pushed.notify_all()
         return True
+
+    def wake(self) -> None:
+        """Wake every thread in :meth:`wait_at` now, to ask its ``stop()`` again (a newer frame
+        came, or its worker closes)."""
+        with self._lock:
+            if self._waiters:
+                self._wake_at = math.inf
+                self._pushed.notify_all()
 
     def clear(self) -> None:
         with self._lock:
@@ -138,6 +155,9 @@ class JointHistory:
             self._t.fill(-np.inf)
 
     # ------------------------------------------------------------ reading
+    def _newest(self) -> float:
+        return self._t[(self._head - 1) % len(self._t)] if self._n else -math.inf
+
     def _window(self) -> tuple[float, float]:
         cap = len(self._t)
         newest = self._t[(self._head - 1) % cap]
@@ -198,25 +218,48 @@ class JointHistory:
             return res
 
     def wait_at(self, stamp: float, timeout: float, stop: Callable[[], bool] | None = None, *,
-                feed: Callable[[], None] | None = None, poll_s: float = 0.0005) -> np.ndarray:
+                feed: Callable[[], None] | None = None, poll_s: float = 0.0005,
+                stop_poll_s: float = 0.005, arrived: Callable[[float], object] | None = None) -> np.ndarray:
         """(dof,) joints at capture ``stamp`` (R30), waiting up to ``timeout`` s for states that
         lag the frame: while the stamp is after the newest state (``"future"``) or no state came
-        yet (``"no_joints"``), look again every ``poll_s`` s. Never extrapolates.
+        yet (``"no_joints"``), look again when :meth:`push` adds a state at or after ``stamp``
+        (issue 29: a condition, where a poll every 0.5 ms looked ten times per frame 5 ms ahead
+        of its joints). Never extrapolates.
 
-        ``stop()`` (optional) is asked before each wait; True ends the wait at once (the caller
-        has a newer frame, or is closing). ``feed()`` (optional) is called before each look-up,
-        for a caller that pulls its joint stream on the same thread. Raises
-        :class:`OutsideHistory` (its ``kind`` the refusal's name) when the stamp is too old, in
-        a gap, or still outside the history when the wait ends.
+        ``stop()`` (optional) is asked before each wait; True ends the wait (the caller has a
+        newer frame, or is closing): it is asked again at each state pushed, at :meth:`wake`, and
+        at least every ``stop_poll_s`` s. ``feed()`` (optional) is called before each look-up,
+        for a caller that pulls its joint stream on the same thread: no other thread pushes
+        then, so it looks again when ``arrived(seconds)`` returns (the stream's wait for its next
+        state, at most ``seconds``: e.g. ``ZenohJointSource.wait_for_states``), or without it
+        every ``poll_s`` s. Raises :class:`OutsideHistory` (its ``kind``
+        the refusal's name) when the stamp is too old, in a gap, or still outside the history
+        when the wait ends.
         """
         deadline = time.perf_counter() + float(timeout)
         while True:
             if feed is not None:
                 feed()
+            seen = self._pushes
             try:
                 return self.at(stamp)
             except OutsideHistory as exc:
                 lagging = exc.kind in ("future", "no_joints")
-                if not lagging or time.perf_counter() >= deadline or (stop is not None and stop()):
+                wanted = stamp if exc.kind == "future" else -math.inf
+                left = deadline - time.perf_counter()
+                if not lagging or left <= 0.0 or (stop is not None and stop()):
                     raise
-            time.sleep(poll_s)
+            if feed is not None:
+                if arrived is not None:
+                    arrived(left if stop is None else min(left, stop_poll_s))
+                else:
+                    time.sleep(poll_s)
+                continue
+            with self._pushed:
+                if self._pushes == seen or self._newest() < wanted:   # nothing that answers came yet
+                    self._wake_at = min(self._wake_at, wanted)
+                    self._waiters += 1
+                    try:
+                        self._pushed.wait(left if stop is None else min(left, stop_poll_s))
+                    finally:
+                        self._waiters -= 1

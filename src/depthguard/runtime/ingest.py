@@ -155,6 +155,9 @@ class CameraWorker:
                 self.dropped += 1
             self._inbox = (frame, pushed_at)
             self._wake.notify()
+            busy = self._busy
+        if busy:
+            self.joints.wake()          # a frame waiting for its joints gives way to this newer one
 
     def idle(self) -> bool:
         with self.lock:
@@ -164,6 +167,7 @@ class CameraWorker:
         with self._wake:
             self._stop = True
             self._wake.notify()
+        self.joints.wake()
         self._thread.join(timeout)
 
     def _refuse(self, key: str, message: str) -> None:

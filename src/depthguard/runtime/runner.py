@@ -9,7 +9,9 @@ source is done, or the caller stops it (Ctrl-C, ``stop`` event).
   when a source is live; a source with ``start_clock(t0)``, the simulator, is
   told where that clock starts) and pushes what it returns; the calling
   thread steps the monitor every ``1 / control_hz`` s. The control thread
-  never waits for a frame.
+  never waits for a frame. For the run's length the objects made before it are
+  left out of the cyclic garbage collector (:func:`frozen_heap`): a full
+  collection then walks only what the run made.
 - **Fast** (``fast=True``): one thread; at each control cycle ``t = k dt``
   the joint states and frames due by ``t`` are pushed (a frame once a joint
   state at or after its capture has been), the frames are processed to the
@@ -22,14 +24,16 @@ Returns the run's summary (:func:`summarise`), which ``--out DIR`` writes to
 
 from __future__ import annotations
 
+import gc
 import math
 import threading
 import time
+from contextlib import contextmanager
 from typing import Callable
 
 import numpy as np
 
-__all__ = ["run", "summarise", "RunStats", "reaction_subscribers", "open_run_sinks"]
+__all__ = ["run", "summarise", "RunStats", "reaction_subscribers", "open_run_sinks", "frozen_heap"]
 
 
 def reaction_subscribers(*sources) -> list:
@@ -263,6 +267,37 @@ def _run_real_time(monitor, frame_sources, joint_source, duration, stop, emit, a
         sys.setswitchinterval(old)
 
 
+_frozen_lock = threading.Lock()
+_frozen_runs = 0
+
+
+@contextmanager
+def frozen_heap():
+    """The objects made before a real-time run (modules, numba's dispatchers, the rig, the monitor's
+    state: ~155k on flacco-cell) left out of the cyclic garbage collector for the run's length
+    (``gc.collect()`` then ``gc.freeze()``; ``gc.unfreeze()`` when the last such run ends), R29.
+
+    Issue 29: without it, a full (generation 2) collection during the run walked all of them —
+    40-115 ms of CPU holding the GIL, on whichever thread allocated (often the joints pump at
+    the workers' low priority), collecting under 200 objects — and every thread, the control
+    thread too, waited: the joints went stale (``stale:joints``, > 50 ms). Frozen, a full
+    collection walks only what the run itself keeps. Garbage made of frozen objects is still
+    freed by reference counting; only frozen reference cycles wait for the unfreeze."""
+    global _frozen_runs
+    with _frozen_lock:
+        if _frozen_runs == 0:
+            gc.collect()
+            gc.freeze()
+        _frozen_runs += 1
+    try:
+        yield
+    finally:
+        with _frozen_lock:
+            _frozen_runs -= 1
+            if _frozen_runs == 0:
+                gc.unfreeze()
+
+
 def _run_paced(monitor, frame_sources, joint_source, duration, stop, emit, all_done, stats, wall0, t0=0.0):
     dt = monitor.config.dt
     for src in frame_sources:
@@ -272,6 +307,12 @@ def _run_paced(monitor, frame_sources, joint_source, duration, stop, emit, all_d
             src.use_noise_bank()            # and draws its noise from a pre-drawn bank (sources/noise.py)
         if hasattr(src, "warm_up"):
             src.warm_up()                   # its first frame's one-off costs paid before the clock starts
+    with frozen_heap():
+        return _run_threads(monitor, frame_sources, joint_source, duration, stop, emit, all_done, stats, wall0, t0)
+
+
+def _run_threads(monitor, frame_sources, joint_source, duration, stop, emit, all_done, stats, wall0, t0):
+    dt = monitor.config.dt
     next_status = 0.0
     start = time.monotonic() - t0
     clock = lambda: time.monotonic() - start          # noqa: E731 - the run's clock, from t0

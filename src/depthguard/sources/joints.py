@@ -222,6 +222,11 @@ class ZenohJointSource:
         """The received states with stamp <= ``t`` (s) not given yet, in stamp order."""
         return self._queue.until(t)
 
+    def wait_for_states(self, timeout: float) -> bool:
+        """Sleep until a received state is waiting to be taken, at most ``timeout`` s (issue 29:
+        a camera unit waits for its frame's joints without polling); True when one is."""
+        return self._queue.wait(timeout)
+
     @property
     def done(self) -> bool:
         return self._closed

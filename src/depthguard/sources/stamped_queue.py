@@ -9,7 +9,9 @@ order. :class:`StampedQueue` is that hand-over, one per stream:
 * at most ``max_pending`` items wait; one more drops the oldest (``"overflow"``):
   a runner that stalled resumes with the newest data, never with a backlog.
 
-Thread-safe: ``offer`` from the receiving threads, ``until`` from the runner.
+Thread-safe: ``offer`` from the receiving threads, ``until`` from the runner;
+:meth:`StampedQueue.wait` lets a reader sleep until an item arrives (a camera unit
+waiting for the joints of its frame, issue 29) instead of polling.
 """
 
 from __future__ import annotations
@@ -33,6 +35,7 @@ class StampedQueue:
             raise ValueError(f"max_pending must be >= 1 (got {max_pending!r})")
         self.max_pending = int(max_pending)
         self._lock = threading.Lock()
+        self._arrived = threading.Condition(self._lock)
         self._items: deque[tuple[float, Any]] = deque()
         self._last = -math.inf
 
@@ -48,7 +51,16 @@ class StampedQueue:
             if dropped:
                 self._items.popleft()
             self._items.append((stamp, item))
+            self._arrived.notify_all()
         return "overflow" if dropped else None
+
+    def wait(self, timeout: float) -> bool:
+        """Sleep until an item is waiting (True at once when one is) or ``timeout`` s have passed
+        (False); takes nothing."""
+        with self._arrived:
+            if not self._items:
+                self._arrived.wait(max(0.0, float(timeout)))
+            return bool(self._items)
 
     def until(self, t: float) -> list:
         """The items with stamp <= ``t`` (s) not taken yet, oldest first; they are taken."""

@@ -28,6 +28,7 @@ _MODULES = [
     "depthguard.evaluation.bench.freespace",
     "depthguard.evaluation.bench.robot",
     "depthguard.evaluation.bench.control",
+    "depthguard.evaluation.bench.stalls",
     "depthguard.evaluation.bench.voxels",
     "depthguard.evaluation.bench.sim",
     "depthguard.evaluation.bench.monitor",
