@@ -144,7 +144,7 @@ def test_bad_robots_are_refused_in_one_sentence(fr3, tmp_path):
 @pytest.mark.parametrize("args, words", [
     (["--sink", "franky:127.0.0.3,path={path}"], "no Franka robot answers at 127.0.0.3:1337"),
     (["--sink", "franky:127.0.0.3"], "give the path the robot runs"),
-    (["--joints", "franky:127.0.0.3"], "cannot drive the simulated cameras"),
+    (["--joints", "franky:127.0.0.3"], "no Franka robot answers at 127.0.0.3:1337"),   # beside sim: followed
 ])
 def test_monitor_refuses_a_bad_franka_in_one_line(tmp_path, args, words):
     path = tmp_path / "path.csv"

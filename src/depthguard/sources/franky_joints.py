@@ -12,8 +12,10 @@ rig's joint limits — otherwise the source refuses to open with one sentence. A
 outside the limits is not used (``rejected``, ``last_error``): the joints go stale and the
 monitor stops the robot (R27). An address that does not answer on port 1337 within 2 s is
 refused at open. When reading fails (the connection is lost), the source says so (``lost``);
-no state comes, the joints go stale, the robot stops (R27). It cannot be combined with
-``sim:`` frames (their clock starts at 0): refused in one sentence.
+no state comes, the joints go stale, the robot stops (R27). Beside ``sim:`` frames the
+simulated cameras follow this robot: they render it at its states
+(:class:`~depthguard.sources.sim_source.FollowedJoints`), on the wall clock — the closed loop
+of ``--cell fr3-cell`` with franky-sim or a real FR3 (docs/ROBOTS.md).
 """
 
 from __future__ import annotations
@@ -26,7 +28,8 @@ import numpy as np
 
 from depthguard.progress import log
 from depthguard.sources.base import register_joints
-from depthguard.sources.joints import JointSourceError, _robot, check_joint_state, refuse_beside_simulator
+from depthguard.sources.joints import JointSourceError, _robot, check_joint_state
+from depthguard.sources.sim_source import follow_beside_simulator
 from depthguard.sources.stamped_queue import StampedQueue
 from depthguard.transport.franky_link import FRANKA_DOF, FrankyError, link_for, parse_host
 
@@ -131,5 +134,4 @@ def open_franky_joints(argument: str, rig, context: dict) -> FrankyJoints:
         host = parse_host(argument, "--joints franky")
     except FrankyError as exc:
         raise JointSourceError(str(exc)) from None
-    refuse_beside_simulator(f"franky:{host}", context)
-    return FrankyJoints(host, rig)
+    return follow_beside_simulator(FrankyJoints(host, rig), f"franky:{host}", context)    # sim: cameras follow it

@@ -13,8 +13,8 @@ not the rig's is never guessed at). A later state outside the limits is not used
 ``last_error``): the joints then go stale and the monitor stops the robot (R27). An address
 that does not answer on port 30004 within 2 s is refused at open. A lost connection is said
 (``lost``), retried every second; meanwhile no state comes, the joints go stale, the robot
-stops (R27). It cannot be combined with ``sim:`` frames (their clock starts at 0, a live
-source's is the wall clock): refused in one sentence.
+stops (R27). Beside ``sim:`` frames the simulated cameras follow this robot: they render it
+at its states (:class:`~depthguard.sources.sim_source.FollowedJoints`), on the wall clock.
 """
 
 from __future__ import annotations
@@ -29,7 +29,8 @@ import numpy as np
 from depthguard.progress import log
 from depthguard.transport.ur_rtde_worker import UrError, Worker, check_reachable, missing_package, parse_address
 from depthguard.sources.base import register_joints
-from depthguard.sources.joints import JointSourceError, _robot, check_joint_state, refuse_beside_simulator
+from depthguard.sources.joints import JointSourceError, _robot, check_joint_state
+from depthguard.sources.sim_source import follow_beside_simulator
 from depthguard.sources.stamped_queue import StampedQueue
 
 __all__ = ["UrRtdeJoints"]
@@ -148,5 +149,4 @@ def open_ur_rtde_joints(argument: str, rig, context: dict) -> UrRtdeJoints:
         host = parse_address(argument, "--joints ur-rtde")
     except UrError as exc:
         raise JointSourceError(str(exc)) from None
-    refuse_beside_simulator(f"ur-rtde:{host}", context)
-    return UrRtdeJoints(host, rig)
+    return follow_beside_simulator(UrRtdeJoints(host, rig), f"ur-rtde:{host}", context)    # sim: cameras follow it
