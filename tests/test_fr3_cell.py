@@ -139,7 +139,7 @@ def _separation(cell, q, scene_t) -> float:
         a, b = T[:3, :3] @ c.a + T[:3, 3], T[:3, :3] @ c.b + T[:3, 3]
         n = max(2, int(np.linalg.norm(b - a) / 0.005) + 1)
         pts = a + np.linspace(0.0, 1.0, n)[:, None] * (b - a)
-        best = min(best, float(true_distance(pts, people).min()) - c.radius)
+        best = min(best, float(true_distance(people, pts).min()) - c.radius)
     return best
 
 
@@ -148,7 +148,7 @@ def test_fr3_stops_for_the_person_and_resumes_through_franky_sim(fr3_sim, tmp_pa
     out = tmp_path / "run"
     res = subprocess.run([sys.executable, "-m", "depthguard.cli", "monitor", "--cell", "fr3-cell",
                           "--joints", f"franky:{fr3_sim.host}", "--sink", f"franky:{fr3_sim.host},path=fr3-cell",
-                          "--duration", "21", "--out", str(out), "--quiet"],
+                          "--duration", "18", "--out", str(out), "--quiet"],
                          capture_output=True, text=True, timeout=600)
     assert res.returncode == 0, (res.stdout, res.stderr[-3000:])
     summary = json.loads((out / "summary.json").read_text())
@@ -157,23 +157,37 @@ def test_fr3_stops_for_the_person_and_resumes_through_franky_sim(fr3_sim, tmp_pa
     origin = counts["clock_origin_s"]
     cell = load_cell("fr3-cell")
     with fr3_sim.lock:
-        truth = [x for x in fr3_sim.truth if origin <= x[0] <= origin + 21.0][::10]     # every 10th step
+        steps = [x for x in fr3_sim.truth if origin <= x[0] <= origin + 18.0]
+    truth = steps[::max(1, len(steps) // 2000)]                                          # <= ~2000 samples
     t = np.array([w - origin for w, _q, _dq in truth])                                  # the scene's time
     q = np.array([x[1] for x in truth])
     v = np.array([np.abs(x[2]).max() for x in truth])
     sep = np.array([_separation(cell, qi, ti) for ti, qi in zip(t, q)])
     i = int(np.argmin(sep))
     report = (f"min true separation {sep[i] * 100:.1f} cm at scene t {t[i]:.2f} s, franky-sim |dq|max there "
-              f"{v[i]:.4f} rad/s; {len(truth)} samples; monitor: {res.stdout.strip().splitlines()[-1]}")
-    print(report)
+              f"{v[i]:.4f} rad/s; franky-sim ran {len(steps) / 18.0:.0f} physics steps per second (1000 in real time)")
     # the person came near the path (the test is not vacuous) and was never reached
     assert 0.0 < sep[i] < 0.6, report
-    near = (t > 6.0) & (t < 11.0)                                  # the person stands at the path's edge
+    near = (t > 6.0) & (t < 9.0)                                   # the person stands at the path's edge
     assert v[near].size and np.median(v[near]) < 2e-3, (np.median(v[near]), report)   # franky-sim: standing
     assert v[i] < 2e-3, report                                     # standing when the person was nearest
-    before = (t > 0.5) & (t < 3.0)
-    after = t > 17.0                                               # the person gone (scene time 15.5)
-    assert v[before].max() > 0.2 and v[after].max() > 0.2, (v[before].max(), v[after].max())
+    records = [json.loads(x) for x in (out / "log.jsonl").read_text().splitlines()]
+    records = [r for r in records if "t" in r]
+    assert any(6.0 < r["t"] - origin < 9.0 and any(k.startswith("ssm:") for k in r["reasons"]) for r in records)
+    assert all(r["speed_scale"] == 0.0 for r in records if "stale:joints" in r["reasons"])     # R27
+    # moving before the person comes within the 2 m looked at, and again after they left: only
+    # where the monitor had fresh data; on a machine too busy to render the cameras in real time
+    # the robot must stand instead (R27: stale cameras), and then the return is not judged here
+    before, after = t < 4.5, t > 13.5                              # more than 2 m away; gone at 12.5 s
+    fresh = {w: np.mean([not any(k.startswith("stale:") for k in r["reasons"]) for r in records
+                         if lo < r["t"] - origin < hi]) for w, (lo, hi) in {"before": (0, 4.5), "after": (13.5, 18)}.items()}
+    report += f"; cycles with fresh data: before {fresh['before']:.0%}, after {fresh['after']:.0%}"
+    print(report)
+    if min(fresh.values()) < 0.5 or len(steps) < 0.2 * 18000:
+        pytest.skip(f"the robot was never reached ({report}), but this machine could not keep the simulated "
+                    "cameras or franky-sim near real time, so the robot stood for stale data (R27) or hardly "
+                    "moved, and its return to the path was not judged")
+    assert v[before].max() > 0.2 and v[after].max() > 0.2, (v[before].max(), v[after].max(), report)
     # back on the path: joint 1 swings between the waypoints, the others stay at the path's values
     wps = np.loadtxt(cell_path(), delimiter=",", comments="#", ndmin=2)
     assert np.abs(q[after][:, 1:] - wps[0, 1:]).max() < 0.05

@@ -271,18 +271,18 @@ def _fr3_cell(rig):
     path = JointPath([(0.0, wps[0]), (3.0, wps[1]), (6.0, wps[0])])      # the path franky runs, looped
     face = math.atan2(0.5, -0.9)                                          # towards the robot's base
     keys = [
-        Key(2.0, (3.0, -2.9), math.atan2(2.4, -2.1)),
+        Key(3.0, (3.0, -2.9), math.atan2(2.4, -2.1)),
         Key(6.0, (0.9, -0.5), face),                  # walks in towards the path's -y end
-        Key(11.0, (0.9, -0.5), face),                 # stands at its edge
-        Key(15.0, (3.0, -2.9), -math.pi / 4),         # and leaves
+        Key(9.0, (0.9, -0.5), face),                  # stands at its edge
+        Key(12.0, (3.0, -2.9), -math.pi / 4),         # and leaves
     ]
-    person = Person("operator", keys, floor_z=0.0, present=(2.0, 15.5))
-    scene = Scene(rig.objects, robot=rig.robot, robot_path=path, people=[person], duration=24.0)
+    person = Person("operator", keys, floor_z=0.0, present=(3.0, 12.5))
+    scene = Scene(rig.objects, robot=rig.robot, robot_path=path, people=[person], duration=22.0)
     sits = [
-        Situation("robot_alone", 1.0, "the FR3 swinging along its path, nobody in the cell"),
-        Situation("approach", 5.0, "a person walks towards the robot's path"),
-        Situation("at_path", 8.0, "the person stands at the edge of the robot's path"),
-        Situation("gone", 18.0, "the person has left"),
+        Situation("robot_alone", 2.0, "the FR3 swinging along its path, nobody in the cell"),
+        Situation("approach", 4.5, "a person walks towards the robot's path"),
+        Situation("at_path", 7.5, "the person stands at the edge of the robot's path"),
+        Situation("gone", 16.0, "the person has left"),
     ]
     return scene, sits, ("Franka FR3 (franky-sim's model) on a workbench, two RealSense D435 on tripods; a person "
                          "walks towards its path, stands there and leaves")

@@ -17,7 +17,7 @@ Options after the cell name, separated by ``:``:
 - ``noiseless``: ideal images;
 - ``seed=N``: the noise seed.
 
-Cameras deliver at ``camera_hz`` (each with its own phase: not synchronised);
+Cameras deliver at ``camera_hz`` (the rig's ``monitor.camera_hz``; each with its own phase: not synchronised);
 each frame is rendered at its capture time with the robot where it was then,
 and stamped with that time. The scene loops over its scripted duration.
 
@@ -98,7 +98,7 @@ class SimWorld:
 
     def __init__(self, cell_name: str, rig=None, situation: str | None = None, alone: bool = False,
                  dark: bool = False, noiseless: bool = False, seed: int = 0, joint_hz: float = 500.0,
-                 camera_hz: float = PRODUCT_CAMERA_HZ):
+                 camera_hz: float | None = None):
         from depthguard.sim.cells import cell_from_rig, load_cell
 
         cell = load_cell(cell_name) if (rig is None or cell_name) else cell_from_rig(rig)
@@ -108,6 +108,8 @@ class SimWorld:
             raise ValueError(f"sim source: rig {self.rig.name!r} has no robot")
         self.robot = self.rig.robot
         self.alone, self.dark, self.noiseless, self.seed = alone, dark, noiseless, seed
+        if camera_hz is None:           # the rig's monitor.camera_hz, as a RealSense is asked for
+            camera_hz = getattr(getattr(self.rig, "monitor", None), "camera_hz", None) or PRODUCT_CAMERA_HZ
         self.joint_hz, self.camera_hz = float(joint_hz), float(camera_hz)
         self.history = JointHistory(self.robot.dof, span_s=5.0)
         self.states: deque = deque(maxlen=int(5.0 * joint_hz))   # (stamp, q) of every tick, newest last
