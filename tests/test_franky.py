@@ -152,8 +152,8 @@ def test_a_robot_that_leaves_the_rigs_limits_is_said_and_its_joints_go_stale(fr3
         time.sleep(0.1)
         src.states_until(time.time())                                      # what came before the change
         n = src.received
-        time.sleep(0.5)
-        assert src.received == n and src.rejected > 10 and not src.states_until(time.time() + 1.0)
+        time.sleep(1.0)
+        assert src.received == n and src.rejected >= 2 and not src.states_until(time.time() + 1.0)
         assert "joint 4 = -1.57" in src.last_error
     finally:
         src.close()
