@@ -174,7 +174,9 @@ def test_fr3_stops_for_the_person_and_resumes_through_franky_sim(fr3_sim, tmp_pa
     records = [json.loads(x) for x in (out / "log.jsonl").read_text().splitlines()]
     records = [r for r in records if "t" in r]
     assert any(6.0 < r["t"] - origin < 9.0 and any(k.startswith("ssm:") for k in r["reasons"]) for r in records)
-    assert all(r["speed_scale"] == 0.0 for r in records if "stale:joints" in r["reasons"])     # R27
+    stale = [(a["override"], b["override"]) for a, b in zip(records, records[1:])
+             if "stale:joints" in a["reasons"] and "stale:joints" in b["reasons"]]
+    assert all(y <= x + 1e-9 for x, y in stale)                    # stale joints: the override only falls (R27)
     # moving before the person comes within the 2 m looked at, and again after they left: only
     # where the monitor had fresh data; on a machine too busy to render the cameras in real time
     # the robot must stand instead (R27: stale cameras), and then the return is not judged here
