@@ -140,11 +140,32 @@ def test_bad_robots_are_refused_in_one_sentence(fr3, tmp_path):
         open_franky_sink(f"127.0.0.3,path={path}")
 
 
+def test_a_robot_that_leaves_the_rigs_limits_is_said_and_its_joints_go_stale(fr3, capsys):
+    """The robot's states fit the rig at open, then no longer (here: the rig's limit of joint 4
+    moved past where the FR3 stands): no state is used, one line says why, the joints go stale."""
+    rig = copy.deepcopy(load_cell("flacco-cell").rig)
+    src = open_joints(f"franky:{fr3.host}", rig, {})
+    try:
+        time.sleep(0.3)
+        assert src.states_until(time.time()) and src.rejected == 0
+        rig.robot.q_max[3] = -1.7                                          # the FR3 stands at -1.57
+        time.sleep(0.1)
+        src.states_until(time.time())                                      # what came before the change
+        n = src.received
+        time.sleep(1.0)
+        assert src.received == n and src.rejected >= 2 and not src.states_until(time.time() + 1.0)
+        assert "joint 4 = -1.57" in src.last_error
+    finally:
+        src.close()
+    said = [x for x in capsys.readouterr().err.splitlines() if "joint state refused" in x]
+    assert len(said) == 1 and "R27" in said[0], said
+
+
 @pytest.mark.slow
 @pytest.mark.parametrize("args, words", [
     (["--sink", "franky:127.0.0.3,path={path}"], "no Franka robot answers at 127.0.0.3:1337"),
     (["--sink", "franky:127.0.0.3"], "give the path the robot runs"),
-    (["--joints", "franky:127.0.0.3"], "cannot drive the simulated cameras"),
+    (["--joints", "franky:127.0.0.3"], "no Franka robot answers at 127.0.0.3:1337"),   # beside sim: followed
 ])
 def test_monitor_refuses_a_bad_franka_in_one_line(tmp_path, args, words):
     path = tmp_path / "path.csv"

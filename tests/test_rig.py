@@ -183,3 +183,23 @@ def test_a_camera_id_that_cannot_name_a_zenoh_key_is_refused_when_the_rig_loads(
         Rig.from_dict(data, source=tmp_path / "cell.yaml")
     data["monitor"] = {"rho": 0.3}
     assert Rig.from_dict(data, source=tmp_path / "cell.yaml").monitor.rho == 0.3
+
+
+def test_the_fr3_cell_without_franky_sim_is_one_sentence(monkeypatch):
+    """The FR3's model is franky-sim's URDF, found at run time: where the package cannot be
+    found, the cell's rig names the field and says what to install (no traceback, no download)."""
+    import importlib.util
+
+    from depthguard.rig import RigError
+    from depthguard.robot import builtin
+    from depthguard.sim import load_cell
+
+    real = importlib.util.find_spec
+    monkeypatch.setattr(importlib.util, "find_spec", lambda name, *a: None if name == "franky_sim" else real(name, *a))
+    builtin._builtin.cache_clear()
+    try:
+        with pytest.raises(RigError, match=r"fr3-cell.yaml: robot.name: the FR3 model comes from the simulator "
+                                           r"franky-sim, which is not installed \(pip install franky-sim"):
+            load_cell("fr3-cell")
+    finally:
+        builtin._builtin.cache_clear()

@@ -259,7 +259,7 @@ def test_the_monitor_runs_on_the_robots_joints_and_a_lost_robot_stops_it_with_a_
 @pytest.mark.parametrize("args, words", [
     (["--sink", "franka:1.2.3.4"], "the scheme must be one of"),
     (["--sink", "ur-rtde:{host}"], "cannot reach the robot at"),
-    (["--joints", "ur-rtde:{host}"], "cannot drive the simulated cameras"),
+    (["--joints", "ur-rtde:{host}"], "cannot reach the robot at"),      # beside sim: it is followed, if it answers
     (["--sink", "ur-rtde:{host}", "--fast"], "run in real time"),
 ])
 def test_monitor_refuses_a_bad_robot_in_one_line(tmp_path, args, words):

@@ -24,6 +24,14 @@ the forearm, elbow, three on the upper arm.
 the tests on vertices and surface samples). The standard UR3 DH table
 (Oščádal et al. 2022) is :data:`UR3_DH`; its frame 0 is the URDF's ``base``
 link, i.e. ``base_link`` turned by ``Rz(π)`` (see :func:`ur3_dh`).
+
+``fr3`` — Franka Research 3, from the ``fr3.urdf`` and collision STLs that the simulator
+``franky-sim`` (PyPI, test extra; Franka's ``franka_description``, Apache-2.0) ships, found
+with importlib when the model is first asked for (nothing is copied into this package; where
+franky-sim is absent, one sentence says so). Chain root ``base`` to the hand's TCP
+(``fr3_hand_tcp``, 0.1034 m past the flange); capsules fitted to each link's collision mesh
+and control points as for any URDF (:func:`robot_from_urdf`: the TCP and each moving link's
+capsule centre); home = franky-sim's start pose ``(0, 0, 0, -1.57, 0, 1.57, 0.785)`` rad.
 """
 
 from __future__ import annotations
@@ -41,7 +49,7 @@ from depthguard.robot.model import ControlPoint, RobotModel
 from depthguard.robot.urdf import example_robot_data_dir, parse_urdf
 from depthguard.transforms import invert_rigid, pose, rot_z
 
-__all__ = ["LWR4_DH", "UR3_DH", "lwr4", "ur3", "ur3_dh", "ur3_urdf_path", "load_robot",
+__all__ = ["LWR4_DH", "UR3_DH", "lwr4", "ur3", "ur3_dh", "ur3_urdf_path", "fr3_urdf_path", "load_robot",
            "available_robots", "robot_from_urdf"]
 
 _PI2 = np.pi / 2
@@ -166,7 +174,28 @@ def ur3_dh(base: np.ndarray | None = None) -> RobotModel:
                       control_points=[ControlPoint("ee", "link6", np.zeros(3), 0.04)], source="builtin:ur3 DH")
 
 
-_BUILTIN = {"lwr4": _lwr4_model, "ur3": _ur3_model}
+#: franky-sim's start pose of the FR3 (``franky_sim.constants.DEFAULT_INITIAL_JOINT_POS``), rad
+FR3_HOME = (0.0, 0.0, 0.0, -1.57, 0.0, 1.57, 0.785)
+
+
+def fr3_urdf_path() -> Path:
+    """Path of franky-sim's ``assets/fr3.urdf`` (``FileNotFoundError``, one sentence, if not installed).
+    The package is located, not imported (importing it loads MuJoCo)."""
+    import importlib.util
+
+    spec = importlib.util.find_spec("franky_sim")
+    p = None if spec is None or not spec.origin else Path(spec.origin).parent / "assets" / "fr3.urdf"
+    if p is None or not p.is_file():
+        raise FileNotFoundError("the FR3 model comes from the simulator franky-sim, which is not installed "
+                                "(pip install franky-sim, or make venv)")
+    return p
+
+
+def _fr3_model() -> RobotModel:
+    return robot_from_urdf(fr3_urdf_path(), tip="fr3_hand_tcp", name="fr3", q_home=FR3_HOME)
+
+
+_BUILTIN = {"lwr4": _lwr4_model, "ur3": _ur3_model, "fr3": _fr3_model}
 
 
 def available_robots() -> list[str]:
@@ -187,9 +216,11 @@ def ur3(base: np.ndarray | None = None) -> RobotModel:
     return load_robot("ur3", base=base)
 
 
-def robot_from_urdf(path: str | Path, tip: str | None = None, name: str | None = None) -> RobotModel:
+def robot_from_urdf(path: str | Path, tip: str | None = None, name: str | None = None,
+                    q_home=None) -> RobotModel:
     """A model from any URDF: capsules fitted to each link's geometry (:func:`fit_capsule`),
-    control points at the tip (index 0) and at the middle of each moving link's capsule."""
+    control points at the tip (index 0) and at the middle of each moving link's capsule;
+    ``q_home`` (dof,) rad, default 0 clipped to the limits."""
     u = parse_urdf(path, tip=tip)
     chain = Chain(u.links)
     caps = []
@@ -200,7 +231,8 @@ def robot_from_urdf(path: str | Path, tip: str | None = None, name: str | None =
     for c in caps:
         if chain.support[chain.link_index(c.link)].any():
             cps.append(ControlPoint(c.link, c.link, 0.5 * (c.a + c.b), c.radius))
-    q_home = np.clip(np.zeros(chain.dof), chain.q_min, chain.q_max)
+    if q_home is None:
+        q_home = np.clip(np.zeros(chain.dof), chain.q_min, chain.q_max)
     return RobotModel(name or u.name, chain, q_home=q_home, control_points=cps, link_meshes=u.meshes,
                       capsules=caps, source=str(u.path))
 

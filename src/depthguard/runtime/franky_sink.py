@@ -4,7 +4,8 @@ libfranka has no global speed override. franky runs *motions* that a new motion 
 while they run (``robot.move(motion, asynchronous=True)``), each with a *relative dynamics
 factor* in (0, 1] that scales the robot's velocity, acceleration and jerk limits. This sink
 is the program that moves the robot: it runs a joint path (``path``: waypoints, (n, 7) rad,
-a CSV file of 7 numbers a line in the spec) waypoint after waypoint, in a loop, each leg a
+a CSV file of 7 numbers a line in the spec, or the name of a built-in cell that ships one:
+``path=fr3-cell``) waypoint after waypoint, in a loop, each leg a
 ``franky.JointMotion`` to the next waypoint, and applies the reaction's ``speed_scale``
 (the override, times the SSM scale in ``ssm``/``both`` modes) to it:
 
@@ -224,9 +225,17 @@ def open_franky_sink(argument: str, rig=None, context: dict | None = None) -> Fr
         raise FrankyError(f"--sink franky:{argument}: give the path the robot runs: franky:HOST,path=FILE "
                           f"(a CSV of {FRANKA_DOF} joint values in rad a line)")
     host = parse_host(host_part, "--sink franky")
+    path = opts["path"]
+    if not Path(path).exists():
+        from depthguard.sim.cells import cell_path_file
+
+        try:
+            path = cell_path_file(path)                  # path=fr3-cell: the cell's shipped path
+        except (FileNotFoundError, ValueError):
+            pass                                         # read_path says the file cannot be read
     robot = getattr(rig, "robot", None)
     if robot is not None and robot.dof != FRANKA_DOF:
         raise FrankyError(f"--sink franky:{host}: a Franka has {FRANKA_DOF} joints, the rig's robot {robot.name} has "
                           f"{robot.dof}: use the rig of this robot")
-    return FrankySink(host, opts["path"], q_min=None if robot is None else robot.q_min,
+    return FrankySink(host, path, q_min=None if robot is None else robot.q_min,
                       q_max=None if robot is None else robot.q_max)

@@ -16,6 +16,12 @@ rig's static objects and its robot at the rig's joints, nobody else.
   ``hidden_hand`` (2015 fig. 9).
 - ``ur3-cell`` (Oščádal 2022): UR3 workstation, four RealSense D435, in a 7 x 7 m
   room (floor at z = 0, 3 m walls); an arm reaches in and a box is put down.
+- ``fr3-cell``: a Franka FR3 (franky-sim's model, :func:`depthguard.robot.builtin.fr3_urdf_path`)
+  on a workbench, two RealSense D435 on tripods; it swings its first joint along the joint
+  path of ``data/cells/fr3-cell.path.csv`` (the path ``--sink franky:HOST,path=fr3-cell``
+  runs) and a person walks in towards that path, stands at its edge and leaves. Needs
+  franky-sim installed, so it is not among :func:`list_cells` (the demo, the benchmarks and
+  the calibration study run every listed cell): load it by name (:data:`EXTRA_CELLS`).
 - ``c-arm-room`` (Hamersma 2011): intervention room, ceiling C-arm
   (:mod:`depthguard.sim.carm`) as the machine, patient, doctor, two nurses,
   21 ToF cameras; situations ``setup1`` … ``setup6``.
@@ -42,9 +48,12 @@ from depthguard.sim.people import BodyShape, Carry, Key, Person
 from depthguard.sim.scene import JointPath, Prop, Scene
 from depthguard.transforms import pose
 
-__all__ = ["Cell", "Situation", "load_cell", "list_cells", "cell_from_rig", "cell_rig_path", "CELL_NAMES"]
+__all__ = ["Cell", "Situation", "load_cell", "list_cells", "cell_from_rig", "cell_rig_path", "cell_path_file",
+           "CELL_NAMES", "EXTRA_CELLS"]
 
 CELL_NAMES = ("flacco-walls", "flacco-cell", "ur3-cell", "c-arm-room")
+#: cells loadable by name that need an optional package (fr3-cell: franky-sim's FR3 model)
+EXTRA_CELLS = ("fr3-cell",)
 
 
 @dataclass(frozen=True)
@@ -92,6 +101,16 @@ def cell_rig_path(name: str) -> Path:
     """Path of the shipped rig file of a built-in cell."""
     _check_name(name)
     return Path(str(resources.files("depthguard") / "data" / "cells" / f"{name}.yaml"))
+
+
+def cell_path_file(name: str) -> Path:
+    """The shipped joint path of a cell's robot (``data/cells/<name>.path.csv``: 1 waypoint a line, rad)
+    for a robot sink that runs a path (``--sink franky:HOST,path=<name>``); ``FileNotFoundError``
+    when the cell has none."""
+    p = Path(str(resources.files("depthguard") / "data" / "cells" / f"{name}.path.csv"))
+    if name not in CELL_NAMES + EXTRA_CELLS or not p.is_file():
+        raise FileNotFoundError(f"cell {name!r} has no shipped joint path")
+    return p
 
 
 def ring_fixture_mesh():
@@ -145,8 +164,8 @@ def cell_from_rig(rig, name: str | None = None) -> Cell:
 
 
 def _check_name(name: str) -> None:
-    if name not in CELL_NAMES:
-        raise ValueError(f"unknown cell {name!r}; built-in cells: {', '.join(CELL_NAMES)}")
+    if name not in CELL_NAMES + EXTRA_CELLS:
+        raise ValueError(f"unknown cell {name!r}; built-in cells: {', '.join(CELL_NAMES + EXTRA_CELLS)}")
 
 
 # ====================================================================== cells
@@ -247,6 +266,28 @@ def _ur3_cell(rig):
                          "an arm and a box enter")
 
 
+def _fr3_cell(rig):
+    wps = np.loadtxt(cell_path_file("fr3-cell"), delimiter=",", comments="#", ndmin=2)
+    path = JointPath([(0.0, wps[0]), (3.0, wps[1]), (6.0, wps[0])])      # the path franky runs, looped
+    face = math.atan2(0.5, -0.9)                                          # towards the robot's base
+    keys = [
+        Key(3.0, (3.0, -2.9), math.atan2(2.4, -2.1)),
+        Key(6.0, (0.9, -0.5), face),                  # walks in towards the path's -y end
+        Key(9.0, (0.9, -0.5), face),                  # stands at its edge
+        Key(12.0, (3.0, -2.9), -math.pi / 4),         # and leaves
+    ]
+    person = Person("operator", keys, floor_z=0.0, present=(3.0, 12.5))
+    scene = Scene(rig.objects, robot=rig.robot, robot_path=path, people=[person], duration=22.0)
+    sits = [
+        Situation("robot_alone", 2.0, "the FR3 swinging along its path, nobody in the cell"),
+        Situation("approach", 4.5, "a person walks towards the robot's path"),
+        Situation("at_path", 7.5, "the person stands at the edge of the robot's path"),
+        Situation("gone", 16.0, "the person has left"),
+    ]
+    return scene, sits, ("Franka FR3 (franky-sim's model) on a workbench, two RealSense D435 on tripods; a person "
+                         "walks towards its path, stands there and leaves")
+
+
 # --------------------------------------------------------------- c-arm room
 CARM_SETUPS: dict[str, tuple[CArmPose, str]] = {
     "setup1": (CArmPose.degrees(), "frontal, head position"),
@@ -318,4 +359,5 @@ _BUILDERS: dict[str, Callable] = {
     "flacco-cell": _flacco_cell,
     "ur3-cell": _ur3_cell,
     "c-arm-room": _carm_room,
+    "fr3-cell": _fr3_cell,
 }

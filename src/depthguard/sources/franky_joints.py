@@ -9,11 +9,13 @@ pairs); a state whose robot time did not advance is not given twice.
 
 Checks: the rig's robot must have the FR3's 7 joints, and the first state must lie within the
 rig's joint limits — otherwise the source refuses to open with one sentence. A later state
-outside the limits is not used (``rejected``, ``last_error``): the joints go stale and the
-monitor stops the robot (R27). An address that does not answer on port 1337 within 2 s is
-refused at open. When reading fails (the connection is lost), the source says so (``lost``);
-no state comes, the joints go stale, the robot stops (R27). It cannot be combined with
-``sim:`` frames (their clock starts at 0): refused in one sentence.
+outside the limits is not used (``rejected``; ``last_error`` until a state is used again; said
+in one log line): the joints go stale and the monitor stops the robot (R27). An address that
+does not answer on port 1337 within 2 s is refused at open. When reading fails (the
+connection is lost), the source says so (``lost``); no state comes, the joints go stale, the
+robot stops (R27). Beside ``sim:`` frames the simulated cameras follow this robot: they render
+it at its states (:class:`~depthguard.sources.sim_source.FollowedJoints`), on the wall clock —
+the closed loop of ``--cell fr3-cell`` with franky-sim or a real FR3 (docs/ROBOTS.md).
 """
 
 from __future__ import annotations
@@ -26,7 +28,8 @@ import numpy as np
 
 from depthguard.progress import log
 from depthguard.sources.base import register_joints
-from depthguard.sources.joints import JointSourceError, _robot, check_joint_state, refuse_beside_simulator
+from depthguard.sources.joints import JointSourceError, _robot, check_joint_state
+from depthguard.sources.sim_source import follow_beside_simulator
 from depthguard.sources.stamped_queue import StampedQueue
 from depthguard.transport.franky_link import FRANKA_DOF, FrankyError, link_for, parse_host
 
@@ -94,8 +97,12 @@ class FrankyJoints:
             stamp, arr = check_joint_state(self._robot, host_stamp, q)
         except (ValueError, TypeError) as exc:
             self.rejected += 1
+            if self.last_error is None:                  # said once until a state is used again
+                log(f"franky {self.host}: joint state refused ({exc}); the joints go stale and the robot is "
+                    "stopped (R27)")
             self.last_error = f"franky {self.host}: {exc}"
             return
+        self.last_error = None
         self.received += 1
         self.robot_stamps.append((stamp, float(robot_t)))
         what = self._queue.offer(stamp, (stamp, arr))
@@ -131,5 +138,4 @@ def open_franky_joints(argument: str, rig, context: dict) -> FrankyJoints:
         host = parse_host(argument, "--joints franky")
     except FrankyError as exc:
         raise JointSourceError(str(exc)) from None
-    refuse_beside_simulator(f"franky:{host}", context)
-    return FrankyJoints(host, rig)
+    return follow_beside_simulator(FrankyJoints(host, rig), f"franky:{host}", context)    # sim: cameras follow it

@@ -32,7 +32,7 @@ import numpy as np
 from depthguard.sources.base import register_joints
 from depthguard.sources.stamped_queue import StampedQueue
 
-__all__ = ["CsvJointSource", "ZenohJointSource", "JointSourceError", "check_joint_state", "refuse_beside_simulator"]
+__all__ = ["CsvJointSource", "ZenohJointSource", "JointSourceError", "check_joint_state"]
 
 _MAX_PENDING = 8192   # states received but not yet taken (a monitor polls at 500 Hz)
 
@@ -67,18 +67,6 @@ def check_joint_state(robot, stamp, q) -> tuple[float, np.ndarray]:
         raise JointSourceError(f"joint {j + 1} = {arr[j]:.6g} is outside its limits "
                                f"[{robot.q_min[j]:.6g}, {robot.q_max[j]:.6g}]")
     return float(stamp), arr
-
-
-def refuse_beside_simulator(spec: str, context: dict) -> None:
-    """``JointSourceError`` when the run simulates its cameras: a live robot's joint states are
-    stamped on the wall clock, the simulator's frames count from 0 and would be simulated up to
-    the wall clock's time (the run would never start). ``spec``: the source as given."""
-    from depthguard.sources.sim_source import sim_world
-
-    if sim_world(context) is not None:
-        raise JointSourceError(f"--joints {spec} is live (stamped on the wall clock) and cannot drive the "
-                               f"simulated cameras (their clock starts at 0): use it with live cameras "
-                               f"(realsense:, ros2:, units:)")
 
 
 def _is_number(v) -> bool:

@@ -17,7 +17,7 @@ Options after the cell name, separated by ``:``:
 - ``noiseless``: ideal images;
 - ``seed=N``: the noise seed.
 
-Cameras deliver at ``camera_hz`` (each with its own phase: not synchronised);
+Cameras deliver at ``camera_hz`` (the rig's ``monitor.camera_hz``; each with its own phase: not synchronised);
 each frame is rendered at its capture time with the robot where it was then,
 and stamped with that time. The scene loops over its scripted duration.
 
@@ -29,6 +29,17 @@ clock, so that they meet a live source's stamps. The robot never catches up more
 than ``states``' span (5 s) of joint ticks in one call: a world that is further
 behind jumps ahead (``skipped_ticks`` counts the ticks never computed), so that
 one call's work and memory are bounded whatever ``t`` it is given.
+
+**A live robot instead** (``--joints franky:HOST`` or ``ur-rtde:HOST`` beside ``sim:``):
+the world *follows* that robot (:class:`FollowedJoints`, :meth:`SimWorld.follow`). Its own
+robot does not move; the live joint states the monitor receives (stamped on the host's wall
+clock when they arrive) are also the simulated robot's, and each frame is rendered with the
+robot where that robot was at the frame's capture time (interpolated between the two states
+around it, never extrapolated: a frame waits for the state after it). The run's clock is
+then the wall clock, the people walk on it, and the reaction goes to the real robot (its
+sink), not to the simulator. A frame captured before the first state kept is not rendered
+(``no_robot_state`` in :meth:`SimFrames.counters`); while the states stop coming (a lost
+robot) no frame is due either: the cameras go stale with the joints (R27).
 
 In a real-time run (the runner says so) a camera that falls more than a period
 behind drops the frames it could not render, and the cameras take their noise's
@@ -46,14 +57,14 @@ from collections import deque
 import numpy as np
 
 from depthguard.config import PRODUCT_CAMERA_HZ
-from depthguard.robot.joint_history import JointHistory
+from depthguard.robot.joint_history import JointHistory, OutsideHistory
 from depthguard.sim.obeying_robot import ObeyingRobot, PathFollower
 from depthguard.sim.posed import PosedMeshes
 from depthguard.sources.base import register_joints, register_source
 from depthguard.sources.camera_sim import CameraSchedule, CameraSim
 from depthguard.sources.frame import Frame
 
-__all__ = ["SimWorld", "SimFrames", "SimJoints", "parse_sim_spec", "sim_world"]
+__all__ = ["SimWorld", "SimFrames", "SimJoints", "FollowedJoints", "parse_sim_spec", "sim_world"]
 
 _FLAGS = ("alone", "dark", "noiseless")
 
@@ -87,7 +98,7 @@ class SimWorld:
 
     def __init__(self, cell_name: str, rig=None, situation: str | None = None, alone: bool = False,
                  dark: bool = False, noiseless: bool = False, seed: int = 0, joint_hz: float = 500.0,
-                 camera_hz: float = PRODUCT_CAMERA_HZ):
+                 camera_hz: float | None = None):
         from depthguard.sim.cells import cell_from_rig, load_cell
 
         cell = load_cell(cell_name) if (rig is None or cell_name) else cell_from_rig(rig)
@@ -97,6 +108,8 @@ class SimWorld:
             raise ValueError(f"sim source: rig {self.rig.name!r} has no robot")
         self.robot = self.rig.robot
         self.alone, self.dark, self.noiseless, self.seed = alone, dark, noiseless, seed
+        if camera_hz is None:           # the rig's monitor.camera_hz, as a RealSense is asked for
+            camera_hz = getattr(getattr(self.rig, "monitor", None), "camera_hz", None) or PRODUCT_CAMERA_HZ
         self.joint_hz, self.camera_hz = float(joint_hz), float(camera_hz)
         self.history = JointHistory(self.robot.dof, span_s=5.0)
         self.states: deque = deque(maxlen=int(5.0 * joint_hz))   # (stamp, q) of every tick, newest last
@@ -107,13 +120,29 @@ class SimWorld:
         self._tick = 0                  # next joint tick index (time = origin + tick / joint_hz)
         self.origin = 0.0               # the run's clock at the simulator's time 0 (start_clock)
         self.skipped_ticks = 0          # joint ticks jumped over by a world far behind (advance)
+        self.followed: str | None = None  # the live joint source the robot follows (module docstring)
 
     def on_reaction(self, reaction) -> None:
         """A sink: the robot takes each reaction — the override and the joint-velocity limits
         (R14) scale the speed along its path (a joint path cannot follow the end effector's
         repulsion, which this robot ignores): :class:`~depthguard.sim.obeying_robot.PathFollower`."""
         with self._lock:
-            self.robot_sim.obey(reaction)
+            if self.followed is None:           # a followed robot takes the reaction through its own sink
+                self.robot_sim.obey(reaction)
+
+    def follow(self, spec: str) -> None:
+        """From now on the robot is the live robot of joint source ``spec`` (module docstring):
+        :meth:`advance` no longer moves it, :meth:`take_states` does."""
+        with self._lock:
+            self.followed = spec
+
+    def take_states(self, states) -> None:
+        """The followed robot's new ``(stamp s, q (dof,) rad)`` states, in stamp order: the
+        robot's poses for the frames (a state not after the newest is not kept)."""
+        with self._lock:
+            for ts, q in states:
+                if self.history.push(float(ts), q):
+                    self.states.append((float(ts), q))
 
     @property
     def scale(self) -> float:
@@ -161,6 +190,8 @@ class SimWorld:
         speed scale of its last tick; ``skipped_ticks`` counts the jump)."""
         new = []
         with self._lock:
+            if self.followed is not None:
+                return new                      # the live robot's states come through take_states
             dt = 1.0 / self.joint_hz
             local = t - self.origin
             due = math.floor(local / dt + 1e-9)         # the newest tick due at t
@@ -236,6 +267,7 @@ class SimFrames:
         self._stopped: dict[str, float] = {}
         self.skip_behind = False        # set by a real-time run: frames a slow machine cannot render are dropped
         self.skipped = 0
+        self.unposed = 0                # frames of a followed robot with no state around their capture
         self.done = False
         self.lost = None
 
@@ -268,8 +300,15 @@ class SimFrames:
     def counters(self) -> dict:
         """``skipped_behind_real_time``: frames not rendered because the simulator was more than a
         camera period behind the run's clock (a real-time run on a busy or small machine; the
-        monitor then sees late frames and stops the robot for them, as it must, R27)."""
-        return {"skipped_behind_real_time": int(self.skipped)}
+        monitor then sees late frames and stops the robot for them, as it must, R27). A world that
+        follows a live robot adds ``follows`` (its joint source) and ``clock_origin_s`` (the run's
+        clock at the scene's time 0, s: where the people were when, for a check against the
+        robot's own record)."""
+        out = {"skipped_behind_real_time": int(self.skipped)}
+        if self.world.followed is not None:
+            out.update(follows=self.world.followed, clock_origin_s=float(self.world.origin),
+                       no_robot_state=int(self.unposed))
+        return out
 
     def stop_camera(self, camera_id: str, after: float = -math.inf) -> None:
         """Fault injection: camera ``camera_id`` delivers nothing captured after ``after`` s."""
@@ -300,13 +339,55 @@ class SimFrames:
                 sched.take(i, tc)
                 if cid in self._stopped and tc >= self._stopped[cid]:
                     continue
-                q = self.world.history.at(origin + min(tc, t))         # tc <= t up to rounding
+                try:
+                    q = self.world.history.at(origin + min(tc, t))     # tc <= t up to rounding
+                except OutsideHistory:          # a followed robot: before its first state, or after a gap
+                    self.unposed += 1
+                    continue
                 out.append(Frame(cid, self.render(cid, tc, q), origin + tc))
         out.sort(key=lambda f: f.stamp)
         return out
 
     def close(self) -> None:
         pass
+
+
+class FollowedJoints:
+    """A live joint source (``franky:``, ``ur-rtde:``) whose states also pose the simulated robot
+    of the run's ``sim:`` cameras (module docstring): ``states_until`` hands each state to the
+    monitor and to :meth:`SimWorld.take_states`. Everything else (``live``, ``lost``, the
+    counters, ``robot_stamps``) is the wrapped source's."""
+
+    def __init__(self, world: SimWorld, source, spec: str):
+        self.world, self.source = world, source
+        world.follow(spec)
+
+    def states_until(self, t: float) -> list[tuple[float, np.ndarray]]:
+        states = self.source.states_until(t)
+        if states:
+            self.world.take_states(states)
+        return states
+
+    def __getattr__(self, name):
+        return getattr(self.source, name)
+
+    @property
+    def done(self) -> bool:
+        return self.source.done
+
+    @property
+    def lost(self) -> str | None:
+        return self.source.lost
+
+    def close(self) -> None:
+        self.source.close()
+
+
+def follow_beside_simulator(source, spec: str, context: dict):
+    """``source`` itself, or, when the run's cameras are simulated (a ``sim:`` source opened with
+    ``context``), a :class:`FollowedJoints` that poses the simulated robot at its states."""
+    world = sim_world(context)
+    return source if world is None else FollowedJoints(world, source, spec)
 
 
 _WORLD = "sim_world"      # the context key the sim: sources share their world under (this module's)

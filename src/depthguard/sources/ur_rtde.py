@@ -9,12 +9,13 @@ of the ``ur-rtde`` package (extra ``depthguard[ur]``), in a child process
 
 Checks: the rig's robot must have the UR's 6 joints, and the first state must lie within the
 rig's joint limits — otherwise the source refuses to open with one sentence (a robot that is
-not the rig's is never guessed at). A later state outside the limits is not used (``rejected``,
-``last_error``): the joints then go stale and the monitor stops the robot (R27). An address
-that does not answer on port 30004 within 2 s is refused at open. A lost connection is said
-(``lost``), retried every second; meanwhile no state comes, the joints go stale, the robot
-stops (R27). It cannot be combined with ``sim:`` frames (their clock starts at 0, a live
-source's is the wall clock): refused in one sentence.
+not the rig's is never guessed at). A later state outside the limits is not used (``rejected``;
+``last_error`` until a state is used again; said in one log line): the joints then go stale
+and the monitor stops the robot (R27). An address that does not answer on port 30004 within
+2 s is refused at open. A lost connection is said (``lost``), retried every second; meanwhile
+no state comes, the joints go stale, the robot stops (R27). Beside ``sim:`` frames the
+simulated cameras follow this robot: they render it at its states
+(:class:`~depthguard.sources.sim_source.FollowedJoints`), on the wall clock.
 """
 
 from __future__ import annotations
@@ -29,7 +30,8 @@ import numpy as np
 from depthguard.progress import log
 from depthguard.transport.ur_rtde_worker import UrError, Worker, check_reachable, missing_package, parse_address
 from depthguard.sources.base import register_joints
-from depthguard.sources.joints import JointSourceError, _robot, check_joint_state, refuse_beside_simulator
+from depthguard.sources.joints import JointSourceError, _robot, check_joint_state
+from depthguard.sources.sim_source import follow_beside_simulator
 from depthguard.sources.stamped_queue import StampedQueue
 
 __all__ = ["UrRtdeJoints"]
@@ -86,11 +88,15 @@ class UrRtdeJoints:
             stamp, arr = check_joint_state(self._robot, host_stamp, q)
         except (ValueError, TypeError) as exc:
             self.rejected += 1
+            if self.last_error is None and self._first.is_set():     # said once until a state is used again
+                log(f"ur-rtde {self.host}: joint state refused ({exc}); the joints go stale and the robot is "
+                    "stopped (R27)")
             self.last_error = f"ur-rtde {self.host}: {exc}"
             if not self._first.is_set():
                 self._first_error = str(exc)
                 self._first.set()
             return
+        self.last_error = None
         self.received += 1
         self.robot_stamps.append((stamp, float(robot_stamp)))
         what = self._queue.offer(stamp, (stamp, arr))
@@ -148,5 +154,4 @@ def open_ur_rtde_joints(argument: str, rig, context: dict) -> UrRtdeJoints:
         host = parse_address(argument, "--joints ur-rtde")
     except UrError as exc:
         raise JointSourceError(str(exc)) from None
-    refuse_beside_simulator(f"ur-rtde:{host}", context)
-    return UrRtdeJoints(host, rig)
+    return follow_beside_simulator(UrRtdeJoints(host, rig), f"ur-rtde:{host}", context)    # sim: cameras follow it
