@@ -56,3 +56,21 @@ def test_filter_drift_and_calibration_answer_as_with_cad(res):
             assert r["cad"] != "good" and r["learned"] != "good", r
         else:                                       # (the CAD's own check is only 'suspicious' at 160x120:
             assert r["learned"] == "good", r        # it fits 5-8 mm away with so few pixels; good at full size)
+
+
+@pytest.mark.parametrize("args, says", [
+    (["--cell", "nowhere"], "unknown cell 'nowhere'"),
+    (["--scale", "0"], "must be 1 to 8"),
+    (["--duration", "0"], "must be > 0 seconds"),
+    (["--cell", "ur3-cell", "-s", "reach"], "the closed-loop scenarios run on flacco-cell"),
+])
+def test_cli_bad_arguments_exit_2_with_one_line(args, says, capsys, monkeypatch):
+    import sys
+
+    from depthguard.cli import main
+
+    monkeypatch.setattr(sys, "argv", ["depthguard", "reproduce", "learned-scene", *args])
+    with pytest.raises(SystemExit) as exc:
+        main()
+    err = capsys.readouterr().err
+    assert exc.value.code == 2 and says in err and "Traceback" not in err, err

@@ -241,6 +241,7 @@ def ssm_table(cell, scenes: dict, scenarios=("reach",), ssm_range: float = 0.8, 
     from depthguard.evaluation.closed_loop.loop import LoopConfig
     from depthguard.evaluation.closed_loop.scenarios import run_scenario
     from depthguard.evaluation.ssm_compare import row_of
+    from depthguard.progress import log
 
     variants = {"cad": cell, "learned": dataclasses.replace(cell, rig=_learned_rig(cell.rig, scenes))}
     rows = []
@@ -252,6 +253,9 @@ def ssm_table(cell, scenes: dict, scenarios=("reach",), ssm_range: float = 0.8, 
             r = row_of(summary, res, "ssm")
             r["scene"] = label
             rows.append(r)
+            log(f"ssm {name} / {label}: progress {r['progress']:.2f}, min true separation "
+                f"{r['min_true_separation_m']:.3f} m, protective stops {r['protective_stops']}, "
+                f"SSM violations {r['ssm_violations']}")
     return rows
 
 
