@@ -320,3 +320,33 @@ def test_in_the_monitor_a_person_standing_still_for_a_minute_stays_an_obstacle(s
     assert said[-1] and {c["kind"] for c in said[-1]} == {"new"} and {c["camera"] for c in said[-1]} == set(scenes)
     for cid, sc in scenes.items():
         np.testing.assert_array_equal(sc.depth, before[cid])          # never learned
+
+
+def test_the_scene_around_the_robots_base_and_near_the_range_end_is_learned(setup):
+    """No margin around the base (no joint moves it): the CAD's pixels within 2 px outside its
+    outline are learned, where a margin would have hidden them in every frame and the filter,
+    with no robot rendered there, would keep the table there as an unknown object. Returns a
+    little beyond the rated range are learned: the CAD's surfaces just past it are known."""
+    from scipy.ndimage import binary_dilation
+
+    from depthguard.filtering.scene_learner import base_silhouette
+
+    rig, cad, q0, learned = setup
+    for cam in rig.cameras:
+        sc, hidden = learned[cam.id]
+        static = ExpectedDepth(cam, None, cad).static
+        base = base_silhouette(cam, rig.robot)
+        # the ring outside the base's outline, where the moving links were 3+ px away in 3+ of the frames
+        ex = ExpectedDepth(cam, rig.robot)
+        clear = np.zeros(cam.shape, int)
+        for k in range(40):
+            moving = (ex.robot(q_at(rig.robot, q0, k * 0.1)) > 0) & ~base
+            clear += ~binary_dilation(moving, iterations=3)
+        ring = binary_dilation(base, iterations=2) & ~base & (static > 0) & (clear >= 3)
+        assert ring.sum() > 20
+        assert sc.known[ring].mean() >= 0.9, sc.known[ring].mean()
+        past = (static > cam.max_range) & (static < 1.3 * cam.max_range) & ~hidden
+        assert past.sum() > 20
+        assert sc.known[past].mean() >= 0.9, sc.known[past].mean()
+        at_cad = np.abs(sc.depth - static) <= sc.band()
+        assert at_cad[past & sc.known].mean() >= 0.99, "learned past the range: the CAD's depth"

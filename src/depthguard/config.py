@@ -165,6 +165,12 @@ class MonitorConfig(BaseModel):
 
     model_config = ConfigDict(extra="forbid", frozen=True)
 
+    def scene_change_settings(self) -> dict:
+        """The change watch's keywords (:class:`~depthguard.runtime.scene_change.SceneChangeWatch`)
+        from the ``scene_change_*`` fields (issue 31)."""
+        return dict(new_after_s=self.scene_change_new_s, gone_after_s=self.scene_change_gone_s,
+                    regions=tuple(self.scene_change_regions), min_share=self.scene_change_min_share)
+
     rho: float = Field(0.4, gt=0.0, le=5.0)
     method: Literal["min", "mean", "hybrid"] = "hybrid"
     delta_d: float = Field(0.01, gt=0.0, le=0.5)

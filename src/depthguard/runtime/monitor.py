@@ -178,14 +178,8 @@ class Monitor(MonitorDistances, UnitStateInput, MonitorPaths, MonitorWatches):
                                           cfg.joint_wait_s, self.fusion.notify, drift=drift,
                                           state_options=lambda: self._state_options(cid),
                                           learned=getattr(self.rig, "learned", {}).get(cid),   # issue 31
-                                          scene_change=self._scene_change_settings(),
+                                          scene_change=cfg.scene_change_settings(),
                                           ssm_muted=self._ssm_muted(cid))
-
-    def _scene_change_settings(self) -> dict:
-        """The change watch's keywords from the config (issue 31: ``scene_change_*``)."""
-        cfg = self.config
-        return dict(new_after_s=cfg.scene_change_new_s, gone_after_s=cfg.scene_change_gone_s,
-                    regions=tuple(cfg.scene_change_regions), min_share=cfg.scene_change_min_share)
 
     def _ssm_muted(self, cid: str):
         """``(VoxelFilter, push)`` for camera ``cid`` when SSM mutes the known scene, else None."""
