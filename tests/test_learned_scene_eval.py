@@ -74,3 +74,11 @@ def test_cli_bad_arguments_exit_2_with_one_line(args, says, capsys, monkeypatch)
         main()
     err = capsys.readouterr().err
     assert exc.value.code == 2 and says in err and "Traceback" not in err, err
+
+
+def test_the_ssm_table_names_a_scenario_without_obstacles():
+    """A scenario with no obstacle has no true separation (None): the table shows a dash, not an error."""
+    row = {"scenario": "empty", "scene": "learned", "progress": 1.0, "min_true_separation_m": None,
+           "protective_stops": 0, "time_stopped_s": 0.0, "ssm_violations": 0}
+    text = report({"cell": "flacco-cell", "duration_s": 10.0, "cameras": {}, "ssm": [row]})
+    assert "| empty | learned | 1.00 | \u2014 | 0 | 0.00 | 0 |" in text

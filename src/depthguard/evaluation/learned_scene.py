@@ -253,8 +253,8 @@ def ssm_table(cell, scenes: dict, scenarios=("reach",), ssm_range: float = 0.8, 
             r = row_of(summary, res, "ssm")
             r["scene"] = label
             rows.append(r)
-            log(f"ssm {name} / {label}: progress {r['progress']:.2f}, min true separation "
-                f"{r['min_true_separation_m']:.3f} m, protective stops {r['protective_stops']}, "
+            log(f"ssm {name} / {label}: progress {_f(r['progress'], 2)}, min true separation "
+                f"{_f(r['min_true_separation_m'], 3)} m, protective stops {r['protective_stops']}, "
                 f"SSM violations {r['ssm_violations']}")
     return rows
 
@@ -282,6 +282,11 @@ def evaluate(cell_name: str, duration: float = 10.0, scale: int = 1, scenarios=(
     if "ssm" in parts and scenarios:
         out["ssm"] = ssm_table(dataclasses.replace(cell, rig=rig), scenes, scenarios, seed=seed, progress=progress)
     return out
+
+
+def _f(x, digits: int) -> str:
+    """``x`` with ``digits`` decimals, or an em dash for None (no obstacle in the scenario)."""
+    return "\u2014" if x is None else f"{x:.{digits}f}"
 
 
 def report(res: dict) -> str:
@@ -317,6 +322,6 @@ def report(res: dict) -> str:
         L += ["", "| scenario | known scene (muted for SSM) | progress | min true separation m | protective stops "
                   "| time stopped s | SSM violations |", "|---|---|---|---|---|---|---|"]
         for r in res["ssm"]:
-            L.append(f"| {r['scenario']} | {r['scene']} | {r['progress']:.2f} | {r['min_true_separation_m']:.3f} | "
+            L.append(f"| {r['scenario']} | {r['scene']} | {_f(r['progress'], 2)} | {_f(r['min_true_separation_m'], 3)} | "
                      f"{r['protective_stops']} | {r['time_stopped_s']:.2f} | {r['ssm_violations']} |")
     return "\n".join(L) + "\n"
