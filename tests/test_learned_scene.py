@@ -265,3 +265,88 @@ def test_calibration_check_with_the_learned_scene_as_with_cad(setup):
                                             learned=sc.depth).before
             assert (with_cad.verdict == "good") is good, (cam.id, with_cad)
             assert (with_learned.verdict == "good") is good, (cam.id, with_learned)
+
+
+def test_in_the_monitor_a_person_standing_still_for_a_minute_stays_an_obstacle(setup):
+    """The monitor with the learned scene in place of the CAD and SSM measuring from what is not the
+    known scene (``ssm.known_scene: muted``, where the known scene changes the answer): a person
+    standing still beside the robot for 60 s after learning is in SSM's separation at every cycle
+    (within 8 cm of the truth: the box's geometry, docs/SSM.md), and the monitor says from
+    ``monitor.scene_change_new_s`` (here 5 s) on that something new has stayed there, in the
+    ``scene_change_regions`` tiles (``Monitor.scene_changes``); the scene never learns them."""
+    from depthguard.control.ssm import TERMS
+    from depthguard.control.ssm_config import SSMConfig
+    from depthguard.runtime.monitor import Monitor, warm_up
+    from depthguard.sources.frame import Frame
+
+    rig, cad, q0, learned = setup
+    scenes = {cid: sc for cid, (sc, _) in learned.items()}
+    before = {cid: sc.depth.copy() for cid, sc in scenes.items()}
+    lrig = dataclasses.replace(rig.without_cad(), learned=scenes)
+    cfg = lrig.monitor.with_changes(invalid="free", control_hz=2.0, camera_hz=2.0, reaction="ssm",
+                                    ssm=SSMConfig(range=0.8, known_scene="muted"),
+                                    scene_change_new_s=5.0, scene_change_regions=(2, 3))   # the watch's settings
+    data = rig.robot.create_data()
+    rig.robot.forward(q0, data)
+    P = np.asarray(data.cp_positions)
+    ee = P[-1]
+    lo, hi = np.array([ee[0] + 0.35, ee[1] - 0.2, -0.85]), np.array([ee[0] + 0.65, ee[1] + 0.2, 1.0])
+    true = np.linalg.norm(np.maximum(np.maximum(lo - P, P - hi), 0.0), axis=1)
+    assert true.min() < 0.6
+    person = Box.from_bounds(lo, hi, name="person").mesh()
+    meshes = cad + list(rig.robot.link_meshes(q0)) + [person]
+    sims = {c.id: SimulatedCamera(c, seed=9) for c in rig.cameras}
+    warm_up(lrig, cfg)                                         # compiled before the monitor's clock matters
+    mon = Monitor(lrig, cfg)
+    said = []
+    try:
+        for k in range(121):                                   # a frame per camera every 0.5 s for 60 s
+            t = 0.5 * k
+            mon.push_joints(t, q0)
+            for c in rig.cameras:
+                mon.push_frame(Frame(c.id, sims[c.id].capture(meshes, stamp=t), t))
+            mon.flush(timeout=60.0)
+            r = mon.step(t)
+            d = r.ssm[:, TERMS.index("D")]
+            assert np.min(d) <= true.min() + 0.08, (t, d, true)     # the person is in SSM's separation
+            ch = mon.scene_changes()
+            if t < 5.0:                                        # scene_change_new_s
+                assert ch == [], t
+            else:
+                assert ch and all(c["region"] in {f"r{i}c{j}" for i in range(2) for j in range(3)} for c in ch), t
+            said.append(ch)
+    finally:
+        mon.close()
+    assert said[-1] and {c["kind"] for c in said[-1]} == {"new"} and {c["camera"] for c in said[-1]} == set(scenes)
+    for cid, sc in scenes.items():
+        np.testing.assert_array_equal(sc.depth, before[cid])          # never learned
+
+
+def test_the_scene_around_the_robots_base_and_near_the_range_end_is_learned(setup):
+    """No margin around the base (no joint moves it): the CAD's pixels within 2 px outside its
+    outline are learned, where a margin would have hidden them in every frame and the filter,
+    with no robot rendered there, would keep the table there as an unknown object. Returns a
+    little beyond the rated range are learned: the CAD's surfaces just past it are known."""
+    from scipy.ndimage import binary_dilation
+
+    from depthguard.filtering.scene_learner import base_silhouette
+
+    rig, cad, q0, learned = setup
+    for cam in rig.cameras:
+        sc, hidden = learned[cam.id]
+        static = ExpectedDepth(cam, None, cad).static
+        base = base_silhouette(cam, rig.robot)
+        # the ring outside the base's outline, where the moving links were 3+ px away in 3+ of the frames
+        ex = ExpectedDepth(cam, rig.robot)
+        clear = np.zeros(cam.shape, int)
+        for k in range(40):
+            moving = (ex.robot(q_at(rig.robot, q0, k * 0.1)) > 0) & ~base
+            clear += ~binary_dilation(moving, iterations=3)
+        ring = binary_dilation(base, iterations=2) & ~base & (static > 0) & (clear >= 3)
+        assert ring.sum() > 20
+        assert sc.known[ring].mean() >= 0.9, sc.known[ring].mean()
+        past = (static > cam.max_range) & (static < 1.3 * cam.max_range) & ~hidden
+        assert past.sum() > 20
+        assert sc.known[past].mean() >= 0.9, sc.known[past].mean()
+        at_cad = np.abs(sc.depth - static) <= sc.band()
+        assert at_cad[past & sc.known].mean() >= 0.99, "learned past the range: the CAD's depth"

@@ -17,7 +17,7 @@ from __future__ import annotations
 
 import math
 import re
-from typing import Literal, Optional
+from typing import Annotated, Literal, Optional
 
 from pydantic import BaseModel, ConfigDict, Field, field_validator, model_validator
 
@@ -109,6 +109,15 @@ class MonitorConfig(BaseModel):
     untrusted (stop reason ``untrusted:<camera>``) until recalibrated or accepted
     (``Monitor.accept_camera``).
 
+    Change watch (issue 31, R38; :mod:`depthguard.runtime.scene_change`), on every camera with a
+    learned scene (``scene: {learned: DIR}``): a sample nearer than the learned surface by more
+    than its band for ``scene_change_new_s`` seconds without a break is *new* (a person walking
+    through is not; one standing still is reported and stays an obstacle: never learned), one
+    farther for ``scene_change_gone_s`` is *gone*; the image is cut into
+    ``scene_change_regions`` (rows, columns) tiles and a tile with at least
+    ``scene_change_min_share`` of its judged samples changed is reported (``Monitor.scene_changes``,
+    the log and ``summary.json``).
+
     Reaction (R13, R14): ``v_max``, ``alpha`` of the repulsion and the
     limits; ``stop_time`` / ``resume_time`` the override's ramps from 1 to 0
     and back; ``control_hz`` the rate ``step`` is called at (its ``dt``);
@@ -156,6 +165,12 @@ class MonitorConfig(BaseModel):
 
     model_config = ConfigDict(extra="forbid", frozen=True)
 
+    def scene_change_settings(self) -> dict:
+        """The change watch's keywords (:class:`~depthguard.runtime.scene_change.SceneChangeWatch`)
+        from the ``scene_change_*`` fields (issue 31)."""
+        return dict(new_after_s=self.scene_change_new_s, gone_after_s=self.scene_change_gone_s,
+                    regions=tuple(self.scene_change_regions), min_share=self.scene_change_min_share)
+
     rho: float = Field(0.4, gt=0.0, le=5.0)
     method: Literal["min", "mean", "hybrid"] = "hybrid"
     delta_d: float = Field(0.01, gt=0.0, le=0.5)
@@ -179,6 +194,10 @@ class MonitorConfig(BaseModel):
     drift_share: float = Field(0.02, gt=0.0, le=1.0)
     drift_sigma: float = Field(3.0, gt=0.0, le=20.0)
     drift_frames: int = Field(3, ge=1, le=300)
+    scene_change_new_s: float = Field(10.0, gt=0.0, le=3600.0)
+    scene_change_gone_s: float = Field(1.0, gt=0.0, le=3600.0)
+    scene_change_regions: tuple[Annotated[int, Field(ge=1, le=64)], Annotated[int, Field(ge=1, le=64)]] = (3, 4)
+    scene_change_min_share: float = Field(0.05, gt=0.0, le=1.0)
     control_hz: float = Field(500.0, gt=0.0, le=10000.0)
     control_priority: int = Field(50, ge=0, le=99)
     distance_hz: float = Field(250.0, ge=0.0, le=10000.0)

@@ -126,7 +126,8 @@ def server_cmd(
         t_sim = sim_time if sim_time is not None else 0.0
         frames = {cid: f.depth for cid, f in SimSource(c, seed=0).frames(t_sim).items()}
         pipe = CentralisedPipeline(r.cameras, (r.workspace.lo, r.workspace.hi), voxel_size=voxel_size,
-                                   threshold=threshold, static_meshes=r.static_meshes(), robot=r.robot)
+                                   threshold=threshold, static_meshes=r.static_meshes(), robot=r.robot,
+                                   learned={cid: r.learned_depth(cid) for cid in r.camera_ids})
 
         def central_loop():
             period = 1.0 / fps if fps > 0 else 0.0

@@ -22,13 +22,16 @@ class CentralisedPipeline:
     """All cameras in one process.
 
     cameras : list of Camera. workspace : (lo, hi). static_meshes, robot : the known scene.
+    learned : camera id -> (H, W) float32 m learned static scene (issue 31; 0 = unknown), or None.
     """
 
     def __init__(self, cameras: Sequence[Camera], workspace, *, voxel_size: float = 0.02,
-                 threshold: float = 0.55, static_meshes: Sequence = (), robot=None, offset=None):
+                 threshold: float = 0.55, static_meshes: Sequence = (), robot=None, offset=None, learned=None):
         self.cameras = list(cameras)
+        learned = learned or {}
         self.filters = {c.id: VoxelFilter(c, workspace, voxel_size=voxel_size, threshold=threshold,
-                                          static_meshes=static_meshes, robot=robot, offset=offset)
+                                          static_meshes=static_meshes, robot=robot, offset=offset,
+                                          learned=learned.get(c.id))
                         for c in self.cameras}
 
     def configure(self, voxel_size: float | None = None, threshold: float | None = None) -> None:

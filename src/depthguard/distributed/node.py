@@ -141,6 +141,8 @@ class CameraNode:
     cam : the node's Camera (from the rig). workspace : (lo, hi) box.
     source : ``() -> (depth, stamp)``.
     static_meshes, robot, robot_q0 : the known scene for the expected depth (R16).
+    learned : (H, W) float32 m, the camera's learned static scene (issue 31, ``scene: {learned: DIR}``;
+        0 = unknown) or None; with the CAD the nearer surface wins, as in the monitor's filter.
     connect : server endpoint(s). fps : frame rate limit (0 = as fast as possible).
     trigger : wait for a message on ``<prefix>/trigger`` before each frame (benchmarks).
     joint_source : a joint source (``states_until(t) -> [(stamp, q)]``, e.g.
@@ -152,7 +154,7 @@ class CameraNode:
     """
 
     def __init__(self, cam: Camera, workspace, source: FrameSource, *, static_meshes: Sequence = (),
-                 robot=None, robot_q0=None, connect: Sequence[str] = (DEFAULT_ENDPOINT,),
+                 robot=None, robot_q0=None, learned=None, connect: Sequence[str] = (DEFAULT_ENDPOINT,),
                  listen: Sequence[str] | None = None, prefix: str = "depthguard",
                  fps: float = 15.0, trigger: bool = False, multicast: bool = False,
                  lease_ms: int = DEFAULT_LEASE_MS, log: Callable[[str], None] | None = None,
@@ -170,7 +172,7 @@ class CameraNode:
         self._outage: float | None = None
         self.cam = cam
         self.source = source
-        self.filter = VoxelFilter(cam, workspace, static_meshes=static_meshes, robot=robot)
+        self.filter = VoxelFilter(cam, workspace, static_meshes=static_meshes, robot=robot, learned=learned)
         self._default_offset = self.filter.offset
         self.robot = robot
         self.q = None if robot_q0 is None else np.asarray(robot_q0, dtype=float)
@@ -416,13 +418,19 @@ def build_node(rig_path: str | None, camera: str, source: str = "pattern", cell:
     else:
         raise ValueError(f"unknown source {source!r}; use 'sim' or 'pattern'")
     cam = rig.camera(camera)
+    learned = rig.learned_depth(cam.id)        # issue 31: the rig's learned scene (checked at the rig's size)
     if resolution is not None:
         cam = with_resolution(cam, *resolution)
+        if learned is not None and tuple(learned.shape) != tuple(cam.shape):
+            raise ValueError(f"--resolution {cam.width}x{cam.height}: camera {cam.id}'s learned scene "
+                             f"({rig.learned_dir}) was learned at {learned.shape[1]}x{learned.shape[0]}; "
+                             f"run the node at that size or learn the scene again at this one")
     ws = (rig.workspace.lo, rig.workspace.hi)
     src = sim_source(c, cam, sim_time, seed) if c is not None else pattern_source(cam, ws)
     if joints is not None and rig.robot is None:
         raise ValueError(f"--joints {joints}: the rig {rig.name!r} has no robot to remove")
-    node = CameraNode(cam, ws, src, static_meshes=rig.static_meshes(), robot=rig.robot, robot_q0=q0, **kw)
+    node = CameraNode(cam, ws, src, static_meshes=rig.static_meshes(), robot=rig.robot, robot_q0=q0,
+                      learned=learned, **kw)
     if joints is not None:
         from depthguard.sources.base import open_joints
 

@@ -3,10 +3,15 @@
 :class:`SceneLearner` takes one camera's frames of the cell with no person in
 it, each with the robot's joints at its **capture** (R30), and removes the
 robot the way the monitor does (:class:`~depthguard.filtering.expected.ExpectedDepth`
-renders the link meshes at those joints; the silhouette is widened by
-``robot_margin_px`` for the joints' and the meshes' tolerance). A pixel covered
-by the robot is *not observable* in that frame (NaN); a pixel without a return,
-or with one outside the camera's rated range, is *no return* (0). The frames are
+renders the link meshes at those joints; the moving links' silhouette is widened by
+``robot_margin_px`` for the joints' and the meshes' tolerance, except where a return lies
+clearly behind the robot; the base, which no joint moves, is not widened). A pixel covered
+by the robot is *not observable* in that frame (NaN); a pixel without a return, or with one
+nearer than the camera's rated range or farther than :data:`FAR_FACTOR` times it, is *no
+return* (0). Returns a little beyond the rated range are learned: a surface near the range's
+end (the floor's far edge) returns on either side of it from frame to frame, and left unknown
+it would make the filter keep every in-range return there as an unknown object, where the
+CAD's expected depth (which has no range) matches it. The frames are
 kept at most ``max_frames`` (when full, every second one is dropped and the
 stride doubles: the kept frames stay spread over the whole run) and
 :meth:`SceneLearner.result` takes the per-pixel median
@@ -22,10 +27,27 @@ from __future__ import annotations
 import numpy as np
 
 from depthguard.filtering.expected import ExpectedDepth
-from depthguard.learned_scene import LearnedScene, robust_depth
+from depthguard.learned_scene import ABS_MARGIN, K_SIGMA, LearnedScene, robust_depth
 from depthguard.sensors import depth_sigma
 
-__all__ = ["SceneLearner", "learn_from_sources", "compare_with_cad"]
+#: returns up to this many times the camera's rated range are learned (module docstring)
+FAR_FACTOR = 1.5
+
+__all__ = ["SceneLearner", "learn_from_sources", "compare_with_cad", "fixed_link_meshes", "base_silhouette"]
+
+
+def fixed_link_meshes(robot, cell: float | None = None) -> list:
+    """World meshes (clustered as the robot is rendered, :meth:`~depthguard.robot.RobotModel.render_link_meshes`)
+    of the robot's links that no joint moves — its base: equal at two joint states that differ in
+    every joint."""
+    import math
+
+    lo, hi = np.asarray(robot.q_min, float), np.asarray(robot.q_max, float)
+    lo = np.where(np.isfinite(lo), lo, -math.pi)
+    hi = np.where(np.isfinite(hi), hi, math.pi)
+    a = robot.render_link_meshes(lo + 0.3 * (hi - lo), cell)
+    b = robot.render_link_meshes(lo + 0.7 * (hi - lo), cell)
+    return [ma for ma, mb in zip(a, b) if np.allclose(ma.vertices, mb.vertices, rtol=0.0, atol=1e-9)]
 
 
 class SceneLearner:
@@ -39,6 +61,8 @@ class SceneLearner:
                  min_share: float = 0.5, min_frames: int = 3):
         self.camera = cam
         self.expected = ExpectedDepth(cam, robot)
+        # the links no joint moves (the base): their outline needs no margin for the joints' tolerance
+        self._base = base_silhouette(cam, robot)
         self.max_frames = max(4, int(max_frames))
         self.margin = int(robot_margin_px)
         self.min_share, self.min_frames = float(min_share), int(min_frames)
@@ -69,14 +93,33 @@ class SceneLearner:
         layer = self._stack[self._n]
         np.copyto(layer, d)
         with np.errstate(invalid="ignore"):
-            layer[~((layer >= cam.min_range) & (layer <= cam.max_range))] = 0.0     # NaN, 0, out of range
+            layer[~((layer >= cam.min_range) & (layer <= FAR_FACTOR * cam.max_range))] = 0.0   # NaN, 0, out of range
         if q is not None and self.expected.robot_model is not None:
-            robot = self.expected.robot(q) > 0
-            if self.margin > 0 and robot.any():
-                from scipy.ndimage import binary_dilation
-                robot = binary_dilation(robot, iterations=self.margin)
-            layer[robot] = np.nan
+            layer[self._hidden_by_robot(layer, self.expected.robot(q))] = np.nan
         self._n += 1
+
+    def _hidden_by_robot(self, layer: np.ndarray, rd: np.ndarray) -> np.ndarray:
+        """(H, W) bool: the pixels of frame ``layer`` (m, 0 = no return) that the robot, rendered
+        at ``rd`` (m, 0 = none), may hide: its silhouette, and the ring of ``robot_margin_px``
+        around its moving links (the joints' and the meshes' tolerance; the base, whose links no
+        joint moves, is exactly where it is rendered: no ring) except where the measurement lies
+        clearly behind every robot surface within the margin (farther than the largest of them by
+        the learned band, ``K_SIGMA sigma(z) + ABS_MARGIN``): that is the scene seen past the
+        robot's outline. Without that exception the ring around the links that never move (the
+        base) would never be learned, and the cell's filter, with no robot rendered there,
+        would keep the table or floor there as an unknown object."""
+        robot = rd > 0
+        moving = robot & ~self._base
+        if self.margin <= 0 or not moving.any():
+            return robot
+        from scipy.ndimage import binary_dilation, grey_dilation
+
+        ring = binary_dilation(moving, iterations=self.margin) & ~robot
+        far = grey_dilation(rd, size=(2 * self.margin + 1, 2 * self.margin + 1))   # the farthest robot surface near
+        z = far[ring]
+        behind = layer[ring] > z + K_SIGMA * depth_sigma(self.camera, z) + ABS_MARGIN
+        ring[ring] = ~behind
+        return robot | ring
 
     def always_hidden(self) -> np.ndarray:
         """(H, W) bool: pixels the robot covered in every kept frame (they stay unknown)."""
@@ -148,14 +191,19 @@ def learn_from_sources(rig, frame_source, joint_source, duration: float, max_fra
     return scenes, info
 
 
-def compare_with_cad(cam, scene: LearnedScene, cad: np.ndarray, hidden=None) -> dict:
+def compare_with_cad(cam, scene: LearnedScene, cad: np.ndarray, hidden=None, base=None) -> dict:
     """How well a learned scene reproduces the CAD's expected depth ``cad`` (H, W) m (0 = none).
 
     Judged pixels: the CAD covers them within the camera's rated range. ``within_band`` = share
     of them whose learned depth is within the band of the CAD depth; the rest is named by why:
     ``unknown`` (no learned surface) - of which ``hidden_by_robot`` (the robot covered them in
-    every frame: ``hidden``, (H, W) bool, :meth:`SceneLearner.always_hidden`) -,
-    ``edge`` (on a depth edge of the CAD: mixed pixels) and ``off`` (elsewhere)."""
+    every frame: ``hidden``, (H, W) bool, :meth:`SceneLearner.always_hidden`), split into
+    ``behind_base`` (inside ``base``, (H, W) bool, the silhouette of the links no joint moves:
+    never observable while the robot is mounted, and covered by the robot's rendering at every
+    joint state at run time) and ``behind_arm`` (the moving links: a wider or longer sweep shows
+    them), and ``no_return`` (not hidden, too few returns) -, ``edge`` (learned, outside the band,
+    on a depth edge of the CAD: mixed pixels) and ``off`` (elsewhere). ``share_outside_base``:
+    the share within the band of the judged pixels outside ``base``."""
     from scipy.ndimage import binary_dilation
 
     c = np.asarray(cad, dtype=np.float32)
@@ -170,8 +218,21 @@ def compare_with_cad(cam, scene: LearnedScene, cad: np.ndarray, hidden=None) -> 
     bad = judged & ~ok
     unknown = bad & ~scene.known
     hidden = unknown & hidden if hidden is not None else np.zeros_like(unknown)
+    base = np.zeros_like(unknown) if base is None else np.asarray(base, bool)
+    n_out = int((judged & ~base).sum())
     out = {"camera": cam.id, "cad_pixels": n, "within_band": int(ok.sum()),
            "share": float(ok.sum()) / n if n else float("nan"),
            "unknown": int(unknown.sum()), "hidden_by_robot": int(hidden.sum()),
-           "edge": int((bad & ~unknown & edges).sum()), "off": int((bad & ~unknown & ~edges).sum())}
+           "behind_base": int((hidden & base).sum()), "behind_arm": int((hidden & ~base).sum()),
+           "no_return": int((unknown & ~hidden).sum()),
+           "edge": int((bad & ~unknown & edges).sum()), "off": int((bad & ~unknown & ~edges).sum()),
+           "base_pixels": n - n_out,
+           "share_outside_base": float((ok & ~base).sum()) / n_out if n_out else float("nan")}
     return out
+
+
+def base_silhouette(cam, robot) -> np.ndarray:
+    """(H, W) bool: the pixels of camera ``cam`` that the robot's base (:func:`fixed_link_meshes`)
+    covers at every joint state (all False without a robot)."""
+    fixed = fixed_link_meshes(robot) if robot is not None else []
+    return (ExpectedDepth(cam, None, fixed).static > 0) if fixed else np.zeros(cam.shape, bool)

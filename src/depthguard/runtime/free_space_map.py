@@ -9,9 +9,13 @@ capture joints (R9, R30) — the same frames the distances use:
   depth less ``robot_offset`` (the monitor's setting) sees the robot, or something touching it:
   it frees the voxels in front of its depth but marks no surface
   (``FreeSpaceMap.update_robot_depth``), so the robot's surface, a hand on it and the robot's shadow stay unknown;
-- **the known scene as background:** the rig's static meshes, rendered once per camera, are the
-  map's background (:meth:`FreeSpaceMap.set_background`): a measurement of the known scene frees
-  the voxels in front of it and marks no surface, while the voxels inside it keep their surface;
+- **the known scene as background:** the rig's static meshes, rendered once per camera, and its
+  learned scene (issue 31, ``scene: {learned: DIR}``; the nearer surface wins, as in the filter's
+  expected depth) are the map's background (:meth:`FreeSpaceMap.set_background`): a measurement
+  of the known scene frees the voxels in front of it and marks no surface, while the voxels
+  inside it keep their surface. A learned pixel is a surface, not a volume: the path check's
+  lighter padding (``scene_padding``) applies to the CAD's primitives only (:func:`known_scene_mask`);
+  a learned table is met with the robot's full padding;
 - **unknown stays unknown:** a voxel no camera sees free is :data:`UNKNOWN` when no camera saw a
   surface in it (hidden, out of view, invalid pixels) and :data:`OCCUPIED` when one did; a
   snapshot starts again from "all unknown" (no voxel stays free from an earlier update: space a
@@ -151,8 +155,11 @@ class RuntimeFreeSpace:
         self.map = FreeSpaceMap(self.cameras, (lo, hi), voxel_size, margin=self.margin,
                                 margin_growth=self.margin_growth)
         static = list(rig.static_meshes())
-        self.backgrounds = {c.id: np.asarray(ExpectedDepth(c, None, static).static, np.float32) for c in self.cameras}
-        if static:
+        # the known scene: the CAD and the learned scene (issue 31), nearer wins, as the filter's
+        learned = {c.id: rig.learned_depth(c.id) if hasattr(rig, "learned_depth") else None for c in self.cameras}
+        self.backgrounds = {c.id: np.asarray(ExpectedDepth(c, None, static, learned=learned[c.id]).static, np.float32)
+                            for c in self.cameras}
+        if static or any(v is not None for v in learned.values()):
             self.map.set_background(self.backgrounds, tolerance=self.tolerance)
         self.robot_offset = float(robot_offset)
         self.robot_padding = float(robot_padding)

@@ -178,6 +178,7 @@ class Monitor(MonitorDistances, UnitStateInput, MonitorPaths, MonitorWatches):
                                           cfg.joint_wait_s, self.fusion.notify, drift=drift,
                                           state_options=lambda: self._state_options(cid),
                                           learned=getattr(self.rig, "learned", {}).get(cid),   # issue 31
+                                          scene_change=cfg.scene_change_settings(),
                                           ssm_muted=self._ssm_muted(cid))
 
     def _ssm_muted(self, cid: str):
