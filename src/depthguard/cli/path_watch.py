@@ -27,8 +27,8 @@ def path_watch_cmd(
 
     Prints one table from the simulator's ground truth (robot capsules to the person's surface):
     the minimum true separation, where the robot stopped, whether it stopped short of the person,
-    when the person was off the rest of the path (by the robot_padding), how long after that the
-    robot moved again, and how much of the path it did. About 3 min of CPU (10 s simulated per run).
+    from when the rest of the path was truly free of the person again, when the robot moved again,
+    and how much of the path it did. About 3 min of CPU (10 s simulated per run).
     """
     from depthguard.evaluation.onto_path import compare, table
     from depthguard.progress import track

@@ -24,9 +24,10 @@ the reaction's speed scale within its joint-velocity box). Two runs, the same fr
 per run (:func:`figures`): the minimum true separation (m); the first stop (path speed below 1 %):
 its time, path time and segment, and the separation there; ``short`` — the robot stood before the
 first path time at which it would touch the person as the person stood then, with a positive
-separation; ``left_s`` — the first moment after the stop at which the person is at least the
-product's ``robot_padding`` from every pose of the rest of the path; ``resume_after_s`` — from then
-to the robot moving again; ``progress`` — the share of the path done at the end.
+separation; ``left_s`` — from when the rest of the path (from the stop on) is truly free of the person
+for good (``clear_s``: clear by the product's ``robot_padding``); ``t_resume`` — the robot moving
+again (it may before ``left_s``: the path watch lets it go on towards a segment still blocked far
+ahead as long as it can stop short of it); ``progress`` — the share of the path done at the end.
 
 ``depthguard reproduce path-watch`` prints the table of both runs.
 """
