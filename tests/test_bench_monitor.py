@@ -1,6 +1,7 @@
 """The ``monitor`` bench group runs in quick mode and reports its rows (speed is not asserted)."""
 
 import math
+import re
 
 import depthguard.evaluation.bench.fusion_cells  # noqa: F401  (registers the group)
 import depthguard.evaluation.bench.monitor  # noqa: F401  (registers the group)
@@ -15,14 +16,19 @@ def test_monitor_bench_quick_rows():
     rows = GROUPS["monitor"](BenchContext(quick=True))
     by = {r.name: r for r in rows}
     assert list(by) == ["monitor.step_p99_ms", "monitor.frame_to_reaction_p99_ms",
-                        "monitor.fusion_build_p50_ms", "monitor.cameras_at_30hz", "monitor.cpu_per_camera"]
-    for name in ("monitor.step_p99_ms", "monitor.fusion_build_p50_ms"):
+                        "monitor.fusion_build_p50_ms", "monitor.step_p99_ms.map_on", "monitor.cameras_at_30hz",
+                        "monitor.cpu_per_camera"]
+    for name in ("monitor.step_p99_ms", "monitor.fusion_build_p50_ms", "monitor.step_p99_ms.map_on"):
         r = by[name]
         assert r.unit == "ms" and math.isfinite(r.value) and r.value > 0, r
         assert r.peer and math.isfinite(r.peer_value) and r.peer_value > 0, r
     f2r = by["monitor.frame_to_reaction_p99_ms"]       # inf when no frame reached a reaction (a starved machine)
     assert f2r.value > 0 and f2r.peer_value > 0 and not math.isnan(f2r.value + f2r.peer_value), f2r
     assert by["monitor.step_p99_ms"].paper == 3.3
+    on = by["monitor.step_p99_ms.map_on"]               # the map on beside the map off of the same run
+    assert on.peer_value == by["monitor.step_p99_ms"].value and "map builds" in on.note, on
+    builds = re.search(r": (\d+) map builds in [\d.]+ s \((\d+) failed\)", on.note)
+    assert builds and int(builds.group(1)) > 0 and builds.group(2) == "0", on.note
     cams = by["monitor.cameras_at_30hz"]
     assert cams.unit == "cameras" and cams.value in (0.0, 2.0, 4.0) and cams.peer_value in (0.0, 2.0, 4.0)
     assert "2:" in cams.note and "33.3 ms" in cams.note     # 4 is tried only when 2 held

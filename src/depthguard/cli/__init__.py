@@ -18,6 +18,7 @@ _COMMAND_MODULES = [
     "depthguard.cli.demo",
     "depthguard.cli.run",
     "depthguard.cli.ssm",
+    "depthguard.cli.path_watch",
     "depthguard.cli.freespace",
     "depthguard.cli.monitor",
     "depthguard.cli.check_path",

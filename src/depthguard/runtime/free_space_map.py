@@ -225,9 +225,12 @@ class FreeSpaceWorker:
     the newest :class:`FreeSpaceSnapshot` into :attr:`snapshot` (module docstring).
 
     ``latest_q()`` -> the newest joints (dof,) or None; ``on_snapshot(snap)`` is called after each
-    swap (a sink, the path watch); keep it quick."""
+    swap (a sink, the path watch); keep it quick. ``threaded=False``: no thread; the caller builds
+    with :meth:`update_now` at its own ``hz`` (a simulation in simulated time, whose map updates
+    must not follow the wall clock)."""
 
-    def __init__(self, space: RuntimeFreeSpace, workers: dict, latest_q, hz: float = 10.0, on_snapshot=None):
+    def __init__(self, space: RuntimeFreeSpace, workers: dict, latest_q, hz: float = 10.0, on_snapshot=None,
+                 threaded: bool = True):
         if not (math.isfinite(hz) and hz > 0):
             raise ValueError(f"free-space rate must be > 0 Hz, got {hz!r}")
         self.space = space
@@ -241,8 +244,10 @@ class FreeSpaceWorker:
         self.last_error: str | None = None
         self._build_lock = threading.Lock()     # one build at a time: the map's buffers are shared
         self._stop = threading.Event()
-        self._thread = threading.Thread(target=self._run, name="depthguard-free-space", daemon=True)
-        self._thread.start()
+        self._thread = None
+        if threaded:
+            self._thread = threading.Thread(target=self._run, name="depthguard-free-space", daemon=True)
+            self._thread.start()
 
     def update_now(self) -> FreeSpaceSnapshot | None:
         """Build one map now on the calling thread and swap it in (tests, the CLI's one-shot check)."""
@@ -275,4 +280,5 @@ class FreeSpaceWorker:
 
     def close(self, timeout: float = 2.0) -> None:
         self._stop.set()
-        self._thread.join(timeout)
+        if self._thread is not None:
+            self._thread.join(timeout)

@@ -11,10 +11,13 @@ __all__ = ["MonitorPaths"]
 class MonitorPaths:
     """:meth:`start_free_space`, :meth:`watch_path`, :meth:`check_path` of the monitor."""
 
-    def start_free_space(self, hz: float | None = None, voxel_size: float | None = None, on_snapshot=None):
+    def start_free_space(self, hz: float | None = None, voxel_size: float | None = None, on_snapshot=None,
+                         threaded: bool = True):
         """Start the free-space map's thread (:mod:`depthguard.runtime.free_space_map`) at ``hz``
         (default ``config.free_space_hz``) with voxels of ``voxel_size`` m (default
-        ``config.free_space_voxel``); returns its :class:`FreeSpaceWorker`."""
+        ``config.free_space_voxel``); returns its :class:`FreeSpaceWorker`. ``threaded=False``:
+        no thread, the caller builds each map with ``free_space.update_now()`` (a simulation in
+        simulated time)."""
         from depthguard.runtime.free_space_map import FreeSpaceWorker, RuntimeFreeSpace
 
         if self.free_space is not None:
@@ -24,7 +27,7 @@ class MonitorPaths:
                                  cfg.robot_offset, cfg.robot_padding,
                                  scene_padding=cfg.free_space_scene_padding)
         self.free_space = FreeSpaceWorker(space, self._workers, self._latest_q, hz or cfg.free_space_hz,
-                                          lambda snap: self._on_snapshot(snap, on_snapshot))
+                                          lambda snap: self._on_snapshot(snap, on_snapshot), threaded=threaded)
         return self.free_space
 
     def _path_policy(self):

@@ -44,6 +44,8 @@ Rows:
   count tried held too). Peer: the same count for today's code, tried until its
   own first failure (0 = not even 2 cameras).
 
+* ``monitor.step_p99_ms.map_on`` — the step's p99 with the free-space map on and a path watched
+  (:mod:`depthguard.evaluation.bench.monitor_map_step`); peer: ``monitor.step_p99_ms`` above.
 * ``monitor.cpu_per_camera`` — the cores the monitor's own threads use per
   640x480 camera at 30 Hz, robot removal included: CPU time (user + system,
   Linux ``/proc/self/task/<tid>/stat``) over the 2-camera session of the
@@ -454,6 +456,8 @@ def _bench_monitor(ctx: BenchContext) -> list[BenchRow]:
                  note=(f"fusion worker per frame (R10-R12 + cells classified ahead); p99 "
                        f"{_pct(mon['build_s'], 99):.3g} ms, {len(mon['build_s'])} builds")),
     ]
+    from depthguard.evaluation.bench.monitor_map_step import map_on_row    # the map on, same run (issue 30)
+    rows.append(map_on_row(ctx, script, rig, cfg, duration, mon))
 
     counts = COUNTS_QUICK if ctx.quick else COUNTS_FULL
     best = best_today = 0             # the largest count held with every smaller count tried held too
