@@ -44,8 +44,7 @@ Rows:
   count tried held too). Peer: the same count for today's code, tried until its
   own first failure (0 = not even 2 cameras).
 
-* ``monitor.step_p99_ms.map_on`` — the step's p99 with the free-space map on and a path watched
-  (:mod:`depthguard.evaluation.bench.monitor_map_step`); peer: ``monitor.step_p99_ms`` above.
+* ``monitor.step_p99_ms.map_on`` — the step's p99, map on, a path watched (``monitor_map_step``).
 * ``monitor.cpu_per_camera`` — the cores the monitor's own threads use per
   640x480 camera at 30 Hz, robot removal included: CPU time (user + system,
   Linux ``/proc/self/task/<tid>/stat``) over the 2-camera session of the
@@ -119,9 +118,7 @@ class _Script:
                     key = (cid, self._key(s))
                     if key not in self._frames:
                         tau = self.tau(s)
-                        # writable, as a camera driver's frame: a read-only array is another numba
-                        # signature of the grid's kernels, which today's code (_run_today) would then
-                        # compile inside its clock, and no product path passes one
+                        # writable, as a driver's frame (read-only = another signature compiled in the clock)
                         self._frames[key] = self._sim.render(cid, tau, self.cell.scene.robot_q(tau))
 
     def tau(self, t: float) -> float:
@@ -158,9 +155,8 @@ def _rig_with(rig, n: int):
 
 
 def _thread_cpu() -> dict[int, tuple[str | None, float]]:
-    """Per thread of this process (Linux ``/proc/self/task``): its id -> (its Python thread name,
-    None for a native thread Python does not know, such as numba's pool; CPU seconds user +
-    system). Empty where ``/proc`` is missing."""
+    """Per thread (Linux ``/proc/self/task``): id -> (Python thread name, None for a native thread
+    such as numba's pool; CPU s user + system). Empty where ``/proc`` is missing."""
     import os
 
     names = {t.native_id: t.name for t in threading.enumerate()}
