@@ -27,8 +27,12 @@ warm-up: $(STAMP)
 	-$(VENV)/bin/depthguard warm-up --jobs $(WARM_JOBS)
 
 ## Every test (slow and multi-process ones included); the 40 slowest are listed at the end (the suite must stay well under 15 min).
+## TEST_JOBS pytest-xdist processes (the machine's cores; many tests wait on loopback networks or a
+## real-time clock, whose waits the other process fills), a test file's tests in one of them
+## (--dist loadfile: a module's fixtures are made once). TEST_JOBS=0: one process, as before.
+TEST_JOBS ?= 2
 test: warm-up
-	$(PY) -m pytest -q -p no:cacheprovider --durations=40
+	$(PY) -m pytest -q -p no:cacheprovider --durations=40 -n $(TEST_JOBS) --dist loadfile
 
 ## Everything but the tests marked slow.
 test-fast: warm-up

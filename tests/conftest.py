@@ -74,6 +74,26 @@ def monitor_kernels():
     return warm_up(rig, rig.monitor)
 
 
+# ---------------------------------------------------------------- two test processes, one numba cache
+# `make test` runs the tests in two pytest-xdist workers. Both load numba's disk cache, and both
+# may reach a kernel that `depthguard warm-up` did not compile (a test's own signature) at about
+# the same time: they would compile it twice, and two processes saving overloads of one kernel
+# at once can lose an entry of its index (compiled again later). The workers take numba's
+# compilations under the per-kernel file locks of `depthguard warm-up` (R29,
+# :func:`depthguard.runtime.warm_up.compile_locks`), in a folder shared by this run's workers:
+# the second one waits, then loads what the first saved. Without xdist nothing changes.
+@pytest.fixture(scope="session", autouse=True)
+def _one_compilation_per_kernel(request, tmp_path_factory):
+    if not hasattr(request.config, "workerinput"):          # not an xdist worker
+        yield
+        return
+    from depthguard.runtime.warm_up import compile_locks
+
+    # a worker's base folder is <run's folder>/popen-gwN: the run's folder is the workers' own
+    with compile_locks(tmp_path_factory.getbasetemp().parent / "numba-compile-locks"):
+        yield
+
+
 # ---------------------------------------------------------------- soaks: `make soak`, not `make test`
 # A test marked ``soak`` runs for a long wall time (a whole scene at 30 Hz through the monitor...):
 # the suite keeps a short slice of its property and leaves the soak out unless ``--soak`` is given
