@@ -27,10 +27,11 @@ warm-up: $(STAMP)
 	-$(VENV)/bin/depthguard warm-up --jobs $(WARM_JOBS)
 
 ## Every test (slow and multi-process ones included); the 40 slowest are listed at the end (the suite must stay well under 15 min).
-## TEST_JOBS pytest-xdist processes (the machine's cores; many tests wait on loopback networks or a
-## real-time clock, whose waits the other process fills), a test file's tests in one of them
-## (--dist loadfile: a module's fixtures are made once). TEST_JOBS=0: one process, as before.
-TEST_JOBS ?= 2
+## TEST_JOBS pytest-xdist processes (--dist loadfile: a module's fixtures are made once); 0 (the
+## default): one process. TEST_JOBS=2 halved the wall time of CPU-bound files on 2 cores, but
+## test_simulated_cameras_with_silent_zenoh_joints... failed 2 of 2 runs under it (run_time_s
+## 2.92-2.94, want 3.0 +- 0.05), never in one process: not the default until that is understood.
+TEST_JOBS ?= 0
 test: warm-up
 	$(PY) -m pytest -q -p no:cacheprovider --durations=40 -n $(TEST_JOBS) --dist loadfile
 
