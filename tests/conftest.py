@@ -74,6 +74,84 @@ def monitor_kernels():
     return warm_up(rig, rig.monitor)
 
 
+# ---------------------------------------------------------------- two test processes, one numba cache
+# `make test` runs the tests in two pytest-xdist workers. Both load numba's disk cache, and both
+# may reach a kernel that `depthguard warm-up` did not compile (a test's own signature) at about
+# the same time: they would compile it twice, and two processes saving overloads of one kernel
+# at once can lose an entry of its index (compiled again later). The workers take numba's
+# compilations under the per-kernel file locks of `depthguard warm-up` (R29,
+# :func:`depthguard.runtime.warm_up.compile_locks`), in a folder shared by this run's workers:
+# the second one waits, then loads what the first saved. Without xdist nothing changes.
+@pytest.fixture(scope="session", autouse=True)
+def _one_compilation_per_kernel(request, tmp_path_factory):
+    if not hasattr(request.config, "workerinput"):          # not an xdist worker
+        yield
+        return
+    from depthguard.runtime.warm_up import compile_locks
+
+    # a worker's base folder is <run's folder>/popen-gwN: the run's folder is the workers' own
+    with compile_locks(tmp_path_factory.getbasetemp().parent / "numba-compile-locks"):
+        yield
+
+
+# ---------------------------------------------------------------- two test processes, timed tests alone
+# A test marked ``multiprocess`` (processes on loopback, with their leases and timeouts) or
+# ``realtime`` (it asserts on the wall clock: a run's length, a latency) runs alone on the
+# machine under xdist, as in one process: it waits until the other worker's test has ended, and
+# the other worker starts no test until it has ended. Every other test runs beside any other.
+# A readers-writer lock on two files shared by the run's workers: a test takes ``run`` shared,
+# a test that runs alone exclusive; ``gate`` is held while taking ``run``, so that a test
+# waiting for its turn alone holds back the other worker's next tests instead of being starved
+# by them. Without xdist nothing changes.
+_ALONE = ("multiprocess", "realtime")
+
+
+class _TurnLocks:
+    def __init__(self, folder):
+        import fcntl
+
+        self._fcntl = fcntl
+        folder.mkdir(parents=True, exist_ok=True)
+        self.gate = open(folder / "gate.lock", "a")
+        self.run = open(folder / "run.lock", "a")
+
+    def take(self, alone: bool) -> None:
+        f = self._fcntl
+        f.flock(self.gate, f.LOCK_EX)
+        try:
+            f.flock(self.run, f.LOCK_EX if alone else f.LOCK_SH)
+        finally:
+            f.flock(self.gate, f.LOCK_UN)
+
+    def give(self) -> None:
+        self._fcntl.flock(self.run, self._fcntl.LOCK_UN)
+
+
+def pytest_configure(config):
+    if hasattr(config, "workerinput"):                      # an xdist worker
+        import tempfile
+        from pathlib import Path
+
+        # xdist gives a worker the base folder <run's folder>/popen-gwN: the run's folder is shared
+        base = config.option.basetemp
+        folder = (Path(base).parent if base else
+                  Path(tempfile.gettempdir()) / f"depthguard-xdist-{config.workerinput.get('testrunuid', 'run')}")
+        config._depthguard_turns = _TurnLocks(folder / "turn-locks")
+
+
+@pytest.hookimpl(hookwrapper=True)
+def pytest_runtest_protocol(item, nextitem):
+    turns = getattr(item.config, "_depthguard_turns", None)
+    if turns is None:
+        yield
+        return
+    turns.take(any(item.get_closest_marker(m) is not None for m in _ALONE))
+    try:
+        yield
+    finally:
+        turns.give()
+
+
 # ---------------------------------------------------------------- soaks: `make soak`, not `make test`
 # A test marked ``soak`` runs for a long wall time (a whole scene at 30 Hz through the monitor...):
 # the suite keeps a short slice of its property and leaves the soak out unless ``--soak`` is given

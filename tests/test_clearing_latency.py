@@ -18,6 +18,7 @@ from depthguard.sim import load_cell
 
 
 @pytest.mark.slow
+@pytest.mark.realtime
 def test_the_persons_last_voxel_is_free_in_the_published_map_within_0_2_s():
     r = clearing_latency(t0=10.4, t1=11.6, step=0.02, every_voxel=False)
     assert r["judged"] > 500 and r["judged"] >= 0.9 * r["vacated"]       # the person really leaves

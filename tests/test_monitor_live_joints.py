@@ -70,6 +70,7 @@ def _fused_in_log(log, cycles: int = 200) -> bool:
 
 
 @pytest.mark.slow
+@pytest.mark.realtime
 def test_simulated_cameras_with_zenoh_joints_fuse_and_stop_on_sigterm_with_a_summary(tmp_path):
     """`monitor --cell flacco-cell --joints zenoh:KEY` with a publisher of the robot's joints on
     the wall clock (loopback): the simulated frames meet the live joints (frames fused), and
@@ -130,6 +131,7 @@ def test_simulated_cameras_with_zenoh_joints_fuse_and_stop_on_sigterm_with_a_sum
 
 
 @pytest.mark.slow
+@pytest.mark.realtime
 def test_simulated_cameras_with_silent_zenoh_joints_end_on_their_duration_and_stop_the_robot(tmp_path):
     """No publisher: the run ends after --duration with the robot stopped for want of joint states."""
     out = tmp_path / "o"

@@ -1,0 +1,58 @@
+"""Under pytest-xdist (`make test`: two workers) a test marked ``realtime`` or ``multiprocess``
+runs alone, every other test beside any other (tests/conftest.py's turn locks). The suite's own
+``conftest.py`` runs in pytest itself on small test files in a scratch folder; the truth is the
+tests' own wall-clock intervals, written by each test as it starts and ends."""
+
+import json
+import os
+import shutil
+import subprocess
+import sys
+from pathlib import Path
+
+import pytest
+
+CONFTEST = Path(__file__).with_name("conftest.py")
+
+TIMED = """import json, os, time
+import pytest
+
+def _record(name, fn):
+    t0 = time.time()
+    fn()
+    with open(os.environ["TURNS_LOG"], "a") as f:
+        f.write(json.dumps([name, t0, time.time()]) + "\\n")
+
+{tests}
+"""
+
+
+def _tests(prefix: str, n: int, mark: str = "") -> str:
+    return "\n".join(f"{mark}\ndef test_{prefix}{k}():\n    _record('{prefix}{k}', lambda: time.sleep(0.4))\n"
+                     for k in range(n))
+
+
+def test_a_timed_test_runs_alone_and_the_others_side_by_side(tmp_path):
+    pytest.importorskip("xdist", reason="pytest-xdist is not installed (the test extra has it)")
+    shutil.copy(CONFTEST, tmp_path / "conftest.py")
+    for f in range(4):
+        (tmp_path / f"test_plain{f}.py").write_text(TIMED.format(tests=_tests(f"plain{f}_", 4)))
+    (tmp_path / "test_timed.py").write_text(TIMED.format(
+        tests=_tests("timed_rt", 2, "@pytest.mark.realtime") + _tests("timed_mp", 2, "@pytest.mark.multiprocess")))
+    log = tmp_path / "turns.jsonl"
+    env = {**os.environ, "TURNS_LOG": str(log)}
+    env.pop("DEPTHGUARD_CI_REQUIRES", None)
+    res = subprocess.run([sys.executable, "-m", "pytest", "-q", "-p", "no:cacheprovider", "-n", "2", "--dist", "load",
+                          str(tmp_path)], capture_output=True, text=True, env=env, cwd=tmp_path, timeout=300)
+    assert res.returncode == 0, res.stdout + res.stderr
+    runs = [json.loads(line) for line in log.read_text().splitlines()]
+    assert len(runs) == 20
+    alone = [r for r in runs if r[0].startswith("timed")]
+    assert len(alone) == 4
+    for name, t0, t1 in alone:
+        for other, s0, s1 in runs:
+            if other != name:
+                assert s1 <= t0 or t1 <= s0, f"{other} ran while {name} ran alone"
+    plain = [r for r in runs if r[0].startswith("plain")]
+    side_by_side = sum(1 for i, a in enumerate(plain) for b in plain[i + 1:] if a[1] < b[2] and b[1] < a[2])
+    assert side_by_side > 0, "the plain tests never ran side by side"
