@@ -187,6 +187,44 @@ def test_capsule_intervals_match_centre_test(rng):
     assert tested > 200 and straddling > 10
 
 
+def test_capsule_intervals_keep_every_pixel(rng):
+    """:func:`capsule_intervals` over its projected boxes leaves out only pixels whose ray misses
+    the capsule: every pixel of the image gets exactly the interval the ray-capsule solution gives
+    it alone (``_ray_capsule``, no box), for capsules near and far, off to the side, large and
+    thin, spheres and one around the camera (R12). A box one pixel too narrow fails it."""
+    cam = _cam("c0", (2.5, 0, 1), w=48, h=36, f=40.0)
+    caps = [Capsule.between(rng.uniform(-0.6, 0.6, 3), rng.uniform(-0.6, 0.6, 3), rng.uniform(0.02, 0.4))
+            for _ in range(8)]
+    caps.append(Capsule.between(np.array([2.4, 0.0, 1.0]), np.array([2.6, 0.1, 1.0]), 0.3))   # the camera inside
+    caps.append(Capsule.between(np.array([0.0, 2.0, 1.0]), np.array([0.5, 2.5, 2.0]), 0.2))   # near the edge
+    for c in rng.uniform(-0.5, 0.5, (4, 3)):        # spheres
+        caps.append(Capsule.between(c, c + 1e-9, rng.uniform(0.15, 0.5)))
+    rows = []
+    for c in caps:
+        a, b = c.segment()
+        rows.append(np.r_[a @ cam.R.T + cam.t, b @ cam.R.T + cam.t, c.radius])
+    cc = np.ascontiguousarray(rows)
+    nc = len(cc)
+    boxes = np.zeros((nc, 4), dtype=np.int64)
+    depth_grid_capsules.capsule_boxes(cc, nc, cam.fx, cam.fy, cam.cx, cam.cy, 36, 48, boxes)
+    M = depth_grid_capsules.MAX_CAPS_PER_PIXEL
+    lo, hi = np.zeros((36, 48, M)), np.zeros((36, 48, M))
+    n = np.zeros((36, 48), dtype=np.int64)
+    depth_grid_capsules.capsule_intervals(cc, nc, boxes, cam.fx, cam.fy, cam.cx, cam.cy, 36, 48, lo, hi, n)
+    hits = 0
+    for v in range(36):
+        for u in range(48):
+            want = [depth_grid_capsules._ray_capsule.py_func((u - cam.cx) / cam.fx, (v - cam.cy) / cam.fy, cc[c])
+                    for c in range(nc)]
+            want = [w for w in want if w[0] <= w[1]]
+            assert n[v, u] == min(len(want), M + 1), (u, v)
+            k = min(len(want), M)
+            np.testing.assert_array_equal(lo[v, u, :k], [w[0] for w in want[:k]])
+            np.testing.assert_array_equal(hi[v, u, :k], [w[1] for w in want[:k]])
+            hits += len(want)
+    assert hits > 500
+
+
 # ------------------------------------------------------------------ compact vs explicit map
 def test_compact_map_equals_explicit_table():
     """R11: the on-the-fly footprint (corner rays in k) equals the explicit table built
