@@ -292,9 +292,10 @@ def test_check_path_over_ros2_with_an_sdk_client(peer, router, reaching_monitor_
     and reads ``/depthguard/check_path/verdict``: the path into the reaching person, its joint
     names permuted, gets the verdict of ``Monitor.check_path`` on the same map (unsafe, the same
     segments), with the request's stamp echoed; a NaN at waypoint 3 and names that are not the
-    robot's are refused with one line naming the problem — never silence."""
+    robot's are refused with one line naming the problem — never silence. The responder is the
+    one the ``ros2:`` sink opens when attached to the run's monitor."""
     from depthguard.runtime.monitor import Monitor
-    from depthguard.runtime.ros2_path_checks import Ros2PathChecks
+    from depthguard.runtime.ros2_sink import Ros2Sink
     from depthguard.transport import ros2_zenoh as rz
 
     s = peer["sdk"]
@@ -321,7 +322,9 @@ def test_check_path_over_ros2_with_an_sdk_client(peer, router, reaching_monitor_
         with Monitor(rig, rig.monitor.with_changes(free_space=True, free_space_hz=50.0)) as mon:
             _fed(mon, t, q, frames)
             mon.free_space.update_now()
-            checks = Ros2PathChecks(node, mon)
+            sink = Ros2Sink(node, rig.robot, scaling_topic=None)
+            sink.attach(mon)                              # as `depthguard monitor --ros2` does
+            checks = sink.path_checks
             try:
                 assert wait_for(lambda: any("/MS/" in k and "check_path%request" in k for k in
                                             [str(r.ok.key_expr) for r in node.session.liveliness().get(
@@ -335,7 +338,7 @@ def test_check_path_over_ros2_with_an_sdk_client(peer, router, reaching_monitor_
                 pub.publish(**traj(13, names[:5] + ["elbow"], Q, stamps))
                 assert wait_for(lambda: len(got) >= 3, 20.0), got
             finally:
-                checks.close()
+                sink.close()
         by = {round(v["request_stamp"]): v for v in got}
         assert by[11]["request_stamp"] == pytest.approx(11 + 5e-9) and by[11]["request_frame_id"] == "base"
         assert truth["verdict"] == "unsafe"              # through the person (test_free_space_runtime's truth)

@@ -28,6 +28,10 @@ namespace (default ``/depthguard``):
   stamp. Reliable, VOLATILE, keep last 1: a planner wants the newest map only, and a late
   subscriber waits for the next update (at most 1 / ``free_space_hz`` s). Declared at the first
   map, so a run without the map has no such publisher.
+- ``<ns>/check_path/request`` → ``<ns>/check_path/verdict`` — once the sink is attached to the
+  run's monitor (:meth:`Ros2Sink.attach`, as ``depthguard monitor`` does): a planned
+  ``trajectory_msgs/JointTrajectory`` in, the ``check-path --json`` verdict out as
+  ``std_msgs/String`` (:mod:`depthguard.runtime.ros2_path_checks`).
 
 Header stamps are the reaction time ``t`` (the wall clock in a live run). The messages are
 built by :class:`~depthguard.runtime.mcap_results.McapResults`' own functions, so the live
@@ -101,10 +105,12 @@ class Ros2Sink:
         self._map_lock = threading.Lock()      # the map's thread calls write_map
         self._map_pub = None
         self.maps_published = 0
+        self.path_checks = None                # attach(monitor): check_path over ROS 2
         try:
             if not marker_hz > 0:
                 raise Ros2Error(f"marker rate must be > 0 Hz (got {marker_hz})")
             ns = check_topic(namespace).rstrip("/")
+            self.namespace = ns
             _register_wire()
             self._msgs = _Messages(robot, watch_points, frame_id)
             self.topics = {"override": f"{ns}/override", "reaction": f"{ns}/reaction", "markers": f"{ns}/markers"}
@@ -139,6 +145,15 @@ class Ros2Sink:
             self._next_marker = r.t + self.period - 1e-9
         self.published += 1
 
+    def attach(self, monitor) -> None:
+        """Answer ``<ns>/check_path/request`` with ``monitor``'s path check (R22, R37;
+        :class:`~depthguard.runtime.ros2_path_checks.Ros2PathChecks` on this sink's node, closed
+        with the sink). A monitor without a robot has no path to check: nothing is declared."""
+        from depthguard.runtime.ros2_path_checks import Ros2PathChecks
+
+        if self.path_checks is None and self._pubs is not None and getattr(monitor, "robot", None) is not None:
+            self.path_checks = Ros2PathChecks(self.node.acquire(), monitor, self.namespace)
+
     def write_map(self, snapshot) -> None:
         """R37: the free-space map ``snapshot`` (:class:`~depthguard.runtime.free_space_map.FreeSpaceSnapshot`)
         as ``sensor_msgs/PointCloud2`` on ``<ns>/obstacles`` (module docstring), stamped with its
@@ -157,6 +172,9 @@ class Ros2Sink:
             self.maps_published += 1
 
     def close(self) -> None:
+        if self.path_checks is not None:
+            self.path_checks.close()
+            self.path_checks = None
         with self._map_lock:
             if self._pubs is None:
                 return
@@ -181,6 +199,7 @@ def open_ros2(argument: str, rig, context: dict) -> Ros2Sink:
     scaling = context.get("ros2_scaling_topic", DEFAULT_SCALING_TOPIC)
     scaling = None if scaling is None or scaling.lower() == "none" else scaling
     sink = open_ros2_sink(context, rig.robot, [(w.name, w.position) for w in rig.monitor.watch_points], ns, scaling)
-    sink.describe = (f"publishing {ns.rstrip('/')}/override, reaction, markers (and obstacles with the map on) as ROS 2 topics (rmw_zenoh)"
+    sink.describe = (f"publishing {ns.rstrip('/')}/override, reaction, markers (and obstacles with the map on) as ROS 2 topics "
+                     f"(rmw_zenoh), answering {ns.rstrip('/')}/check_path/request"
                      + ("" if scaling is None else f", the speed scaling on {scaling}"))
     return sink
