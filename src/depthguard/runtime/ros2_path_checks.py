@@ -104,6 +104,9 @@ class Ros2PathChecks:
             msg = self._q.get()
             if msg is None:
                 return
+            if getattr(self.monitor, "_closed", False):     # the run ends: its map is gone
+                self._answer(msg, None, "refused: the monitor is closing")
+                continue
             try:
                 t, q = trajectory_path(msg, self.monitor.robot)
                 verdict = self.monitor.check_path(t, q)
