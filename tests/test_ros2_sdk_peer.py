@@ -359,7 +359,7 @@ def test_check_path_over_ros2_with_an_sdk_client(peer, router, reaching_monitor_
 def test_cli_monitor_with_the_map_publishes_obstacles_and_answers_check_path(peer, router, tmp_path):  # noqa: F811
     """``depthguard monitor --ros2`` as a process, a rig with ``free_space: true`` (ur3-cell, its
     simulator): the SDK node receives ``/depthguard/obstacles`` at the map's rate, each cloud equal
-    byte for byte to the one of the same stamp in ``results.mcap`` (read by mcap_ros2, not
+    byte for byte to one of the same stamp in ``results.mcap`` (read by mcap_ros2, not
     depthguard), and a JointTrajectory request sent during the run gets its verdict (this run
     found that the fan-out never handed the map to the mcap: and ros2: sinks)."""
     import shutil
@@ -404,13 +404,16 @@ def test_cli_monitor_with_the_map_publishes_obstacles_and_answers_check_path(pee
         assert wait_for(lambda: len(verdicts) >= 1, 5.0), err
         assert verdicts[0]["request_stamp"] == 77.0 and verdicts[0]["verdict"] in ("safe", "maybe", "unsafe")
         assert len(verdicts[0]["segments"]) == 2
-        with open(out / "results.mcap", "rb") as fh:
-            written = {m.log_time: bytes(pc.data) for _, _, m, pc in make_reader(
-                fh, decoder_factories=[DecoderFactory()]).iter_decoded_messages(topics=["/depthguard/obstacles"])}
-        assert len(written) >= 5 and len(clouds) >= 5           # 10 Hz for 5 s, on a loaded machine
+        written: dict = {}              # stamp -> the clouds of that stamp (a map rebuilt before the newest
+        with open(out / "results.mcap", "rb") as fh:     # camera's next frame, the others' newer, shares it)
+            for _, _, m, pc in make_reader(fh, decoder_factories=[DecoderFactory()]).iter_decoded_messages(
+                    topics=["/depthguard/obstacles"]):
+                written.setdefault(m.log_time, []).append(bytes(pc.data))
+        n = sum(len(v) for v in written.values())
+        assert n >= 5 and len(clouds) >= n - 1                  # 10 Hz for 5 s on a loaded machine; each map both ways
         for pc in clouds:
             ns = pc.header.stamp.sec * 10**9 + pc.header.stamp.nanosec
-            assert bytes(np.asarray(pc.data, dtype=np.uint8)) == written[ns]
+            assert bytes(np.asarray(pc.data, dtype=np.uint8)) in written[ns]
     finally:
         for x in [*subs, pub]:
             x.close()
