@@ -9,6 +9,7 @@ import numpy as np
 from depthguard.filtering.expected import ExpectedDepth
 from depthguard.runtime.free_space_map import RuntimeFreeSpace
 from depthguard.runtime.mcap_results import McapResults
+from depthguard.runtime.sinks import SinkFanout
 from depthguard.sim import load_cell
 from depthguard.sources.simulated import SimSource
 
@@ -25,9 +26,12 @@ def test_obstacle_cloud_in_the_results_mcap_equals_the_map(tmp_path):
     rd = {c.id: np.asarray(ExpectedDepth(c, rig.robot, []).robot(q)) for c in rig.cameras}
     space = RuntimeFreeSpace(rig, robot_offset=rig.monitor.robot_offset, robot_padding=rig.monitor.robot_padding)
     snap = space.build({k: f.depth for k, f in frames.items()}, rd, q, {k: t for k in frames})
-    sink = McapResults(tmp_path / "results.mcap", rig.robot)
-    sink.write_map(snap)
-    sink.close()
+    # through the fan-out, as `depthguard monitor` holds its mcap: and ros2: sinks (the monitor
+    # hands each map to its sinks' write_map; the fan-out passes it on)
+    fanout = SinkFanout([McapResults(tmp_path / "results.mcap", rig.robot)])
+    fanout.write_map(snap)
+    fanout.close()
+    assert fanout.errors == []
     with open(tmp_path / "results.mcap", "rb") as fh:
         msgs = list(make_reader(fh, decoder_factories=[DecoderFactory()]).iter_decoded_messages(
             topics=["/depthguard/obstacles"]))

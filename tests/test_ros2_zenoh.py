@@ -284,3 +284,47 @@ def test_joint_states_waiting_are_bounded_to_the_newest(router):
     finally:
         joints.close()
         ros.close()
+
+
+def test_trajectory_path_reorders_permuted_joints_and_refuses_bad_ones():
+    """check_path over ROS 2 (R22): a JointTrajectory whose joint_names are a permutation of the
+    robot's gives back exactly the path in the robot's order (truth: the path it was made from);
+    empty names mean the robot's order; unknown or repeated names, a wrong number of positions and
+    a NaN are refused with one line (the waypoint named where there is one)."""
+    from depthguard.runtime.ros2_path_checks import REQUEST_TYPE, trajectory_path
+    from depthguard.sim import load_cell
+    from depthguard.transport.ros2_zenoh import WIRE
+
+    robot = load_cell("ur3-cell").rig.robot
+    T = WIRE.types
+    names = list(robot.joint_names)
+    rng = np.random.default_rng(3)
+    Q = rng.uniform(np.asarray(robot.q_min) * 0.5, np.asarray(robot.q_max) * 0.5, (4, robot.dof))
+    stamps = np.array([0.0, 0.25, 1.5, 2.0])
+    perm = list(rng.permutation(robot.dof))
+
+    def msg(jn, QQ, tt=stamps):
+        pts = [T["trajectory_msgs/msg/JointTrajectoryPoint"](
+            positions=np.ascontiguousarray(qq, float), velocities=np.zeros(0), accelerations=np.zeros(0), effort=np.zeros(0),
+            time_from_start=T["builtin_interfaces/msg/Duration"](sec=int(x), nanosec=int(round((x % 1) * 1e9))))
+            for qq, x in zip(QQ, tt)]
+        m = T[REQUEST_TYPE](header=T["std_msgs/msg/Header"](stamp=T["builtin_interfaces/msg/Time"](sec=0, nanosec=0),
+                                                            frame_id=""), joint_names=jn, points=pts)
+        return WIRE.deserialize_cdr(WIRE.serialize_cdr(m, REQUEST_TYPE), REQUEST_TYPE)     # as it arrives
+
+    t, q = trajectory_path(msg([names[k] for k in perm], Q[:, perm]), robot)
+    np.testing.assert_array_equal(q, Q)
+    np.testing.assert_allclose(t, stamps, atol=1e-9)
+    np.testing.assert_array_equal(trajectory_path(msg([], Q), robot)[1], Q)
+    with pytest.raises(ValueError, match="not the joints of"):
+        trajectory_path(msg(names[:-1] + [names[0]], Q), robot)
+    with pytest.raises(ValueError, match="not the joints of"):
+        trajectory_path(msg(names[:-1] + ["wrist_9"], Q), robot)
+    with pytest.raises(ValueError, match="^waypoint 2: 5 positions"):
+        trajectory_path(msg(names, [Q[0], Q[1], Q[2, :5], Q[3]]), robot)
+    bad = Q.copy()
+    bad[1, 4] = np.nan
+    with pytest.raises(ValueError, match="^waypoint 1:"):
+        trajectory_path(msg(names, bad), robot)
+    with pytest.raises(ValueError, match="at least 2 waypoints"):
+        trajectory_path(msg(names, Q[:1], stamps[:1]), robot)

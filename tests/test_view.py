@@ -244,3 +244,44 @@ def test_a_connection_closed_before_its_request_is_not_a_traceback():
     assert keep.filter(record(ValueError("bad Sec-WebSocket-Key"))) is True        # a real failure shows
     other = logging.LogRecord("websockets.server", logging.ERROR, __file__, 1, "something else", None, None)
     assert keep.filter(other) is True
+
+
+def test_the_free_space_map_layer_is_the_maps_obstacle_voxels():
+    """R37: a map handed to the view (``write_map``, as the monitor's map thread does) is drawn as
+    the ``free-space map`` layer: its points are the centres of the voxels that are neither free
+    nor the robot's body (truth: the map's own state array, voxel by voxel), coloured occupied /
+    unknown apart; a later map in which that space is free clears it; the switch hides it."""
+    from depthguard.filtering.expected import ExpectedDepth
+    from depthguard.runtime.free_space_map import RuntimeFreeSpace
+    from depthguard.sim import load_cell
+    from depthguard.sources.simulated import SimSource
+    from depthguard.viz.live import LiveView
+
+    cell = load_cell("ur3-cell")
+    rig = cell.rig
+    t = cell.time_of("arm_reaching")
+    q = cell.scene.robot_q(t)
+    frames = SimSource(cell, seed=1).frames(t)
+    rd = {c.id: np.asarray(ExpectedDepth(c, rig.robot, []).robot(q)) for c in rig.cameras}
+    space = RuntimeFreeSpace(rig, robot_offset=rig.monitor.robot_offset, robot_padding=rig.monitor.robot_padding)
+    snap = space.build({k: f.depth for k, f in frames.items()}, rd, q, {k: t for k in frames})
+    with LiveView(rig, port=0, start=False) as view:
+        assert len(view._map_cloud.points) == 0 and view.update() is False     # no map yet: nothing drawn
+        view.write_map(snap)
+        assert view.update() is True and view.maps_drawn == 1
+        pts, cols = np.asarray(view._map_cloud.points), np.asarray(view._map_cloud.colors)
+        g = snap.grid
+        ijk = np.floor((pts - g.lo) / g.voxel_size).astype(int)
+        np.testing.assert_allclose(pts, g.lo + (ijk + 0.5) * g.voxel_size, atol=1e-5)    # voxel centres
+        drawn = np.zeros(g.shape, np.uint8)
+        drawn[tuple(ijk.T)] = np.where((cols == scene.MAP_COLOURS[2]).all(axis=1), 2,
+                                       np.where((cols == scene.MAP_COLOURS[1]).all(axis=1), 1, 9))
+        want = np.where(snap.machine, 0, snap.state)
+        assert np.array_equal(drawn, want) and len(pts) == np.count_nonzero(want)
+        assert {1, 2} <= set(np.unique(drawn).tolist())
+        assert view.update() is False                       # the same map is not drawn again
+        cleared = type(snap)(**{**snap.__dict__, "state": np.zeros_like(snap.state)})   # every voxel seen free
+        view.write_map(cleared)
+        assert view.update() is True and len(view._map_cloud.points) == 0
+        view.set_layer("free-space map", False)
+        assert view._map_cloud.visible is False

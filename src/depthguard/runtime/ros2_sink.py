@@ -21,6 +21,17 @@ namespace (default ``/depthguard``):
   ros2_control ``joint_trajectory_controller`` (Kilted and later: its ``~/speed_scaling_input``,
   0 = the trajectory halts on its path). Reliable, TRANSIENT_LOCAL, depth 1, as the controller
   subscribes to it: a controller that (re)starts gets the newest factor at once.
+- ``<ns>/obstacles`` — ``sensor_msgs/msg/PointCloud2`` at every free-space map update of a run
+  with the map on (:meth:`Ros2Sink.write_map`; R37, issue 30 "the map out"): the message of
+  :func:`~depthguard.runtime.map_cloud.obstacle_cloud` (occupied and unknown voxel centres, the
+  robot removed, field ``state`` 1 unknown / 2 occupied), stamped with the map's newest capture
+  stamp. Reliable, VOLATILE, keep last 1: a planner wants the newest map only, and a late
+  subscriber waits for the next update (at most 1 / ``free_space_hz`` s). Declared at the first
+  map, so a run without the map has no such publisher.
+- ``<ns>/check_path/request`` → ``<ns>/check_path/verdict`` — once the sink is attached to the
+  run's monitor (:meth:`Ros2Sink.attach`, as ``depthguard monitor`` does): a planned
+  ``trajectory_msgs/JointTrajectory`` in, the ``check-path --json`` verdict out as
+  ``std_msgs/String`` (:mod:`depthguard.runtime.ros2_path_checks`).
 
 Header stamps are the reaction time ``t`` (the wall clock in a live run). The messages are
 built by :class:`~depthguard.runtime.mcap_results.McapResults`' own functions, so the live
@@ -30,6 +41,7 @@ topics and ``results.mcap`` carry the same values.
 from __future__ import annotations
 
 import math
+import threading
 
 from depthguard.transport.ros2_zenoh import WIRE, Ros2Error, check_topic
 
@@ -41,6 +53,7 @@ DEFAULT_SCALING_TOPIC = "/joint_trajectory_controller/speed_scaling_input"
 SCALING_TYPE = "control_msgs/msg/SpeedScalingFactor"
 #: control_msgs' SpeedScalingFactor.msg (ros-controls/control_msgs, Kilted and later)
 SCALING_MSG = "float64 factor\n"
+OBSTACLES_TYPE = "sensor_msgs/msg/PointCloud2"
 
 
 class _Messages:
@@ -89,13 +102,19 @@ class Ros2Sink:
         from depthguard.transport import ros_messages as rosmsg
 
         self.node = node
+        self._map_lock = threading.Lock()      # the map's thread calls write_map
+        self._map_pub = None
+        self.maps_published = 0
+        self.path_checks = None                # attach(monitor): check_path over ROS 2
         try:
             if not marker_hz > 0:
                 raise Ros2Error(f"marker rate must be > 0 Hz (got {marker_hz})")
             ns = check_topic(namespace).rstrip("/")
+            self.namespace = ns
             _register_wire()
             self._msgs = _Messages(robot, watch_points, frame_id)
             self.topics = {"override": f"{ns}/override", "reaction": f"{ns}/reaction", "markers": f"{ns}/markers"}
+            self.map_topic = f"{ns}/obstacles"
             types = {"override": rosmsg.MSG["Float64"], "reaction": REACTION_TYPE, "markers": rosmsg.MSG["MarkerArray"]}
             if scaling_topic is not None:
                 self.topics["scaling"] = check_topic(scaling_topic)
@@ -126,12 +145,42 @@ class Ros2Sink:
             self._next_marker = r.t + self.period - 1e-9
         self.published += 1
 
-    def close(self) -> None:
-        if self._pubs is None:
+    def attach(self, monitor) -> None:
+        """Answer ``<ns>/check_path/request`` with ``monitor``'s path check (R22, R37;
+        :class:`~depthguard.runtime.ros2_path_checks.Ros2PathChecks` on this sink's node, closed
+        with the sink). A monitor without a robot has no path to check: nothing is declared."""
+        from depthguard.runtime.ros2_path_checks import Ros2PathChecks
+
+        if self.path_checks is None and self._pubs is not None and getattr(monitor, "robot", None) is not None:
+            self.path_checks = Ros2PathChecks(self.node.acquire(), monitor, self.namespace)
+
+    def write_map(self, snapshot) -> None:
+        """R37: the free-space map ``snapshot`` (:class:`~depthguard.runtime.free_space_map.FreeSpaceSnapshot`)
+        as ``sensor_msgs/PointCloud2`` on ``<ns>/obstacles`` (module docstring), stamped with its
+        newest capture stamp; a map without a stamp (no frame yet), or after :meth:`close`, is not sent."""
+        from depthguard.runtime.map_cloud import obstacle_cloud
+
+        if not (math.isfinite(snapshot.stamp) and snapshot.stamp >= 0):
             return
-        for p in self._pubs.values():
-            p.close()
-        self._pubs = None
+        msg = obstacle_cloud(snapshot, snapshot.stamp, self._msgs.frame_id)
+        with self._map_lock:
+            if self._pubs is None:
+                return
+            if self._map_pub is None:
+                self._map_pub = self.node.publisher(self.map_topic, OBSTACLES_TYPE, depth=1)
+            self._map_pub.publish(msg)
+            self.maps_published += 1
+
+    def close(self) -> None:
+        if self.path_checks is not None:
+            self.path_checks.close()
+            self.path_checks = None
+        with self._map_lock:
+            if self._pubs is None:
+                return
+            for p in [*self._pubs.values(), *([self._map_pub] if self._map_pub is not None else [])]:
+                p.close()
+            self._pubs = self._map_pub = None
         self.node.release()
 
 
@@ -150,6 +199,7 @@ def open_ros2(argument: str, rig, context: dict) -> Ros2Sink:
     scaling = context.get("ros2_scaling_topic", DEFAULT_SCALING_TOPIC)
     scaling = None if scaling is None or scaling.lower() == "none" else scaling
     sink = open_ros2_sink(context, rig.robot, [(w.name, w.position) for w in rig.monitor.watch_points], ns, scaling)
-    sink.describe = (f"publishing {ns.rstrip('/')}/override, reaction and markers as ROS 2 topics (rmw_zenoh)"
+    sink.describe = (f"publishing {ns.rstrip('/')}/override, reaction, markers (and obstacles with the map on) as ROS 2 topics "
+                     f"(rmw_zenoh), answering {ns.rstrip('/')}/check_path/request"
                      + ("" if scaling is None else f", the speed scaling on {scaling}"))
     return sink

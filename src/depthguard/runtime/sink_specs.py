@@ -8,7 +8,7 @@ and every run writes ``jsonl:`` and ``mcap:`` into its folder. Built-in schemes:
 ``jsonl:[FILE]``  one JSON line per control cycle (default ``OUT/log.jsonl``)   :mod:`depthguard.runtime.sinks`
 ``mcap:[FILE]``   the results as MCAP for Foxglove (default ``OUT/results.mcap``)   :mod:`depthguard.runtime.mcap_results`
 ``zenoh:[CELL]``  reaction, distances, health under ``depthguard/<cell>/``; settings in  :mod:`depthguard.runtime.sink_zenoh`
-``ros2:[NS]``     ``NS/override``, ``reaction``, ``markers`` over rmw_zenoh (default ``/depthguard``)  :mod:`depthguard.runtime.ros2_sink`
+``ros2:[NS]``     ``NS/override``, ``reaction``, ``markers``, ``obstacles``, ``check_path/*`` over rmw_zenoh (default ``/depthguard``)  :mod:`depthguard.runtime.ros2_sink`
 ``view:[[HOST:]PORT]``  the live 3-D view in the browser (default 127.0.0.1:8080)  :mod:`depthguard.viz.sinks`
 ``ur-rtde:HOST``  a Universal Robots arm's speed slider (needs ``depthguard[ur]``)  :mod:`depthguard.runtime.ur_sink`
 ``franky:HOST,path=FILE``  a Franka FR3 runs a joint path, slowed and stopped by the reaction  :mod:`depthguard.runtime.franky_sink`

@@ -259,6 +259,21 @@ class SinkFanout:
                             self._fail(i, exc)
                 self.delivered += 1
 
+    def write_map(self, snapshot) -> None:
+        """R37: hand a free-space map to every enabled sink that takes one (``write_map``: the
+        ``mcap:`` and ``ros2:`` sinks), on the caller's thread (the map's, at ``free_space_hz``),
+        not through the reaction queue; nothing after :meth:`close`. A sink that raises is
+        disabled like for a reaction."""
+        if self._closing:
+            return
+        for i, sink in enumerate(self.sinks):
+            write = getattr(sink, "write_map", None)
+            if write is not None and self._enabled[i]:
+                try:
+                    write(snapshot)
+                except Exception as exc:  # noqa: BLE001 - a sink must never stop the map's thread
+                    self._fail(i, exc, " (map)")
+
     def _fail(self, i: int, exc: Exception, when: str = "") -> None:
         self._enabled[i] = False
         msg = f"{_name(self.sinks[i])}: {type(exc).__name__}: {exc}"

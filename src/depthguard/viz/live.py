@@ -26,6 +26,9 @@ the scene:
   near, green far or nothing within rho), magenta where no camera can judge
   (R26), with a line to the nearest obstacle (which may be space hidden
   behind what a camera sees: unknown space is an obstacle);
+- the free-space map (R37; a run with the map on, :meth:`LiveView.write_map` from the map's
+  thread): a point per occupied (brown) or unknown (pale grey-blue) voxel centre, the robot's
+  body left out — the points of ``/depthguard/obstacles`` — redrawn at each map update;
 - a panel: override and reasons, per camera state / frame rate / age, the
   step time; a rho slider (``Monitor.set_rho``) and one switch per layer.
 
@@ -122,6 +125,9 @@ class LiveView:
         self._rates: dict[str, float] = {}
         self._static: dict[str, np.ndarray] = {}
         self._near_points: dict[str, np.ndarray] = {}     # camera id -> its points near the robot (N, 3)
+        self._map_latest = None          # the newest free-space map (write_map), and the one drawn
+        self._map_shown = None
+        self.maps_drawn = 0
         self._panel_at = -math.inf
         self._panel_due = None           # a snapshot whose panel text the rate limit held back
         self._cps = None
@@ -156,6 +162,12 @@ class LiveView:
         with self._lock:
             self._latest = reaction
             self.received += 1
+
+    def write_map(self, snapshot) -> None:
+        """R37: keep the newest free-space map (the map's thread: one lock, one assignment); the
+        view's thread draws it as the ``free-space map`` layer (:func:`~depthguard.viz.live_scene.map_points`)."""
+        with self._lock:
+            self._map_latest = snapshot
 
     def show(self, snapshot: scene.Snapshot) -> None:
         """Show ``snapshot`` at the next update (playback)."""
@@ -243,12 +255,13 @@ class LiveView:
         if self.gui_freeze.value:
             return False
         with self._lock:
-            latest = self._latest
+            latest, fs_map = self._latest, self._map_latest
+        drew_map = self._update_map(fs_map)
         if latest is None or latest is self._shown:
             self._update_points(self._cps)
             if self._panel_due is not None and time.perf_counter() - self._panel_at > 0.25:
                 self._write_panel(self._panel_due)     # the last snapshot's text, held back by the rate limit
-            return False
+            return drew_map
         self._shown = latest
         snap = latest if isinstance(latest, scene.Snapshot) else scene.snapshot_of_reaction(latest)
         with self.server.atomic():
@@ -265,6 +278,19 @@ class LiveView:
         else:
             self._panel_due = snap
         self.updates += 1
+        return True
+
+    def _update_map(self, fs_map) -> bool:
+        """Draw the free-space map ``fs_map`` if it is new (True when drawn)."""
+        if fs_map is None or fs_map is self._map_shown:
+            return False
+        self._map_shown = fs_map
+        pts, colours = scene.map_points(fs_map)
+        h = self._map_cloud
+        with self.server.atomic():
+            h.points, h.colors = pts, colours
+            h.point_size = float(fs_map.grid.voxel_size) * 0.6
+        self.maps_drawn += 1
         return True
 
     def _write_panel(self, snap: scene.Snapshot) -> None:

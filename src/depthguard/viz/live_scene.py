@@ -14,6 +14,8 @@ a :class:`Snapshot` and the cameras' newest frames into coloured points:
   (what may be an obstacle).
 - :func:`frame_points` — the labelled pixels, subsampled, as world points.
 - :func:`distance_colours` — control/watch points by distance, unobserved apart.
+- :func:`map_points` — the free-space map's occupied and unknown voxel centres (R37), coloured
+  by state (:data:`MAP_COLOURS`).
 
 Colours are RGB uint8; distances metres; points (N, 3) float world metres.
 """
@@ -25,7 +27,7 @@ from dataclasses import dataclass, field
 
 import numpy as np
 
-__all__ = ["Snapshot", "snapshot_of_reaction", "snapshot_of_record", "pixel_labels", "frame_points",
+__all__ = ["map_points", "MAP_COLOURS", "Snapshot", "snapshot_of_reaction", "snapshot_of_record", "pixel_labels", "frame_points",
            "distance_colours", "state_colour", "LABEL_COLOURS", "STATE_COLOURS", "ROBOT_COLOUR",
            "UNOBSERVED_COLOUR", "INVALID", "ROBOT", "KNOWN", "OTHER"]
 
@@ -44,6 +46,24 @@ STATE_COLOURS = {"fresh": (20, 170, 60), "stale": (235, 200, 0), "waiting": (140
 UNOBSERVED_COLOUR = (230, 0, 230)
 #: a point with nothing within rho
 CLEAR_COLOUR = (0, 200, 120)
+#: the free-space map's voxels by state (R37): 1 unknown (pale grey-blue: no camera could judge
+#: it), 2 occupied (brown: a camera saw a surface in it, or the known scene)
+MAP_COLOURS = {1: (185, 190, 215), 2: (120, 60, 20)}
+
+
+def map_points(snapshot) -> tuple[np.ndarray, np.ndarray]:
+    """R37: the free-space map ``snapshot`` (:class:`~depthguard.runtime.free_space_map.FreeSpaceSnapshot`)
+    as the view's layer: centres (N, 3) float32 world m of the voxels that are neither free nor
+    the robot's body — the points of ``/depthguard/obstacles``
+    (:func:`~depthguard.runtime.map_cloud.obstacle_points`) — and their colours (N, 3) uint8."""
+    from depthguard.runtime.map_cloud import obstacle_points
+
+    pts = obstacle_points(snapshot)
+    xyz = np.stack([pts["x"], pts["y"], pts["z"]], axis=1).astype(np.float32)
+    table = np.zeros((256, 3), np.uint8)
+    for k, c in MAP_COLOURS.items():
+        table[k] = c
+    return xyz, table[pts["state"]]
 
 
 def state_colour(state: str) -> tuple[int, int, int]:
