@@ -116,6 +116,7 @@ class _SimulatedCell:
 
 
 @pytest.mark.slow
+@pytest.mark.realtime          # its joint thread keeps a wall-clock pace: alone under xdist
 def test_readme_live_loop_runs_as_written(tmp_path, monkeypatch):
     """The live loop of the README runs with a simulated cell: every frame the cameras delivered is
     taken (none refused for its joints, none for the joint stream), both cameras' frames are fused
