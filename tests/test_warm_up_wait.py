@@ -64,4 +64,4 @@ def test_a_target_that_stays_busy_with_nothing_compiling_times_out_after_the_tim
         with pytest.raises(TimeoutError, match="0.3 s after the last kernel compilation"):
             wait_idle(Never(), 0.3, act)
         took = time.perf_counter() - t0
-    assert 0.3 <= took < 5.0, took
+    assert 0.3 - 0.005 <= took < 5.0, took     # the 0.3 s run from the activity's start, just before t0 (0.2995 seen)
