@@ -42,6 +42,20 @@ def test_bench_rejects_unknown_group():
     assert "nosuchgroup" in (res.stderr + res.stdout)
 
 
+def test_bench_only_picks_the_group_that_owns_a_prefix():
+    """``--only monitor.build`` runs the ``monitor.build`` group alone (it once ran the whole
+    ``monitor`` group too, minutes of work whose rows were then dropped); a prefix inside a
+    group's rows (``monitor.step_p99_ms``) runs the group that owns them."""
+    from depthguard.evaluation.bench import load_groups, selected_groups
+
+    names = list(load_groups())
+    assert selected_groups(["monitor.build"], names) == ["monitor.build"]
+    assert selected_groups(["monitor.step_p99_ms"], names) == ["monitor"]
+    assert set(selected_groups(["monitor"], names)) == {n for n in names if n.startswith("monitor")}
+    assert selected_groups(["units.combine_ms"], names) == ["units"]
+    assert selected_groups(["nosuchgroup"], names) == []
+
+
 def test_run_rejects_bad_camera_latency_and_records_the_latency(tmp_path):
     runner = CliRunner()
     res = runner.invoke(app, ["run", "-s", "empty", "-o", str(tmp_path / "x"), "--camera-latency", "-0.1"])

@@ -36,7 +36,7 @@ def bench(
     ctx = bench_harness.BenchContext(quick=quick, repeats=5 if quick else 30, log=log)
     known = list(bench_harness.load_groups())
     for o in only or []:
-        if not any(k.startswith(o) or o.startswith(k) for k in known):
+        if not bench_harness.selected_groups([o], known):
             raise typer.BadParameter(f"no benchmark group matches {o!r}; groups: {', '.join(known)}", param_hint="--only")
     rows = bench_harness.run(only=only, ctx=ctx)
     table = Table(title="depthguard bench")

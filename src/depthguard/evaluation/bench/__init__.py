@@ -83,12 +83,35 @@ def load_groups() -> dict[str, Callable[[BenchContext], list[BenchRow]]]:
     return GROUPS
 
 
+def owning_group(prefix: str, names) -> str | None:
+    """The group whose rows a row-name prefix ``prefix`` names (``monitor.step_p99_ms`` →
+    ``monitor``): the longest group name that ``prefix`` starts with at a dot or equals,
+    so that ``monitor.build`` is its own group, not also ``monitor``'s rows."""
+    best = None
+    for name in names:
+        if (prefix == name or prefix.startswith(name + ".")) and (best is None or len(name) > len(best)):
+            best = name
+    return best
+
+
+def selected_groups(only: list[str] | None, names) -> list[str]:
+    """The groups ``--only`` runs: every group whose name starts with one of ``only``, and for a
+    prefix inside a group's rows the group that owns them (:func:`owning_group`)."""
+    names = list(names)
+    if not only:
+        return names
+    owners = {owning_group(o, names) for o in only}
+    return [n for n in names if n in owners or any(n.startswith(o) for o in only)]
+
+
 def run(only: list[str] | None = None, ctx: BenchContext | None = None) -> list[BenchRow]:
-    """Run every group (or those whose name starts with one of ``only``)."""
+    """Run every group (or those :func:`selected_groups` picks for ``only``)."""
     ctx = ctx or BenchContext()
     rows: list[BenchRow] = []
-    for name, fn in load_groups().items():
-        if only and not any(name.startswith(o) or o.startswith(name) for o in only):
+    groups = load_groups()
+    chosen = set(selected_groups(only, groups))
+    for name, fn in groups.items():
+        if name not in chosen:
             continue
         ctx.log(f"bench group {name}")
         got = fn(ctx)
