@@ -7,7 +7,10 @@ the learned scene in their place, are asked the same questions; the truth of eac
 CAD rig's:
 
 - :func:`pixel_table`: of the pixels the CAD covers within the camera's range, the share the
-  learned scene reproduces within its band (:func:`~depthguard.filtering.scene_learner.compare_with_cad`),
+  learned scene reproduces within its band (:func:`~depthguard.filtering.scene_learner.compare_with_cad`);
+  the same share of the CAD's pixels in front of the robot's base (the links no joint moves,
+  bolted to the cell: in the camera's view of the cell they cover what lies behind them as a
+  fixture would) and of the observable ones (not covered by the robot at every joint state);
   and the rest named: ``behind_base`` (the robot's links that no joint moves, and the learner's
   margin around them, cover them at every joint state: never observable while the robot is
   mounted, and never needed — at run time the robot is rendered in front of them at every frame),
@@ -294,11 +297,13 @@ def report(res: dict) -> str:
     L = [f"### {res['cell']}: {res['duration_s']:g} s learned, cameras "
          + ", ".join(f"{k} {w}x{h}" for k, (w, h) in res["cameras"].items())]
     if "pixels" in res:
-        L += ["", "| camera | CAD pixels in range | within band | share | share of the observable | rest: behind "
+        L += ["", "| camera | CAD pixels in range | within band | share | share in front of the robot's base "
+                  "| share of the observable | rest: behind "
                   "the base | behind the arm at every joint state | behind the arm in this run | no return | edge "
-                  "| off |", "|---|---|---|---|---|---|---|---|---|---|---|"]
+                  "| off |", "|---|---|---|---|---|---|---|---|---|---|---|---|"]
         for r in res["pixels"]:
             L.append(f"| {r['camera']} | {r['cad_pixels']} | {r['within_band']} | {100 * r['share']:.2f} % | "
+                     f"{100 * r['share_outside_base']:.2f} % of {r['cad_pixels'] - r['base_pixels']} | "
                      f"{100 * r['share_observable']:.2f} % of {r['observable']} | {r['behind_base']} | "
                      f"{r['behind_arm_always']} | {r['behind_arm_run']} | {r['no_return']} | {r['edge']} | "
                      f"{r['off']} |")
