@@ -105,3 +105,18 @@ def test_the_shorthand_modes_name_the_same_policies(rig):
         c = cfg.with_changes(reaction=mode)
         assert c.policies == names and c.reaction_mode == mode
         assert c.query_rho == (c.rho if mode == "repulsion" else max(c.rho, c.ssm.range))
+
+
+def test_ssm_with_the_known_scene_muted_needs_the_grid_only_within_rho(rig):
+    """With ``ssm.known_scene: muted`` SSM's separation comes from the muted voxels within
+    ``max(rho, ssm.range)``: the depth grid is queried within ``rho`` only (its work grows
+    steeply with the radius, issue 29); ``tests/test_ssm_known_scene.py`` shows SSM still slows
+    for what stands between ``rho`` and the range."""
+    from depthguard.control.policy_ssm import SpeedSeparationPolicy
+
+    for mode in ("ssm", "both"):
+        c = rig.monitor.with_changes(reaction=mode, rho=0.3, ssm={"known_scene": "muted", "range": 1.5})
+        assert c.query_rho == 0.3
+        assert SpeedSeparationPolicy.separation_range(c) == 1.5
+        c = c.with_changes(ssm={"known_scene": "obstacle", "range": 1.5})
+        assert c.query_rho == 1.5

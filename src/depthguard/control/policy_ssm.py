@@ -8,7 +8,9 @@ commanded velocity is the cycle's ``qd`` or, when the caller gives none, the
 joints' rate between the last two cycles. Its part: ``scale``, ``stop`` with the
 nearest limiting point's reason, and the per-point table ``terms`` (m_cp, 13)
 with ``term_names`` = :data:`depthguard.control.ssm.TERMS`. Distances are looked
-for within ``max(rho, ssm.range)`` (:meth:`reach`). No repulsion, no joint box.
+for within ``max(rho, ssm.range)`` (:meth:`separation_range`): in the cycle's distances (the
+grid's query reaches that far, :meth:`reach`) or, with ``ssm.known_scene: muted``, in the muted
+voxels (the grid then needs only ``rho``). No repulsion, no joint box.
 """
 
 from __future__ import annotations
@@ -42,6 +44,17 @@ class SpeedSeparationPolicy:
 
     @staticmethod
     def reach(config) -> float:
+        """The radius (m) SSM needs the depth grid's distances in: ``max(rho, ssm.range)``; with the
+        known scene muted SSM takes its separation from the muted voxels instead (within
+        :meth:`separation_range`), so it needs nothing from the grid beyond ``rho`` — the grid's
+        work grows steeply with the radius (a 2 m query cost fr3-cell's build 100 ms, issue 29)."""
+        if config.ssm.known_scene == "muted":
+            return float(config.rho)
+        return SpeedSeparationPolicy.separation_range(config)
+
+    @staticmethod
+    def separation_range(config) -> float:
+        """Metres within which the separation is looked for: ``max(rho, ssm.range)`` (R33)."""
         return max(float(config.rho), float(config.ssm.range))
 
     def update(self, c: Cycle) -> Part:
@@ -59,7 +72,7 @@ class SpeedSeparationPolicy:
             cfg = c.config
             self._D.fill(np.inf)
             self._V.fill(0.0)
-            self._muted.nearest(c.positions, cfg.query_rho, self._D, self._V,
+            self._muted.nearest(c.positions, self.separation_range(cfg), self._D, self._V,
                                 robot_capsules=self._robot.collision_segments(c.q, cfg.robot_padding))
             D, V = self._D, self._V
         s, stop = self.ssm.update(c.t, c.dt, D, V, c.positions, c.jacobians, qd, c.observed, c.frame_age)
