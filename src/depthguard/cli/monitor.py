@@ -305,6 +305,11 @@ def monitor(
         typer.echo(f"monitor: the simulated cameras fell behind real time and skipped {behind} frames: this machine "
                    f"cannot render them and run the monitor at once at full rate; the stale-camera stops are the "
                    f"monitor's answer to late frames (R27), --fast runs the same cell without the clock")
+    if not fast and summary["stopped_s"] > 0 and summary.get("cpu_s"):
+        from depthguard.runtime.thread_cpu import top_parts
+
+        typer.echo(f"monitor: cores used ({summary['cpu_s']['process'] / max(summary['wall_s'], 1e-9):.2f} in all, "
+                   f"summary.json cpu_s): {top_parts(summary['cpu_s'], summary['wall_s'])}")
 
 
 @app.command("safe-defaults")

@@ -33,6 +33,8 @@ from typing import Callable
 
 import numpy as np
 
+from depthguard.runtime.thread_cpu import cpu_by_part, thread_cpu_seconds
+
 __all__ = ["run", "summarise", "RunStats", "reaction_subscribers", "open_run_sinks", "frozen_heap"]
 
 
@@ -92,6 +94,13 @@ class RunStats:
         self.interrupted = False          # stopped by Ctrl-C (the summary is still written)
         self.source_errors: list[str] = []  # sources that failed during a real-time run
         self.control_scheduling = "not paced (fast run)"   # real time: runtime.realtime's status
+        self.cpu_since = (thread_cpu_seconds(), time.process_time())   # the run's CPU from here
+        self.cpu: dict[str, float] = {}   # CPU s per part of the run (runtime.thread_cpu), at its end
+
+    def note_cpu(self) -> None:
+        """CPU seconds per part since the run started (:func:`~depthguard.runtime.thread_cpu.cpu_by_part`),
+        read while the run's threads are alive."""
+        self.cpu = cpu_by_part(*self.cpu_since)
 
     def __call__(self, r) -> None:
         if self.cycles == 0:
@@ -135,6 +144,7 @@ def summarise(monitor, stats: RunStats, wall_s: float, sources: dict, extra: dic
         "unobserved_points": dict(stats.unobserved_points),
         "source_errors": list(stats.source_errors),
         "control_scheduling": stats.control_scheduling,
+        "cpu_s": stats.cpu,
         "distance_thread": {"queries": monitor.distance_queries,
                             "answers_from_builds": monitor.distance_answers_from_builds,
                             "cycles_that_queried_themselves": dict(monitor.distance_fallbacks)},
@@ -248,6 +258,7 @@ def _run_fast(monitor, frame_sources, joint_source, duration, stop, emit, all_do
         if all_done():
             break
         k += 1
+    stats.note_cpu()
     return stats, time.perf_counter() - wall0
 
 
@@ -360,6 +371,7 @@ def _run_threads(monitor, frame_sources, joint_source, duration, stop, emit, all
         with realtime_control(monitor.config.control_priority) as rt, monitor.real_time():
             stats.control_scheduling = rt.status
             _paced_loop(monitor, stop, emit, all_done, clock, dt, t0, duration, next_status)
+            stats.note_cpu()
     finally:
         stop.set()
         for th in threads:
