@@ -167,6 +167,13 @@ def test_kernel_matches_numpy_twin(seed):
             np.testing.assert_allclose(d, d2, rtol=0, atol=1e-6)
             np.testing.assert_array_equal(lab, lab2)
             np.testing.assert_array_equal(r.face_index(), f2)
+        # a depth-only renderer (ids=False): the same depth bits and spans, no labels
+        r, rd = Renderer(cam, near=0.3), Renderer(cam, near=0.3, ids=False)
+        d, _ = r.render(meshes, cull_back=cull)
+        dd, lab = rd.render(meshes, cull_back=cull)
+        assert lab is None and rd.face_ids is None
+        np.testing.assert_allclose(dd, render_depth_numpy(cam, meshes, near=0.3, cull_back=cull)[0], rtol=0, atol=1e-6)
+        assert dd.tobytes() == d.tobytes() and np.array_equal(rd.spans, r.spans)
 
 
 def test_renderers_reused_with_moving_meshes_match_the_twin():
@@ -178,6 +185,7 @@ def test_renderers_reused_with_moving_meshes_match_the_twin():
     cam = camera(w=64, h=48, f=55.0, T=T)
     box = Box(size=(0.6, 0.3, 0.4))
     rs = [Renderer(cam, near=0.3), Renderer(cam, near=0.3, parallel=True)]
+    depth_only = Renderer(cam, near=0.3, ids=False)     # the layers' renderer (no labels): the same depth
     for _ in range(6):
         axis = rng.normal(size=3)
         meshes = [box.moved(look_at(rng.uniform(-0.3, 0.3, 3), axis, np.array([0, 0, 1.0]))).mesh(),
@@ -188,6 +196,9 @@ def test_renderers_reused_with_moving_meshes_match_the_twin():
             d, lab = r.render(meshes)
             np.testing.assert_allclose(d, d2, rtol=0, atol=1e-6)
             np.testing.assert_array_equal(lab, lab2)
+        dd = depth_only.render(meshes)[0]
+        np.testing.assert_allclose(dd, d2, rtol=0, atol=1e-6)
+        assert dd.tobytes() == rs[0].depth.tobytes() and np.array_equal(depth_only.spans, rs[0].spans)
 
 
 def test_shared_edges_no_cracks_no_double_draw():

@@ -216,3 +216,70 @@ def test_primitives_are_those_of_the_pose_also_when_kept_for_a_still_person():
         seen.append(got)
     assert seen[0][0] is seen[1][0] is seen[2][0]          # standing still: kept
     assert seen[3][0] is not seen[4][0]                    # reaching: new solids
+
+
+def _prop_pose_reference(scene, name, t):
+    """The props' pose as first written (a second implementation): every carry begun by ``t``
+    applied in time order, the last one winning."""
+    T = scene.props[name].pose0
+    events = sorted(((c.t0, c, p) for p in scene.people for c in p.carries if c.prop == name), key=lambda e: e[0])
+    for t0, c, p in events:
+        if t < t0:
+            break
+        T = p.hand_frame(min(t, c.t1), c.hand) @ c.offset_matrix()
+    return T
+
+
+def _arm_reference(person, p, side):
+    """A person's arm (shoulder, elbow, hand) as first written: ``np.linalg.norm``, a body frame
+    and pole made afresh (a second implementation of ``Person._arm_points``)."""
+    sh = person.shape
+    T = person.body_frame(p.xy, p.heading)
+    R, o = T[:3, :3], T[:3, 3]
+    S = R @ sh.shoulder(side) + o
+    target = getattr(p, side)
+    if target is None:
+        target = R @ sh.rest_hand(side) + o
+    L1, L2 = sh.upper_arm, sh.forearm
+    d_vec = np.asarray(target, float) - S
+    d = float(np.linalg.norm(d_vec))
+    u = d_vec / d if d > 1e-9 else R @ np.array([0.0, 0.0, -1.0])
+    d = min(max(d, abs(L1 - L2) + 0.05), 0.999 * (L1 + L2))
+    a = (L1 * L1 - L2 * L2 + d * d) / (2 * d)
+    h = math.sqrt(max(L1 * L1 - a * a, 0.0))
+    s = 1.0 if side == "left" else -1.0
+    pole = R @ np.array([-0.2, 0.5 * s, -1.0])
+    w = pole - (pole @ u) * u
+    nw = np.linalg.norm(w)
+    w = w / nw if nw > 1e-9 else R @ np.array([0.0, s, 0.0])
+    return S, S + a * u + h * w, S + d * u
+
+
+@pytest.mark.parametrize("name", ["flacco-cell", "ur3-cell"])
+def test_posing_memos_give_the_bits_of_the_plain_computation(name):
+    """Over each built-in cell's script (people walking, reaching, carrying a prop, putting it
+    down): the props' solids (a prop's pose kept while it lies still) and the arms (the body
+    frame made once per pose, norms as sqrt of the dot) equal, to the bit, the plain computation
+    done afresh at every time."""
+    from depthguard.sim import load_cell
+
+    scene = load_cell(name).scene
+    assert scene.props and any(p.carries for p in scene.people)
+    still = moved = 0
+    for t in np.linspace(0.0, scene.duration, 240, endpoint=False):
+        t = float(t)
+        prims = {p.name: p for p in scene.dynamic_at(t)}
+        for pname, prop in scene.props.items():
+            T = _prop_pose_reference(scene, pname, t) @ prop.shape.world_from_local
+            got = prims[pname].world_from_local
+            assert got.tobytes() == T.tobytes(), (pname, t)
+        for person in scene.people:
+            if not person.is_present(t):
+                continue
+            p = person.pose_at(t)
+            for side in ("left", "right"):
+                for a, b in zip(person.arm_points(p, side), _arm_reference(person, p, side)):
+                    assert a.tobytes() == b.tobytes(), (person.name, side, t)
+            moved += 1
+        still += 1
+    assert moved > 100 and still == 240

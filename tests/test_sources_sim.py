@@ -103,7 +103,7 @@ def test_bench_group_quick_rows():
 
     rows = {r.name: r for r in sim_group(BenchContext(quick=True, repeats=3))}
     assert set(rows) == {"sim.noise.kinect_640x480_ms", "sim.ur3_cell.frames_4x640x480_ms", "sim.ur3_cell.frame_cpu_ms",
-                         "sim.ur3_cell.person_cpu_ms",
+                         "sim.ur3_cell.person_cpu_ms", "sim.ur3_cell.sim_frame_cpu_ms",
                          "sim.c_arm_room.occupancy_10cm_ms"}
     for r in rows.values():
         assert r.value > 0 and r.peer and r.peer_value > 0 and r.unit == "ms"

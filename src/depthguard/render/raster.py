@@ -83,7 +83,7 @@ import math
 import numpy as np
 from numba import njit, prange
 
-from depthguard.render.raster_fill import _fill, read_out_rows, reset_rows
+from depthguard.render.raster_fill import _fill, read_out_depth_rows, read_out_rows, reset_rows
 
 __all__ = ["render_packed", "render_packed_parallel", "check_and_label"]
 
@@ -252,7 +252,7 @@ def check_and_label(vw, n_v, faces, mesh_off, n_meshes, face_label):
 
 @njit(cache=True, error_model="numpy", nogil=True)
 def render_packed(vw, n_v, faces, n_f, mesh_off, n_meshes, face_label, R, t, fx, fy, cx, cy,
-                  near, cull_back, vc, wbuf, sbuf, depth, labels, face_ids, rows, spans):
+                  near, cull_back, vc, wbuf, sbuf, depth, labels, face_ids, rows, spans, ids=True):
     """Render packed buffers on one core (see the module docstring for shapes).
 
     The input is checked as it is used (each vertex before it is transformed, a face's
@@ -261,7 +261,8 @@ def render_packed(vw, n_v, faces, n_f, mesh_off, n_meshes, face_label, R, t, fx,
     turn (its setup stays in registers), then the images are read out over the rows' spans
     of this call's and the last call's pixels (``rows``, ``spans``:
     :mod:`~depthguard.render.raster_fill`). Returns ``(status, mesh, triangles drawn)``:
-    status 0 = done, else the error of :func:`check_and_label`.
+    status 0 = done, else the error of :func:`check_and_label`. ``ids`` False: a depth-only
+    render (``sbuf``, ``labels``, ``face_ids`` are not touched; the same depth and spans).
     """
     H, W = depth.shape
     for i in range(n_v):
@@ -293,9 +294,12 @@ def render_packed(vw, n_v, faces, n_f, mesh_off, n_meshes, face_label, R, t, fx,
                 if not ok:
                     continue
                 _fill(f, A0, B0, X0, Y0, A1, B1, X1, Y1, A2, B2, X2, Y2, Pa, Pb, px, py, pz, tl,
-                      u0, u1, v0, v1, wbuf, sbuf, rows)
+                      u0, u1, v0, v1, wbuf, sbuf, rows, ids)
                 n += 1
-    read_out_rows(0, H, wbuf, sbuf, face_label, depth, labels, face_ids, rows, spans)
+    if ids:
+        read_out_rows(0, H, wbuf, sbuf, face_label, depth, labels, face_ids, rows, spans)
+    else:
+        read_out_depth_rows(0, H, wbuf, depth, rows, spans)
     return 0, -1, n
 
 

@@ -16,7 +16,7 @@ import math
 import numpy as np
 from numba import njit
 
-__all__ = ["read_out_rows", "reset_rows"]
+__all__ = ["read_out_rows", "read_out_depth_rows", "reset_rows"]
 
 
 @njit(cache=True, error_model="numpy", inline="always")
@@ -36,10 +36,12 @@ def _inside(x, A0, X0, r0, t0, A1, X1, r1, t1, A2, X2, r2, t2):
 
 @njit(cache=True, error_model="numpy", inline="always")
 def _fill(key, A0, B0, X0, Y0, A1, B1, X1, Y1, A2, B2, X2, Y2, Pa, Pb, xw, yw, w0, tl, ua, ub, va, vb,
-          wbuf, sbuf, rows):
+          wbuf, sbuf, rows, ids=True):
     """Z-buffer one set-up triangle (``key`` = its face) into rows ``va .. vb``, columns
     ``ua .. ub``: where it covers a pixel centre with a larger ``w = 1/z`` (strictly: on an
-    exact tie the triangle drawn first keeps the pixel), ``wbuf = w`` and ``sbuf = key``.
+    exact tie the triangle drawn first keeps the pixel), ``wbuf = w`` and ``sbuf = key``
+    (``ids`` False: a depth-only render, ``sbuf`` is not touched: ``wbuf > 0`` is the pixel's
+    "drawn", as a winning ``w`` is > 0).
     ``rows`` (H, 2) int32: per row the hull ``[a, b)`` of the pixels covered so far, grown."""
     t0 = (tl & 1) != 0
     t1 = (tl & 2) != 0
@@ -67,8 +69,9 @@ def _fill(key, A0, B0, X0, Y0, A1, B1, X1, Y1, A2, B2, X2, Y2, Pa, Pb, xw, yw, w
                 old = wbuf[v, u]
                 win = int(w > old) & (1 - out)
                 wbuf[v, u] = max(old, w * win)     # w > old >= 0 where it wins, else old
-                s0 = sbuf[v, u]
-                sbuf[v, u] = s0 + (key - s0) * win
+                if ids:
+                    s0 = sbuf[v, u]
+                    sbuf[v, u] = s0 + (key - s0) * win
                 lo = min(lo, u if out == 0 else lo)
                 hi = max(hi, u + 1 if out == 0 else hi)
             if hi > lo:
@@ -139,7 +142,8 @@ def _fill(key, A0, B0, X0, Y0, A1, B1, X1, Y1, A2, B2, X2, Y2, Pa, Pb, xw, yw, w
             w = Pa * (float(u) - xw) + rp
             if w > wbuf[v, u]:
                 wbuf[v, u] = w
-                sbuf[v, u] = key
+                if ids:
+                    sbuf[v, u] = key
 
 
 @njit(cache=True, error_model="numpy", nogil=True)
@@ -184,6 +188,32 @@ def read_out_rows(r0, r1, wbuf, sbuf, face_label, depth, labels, face_ids, rows,
                 depth[v, u] = 0.0
                 labels[v, u] = -1
                 face_ids[v, u] = -1
+        spans[v, 0] = a
+        spans[v, 1] = b
+        n += b - a
+    return n
+
+
+@njit(cache=True, error_model="numpy", nogil=True)
+def read_out_depth_rows(r0, r1, wbuf, depth, rows, spans):
+    """:func:`read_out_rows` of a depth-only render (``_fill`` with ``ids`` False): ``depth =
+    float32(1/w)`` where ``wbuf`` holds a winning ``w > 0`` (a pixel :func:`read_out_rows` reads
+    as drawn, ``sbuf >= 0``, exactly), else 0; no labels, no face ids. The same depth bits."""
+    n = 0
+    for v in range(r0, r1):
+        a = rows[v, 0]
+        b = rows[v, 1]
+        if b <= a:
+            a = 0
+            b = 0
+        for u in range(spans[v, 0], min(spans[v, 1], a)):
+            depth[v, u] = 0.0
+        for u in range(max(spans[v, 0], b), spans[v, 1]):
+            depth[v, u] = 0.0
+        for u in range(a, b):
+            w = wbuf[v, u]
+            depth[v, u] = np.float32(1.0 / w) if w > 0.0 else np.float32(0.0)
+            wbuf[v, u] = 0.0
         spans[v, 0] = a
         spans[v, 1] = b
         n += b - a

@@ -72,6 +72,10 @@ class Renderer:
         (several cameras are better rendered in parallel at a higher level).
     n_bands : int, optional
         Bands of rows for the parallel kernel (default 4 per numba thread).
+    ids : bool
+        Draw the labels and face ids (default). False: a depth-only renderer (one core;
+        ``labels`` and ``face_ids`` are None): the same depth and spans with a third less memory
+        traffic per drawn pixel — a simulated camera's moving layers (issue 29).
 
     The depth / label images and the packed vertex / face / label buffers are
     allocated once and grown when a call brings more triangles; the kernels
@@ -87,7 +91,8 @@ class Renderer:
     not shared safely.
     """
 
-    def __init__(self, cam, near: float = 0.01, parallel: bool = False, n_bands: int | None = None):
+    def __init__(self, cam, near: float = 0.01, parallel: bool = False, n_bands: int | None = None,
+                 ids: bool = True):
         try:
             near = float(near)
         except (TypeError, ValueError):
@@ -109,18 +114,22 @@ class Renderer:
         self._t = np.ascontiguousarray(cam.t, dtype=np.float64)
         # the kernels write these; the public images are read-only views of them, because a
         # call reads out only the window its triangles and the last call's touch
+        self.ids = bool(ids)
+        if not self.ids:
+            self.parallel = False           # the depth-only kernel is the serial one
+        ih, iw = (H, W) if self.ids else (1, 1)     # depth-only: the kernel's id buffers are never touched
         self._depth = np.zeros((H, W), dtype=np.float32)
-        self._labels = np.full((H, W), -1, dtype=np.int32)
-        self._face_ids = np.full((H, W), -1, dtype=np.int32)
+        self._labels = np.full((ih, iw), -1, dtype=np.int32)
+        self._face_ids = np.full((ih, iw), -1, dtype=np.int32)
         self.depth = _read_only(self._depth)
-        self.labels = _read_only(self._labels)
-        self.face_ids = _read_only(self._face_ids)
+        self.labels = _read_only(self._labels) if self.ids else None
+        self.face_ids = _read_only(self._face_ids) if self.ids else None
         # per row the span [a, b) of the last call's pixels (outside it: 0 / -1), and the kernel's scratch
         self._spans = np.zeros((H, 2), dtype=np.int32)
         self._rows = np.zeros((H, 2), dtype=np.int32)
         self.spans = _read_only(self._spans)
         self._wbuf = np.zeros((H, W))                       # 1/z z-buffer (workspace, clear between calls)
-        self._sbuf = np.full((H, W), -1, dtype=np.int32)    # winning slot (workspace)
+        self._sbuf = np.full((ih, iw), -1, dtype=np.int32)  # winning slot (workspace)
         self._mesh_off = np.zeros((1, 2), dtype=np.int64)
         self._vw = np.zeros((0, 3))
         self._vc = np.zeros((0, 6))
@@ -266,7 +275,7 @@ class Renderer:
                                                   self._rows, self._spans)
         else:
             status, _, _ = render_packed(*args, self._wbuf, self._sbuf, self._depth, self._labels,
-                                         self._face_ids, self._rows, self._spans)
+                                         self._face_ids, self._rows, self._spans, self.ids)
         if status != 0:     # nothing was drawn (the z-buffer is clear); clear what the last call drew
             self._depth[:] = 0.0
             self._labels[:] = -1
@@ -277,6 +286,8 @@ class Renderer:
     def face_index(self) -> np.ndarray:
         """(H, W) int32: which face of mesh ``labels[v, u]`` owns each pixel of the last
         :meth:`render` (row of that mesh's ``faces``), -1 where nothing. Allocates; not for hot loops."""
+        if not self.ids:
+            raise RuntimeError("a depth-only Renderer (ids=False) draws no face ids")
         out = np.full(self.face_ids.shape, -1, dtype=np.int32)
         hit = self.face_ids >= 0
         out[hit] = self.face_ids[hit] - self._mesh_off[self.labels[hit], 1]

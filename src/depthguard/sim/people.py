@@ -78,6 +78,12 @@ def _body_points(shape: BodyShape, side: str) -> tuple[np.ndarray, np.ndarray]:
     return sh, rest
 
 
+#: the elbow's pole in the body frame per arm (down, out and back), read-only
+_POLE = {side: np.array([-0.2, 0.5 * s, -1.0]) for side, s in (("left", 1.0), ("right", -1.0))}
+for _a in _POLE.values():
+    _a.setflags(write=False)
+
+
 @dataclass(frozen=True)
 class Key:
     """A keyframe: at time ``t`` the person stands at ``xy`` (floor position, m) facing
@@ -157,6 +163,18 @@ class Person:
     def body_frame(self, xy, heading) -> np.ndarray:
         return pose(rot_z(heading), [xy[0], xy[1], self.floor_z])
 
+    def _frame(self, p: PersonPose) -> np.ndarray:
+        """:meth:`body_frame` of the pose ``p``, made once for the pose :meth:`pose_at` last
+        returned (read-only then: the body and both arms of a frame share it)."""
+        memo = self._pose_memo
+        if memo is not None and memo[1] is p:
+            T = memo[2].get("T")
+            if T is None:
+                T = memo[2]["T"] = self.body_frame(p.xy, p.heading)
+                T.setflags(write=False)
+            return T
+        return self.body_frame(p.xy, p.heading)
+
     def pose_at(self, t: float) -> PersonPose:
         """Floor position, heading and world hand targets at time ``t`` (the last time's answer is
         kept: a frame asks for the body and for the hand that carries a prop at the same time)."""
@@ -220,7 +238,7 @@ class Person:
 
     def _arm_points(self, p: PersonPose, side: str) -> tuple[np.ndarray, np.ndarray, np.ndarray]:
         sh = self.shape
-        T = self.body_frame(p.xy, p.heading)
+        T = self._frame(p)
         R, o = T[:3, :3], T[:3, 3]
         S = R @ sh.shoulder(side) + o
         target = getattr(p, side)
@@ -228,16 +246,16 @@ class Person:
             target = R @ sh.rest_hand(side) + o
         L1, L2 = sh.upper_arm, sh.forearm
         d_vec = np.asarray(target, float) - S
-        d = float(np.linalg.norm(d_vec))
+        d = math.sqrt(d_vec.dot(d_vec))              # np.linalg.norm's arithmetic (sqrt of the dot)
         u = d_vec / d if d > 1e-9 else R @ np.array([0.0, 0.0, -1.0])
         d = min(max(d, abs(L1 - L2) + 0.05), 0.999 * (L1 + L2))
         hand = S + d * u
         a = (L1 * L1 - L2 * L2 + d * d) / (2 * d)
         h = math.sqrt(max(L1 * L1 - a * a, 0.0))
         s = 1.0 if side == "left" else -1.0
-        pole = R @ np.array([-0.2, 0.5 * s, -1.0])          # elbow goes down, out and back
+        pole = R @ _POLE[side]                              # elbow goes down, out and back
         w = pole - (pole @ u) * u
-        nw = np.linalg.norm(w)
+        nw = math.sqrt(w.dot(w))
         w = w / nw if nw > 1e-9 else R @ np.array([0.0, s, 0.0])
         elbow = S + a * u + h * w
         return S, elbow, hand
@@ -276,7 +294,7 @@ class Person:
 
     def primitives_at(self, p: PersonPose, swing: float = 0.0) -> list[Primitive]:
         sh, n = self.shape, self.name
-        T = self.body_frame(p.xy, p.heading)
+        T = self._frame(p)
         R, o = T[:3, :3], T[:3, 3]
 
         def w(v):

@@ -17,6 +17,8 @@ such as the C-arm of :mod:`depthguard.sim.carm`.
 
 from __future__ import annotations
 
+import dataclasses
+
 from dataclasses import dataclass, field
 from typing import Callable, Sequence
 
@@ -113,6 +115,8 @@ class Scene:
                 if c.prop not in self.props:
                     raise ValueError(f"scene {name!r}: {person.name} carries unknown prop {c.prop!r}")
         self._mesh_cache: dict[tuple, Mesh] = {}
+        self._events: dict[str, list] = {}          # per prop its carries in time order (prop_pose)
+        self._prop_memo: dict[str, tuple] = {}      # per prop (pose key, solid) of the last props_at
         self._static_meshes = [p.mesh() for p in self.static]
         self._static_names = [p.name for p in self.static]
 
@@ -130,23 +134,55 @@ class Scene:
 
     def prop_pose(self, name: str, t: float) -> np.ndarray:
         """4x4 world pose of a prop at time ``t``: in the carrying hand, or where it was last put down."""
+        return self._prop_pose(name, t)[1]
+
+    def _prop_pose(self, name: str, t: float) -> tuple[tuple | None, np.ndarray]:
+        """``(key, pose)`` of :meth:`prop_pose`: the pose is the last carry begun by ``t`` (the hand
+        at ``min(t, its end)`` times its offset), else the prop's own; ``key`` names it (equal keys,
+        equal poses). The carries of a prop are listed once per scene (a prop is posed at every
+        simulated frame, issue 29)."""
         prop = self.props[name]
-        T = prop.pose0
-        events = sorted(((c.t0, c, person) for person in self.people for c in person.carries if c.prop == name),
-                        key=lambda e: e[0])
-        for t0, c, person in events:
+        events = self._events.get(name)
+        if events is None:
+            events = self._events[name] = sorted(
+                ((c.t0, c, person) for person in self.people for c in person.carries if c.prop == name),
+                key=lambda e: e[0])
+        last = None
+        for k, (t0, c, person) in enumerate(events):
             if t < t0:
                 break
-            tt = min(t, c.t1)
-            T = person.hand_frame(tt, c.hand) @ c.offset_matrix()
-        return T
+            last = k
+        if last is None:
+            return None, prop.pose0
+        _, c, person = events[last]
+        tt = min(t, c.t1)
+        return (last, tt), person.hand_frame(tt, c.hand) @ c.offset_matrix()
 
     def props_at(self, t: float) -> list[Primitive]:
         out = []
         for name, prop in self.props.items():
-            T = self.prop_pose(name, t) @ prop.shape.world_from_local
-            out.append(_renamed(prop.shape.at(T), name))
+            key, T = None, None
+            memo = self._prop_memo.get(name)
+            if memo is not None:
+                key = self._prop_key(name, t)
+                if key == memo[0]:
+                    out.append(memo[1])         # the same pose as the last time asked: the same solid
+                    continue
+            key, T = self._prop_pose(name, t)
+            solid = dataclasses.replace(prop.shape, world_from_local=T @ prop.shape.world_from_local, name=name)
+            self._prop_memo[name] = (key, solid)
+            out.append(solid)
         return out
+
+    def _prop_key(self, name: str, t: float) -> tuple | None:
+        """The ``key`` of :meth:`_prop_pose` without the pose (a prop lying still: no posing)."""
+        events = self._events[name]
+        last = None
+        for k, (t0, c, _) in enumerate(events):
+            if t < t0:
+                break
+            last = k
+        return None if last is None else (last, min(t, events[last][1].t1))
 
     def dynamic_at(self, t: float) -> list[Primitive]:
         """People's body parts and props at time ``t``."""

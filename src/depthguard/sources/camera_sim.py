@@ -90,8 +90,9 @@ class CameraSim:
         # the robot as the simulated cameras see it: its meshes clustered to SIM_CELL
         self.expected = {c.id: ExpectedDepth(c, robot, static, parallel=parallel, robot_cell=SIM_CELL) for c in cams}
         self.sims = {c.id: SimulatedCamera(c, seed=seed, noiseless=noiseless) for c in cams}
-        self._moving = {c.id: Renderer(c, parallel=parallel) for c in cams}
-        self._robot = {c.id: Renderer(c, parallel=parallel) for c in cams}     # the robot layer's own
+        # the layers need depth alone: on one core, depth-only renderers (Renderer ids=False)
+        self._moving = {c.id: Renderer(c, parallel=parallel, ids=parallel) for c in cams}
+        self._robot = {c.id: Renderer(c, parallel=parallel, ids=parallel) for c in cams}   # the robot layer's own
         # the robot's clustered links packed once; their world vertices posed once per joint
         # values, for every camera (RobotModel.render_link_vertices: the bits of render_link_meshes)
         self._robot_vw = self._robot_q = None

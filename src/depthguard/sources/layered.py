@@ -169,14 +169,22 @@ def _edge_general(zu, zm, zd, u, up, down, W, jump_abs, jump_rel):
     return e, oth
 
 
+@numba.njit(cache=True, nogil=True, inline="always")
+def _is_edge(zp, zq, jump_abs, jump_rel):
+    """Whether neighbour ``zq`` makes pixel ``zp`` an edge: :func:`_pick`'s ``is_e`` alone."""
+    return (not zq > 0.0) | (abs(zp - zq) > jump_abs + jump_rel * min(zp, zq))
+
+
 @numba.njit(cache=True, nogil=True)
-def _edges_span(zu, zm, zd, up, down, a, b, jump_abs, jump_rel, erow, orow):
+def _edges_span(zu, zm, zd, up, down, a, b, jump_abs, jump_rel, erow, orow, keep=True):
     """Edge test of pixels ``[a, b)`` of the row ``zm`` (W,) float64 m (0 = invalid: the composite
     as :func:`~depthguard.sources.frame_measure.depth_of` reads it), with the rows above / below ``zu``, ``zd`` (``up`` / ``down``:
     whether they exist), into ``erow`` (W,) uint8 and ``orow`` (W,) float32 m, as
     :func:`depthguard.sources.noise.depth_edges` (neighbours left, right, up, down; an image
     border has none); the interior pixels in a loop of selects (vector instructions).
-    Returns the span's ``(valid, edge)`` counts."""
+    ``keep`` False: ``orow`` is not written (a scratch row: only flying pixels read the depths
+    across the edges), and the interior pixels' loop tests the edges alone (the same flags,
+    half the work: issue 29). Returns the span's ``(valid, edge)`` counts."""
     W = zm.shape[0]
     ia = max(a, 1)
     ib = min(b, W - 1)
@@ -185,7 +193,16 @@ def _edges_span(zu, zm, zd, up, down, a, b, jump_abs, jump_rel, erow, orow):
         ib = b
     nv = 0
     ne = 0
-    for u in range(ia, ib):                   # interior pixels: four neighbours, no branches
+    if not keep:
+        for u in range(ia, ib):               # interior pixels, the flags alone (no depth across)
+            zp = zm[u]
+            ok = zp > 0.0
+            e = ok & (_is_edge(zp, zm[u - 1], jump_abs, jump_rel) | _is_edge(zp, zm[u + 1], jump_abs, jump_rel)
+                      | _is_edge(zp, zu[u], jump_abs, jump_rel) | _is_edge(zp, zd[u], jump_abs, jump_rel))
+            erow[u] = np.uint8(e)
+            nv += np.int64(ok)
+            ne += np.int64(e)
+    for u in range(ia, ib if keep else ia):   # interior pixels: four neighbours, no branches
         zp = zm[u]
         e, best, oth = _pick(zp, zm[u - 1], jump_abs, jump_rel, False, 0.0, 0.0)
         e, best, oth = _pick(zp, zm[u + 1], jump_abs, jump_rel, e, best, oth)
@@ -225,7 +242,7 @@ def static_edges(static, z, jump_abs, jump_rel, edge, other, valid_cum, edge_cum
             z[v, u] = depth_of(static[v, u])
     for v in range(H):
         _edges_span(z[max(v - 1, 0)], z[v], z[min(v + 1, H - 1)], v > 0, v < H - 1, 0, W, jump_abs, jump_rel,
-                    edge[v], other[v if other.shape[0] > 1 else 0])
+                    edge[v], other[v if other.shape[0] > 1 else 0], other.shape[0] > 1)
         valid_cum[v, 0] = 0
         edge_cum[v, 0] = 0
         for u in range(W):
@@ -335,7 +352,7 @@ def compose_edges(static, s_edge, s_other, s_valid_cum, s_edge_cum, robot, r_spa
             edge_row[v] = s_edge_cum[v, W]
             if b > a:
                 nv, ne = _edges_span(rows[(v + 2) % 3], rows[v % 3], rows[(v + 1) % 3], v > 0, v < H - 1, a, b,
-                                     jump_abs, jump_rel, edge[v], other[v if keep else 0])
+                                     jump_abs, jump_rel, edge[v], other[v if keep else 0], keep)
                 valid_row[v] += nv - (s_valid_cum[v, b] - s_valid_cum[v, a])
                 edge_row[v] += ne - (s_edge_cum[v, b] - s_edge_cum[v, a])
             n_valid += valid_row[v]

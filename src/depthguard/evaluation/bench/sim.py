@@ -26,6 +26,13 @@ default numba threads, the renders on one):
   list, the layer's window from its meshes and its spans scanned (``layer_window``,
   ``layer_spans``); the images and spans must be bit-identical. (Both posings use today's
   ``Person``, whose pose memo is part of the change: the peer understates the gain.)
+- ``sim.ur3_cell.sim_frame_cpu_ms``: CPU (``time.thread_time``, one numba thread) per frame of the
+  ``sim:ur3-cell`` source as a real-time run drives it (noise bank; ``frames_until`` every 5 ms
+  of run time from 2 s, the robot's joint ticks included): per frame the people and props
+  posed, the robot posed, its two layers rendered, composed with the static scene, noised and
+  measured, the Python glue included — what the source's thread pays per frame (issue 29: goal
+  <= 2.5 ms). Peer: the two layers' renders alone on the same frames (the same cameras, times
+  and joints), the floor of this design.
 - ``sim.c_arm_room.occupancy_5cm_ms``: ground-truth occupancy (R24) of the
   4 x 4 x 2.5 m room at 5 cm (80 x 80 x 50 voxels, centre rule), robot included
   (quick mode: 10 cm, ``occupancy_10cm_ms``).
@@ -80,6 +87,7 @@ def sim_group(ctx: BenchContext) -> list[BenchRow]:
 
     rows.append(_frame_cpu_row(cell, 20 if ctx.quick else 60))
     rows.append(_person_cpu_row(cell, 10 if ctx.quick else 30))
+    rows.append(_sim_frame_row(60 if ctx.quick else 240))
 
     # ground-truth occupancy of the c-arm room (quick mode: 10 cm voxels)
     room = load_cell("c-arm-room")
@@ -232,3 +240,46 @@ def _pose(scene, t: float) -> tuple[float, list]:
     c0 = time.thread_time()
     prims = scene.dynamic_at(t)
     return time.thread_time() - c0, prims
+
+
+def _sim_frame_row(n: int) -> BenchRow:
+    """``sim.ur3_cell.sim_frame_cpu_ms`` (module docstring) over ``n`` frames of the 4 cameras."""
+    import time
+
+    import numba
+
+    from depthguard.sources.sim_source import SimFrames, SimWorld
+
+    world = SimWorld("ur3-cell")
+    src = SimFrames(world)
+    src.use_noise_bank()
+    src.warm_up()
+    sim = src.sim
+    previous = numba.get_num_threads()
+    numba.set_num_threads(1)
+    try:
+        t, cpu, frames = 2.0 - 0.1, 0.0, []
+        src.frames_until(t)                     # the frames before 2 s, not timed
+        while len(frames) < n:
+            t += 0.005
+            c0 = time.thread_time()
+            got = src.frames_until(t)
+            cpu += time.thread_time() - c0
+            frames += got
+        renders = []
+        for f in frames:                        # the same frames' two layer renders, alone
+            q = world.history.at(f.stamp)
+            moving = src._posed.at(world.scene_time(f.stamp - world.origin))
+            vw = sim._robot_vertices(q)
+            c0 = time.thread_time()
+            sim._robot[f.camera_id].render_arrays(vw, sim._robot_faces, sim._robot_off)
+            if moving is not None:
+                sim._moving[f.camera_id].render_arrays(moving.vertices, moving.faces, moving.mesh_off)
+            renders.append(time.thread_time() - c0)
+    finally:
+        numba.set_num_threads(previous)
+    return BenchRow("sim.ur3_cell.sim_frame_cpu_ms", 1e3 * cpu / len(frames), "ms", None,
+                    "the two layers' renders alone", 1e3 * float(np.mean(renders)),
+                    f"sim:ur3-cell source per 640x480 D435 frame, real-time settings (noise bank), one numba "
+                    f"thread, thread CPU, mean of {len(frames)} frames (joint ticks and glue included); "
+                    f"goal <= 2.5 (issue 29)")
