@@ -283,3 +283,20 @@ def test_posing_memos_give_the_bits_of_the_plain_computation(name):
             moved += 1
         still += 1
     assert moved > 100 and still == 240
+
+
+def test_the_local_mesh_cache_is_bounded_and_keeps_what_is_in_use():
+    """A scene keeps at most ``MESH_CACHE_SIZE`` local meshes (a shape that varies per frame
+    would grow the cache without end over a long run), the least recently used going first; a
+    shape still in use is served from the cache (the same mesh object)."""
+    from depthguard.geometry.primitives import Box
+    from depthguard.sim import scene as scene_mod
+
+    sc = scene_mod.Scene([], name="cache")
+    kept = Box.from_bounds([0, 0, 0], [0.1, 0.1, 0.1], name="kept")
+    first = sc._local_mesh(kept)
+    for i in range(3 * scene_mod.MESH_CACHE_SIZE):
+        sc._local_mesh(Box.from_bounds([0, 0, 0], [0.2 + 1e-3 * i, 0.1, 0.1], name="varying"))
+        assert sc._local_mesh(kept) is first                   # in use: never evicted, never rebuilt
+    assert len(sc._mesh_cache) <= scene_mod.MESH_CACHE_SIZE
+    assert np.allclose(first.vertices.max(axis=0), [0.05, 0.05, 0.05])   # the box's own local mesh

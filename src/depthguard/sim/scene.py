@@ -32,6 +32,10 @@ from depthguard.sim.people import Person
 
 __all__ = ["Scene", "Prop", "JointPath"]
 
+#: local meshes kept per scene (distinct shapes: a scene's people and props have a few dozen;
+#: a shape that varies continuously would otherwise add one per frame)
+MESH_CACHE_SIZE = 256
+
 
 @dataclass
 class Prop:
@@ -114,7 +118,7 @@ class Scene:
             for c in person.carries:
                 if c.prop not in self.props:
                     raise ValueError(f"scene {name!r}: {person.name} carries unknown prop {c.prop!r}")
-        self._mesh_cache: dict[tuple, Mesh] = {}
+        self._mesh_cache: dict[tuple, Mesh] = {}     # shape key -> local mesh, least recently used first
         self._events: dict[str, list] = {}          # per prop its carries in time order (prop_pose)
         self._prop_memo: dict[str, tuple] = {}      # per prop (pose key, solid) of the last props_at
         self._static_meshes = [p.mesh() for p in self.static]
@@ -257,9 +261,13 @@ class Scene:
         key = (type(prim).__name__,) + tuple(
             hashable(getattr(prim, f.name))
             for f in dataclasses.fields(prim) if f.name not in ("world_from_local", "name", "_tm"))
-        m = self._mesh_cache.get(key)
+        cache = self._mesh_cache
+        m = cache.pop(key, None)
         if m is None:
-            m = self._mesh_cache[key] = prim.local_mesh()
+            m = prim.local_mesh()
+            if len(cache) >= MESH_CACHE_SIZE:        # shapes that vary (an arm's length per pose) would
+                del cache[next(iter(cache))]        # grow it without end over a long run: least recent out
+        cache[key] = m                              # (re)inserted: the most recent last
         return m
 
     # -------------------------------------------------------- ground truth
