@@ -20,7 +20,8 @@ The memo is the tuple ``kmemo = (kver, kstamp, kdone, kclr)``:
   ``g >> 6``: slice ``g`` of that column evaluated for camera ``k`` / cleared by it.
 
 Each bit is exactly :func:`~depthguard.fusion.depth_grid_kernels.cell_cleared`
-for that one camera (cell by cell, or a whole stretch at once where the
+for that one camera on the cell ``[d_min + g delta_d, d_min + (g + 1) delta_d]`` (each
+boundary one float, so neighbouring cells share its cross-section) (cell by cell, or a whole stretch at once where the
 camera's min / max pyramids prove it cleared / confirmed, an exact shortcut),
 so a cell's class equals the eager runs'
 (:func:`~depthguard.fusion.depth_grid_eager.column_runs`).
@@ -28,11 +29,12 @@ so a cell's class equals the eager runs'
 
 from __future__ import annotations
 
+import math
+
 import numpy as np
 from numba import njit
 
-from depthguard.fusion.depth_grid_kernels import (_box_max, _box_min, _cleared_by_sections, _section,
-                                                  cell_footprint)
+from depthguard.fusion.depth_grid_kernels import _H, _W, _box_max, _box_min, _cleared_by_sections, _section
 
 __all__ = ["new_memo", "gray_stretch", "mask_range", "msb"]
 
@@ -106,15 +108,26 @@ def _next_todo(obits, kdone, k, v, u, lo, hi):
 
 
 @njit(cache=True, inline="always")
-def _range_one(kpmin, kpmax, koff, kdims, rays, origins, kint, k, gx, gy, d1, d2):
-    """Camera ``k`` alone on the piece ``[d1, d2]`` of column ``(gx, gy)``: 1 = clears every
+def _range_sections(kpmin, kpmax, koff, kdims, kint, k, s1, s2):
+    """Camera ``k`` alone on a piece of a column given by its near and far cross-sections
+    (:func:`~depthguard.fusion.depth_grid_kernels._section`; the footprint is their union, the
+    arithmetic of :func:`~depthguard.fusion.depth_grid_kernels.cell_footprint`): 1 = clears every
     cell in it, 2 = clears none (sees it whole, everything behind its free depth), 0 = unknown."""
-    seen, u0, u1, v0, v1, zmin, zmax = cell_footprint(rays, origins, kint, k, gx, gy, d1, d2)
-    if not seen:
+    if not (s1[0] and s2[0]):
         return 0
-    if _box_min(kpmin[k], koff[k], kdims[k], u0, u1, v0, v1) > zmax:
+    pumin = min(s1[1], s2[1])
+    pumax = max(s1[2], s2[2])
+    pvmin = min(s1[3], s2[3])
+    pvmax = max(s1[4], s2[4])
+    if not (pumin >= -0.5 and pumax < kint[k, _W] - 0.5 and pvmin >= -0.5 and pvmax < kint[k, _H] - 0.5):
+        return 0
+    u0 = int(math.floor(pumin + 0.5))
+    u1 = int(math.floor(pumax + 0.5))
+    v0 = int(math.floor(pvmin + 0.5))
+    v1 = int(math.floor(pvmax + 0.5))
+    if _box_min(kpmin[k], koff[k], kdims[k], u0, u1, v0, v1) > max(s1[6], s2[6]):
         return 1
-    if _box_max(kpmax[k], koff[k], kdims[k], u0, u1, v0, v1) < zmin:
+    if _box_max(kpmax[k], koff[k], kdims[k], u0, u1, v0, v1) < min(s1[5], s2[5]):
         return 2
     return 0
 
@@ -124,17 +137,18 @@ def _camera_stretch(kfree, kpmin, kpmax, koff, kdims, rays, origins, kint, nk, k
                     kdone, kclr):
     """Evaluate ``cleared_k`` for slices ``g0..g1`` of column ``(u, v)`` and set their bits:
     stretches settled from camera ``k``'s pyramids where they can be (growing after a
-    success, shrinking after a failure), the rest cell by cell (with one other camera,
-    consecutive cells share a cross-section: 4 corners per cell, not 8)."""
+    success, shrinking after a failure), the rest cell by cell. Every piece is bounded by
+    the cross-sections at ``dmin + g * dd`` (one float per boundary ``g``), so a boundary's
+    cross-section is projected once and shared by the pieces on both sides of it: 4 corners
+    per cell or stretch test, not 8."""
     span_next = 64
-    sec_g = g0 - 1
-    sec = (False, 0.0, 0.0, 0.0, 0.0, 0.0, 0.0)
+    sec = _section(rays, origins, kint, k, u, v, dmin + g0 * dd)      # at boundary g (near end)
     g = g0
     while g <= g1:
-        d1 = dmin + g * dd
         span = min(span_next, g1 - g + 1)
         if span > 1:
-            r = _range_one(kpmin, kpmax, koff, kdims, rays, origins, kint, k, u, v, d1, dmin + (g + span) * dd)
+            far = _section(rays, origins, kint, k, u, v, dmin + (g + span) * dd)
+            r = _range_sections(kpmin, kpmax, koff, kdims, kint, k, sec, far)
             if r != 0:
                 h = g + span - 1
                 for w in range(g >> 6, (h >> 6) + 1):
@@ -143,21 +157,19 @@ def _camera_stretch(kfree, kpmin, kpmax, koff, kdims, rays, origins, kint, nk, k
                     if r == 1:
                         kclr[k, v, u, w] = kclr[k, v, u, w] | m
                 span_next = min(2 * span, 256)
+                sec = far
                 g = h + 1
                 continue
             span_next = max(span // 4, 1)
         else:
             span_next = min(span_next * 2, 8)
-        d2 = d1 + dd
-        s1 = sec if (nk == 1 and sec_g == g) else _section(rays, origins, kint, k, u, v, d1)
-        s2 = _section(rays, origins, kint, k, u, v, d2)
-        sec = s2
-        sec_g = g + 1
+        s2 = _section(rays, origins, kint, k, u, v, dmin + (g + 1) * dd)
         w = g >> 6
         b = _ONE << np.uint64(g & 63)
         kdone[k, v, u, w] = kdone[k, v, u, w] | b
-        if _cleared_by_sections(kfree, kint, k, s1, s2):
+        if _cleared_by_sections(kfree, kint, k, sec, s2):
             kclr[k, v, u, w] = kclr[k, v, u, w] | b
+        sec = s2
         g += 1
 
 
