@@ -34,7 +34,8 @@ import math
 import numpy as np
 from numba import njit
 
-from depthguard.fusion.depth_grid_kernels import _H, _W, _box_max, _box_min, _cleared_by_sections, _section
+from depthguard.fusion.depth_grid_kernels import (_CX, _CY, _FX, _FY, _H, _W, _box_max, _box_min,
+                                                  _cleared_by_sections, _section)
 
 __all__ = ["new_memo", "gray_stretch", "mask_range", "msb"]
 
@@ -132,21 +133,59 @@ def _range_sections(kpmin, kpmax, koff, kdims, kint, k, s1, s2):
     return 0
 
 
+# margins of :func:`_centre_blocks` (pixels, metres): far above the rounding of the projections
+# (~1e-12 px, ~1e-15 m), so the centre's pixel and depth bound the corners' exactly
+_PX_MARGIN = 1e-6
+_Z_MARGIN = 1e-9
+
+
+@njit(cache=True, inline="always")
+def _centre_blocks(kfree, rays, origins, kint, k, u, v, dc):
+    """Exact shortcut for a cell camera ``k`` does not clear (R12): the cell's centre (principal
+    pixel ``(u, v)``'s centre ray at depth ``dc``, the mean of its 4 corner rays) projects into
+    pixel ``(iu, iv)`` of ``k`` with depth ``zc``; when ``kfree[k, iv, iu] <= zc``, that pixel —
+    inside the cell's footprint, the centre being inside the cell — is not free beyond
+    ``dend_k >= zc``, so :func:`~depthguard.fusion.depth_grid_kernels.cell_cleared` is False for
+    ``k`` whether or not ``k`` sees the cell whole. One point projected instead of the cell's
+    cross-sections; False = no conclusion (then the full rule). The margins keep the
+    conclusion exact where the centre's pixel or depth sits within rounding of a bound."""
+    rx = 0.25 * ((rays[k, v, u, 0] + rays[k, v, u + 1, 0]) + (rays[k, v + 1, u, 0] + rays[k, v + 1, u + 1, 0]))
+    ry = 0.25 * ((rays[k, v, u, 1] + rays[k, v, u + 1, 1]) + (rays[k, v + 1, u, 1] + rays[k, v + 1, u + 1, 1]))
+    rz = 0.25 * ((rays[k, v, u, 2] + rays[k, v, u + 1, 2]) + (rays[k, v + 1, u, 2] + rays[k, v + 1, u + 1, 2]))
+    Z = origins[k, 2] + dc * rz
+    if not Z > _Z_MARGIN:
+        return False
+    pu = (origins[k, 0] + dc * rx) * kint[k, _FX] / Z + kint[k, _CX]
+    pv = (origins[k, 1] + dc * ry) * kint[k, _FY] / Z + kint[k, _CY]
+    fu = math.floor(pu + 0.5)
+    fv = math.floor(pv + 0.5)
+    if not (fu >= 0.0 and fu < kint[k, _W] and fv >= 0.0 and fv < kint[k, _H]):
+        return False
+    if abs(pu - fu) > 0.5 - _PX_MARGIN or abs(pv - fv) > 0.5 - _PX_MARGIN:
+        return False
+    return kfree[k, int(fv), int(fu)] <= Z - _Z_MARGIN
+
+
 @njit(cache=True, nogil=True)
 def _camera_stretch(kfree, kpmin, kpmax, koff, kdims, rays, origins, kint, nk, k, u, v, g0, g1, dmin, dd,
                     kdone, kclr):
     """Evaluate ``cleared_k`` for slices ``g0..g1`` of column ``(u, v)`` and set their bits:
     stretches settled from camera ``k``'s pyramids where they can be (growing after a
-    success, shrinking after a failure), the rest cell by cell. Every piece is bounded by
-    the cross-sections at ``dmin + g * dd`` (one float per boundary ``g``), so a boundary's
-    cross-section is projected once and shared by the pieces on both sides of it: 4 corners
-    per cell or stretch test, not 8."""
+    success, shrinking after a failure), the rest cell by cell — first by the cell's centre
+    (:func:`_centre_blocks`: most cells left to this are ones ``k`` does not clear), else by
+    the cell's footprint. Every piece is bounded by the cross-sections at ``dmin + g * dd``
+    (one float per boundary ``g``), so a boundary's cross-section is projected once and shared
+    by the pieces on both sides of it: 4 corners per cell or stretch test, not 8."""
     span_next = 64
-    sec = _section(rays, origins, kint, k, u, v, dmin + g0 * dd)      # at boundary g (near end)
+    sec_g = g0 - 1          # the boundary whose cross-section ``sec`` holds (none yet)
+    sec = (False, 0.0, 0.0, 0.0, 0.0, 0.0, 0.0)
     g = g0
     while g <= g1:
         span = min(span_next, g1 - g + 1)
         if span > 1:
+            if sec_g != g:
+                sec = _section(rays, origins, kint, k, u, v, dmin + g * dd)
+                sec_g = g
             far = _section(rays, origins, kint, k, u, v, dmin + (g + span) * dd)
             r = _range_sections(kpmin, kpmax, koff, kdims, kint, k, sec, far)
             if r != 0:
@@ -158,18 +197,23 @@ def _camera_stretch(kfree, kpmin, kpmax, koff, kdims, rays, origins, kint, nk, k
                         kclr[k, v, u, w] = kclr[k, v, u, w] | m
                 span_next = min(2 * span, 256)
                 sec = far
+                sec_g = h + 1
                 g = h + 1
                 continue
             span_next = max(span // 4, 1)
         else:
             span_next = min(span_next * 2, 8)
-        s2 = _section(rays, origins, kint, k, u, v, dmin + (g + 1) * dd)
         w = g >> 6
         b = _ONE << np.uint64(g & 63)
         kdone[k, v, u, w] = kdone[k, v, u, w] | b
-        if _cleared_by_sections(kfree, kint, k, sec, s2):
-            kclr[k, v, u, w] = kclr[k, v, u, w] | b
-        sec = s2
+        if not _centre_blocks(kfree, rays, origins, kint, k, u, v, dmin + (g + 0.5) * dd):
+            if sec_g != g:
+                sec = _section(rays, origins, kint, k, u, v, dmin + g * dd)
+            s2 = _section(rays, origins, kint, k, u, v, dmin + (g + 1) * dd)
+            if _cleared_by_sections(kfree, kint, k, sec, s2):
+                kclr[k, v, u, w] = kclr[k, v, u, w] | b
+            sec = s2
+            sec_g = g + 1
         g += 1
 
 
