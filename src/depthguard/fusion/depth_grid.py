@@ -205,7 +205,7 @@ class DepthGridMap(GridRobot, GridQuery):
         d1 = self.d_min + gd * self.delta_d
         seen, u0, u1, v0, v1, zmin, zmax = depth_grid_kernels.cell_footprint(self.rays, self.origins, self._kint,
                                                             ids.index(camera_id), gx, gy, d1,
-                                                            d1 + self.delta_d)
+                                                            self.d_min + (gd + 1) * self.delta_d)
         if not seen:
             return np.zeros((0, 2), dtype=np.int64), float("nan"), float("nan")
         uu, vv = np.meshgrid(np.arange(u0, u1 + 1), np.arange(v0, v1 + 1))

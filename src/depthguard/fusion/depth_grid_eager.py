@@ -112,8 +112,9 @@ def column_runs(pfree, pkind, pint, dmin, dd, nd, kfree, kpmin, kpmax, koff, kdi
                         # one stretch test per miss, its length shrinking fast: the cost
                         # stays within a small factor of the cell-by-cell test
                         span_next = max(span // 4, 1) if span > 1 else min(span_next * 2, 8)
-                        obst, sec, sec_g = _confirmed_cell(kfree, rays, origins, kint, nk, u, v, g, d1, d2,
-                                                           sec, sec_g)
+                        # the far boundary as the next cell's near one (one float per boundary)
+                        obst, sec, sec_g = _confirmed_cell(kfree, rays, origins, kint, nk, u, v, g, d1,
+                                                           dmin + (g + 1) * dd, sec, sec_g)
                 if obst:
                     if in_run:
                         runs[v, u, nr - 1, 1] = g

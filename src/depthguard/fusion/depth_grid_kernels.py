@@ -427,7 +427,8 @@ def _cleared_by_sections(kfree, kint, k, s1, s2):
 
 @njit(cache=True, inline="always")
 def _confirmed_cell(kfree, rays, origins, kint, nk, u, v, g, d1, d2, sec, sec_g):
-    """Is cell ``g`` (depths ``[d1, d2]``) of principal pixel ``(u, v)`` confirmed, i.e. not
+    """Is cell ``g`` (depths ``[d1, d2]`` with ``d1 = dmin + g * dd``, ``d2 = dmin + (g + 1) * dd``:
+    one float per boundary, the lazy form's) of principal pixel ``(u, v)`` confirmed, i.e. not
     cleared by the other cameras (R12)? Returns ``(obstacle, sec, sec_g)``: with one other
     camera, consecutive cells share a cross-section, so the far one (``sec``, valid for cell
     ``sec_g``) is kept and only 4 corners are projected per cell, not 8."""

@@ -20,7 +20,8 @@ The memo is the tuple ``kmemo = (kver, kstamp, kdone, kclr)``:
   ``g >> 6``: slice ``g`` of that column evaluated for camera ``k`` / cleared by it.
 
 Each bit is exactly :func:`~depthguard.fusion.depth_grid_kernels.cell_cleared`
-for that one camera (cell by cell, or a whole stretch at once where the
+for that one camera on the cell ``[d_min + g delta_d, d_min + (g + 1) delta_d]`` (each
+boundary one float, so neighbouring cells share its cross-section) (cell by cell, or a whole stretch at once where the
 camera's min / max pyramids prove it cleared / confirmed, an exact shortcut),
 so a cell's class equals the eager runs'
 (:func:`~depthguard.fusion.depth_grid_eager.column_runs`).
@@ -28,11 +29,13 @@ so a cell's class equals the eager runs'
 
 from __future__ import annotations
 
+import math
+
 import numpy as np
 from numba import njit
 
-from depthguard.fusion.depth_grid_kernels import (_box_max, _box_min, _cleared_by_sections, _section,
-                                                  cell_footprint)
+from depthguard.fusion.depth_grid_kernels import (_CX, _CY, _FX, _FY, _H, _W, _box_max, _box_min,
+                                                  _cleared_by_sections, _section)
 
 __all__ = ["new_memo", "gray_stretch", "mask_range", "msb"]
 
@@ -106,17 +109,61 @@ def _next_todo(obits, kdone, k, v, u, lo, hi):
 
 
 @njit(cache=True, inline="always")
-def _range_one(kpmin, kpmax, koff, kdims, rays, origins, kint, k, gx, gy, d1, d2):
-    """Camera ``k`` alone on the piece ``[d1, d2]`` of column ``(gx, gy)``: 1 = clears every
+def _range_sections(kpmin, kpmax, koff, kdims, kint, k, s1, s2):
+    """Camera ``k`` alone on a piece of a column given by its near and far cross-sections
+    (:func:`~depthguard.fusion.depth_grid_kernels._section`; the footprint is their union, the
+    arithmetic of :func:`~depthguard.fusion.depth_grid_kernels.cell_footprint`): 1 = clears every
     cell in it, 2 = clears none (sees it whole, everything behind its free depth), 0 = unknown."""
-    seen, u0, u1, v0, v1, zmin, zmax = cell_footprint(rays, origins, kint, k, gx, gy, d1, d2)
-    if not seen:
+    if not (s1[0] and s2[0]):
         return 0
-    if _box_min(kpmin[k], koff[k], kdims[k], u0, u1, v0, v1) > zmax:
+    pumin = min(s1[1], s2[1])
+    pumax = max(s1[2], s2[2])
+    pvmin = min(s1[3], s2[3])
+    pvmax = max(s1[4], s2[4])
+    if not (pumin >= -0.5 and pumax < kint[k, _W] - 0.5 and pvmin >= -0.5 and pvmax < kint[k, _H] - 0.5):
+        return 0
+    u0 = int(math.floor(pumin + 0.5))
+    u1 = int(math.floor(pumax + 0.5))
+    v0 = int(math.floor(pvmin + 0.5))
+    v1 = int(math.floor(pvmax + 0.5))
+    if _box_min(kpmin[k], koff[k], kdims[k], u0, u1, v0, v1) > max(s1[6], s2[6]):
         return 1
-    if _box_max(kpmax[k], koff[k], kdims[k], u0, u1, v0, v1) < zmin:
+    if _box_max(kpmax[k], koff[k], kdims[k], u0, u1, v0, v1) < min(s1[5], s2[5]):
         return 2
     return 0
+
+
+# margins of :func:`_centre_blocks` (pixels, metres): far above the rounding of the projections
+# (~1e-12 px, ~1e-15 m), so the centre's pixel and depth bound the corners' exactly
+_PX_MARGIN = 1e-6
+_Z_MARGIN = 1e-9
+
+
+@njit(cache=True, inline="always")
+def _centre_blocks(kfree, rays, origins, kint, k, u, v, dc):
+    """Exact shortcut for a cell camera ``k`` does not clear (R12): the cell's centre (principal
+    pixel ``(u, v)``'s centre ray at depth ``dc``, the mean of its 4 corner rays) projects into
+    pixel ``(iu, iv)`` of ``k`` with depth ``zc``; when ``kfree[k, iv, iu] <= zc``, that pixel —
+    inside the cell's footprint, the centre being inside the cell — is not free beyond
+    ``dend_k >= zc``, so :func:`~depthguard.fusion.depth_grid_kernels.cell_cleared` is False for
+    ``k`` whether or not ``k`` sees the cell whole. One point projected instead of the cell's
+    cross-sections; False = no conclusion (then the full rule). The margins keep the
+    conclusion exact where the centre's pixel or depth sits within rounding of a bound."""
+    rx = 0.25 * ((rays[k, v, u, 0] + rays[k, v, u + 1, 0]) + (rays[k, v + 1, u, 0] + rays[k, v + 1, u + 1, 0]))
+    ry = 0.25 * ((rays[k, v, u, 1] + rays[k, v, u + 1, 1]) + (rays[k, v + 1, u, 1] + rays[k, v + 1, u + 1, 1]))
+    rz = 0.25 * ((rays[k, v, u, 2] + rays[k, v, u + 1, 2]) + (rays[k, v + 1, u, 2] + rays[k, v + 1, u + 1, 2]))
+    Z = origins[k, 2] + dc * rz
+    if not Z > _Z_MARGIN:
+        return False
+    pu = (origins[k, 0] + dc * rx) * kint[k, _FX] / Z + kint[k, _CX]
+    pv = (origins[k, 1] + dc * ry) * kint[k, _FY] / Z + kint[k, _CY]
+    fu = math.floor(pu + 0.5)
+    fv = math.floor(pv + 0.5)
+    if not (fu >= 0.0 and fu < kint[k, _W] and fv >= 0.0 and fv < kint[k, _H]):
+        return False
+    if abs(pu - fu) > 0.5 - _PX_MARGIN or abs(pv - fv) > 0.5 - _PX_MARGIN:
+        return False
+    return kfree[k, int(fv), int(fu)] <= Z - _Z_MARGIN
 
 
 @njit(cache=True, nogil=True)
@@ -124,17 +171,23 @@ def _camera_stretch(kfree, kpmin, kpmax, koff, kdims, rays, origins, kint, nk, k
                     kdone, kclr):
     """Evaluate ``cleared_k`` for slices ``g0..g1`` of column ``(u, v)`` and set their bits:
     stretches settled from camera ``k``'s pyramids where they can be (growing after a
-    success, shrinking after a failure), the rest cell by cell (with one other camera,
-    consecutive cells share a cross-section: 4 corners per cell, not 8)."""
+    success, shrinking after a failure), the rest cell by cell — first by the cell's centre
+    (:func:`_centre_blocks`: most cells left to this are ones ``k`` does not clear), else by
+    the cell's footprint. Every piece is bounded by the cross-sections at ``dmin + g * dd``
+    (one float per boundary ``g``), so a boundary's cross-section is projected once and shared
+    by the pieces on both sides of it: 4 corners per cell or stretch test, not 8."""
     span_next = 64
-    sec_g = g0 - 1
+    sec_g = g0 - 1          # the boundary whose cross-section ``sec`` holds (none yet)
     sec = (False, 0.0, 0.0, 0.0, 0.0, 0.0, 0.0)
     g = g0
     while g <= g1:
-        d1 = dmin + g * dd
         span = min(span_next, g1 - g + 1)
         if span > 1:
-            r = _range_one(kpmin, kpmax, koff, kdims, rays, origins, kint, k, u, v, d1, dmin + (g + span) * dd)
+            if sec_g != g:
+                sec = _section(rays, origins, kint, k, u, v, dmin + g * dd)
+                sec_g = g
+            far = _section(rays, origins, kint, k, u, v, dmin + (g + span) * dd)
+            r = _range_sections(kpmin, kpmax, koff, kdims, kint, k, sec, far)
             if r != 0:
                 h = g + span - 1
                 for w in range(g >> 6, (h >> 6) + 1):
@@ -143,21 +196,24 @@ def _camera_stretch(kfree, kpmin, kpmax, koff, kdims, rays, origins, kint, nk, k
                     if r == 1:
                         kclr[k, v, u, w] = kclr[k, v, u, w] | m
                 span_next = min(2 * span, 256)
+                sec = far
+                sec_g = h + 1
                 g = h + 1
                 continue
             span_next = max(span // 4, 1)
         else:
             span_next = min(span_next * 2, 8)
-        d2 = d1 + dd
-        s1 = sec if (nk == 1 and sec_g == g) else _section(rays, origins, kint, k, u, v, d1)
-        s2 = _section(rays, origins, kint, k, u, v, d2)
-        sec = s2
-        sec_g = g + 1
         w = g >> 6
         b = _ONE << np.uint64(g & 63)
         kdone[k, v, u, w] = kdone[k, v, u, w] | b
-        if _cleared_by_sections(kfree, kint, k, s1, s2):
-            kclr[k, v, u, w] = kclr[k, v, u, w] | b
+        if not _centre_blocks(kfree, rays, origins, kint, k, u, v, dmin + (g + 0.5) * dd):
+            if sec_g != g:
+                sec = _section(rays, origins, kint, k, u, v, dmin + g * dd)
+            s2 = _section(rays, origins, kint, k, u, v, dmin + (g + 1) * dd)
+            if _cleared_by_sections(kfree, kint, k, sec, s2):
+                kclr[k, v, u, w] = kclr[k, v, u, w] | b
+            sec = s2
+            sec_g = g + 1
         g += 1
 
 

@@ -217,8 +217,9 @@ def grid_distances_numpy(principal: Camera, others: list[Camera], pfree, pkind, 
         check = cand & gray & ingrid
         cleared = np.zeros_like(cand)
         if others and check.any():
+            # the cell's far boundary as its next cell's near one (the kernels' float)
             cleared[check] = cleared_numpy(principal, others, kfree, U[check], V[check],
-                                           d1[check], d2[check])
+                                           d1[check], (d_min + (G + 1) * delta_d)[check])
         obst = cand & (direct | ~cleared)
         if capsules and obst.any():
             centres = principal.depth_space_to_world(
