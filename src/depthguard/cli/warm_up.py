@@ -159,18 +159,19 @@ def _check_path(cell: str) -> None:
 
 #: (name, callable, args), in the order the processes take them. The first two hold the large
 #: kernels of the monitor's path and wait for nothing the other compiles (the monitor's job: the
-#: frame and cells' classification; the grid job: the lookup). Then, while the monitor's job still
-#: compiles, the jobs that need none of its kernels (the scenes' render, the placement; a closed-loop
-#: run's simulator compiles its own render first); last the ones that run the monitor, whose kernels
-#: are in the cache by then. A process that reaches a kernel the other one is compiling waits for it
-#: (compile_locks): a core idle (measured from an empty cache before this order: the monitor's job
-#: waited 250 of its 418 s for the grid job's two kernels).
+#: frame and cells' classification; the grid job: the lookup). The grid job ends first: then the
+#: closed-loop run, whose simulator compiles its own render and edges (about 55 CPU-s) before it
+#: reaches the monitor's kernels, in the cache by then; the small jobs fill in after the monitor's
+#: job. A process that reaches a kernel the other one is compiling waits for it (compile_locks):
+#: a core idle. Measured from an empty cache (2 cores, load 4-8 from other work): with the grid
+#: job classifying its own frames the monitor's job waited 250 of its 418 s for it; with the run
+#: after the small jobs it started only once the monitor's job ended and ran alone at the end.
 JOBS: list[tuple[str, object, tuple]] = [
     ("monitor flacco-cell", _monitor, ("flacco-cell",)),
     ("grid query on one thread, flacco-cell", _grid_one_thread, ("flacco-cell",)),
+    ("run reach 0.3 s", _cli, ("run", "-s", "reach", "--duration", "0.3", "-o", "{tmp}/run", "--quiet")),
     ("scenes render flacco-cell", _cli, ("scenes", "render", "flacco-cell", "--out", "{tmp}/render")),
     ("placement c-arm-room", _cli, ("placement", "--cell", "c-arm-room", "--no-improve")),
-    ("run reach 0.3 s", _cli, ("run", "-s", "reach", "--duration", "0.3", "-o", "{tmp}/run", "--quiet")),
     ("check-path flacco-cell", _check_path, ("flacco-cell",)),
     ("record 0.2 s and monitor the bag, flacco-cell", _bag_replay, ("flacco-cell",)),
     ("run reach ssm 0.3 s", _cli, ("run", "-s", "reach", "--reaction", "ssm", "--duration", "0.3", "-o", "{tmp}/run",
