@@ -100,7 +100,8 @@ def test_frame_state_equals_twin(rng):
     for inv, rf in (("unknown", False), ("free", True)):
         free = np.empty(cam.shape)
         kind = np.empty(cam.shape, dtype=np.int8)
-        depth_grid_kernels.frame_state(depth, robot, True, cam.min_range, cam.max_range, 0.03, inv == "free", rf, free, kind)
+        depth_grid_kernels.frame_state(depth, robot, True, cam.min_range, cam.max_range, 0.03, inv == "free", rf, free, kind,
+                                         None, None)
         f2, k2 = ref.frame_state_numpy(cam, depth, robot, 0.03, inv, rf)
         np.testing.assert_array_equal(free, f2)
         np.testing.assert_array_equal(kind, k2)

@@ -166,7 +166,7 @@ def test_frame_state_and_start_depth_equal_twins_with_beyond_range_and_gaps(rng)
     d = np.full((H, W), 6.0, np.float32)
     free = np.empty((H, W))
     kind = np.empty((H, W), np.int8)
-    depth_grid_kernels.frame_state(d, robot, False, cam.min_range, cam.max_range, 0.03, True, False, free, kind)
+    depth_grid_kernels.frame_state(d, robot, False, cam.min_range, cam.max_range, 0.03, True, False, free, kind, None, None)
     assert np.all(np.isinf(free)) and np.all(kind == depth_grid_kernels.KIND_UNKNOWN)
     d0 = np.empty((H, W))
     DK.obstacle_start_depth(d, robot, False, cam.min_range, cam.max_range, DK.INVALID_FREE, DK.ROBOT_DROP,

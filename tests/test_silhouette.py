@@ -134,7 +134,7 @@ def test_frame_state_and_start_depth_equal_twins(rng):
             free = np.empty((H, W))
             kind = np.empty((H, W), dtype=np.int8)
             depth_grid_kernels.frame_state(depth, robot, True, cam.min_range, cam.max_range, 0.03, inv == "free", rf,
-                          free, kind, sil)
+                          free, kind, sil, None)
             f2, k2 = ref.frame_state_numpy(cam, depth, robot, 0.03, inv, rf, silhouette_px=n)
             np.testing.assert_array_equal(free, f2)
             np.testing.assert_array_equal(kind, k2)

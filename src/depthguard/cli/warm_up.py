@@ -14,6 +14,11 @@ processes 127 and 121 CPU-seconds (255 CPU-s user + sys in all), where the monit
 alone takes 170 CPU-s in one process; again with the cache warm (loads only): 23 CPU-s in all.
 With the bag replay and the scenes' render added (9 jobs; load 5-12): 330 CPU-s, 601 s; the two
 new jobs 11 CPU-s, taken by the process that finished first while the other still compiled.
+With the grid job given its frames' states and the jobs in :data:`JOBS`' order (empty cache,
+load 1.3): 126.9 s, the processes' jobs 121 and 124 s end to end with as many CPU-s (nothing
+waited for the other). Before (the grid job classified its own frames first; load 4-6): 576 s,
+the monitor's job 418 s for 93 CPU-s (it waited for the grid job's two kernels), the run's ssm
+twin 87 s for 7 CPU-s (it waited for the run's).
 """
 
 from __future__ import annotations
@@ -46,37 +51,75 @@ def _monitor(cell: str) -> None:
         warm_up(rig, rig.monitor, timeout=3600.0)
 
 
-def _grid_one_thread(cell: str) -> None:
-    """The lazy depth grid of a built-in cell queried from one thread on flat frames, as the
-    monitor's distance thread queries a frame the fusion has already classified (the lookup
-    classifies what is still missing): the other large kernel of the monitor's path, compiled
-    while :func:`_monitor` compiles the classification. (The first query of a frame classifies
-    first; marking the frame queried skips that here, the one use of the grid's insides: were it
-    renamed, this job would compile both kernels, one after the other, and nothing else change.)"""
-    import numba
+def _flat_states(grid, depth: float, options) -> dict:
+    """Per-pixel states (:class:`~depthguard.fusion.depth_grid_state.CameraState`) of flat frames at
+    ``depth`` m for every camera of ``grid``, as the monitor's camera workers hand them to
+    ``set_frames(states=...)``: every ray a surface at ``depth`` (a valid return within range, no
+    robot pixel), the principal at the grid's ``principal_bin``. With them ``set_frames`` classifies
+    no pixel, so this job does not compile the frame classification (R29)."""
+    from depthguard.fusion.depth_grid_kernels import KIND_SURFACE
+    from depthguard.fusion.depth_grid_state import CameraState
 
+    def state(cam, b: int, robot_free: bool) -> CameraState:
+        return CameraState(np.full(cam.shape, depth, np.float64), np.full(cam.shape, KIND_SURFACE, np.int8),
+                           options, robot_free, bin=b)
+
+    states = {grid.principal.id: state(grid.principal, grid.principal_bin, False)}
+    for cam in grid.others:
+        states[cam.id] = state(cam, 1, options.robot_in_others == "free")
+    return states
+
+
+def _flat_grid(cell: str, states: bool = True):
+    """``(grid, points, config)``: the lazy depth grid of a built-in cell (None where it has fewer
+    than two cameras) loaded with flat frames halfway through its depth span, and points to query
+    (the ends of the robot's first capsule at its start joints). ``states``: hand the frames'
+    per-pixel states in (:func:`_flat_states`) rather than let ``set_frames`` work them out."""
     from depthguard.fusion.depth_grid import DepthGridMap
+    from depthguard.fusion.depth_grid_state import StateOptions
     from depthguard.sim import load_cell
 
     rig = load_cell(cell).rig
     cfg = rig.monitor
     cams = [rig.camera(c) for c in rig.camera_ids]
     if len(cams) < 2:
-        return
+        return None, None, cfg
     d_min, d_max = rig.workspace.depth_span(cams[0])
     grid = DepthGridMap(cams, principal=cams[0].id, d_min=d_min, d_max=d_max, delta_d=cfg.delta_d,
                         principal_bin=cfg.principal_bin)
     q0 = np.asarray(rig.robot_q0, dtype=np.float64)
-    depths = {c.id: np.full((c.height, c.width), 0.5 * (d_min + d_max), np.float32) for c in cams}
+    d = float(np.float32(0.5 * (d_min + d_max)))          # as the float32 frames hold it
+    depths = {c.id: np.full((c.height, c.width), d, np.float32) for c in cams}
     caps = rig.robot.collision_segments(q0, 0.05)
-    grid.set_frames(depths, robot_capsules=caps, silhouette_px=cfg.silhouette_px)
+    o = StateOptions.of(cfg)
+    grid.set_frames(depths, robot_capsules=caps, robot_offset=o.robot_offset, invalid=o.invalid,
+                    robot_in_others=o.robot_in_others, silhouette_px=o.silhouette_px, gap_px=o.gap_px,
+                    states=_flat_states(grid, d, o) if states else None)
+    return grid, np.asarray(caps[0][:4], dtype=np.float64).reshape(-1, 3), cfg
+
+
+def _grid_one_thread(cell: str) -> None:
+    """The lazy depth grid of a built-in cell queried from one thread on flat frames, as the
+    monitor's distance thread queries a frame the fusion has already classified (the lookup
+    classifies what is still missing): the largest kernel of the monitor's path, compiled first
+    thing while :func:`_monitor` compiles the frame classification and the cells' classification.
+    The frames' states are handed in (:func:`_flat_states`), so this job waits for no kernel the
+    other process compiles (measured from an empty cache: with ``set_frames`` working them out it
+    compiled the frame classification first, 53 CPU-s, while the monitor's job waited for it).
+    (The first query of a frame classifies first; marking the frame queried skips that here, the
+    one use of the grid's insides: were it renamed, this job would compile both kernels, one after
+    the other, and nothing else change.)"""
+    import numba
+
+    grid, points, cfg = _flat_grid(cell)
+    if grid is None:
+        return
     if hasattr(grid, "_queried") and hasattr(grid, "_frame"):
         grid._queried = grid._frame
     prev = numba.get_num_threads()
     numba.set_num_threads(1)
     try:
-        grid.query(np.asarray(caps[0][:4], dtype=np.float64).reshape(-1, 3), rho=cfg.query_rho, method=cfg.method,
-                   threads=1)
+        grid.query(points, rho=cfg.query_rho, method=cfg.method, threads=1)
     finally:
         numba.set_num_threads(prev)
 
@@ -119,17 +162,25 @@ def _check_path(cell: str) -> None:
         _cli("check-path", "--cell", cell, "--path", str(path), "--settle", "0.2")   # any verdict will do
 
 
-#: (name, callable, args): biggest first; the first two hold the two large kernels of the monitor's path
+#: (name, callable, args), in the order the processes take them. The first two hold the large
+#: kernels of the monitor's path and wait for nothing the other compiles (the monitor's job: the
+#: frame and cells' classification; the grid job: the lookup). The grid job ends first: then the
+#: closed-loop run, whose simulator compiles its own render and edges (about 55 CPU-s) before it
+#: reaches the monitor's kernels, in the cache by then; the small jobs fill in after the monitor's
+#: job. A process that reaches a kernel the other one is compiling waits for it (compile_locks):
+#: a core idle. Measured from an empty cache (2 cores, load 4-8 from other work): with the grid
+#: job classifying its own frames the monitor's job waited 250 of its 418 s for it; with the run
+#: after the small jobs it started only once the monitor's job ended and ran alone at the end.
 JOBS: list[tuple[str, object, tuple]] = [
     ("monitor flacco-cell", _monitor, ("flacco-cell",)),
     ("grid query on one thread, flacco-cell", _grid_one_thread, ("flacco-cell",)),
     ("run reach 0.3 s", _cli, ("run", "-s", "reach", "--duration", "0.3", "-o", "{tmp}/run", "--quiet")),
-    ("run reach ssm 0.3 s", _cli, ("run", "-s", "reach", "--reaction", "ssm", "--duration", "0.3", "-o", "{tmp}/run",
-                                   "--quiet")),
-    ("check-path flacco-cell", _check_path, ("flacco-cell",)),
-    ("record 0.2 s and monitor the bag, flacco-cell", _bag_replay, ("flacco-cell",)),
     ("scenes render flacco-cell", _cli, ("scenes", "render", "flacco-cell", "--out", "{tmp}/render")),
     ("placement c-arm-room", _cli, ("placement", "--cell", "c-arm-room", "--no-improve")),
+    ("check-path flacco-cell", _check_path, ("flacco-cell",)),
+    ("record 0.2 s and monitor the bag, flacco-cell", _bag_replay, ("flacco-cell",)),
+    ("run reach ssm 0.3 s", _cli, ("run", "-s", "reach", "--reaction", "ssm", "--duration", "0.3", "-o", "{tmp}/run",
+                                   "--quiet")),
     ("monitor ur3-cell", _monitor, ("ur3-cell",)),
 ]
 
