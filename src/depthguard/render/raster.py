@@ -278,7 +278,7 @@ def render_packed(vw, n_v, faces, n_f, mesh_off, n_meshes, face_label, R, t, fx,
                     or faces[f, 2] < 0 or faces[f, 2] >= nv):
                 return 1, k, 0
     n = 0
-    reset_rows(rows, 0, H, W)
+    reset_rows(rows, np.int64(0), H, W)          # int64, not Literal[int](0): the one compiled signature
     for k in range(n_meshes):
         vo = mesh_off[k, 0]
         for f in range(mesh_off[k, 1], mesh_off[k + 1, 1]):
@@ -297,9 +297,9 @@ def render_packed(vw, n_v, faces, n_f, mesh_off, n_meshes, face_label, R, t, fx,
                       u0, u1, v0, v1, wbuf, sbuf, rows, ids)
                 n += 1
     if ids:
-        read_out_rows(0, H, wbuf, sbuf, face_label, depth, labels, face_ids, rows, spans)
+        read_out_rows(np.int64(0), H, wbuf, sbuf, face_label, depth, labels, face_ids, rows, spans)
     else:
-        read_out_depth_rows(0, H, wbuf, depth, rows, spans)
+        read_out_depth_rows(np.int64(0), H, wbuf, depth, rows, spans)
     return 0, -1, n
 
 

@@ -241,7 +241,7 @@ def static_edges(static, z, jump_abs, jump_rel, edge, other, valid_cum, edge_cum
         for u in range(W):
             z[v, u] = depth_of(static[v, u])
     for v in range(H):
-        _edges_span(z[max(v - 1, 0)], z[v], z[min(v + 1, H - 1)], v > 0, v < H - 1, 0, W, jump_abs, jump_rel,
+        _edges_span(z[max(v - 1, 0)], z[v], z[min(v + 1, H - 1)], v > 0, v < H - 1, np.int64(0), W, jump_abs, jump_rel,
                     edge[v], other[v if other.shape[0] > 1 else 0], other.shape[0] > 1)
         valid_cum[v, 0] = 0
         edge_cum[v, 0] = 0
