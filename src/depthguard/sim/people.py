@@ -27,7 +27,7 @@ import numba
 import numpy as np
 
 from depthguard.geometry.primitives import Box, Capsule, Primitive, Sphere
-from depthguard.transforms import pose, rot_z
+from depthguard.transforms import pose
 
 __all__ = ["BodyShape", "Key", "Carry", "Person", "PersonPose", "PartPoses"]
 
@@ -108,8 +108,14 @@ class Carry:
     offset: tuple = (0.0, 0.0, 0.0)
 
     def offset_matrix(self) -> np.ndarray:
-        o = np.asarray(self.offset, dtype=np.float64)
-        return o if o.shape == (4, 4) else pose(t=o)
+        """The offset as a 4x4 pose (read-only, made once: a carried prop is posed per frame)."""
+        T = self.__dict__.get("_offset_T")
+        if T is None:
+            o = np.asarray(self.offset, dtype=np.float64)
+            T = np.array(o if o.shape == (4, 4) else pose(t=o), dtype=np.float64)
+            T.setflags(write=False)
+            object.__setattr__(self, "_offset_T", T)      # frozen: a cache beside the fields
+        return T
 
 
 @dataclass(frozen=True)
@@ -163,7 +169,11 @@ class Person:
         return self.present[0] <= t < self.present[1]
 
     def body_frame(self, xy, heading) -> np.ndarray:
-        return pose(rot_z(heading), [xy[0], xy[1], self.floor_z])
+        """4x4 world pose of the body frame at floor position ``xy`` facing ``heading`` rad:
+        ``pose(rot_z(heading), [x, y, floor_z])``, its numbers made in one array."""
+        c, s = np.cos(heading), np.sin(heading)
+        return np.array([[c, -s, 0.0, xy[0]], [s, c, 0.0, xy[1]], [0.0, 0.0, 1.0, self.floor_z],
+                         [0.0, 0.0, 0.0, 1.0]], dtype=np.float64)
 
     def _frame(self, p: PersonPose) -> np.ndarray:
         """:meth:`body_frame` of the pose ``p``, made once for the pose :meth:`pose_at` last
@@ -209,6 +219,11 @@ class Person:
         """The floor position of :meth:`pose_at` alone (the same arithmetic, without the hands)."""
         a, b, s = self._between(t)
         return (1 - s) * np.asarray(a.xy, float) + s * np.asarray(b.xy, float)
+
+    def _xy_floats(self, t: float) -> tuple[float, float]:
+        """:meth:`_xy_at` as two floats (the same arithmetic per coordinate)."""
+        a, b, s = self._between(t)
+        return (1 - s) * float(a.xy[0]) + s * float(b.xy[0]), (1 - s) * float(a.xy[1]) + s * float(b.xy[1])
 
     def _resolve(self, a: Key, b: Key, s: float) -> tuple[PersonPose, np.ndarray]:
         """The pose between keys ``a`` and ``b`` at blend ``s``, and its body frame (4x4)."""
@@ -269,7 +284,9 @@ class Person:
         """4x4 world pose of a hand: origin at the hand centre, axes of the body heading."""
         p = self.pose_at(t)
         _, _, hand = self.arm_points(p, side)
-        return pose(rot_z(p.heading), hand)
+        c, s = np.cos(p.heading), np.sin(p.heading)          # pose(rot_z(heading), hand), in one array
+        return np.array([[c, -s, 0.0, hand[0]], [s, c, 0.0, hand[1]], [0.0, 0.0, 1.0, hand[2]],
+                         [0.0, 0.0, 0.0, 1.0]], dtype=np.float64)
 
     def primitives(self, t: float) -> list[Primitive]:
         """The body at time ``t`` as exact primitives (empty when not present)."""
@@ -337,8 +354,9 @@ class Person:
         dt = 0.05
         if p is None:
             p = self.pose_at(t)
-        vel = (self._xy_at(t + dt) - self._xy_at(t - dt)) / (2 * dt)
-        v = max(float(vel @ [math.cos(p.heading), math.sin(p.heading)]), 0.0)
+        (x1, y1), (x0, y0) = self._xy_floats(t + dt), self._xy_floats(t - dt)
+        vx, vy = (x1 - x0) / (2 * dt), (y1 - y0) / (2 * dt)      # (_xy_at(t + dt) - _xy_at(t - dt)) / (2 dt)
+        v = max(vx * math.cos(p.heading) + vy * math.sin(p.heading), 0.0)   # its dot product, in order
         return math.radians(25.0) * min(v, 1.0) * math.sin(2 * math.pi * 0.9 * t)
 
     def primitives_at(self, p: PersonPose, swing: float = 0.0) -> list[Primitive]:
