@@ -8,17 +8,20 @@ spans read off the depth image with numpy (first and last nonzero pixel of each 
 
 from __future__ import annotations
 
+import math
+
 import numpy as np
 import pytest
 
 import depthguard as dg
 from depthguard.geometry import Box, Sphere
+from depthguard.geometry.primitives import Capsule
 from depthguard.render import Renderer
 from depthguard.render.raster_ref import render_depth_numpy
 from depthguard.sim import load_cell
 from depthguard.sim.posed import PosedMeshes, pack_primitives
 from depthguard.sim.scene import Scene
-from depthguard.transforms import look_at
+from depthguard.transforms import look_at, pose, rot_z
 
 
 def _spans_of(depth: np.ndarray) -> np.ndarray:
@@ -37,10 +40,11 @@ def test_posed_meshes_are_the_primitives_meshes_bit_for_bit(name):
     c-arm room's step-posed staff): the packed vertices are each primitive's ``mesh()``, to the
     bit, the faces the same; one topology while the parts stay, another when they change."""
     scene = load_cell(name).scene
-    posed = PosedMeshes(scene)
+    posed = PosedMeshes(load_cell(name).scene)          # its own people: no memo shared with the truth
+    assert posed.posed_as_arrays                          # the built-in cells take the arrays' path
     topologies = set()
     n_parts = 0
-    for t in np.linspace(0.0, scene.duration, 24, endpoint=False):
+    for t in np.linspace(0.0, scene.duration, 48, endpoint=False):
         t = float(t)
         got = posed.at(t)
         ref = [p.mesh() for p in scene.dynamic_at(t)]
@@ -140,3 +144,84 @@ def test_render_arrays_rejects_bad_buffers():
     assert not r.depth.any() and not r.spans.any()
     d, _ = r.render_arrays(vw, faces, off)
     assert d.any()
+
+
+@pytest.mark.parametrize("name", ["flacco-cell", "ur3-cell", "fr3-cell", "c-arm-room"])
+def test_part_poses_are_the_primitives_poses_bit_for_bit(name):
+    """``Person.part_poses`` (one numba pass) against ``Person.primitives`` (a solid per part,
+    ``Capsule.between``, the arms' IK in numpy) of another instance of the same person, over the
+    whole script: every part's pose and length to the bit; the arm points it leaves for the
+    carried props are ``_arm_points``' own."""
+    a, b = load_cell(name).scene, load_cell(name).scene
+    n = 0
+    for t in np.linspace(-1.0, a.duration + 1.0, 400):
+        t = float(t)
+        for pa, pb in zip(a.people, b.people):
+            got, ref = pa.part_poses(t), pb.primitives(t)
+            if got is None:
+                assert not ref
+                continue
+            assert len(got.kinds) == len(ref) == len(got.T) == len(got.length)
+            for k, prim in enumerate(ref):
+                assert got.T[k].tobytes() == prim.world_from_local.tobytes(), (t, prim.name)
+                length = float(prim.length) if type(prim) is Capsule else 0.0
+                assert got.length[k] == length, (t, prim.name)
+                assert got.kinds[k][0] == ("box" if type(prim) is Box else "capsule")
+                n += 1
+            p = pa.pose_at(t)
+            for side in ("left", "right"):
+                want = pb._arm_points(pb.pose_at(t), side)
+                for x, y in zip(pa.arm_points(p, side), want):
+                    assert x.tobytes() == y.tobytes()
+    assert n > 500
+
+
+def test_body_frame_and_leg_swing_are_the_numpy_formulas():
+    """``body_frame`` is ``pose(rot_z(heading), [x, y, floor_z])``; ``leg_swing``'s walking speed
+    is the numpy dot product of the velocity and the heading (its former arithmetic)."""
+    person = load_cell("ur3-cell").scene.people[0]
+    for t in np.linspace(0.0, 16.0, 300):
+        t = float(t)
+        p = person.pose_at(t)
+        want = pose(rot_z(p.heading), [p.xy[0], p.xy[1], person.floor_z])
+        assert person.body_frame(p.xy, p.heading).tobytes() == want.tobytes()
+        vel = (person._xy_at(t + 0.05) - person._xy_at(t - 0.05)) / (2 * 0.05)
+        v = max(float(vel @ [math.cos(p.heading), math.sin(p.heading)]), 0.0)
+        want = math.radians(25.0) * min(v, 1.0) * math.sin(2 * math.pi * 0.9 * t)
+        assert person.leg_swing(t) == want
+
+
+def test_posed_meshes_of_a_standing_person_are_not_posed_again():
+    """A person who stands still and a prop that lies still: the same packed object, its
+    vertices unchanged; a move poses again (against ``pack_primitives`` of another scene)."""
+    scene, ref = load_cell("ur3-cell").scene, load_cell("ur3-cell").scene
+    posed = PosedMeshes(scene)
+    first = posed.at(3.2)                                   # standing (keys 3.0 .. 4.0)
+    before = first.vertices.copy()
+    second = posed.at(3.6)
+    assert second is first and second.vertices.tobytes() == before.tobytes()
+    assert second.vertices.tobytes() == pack_primitives(ref.dynamic_at(3.6)).vertices.tobytes()
+    moved = posed.at(5.0)                                   # the arm reaches
+    assert moved.vertices.tobytes() == pack_primitives(ref.dynamic_at(5.0)).vertices.tobytes()
+    assert moved.vertices.tobytes() != before.tobytes()
+
+
+def test_render_arrays_checks_a_read_only_mesh_off_once_and_always_its_totals():
+    """A read-only ``mesh_off`` (a packed topology's) is checked on its first call; its totals
+    against the vertices and faces at every call; the images as with a writable copy."""
+    cam = dg.Camera("cam", 32, 24, 30.0, 30.0, 15.5, 11.5, np.eye(4))
+    r, r2 = Renderer(cam), Renderer(cam)
+    vw, faces, off = _pack([Box(size=(0.2, 0.2, 0.2)).moved(np.eye(4)).mesh()])
+    vw = vw + [0.0, 0.0, 1.0]
+    bad = off.copy()
+    bad[0, 0] = 1                                          # not from 0: refused, read-only or not
+    bad.setflags(write=False)
+    with pytest.raises(ValueError, match="mesh_off"):
+        r.render_arrays(vw, faces, bad)
+    ro = off.copy()
+    ro.setflags(write=False)
+    for _ in range(2):
+        d, _ = r.render_arrays(vw, faces, ro)
+        assert d.tobytes() == r2.render_arrays(vw, faces, off.copy())[0].tobytes() and d.any()
+    with pytest.raises(ValueError, match="mesh_off"):
+        r.render_arrays(vw[:-1], faces, ro)                 # fewer vertices than its totals

@@ -300,3 +300,26 @@ def test_the_local_mesh_cache_is_bounded_and_keeps_what_is_in_use():
         assert sc._local_mesh(kept) is first                   # in use: never evicted, never rebuilt
     assert len(sc._mesh_cache) <= scene_mod.MESH_CACHE_SIZE
     assert np.allclose(first.vertices.max(axis=0), [0.05, 0.05, 0.05])   # the box's own local mesh
+
+
+def test_joint_path_is_the_searchsorted_formula():
+    """``JointPath`` (keys found by bisect on floats) against its former numpy arithmetic
+    (``np.searchsorted``, numpy scalars): the same bits at random times, on and between keys."""
+    rng = np.random.default_rng(3)
+    keys = [(float(t), rng.normal(size=6)) for t in np.cumsum(rng.uniform(0.2, 2.0, 7))]
+    for interp in ("linear", "step"):
+        jp = JointPath(keys, interp=interp)
+        ts, qs = np.array([t for t, _ in keys]), np.stack([q for _, q in keys])
+        times = np.concatenate([rng.uniform(ts[0] - 1, ts[-1] + 1, 500), ts])
+        for t in times:
+            if t <= ts[0]:
+                want = qs[0]
+            elif t >= ts[-1]:
+                want = qs[-1]
+            else:
+                i = int(np.searchsorted(ts, t, side="right")) - 1
+                s = (t - ts[i]) / (ts[i + 1] - ts[i])
+                s = s * s * (3 - 2 * s)
+                want = qs[i] if interp == "step" else (1 - s) * qs[i] + s * qs[i + 1]
+            assert jp(float(t)).tobytes() == want.tobytes()
+            assert jp(t).tobytes() == want.tobytes()            # a numpy scalar time too

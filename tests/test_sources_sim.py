@@ -204,3 +204,18 @@ def test_a_warmed_up_simulator_delivers_the_same_frames():
     assert len(runs[0]) == len(runs[1]) >= 18
     for (c0, s0, d0), (c1, s1, d1) in zip(*runs):
         assert (c0, s0) == (c1, s1) and np.array_equal(d0, d1)
+
+
+def test_frame_rng_is_default_rng_of_its_seed_sequence():
+    """``frame_rng`` draws what ``np.random.default_rng(SeedSequence((seed, crc32(camera),
+    stamp in µs)))`` draws (its documented seeding)."""
+    import zlib
+
+    from depthguard.sources.simulated import frame_rng
+
+    for seed, cam, stamp in [(0, "camA", 0.0), (7, "cam0", 12.345678), (2 ** 40 + 3, "x", 1e6 + 0.5)]:
+        key = [seed & 0xFFFFFFFF, zlib.crc32(cam.encode()), int(round(stamp * 1e6)) & 0xFFFFFFFFFFFF]
+        want = np.random.default_rng(np.random.SeedSequence(key))
+        got = frame_rng(seed, cam, stamp)
+        assert got.integers(0, 1 << 40, 8).tolist() == want.integers(0, 1 << 40, 8).tolist()
+        assert got.random(5).tobytes() == want.random(5).tobytes()

@@ -138,6 +138,7 @@ class Renderer:
         self._tri = np.zeros((0, 18))                       # the parallel kernel's slots
         self._box = np.zeros((0, 4), dtype=np.int32)
         self._bound = None                                  # (n_v, n_f, n_meshes, meshes) of bind()
+        self._off_checked = None                            # the read-only mesh_off render_arrays checked
 
     # -------------------------------------------------------------- buffers
     def _reserve(self, n_v: int, n_f: int) -> None:
@@ -216,10 +217,15 @@ class Renderer:
         if not (isinstance(faces, np.ndarray) and faces.dtype == np.int32 and faces.ndim == 2
                 and faces.shape[1] == 3 and faces.flags.c_contiguous):
             raise ValueError("faces must be a C-contiguous int32 (F, 3) array")
-        if not (isinstance(mesh_off, np.ndarray) and mesh_off.dtype == np.int64 and mesh_off.ndim == 2
-                and mesh_off.shape[1] == 2 and len(mesh_off) >= 1 and mesh_off.flags.c_contiguous
-                and 0 <= mesh_off[-1, 0] <= len(vertices) and 0 <= mesh_off[-1, 1] <= len(faces)
-                and np.all(np.diff(mesh_off, axis=0) >= 0) and mesh_off[0, 0] == 0 and mesh_off[0, 1] == 0):
+        if mesh_off is not self._off_checked:           # a read-only mesh_off checked once (it cannot change)
+            if not (isinstance(mesh_off, np.ndarray) and mesh_off.dtype == np.int64 and mesh_off.ndim == 2
+                    and mesh_off.shape[1] == 2 and len(mesh_off) >= 1 and mesh_off.flags.c_contiguous
+                    and np.all(np.diff(mesh_off, axis=0) >= 0) and mesh_off[0, 0] == 0 and mesh_off[0, 1] == 0):
+                raise ValueError("mesh_off must be a C-contiguous int64 (M + 1, 2) array of increasing "
+                                 "offsets from 0 within the vertices and faces")
+            if not mesh_off.flags.writeable and mesh_off.base is None:
+                self._off_checked = mesh_off
+        if not (0 <= mesh_off[-1, 0] <= len(vertices) and 0 <= mesh_off[-1, 1] <= len(faces)):
             raise ValueError("mesh_off must be a C-contiguous int64 (M + 1, 2) array of increasing "
                              "offsets from 0 within the vertices and faces")
         self._bound = None

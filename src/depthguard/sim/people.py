@@ -26,9 +26,10 @@ from typing import Sequence
 import numpy as np
 
 from depthguard.geometry.primitives import Box, Capsule, Primitive, Sphere
-from depthguard.transforms import pose, rot_z
+from depthguard.sim.body_pose import _POLE, PartPoses, _body_locals, _pose_parts
+from depthguard.transforms import pose
 
-__all__ = ["BodyShape", "Key", "Carry", "Person", "PersonPose"]
+__all__ = ["BodyShape", "Key", "Carry", "Person", "PersonPose", "PartPoses"]
 
 
 @dataclass(frozen=True)
@@ -78,10 +79,6 @@ def _body_points(shape: BodyShape, side: str) -> tuple[np.ndarray, np.ndarray]:
     return sh, rest
 
 
-#: the elbow's pole in the body frame per arm (down, out and back), read-only
-_POLE = {side: np.array([-0.2, 0.5 * s, -1.0]) for side, s in (("left", 1.0), ("right", -1.0))}
-for _a in _POLE.values():
-    _a.setflags(write=False)
 
 
 @dataclass(frozen=True)
@@ -107,8 +104,14 @@ class Carry:
     offset: tuple = (0.0, 0.0, 0.0)
 
     def offset_matrix(self) -> np.ndarray:
-        o = np.asarray(self.offset, dtype=np.float64)
-        return o if o.shape == (4, 4) else pose(t=o)
+        """The offset as a 4x4 pose (read-only, made once: a carried prop is posed per frame)."""
+        T = self.__dict__.get("_offset_T")
+        if T is None:
+            o = np.asarray(self.offset, dtype=np.float64)
+            T = np.array(o if o.shape == (4, 4) else pose(t=o), dtype=np.float64)
+            T.setflags(write=False)
+            object.__setattr__(self, "_offset_T", T)      # frozen: a cache beside the fields
+        return T
 
 
 @dataclass(frozen=True)
@@ -145,6 +148,7 @@ class Person:
     _memo: tuple | None = field(default=None, init=False, repr=False, compare=False)
     _pose_memo: tuple | None = field(default=None, init=False, repr=False, compare=False)
     _key_times: tuple | None = field(default=None, init=False, repr=False, compare=False)
+    _parts_memo: tuple | None = field(default=None, init=False, repr=False, compare=False)
 
     def __post_init__(self):
         if not self.keys:
@@ -161,7 +165,11 @@ class Person:
         return self.present[0] <= t < self.present[1]
 
     def body_frame(self, xy, heading) -> np.ndarray:
-        return pose(rot_z(heading), [xy[0], xy[1], self.floor_z])
+        """4x4 world pose of the body frame at floor position ``xy`` facing ``heading`` rad:
+        ``pose(rot_z(heading), [x, y, floor_z])``, its numbers made in one array."""
+        c, s = np.cos(heading), np.sin(heading)
+        return np.array([[c, -s, 0.0, xy[0]], [s, c, 0.0, xy[1]], [0.0, 0.0, 1.0, self.floor_z],
+                         [0.0, 0.0, 0.0, 1.0]], dtype=np.float64)
 
     def _frame(self, p: PersonPose) -> np.ndarray:
         """:meth:`body_frame` of the pose ``p``, made once for the pose :meth:`pose_at` last
@@ -180,7 +188,9 @@ class Person:
         kept: a frame asks for the body and for the hand that carries a prop at the same time)."""
         memo = self._pose_memo                           # one read: safe if another thread asks too
         if memo is None or memo[0] != t:
-            memo = self._pose_memo = (t, self._resolve(*self._between(t)), {})
+            p, T = self._resolve(*self._between(t))
+            T.setflags(write=False)                      # the body frame of this pose (_frame)
+            memo = self._pose_memo = (t, p, {"T": T})
         return memo[1]
 
     def _between(self, t: float) -> tuple[Key, Key, float]:
@@ -206,7 +216,13 @@ class Person:
         a, b, s = self._between(t)
         return (1 - s) * np.asarray(a.xy, float) + s * np.asarray(b.xy, float)
 
-    def _resolve(self, a: Key, b: Key, s: float) -> PersonPose:
+    def _xy_floats(self, t: float) -> tuple[float, float]:
+        """:meth:`_xy_at` as two floats (the same arithmetic per coordinate)."""
+        a, b, s = self._between(t)
+        return (1 - s) * float(a.xy[0]) + s * float(b.xy[0]), (1 - s) * float(a.xy[1]) + s * float(b.xy[1])
+
+    def _resolve(self, a: Key, b: Key, s: float) -> tuple[PersonPose, np.ndarray]:
+        """The pose between keys ``a`` and ``b`` at blend ``s``, and its body frame (4x4)."""
         xy = (1 - s) * np.asarray(a.xy, float) + s * np.asarray(b.xy, float)
         dh = (b.heading - a.heading + math.pi) % (2 * math.pi) - math.pi
         heading = a.heading + s * dh
@@ -221,7 +237,7 @@ class Person:
             pa = rest if ta is None else np.asarray(ta, float)
             pb = rest if tb is None else np.asarray(tb, float)
             hands[side] = (1 - s) * pa + s * pb
-        return PersonPose(xy, heading, hands["left"], hands["right"])
+        return PersonPose(xy, heading, hands["left"], hands["right"]), T
 
     def arm_points(self, p: PersonPose, side: str) -> tuple[np.ndarray, np.ndarray, np.ndarray]:
         """World shoulder, elbow and hand centre of one arm (two-link IK towards the target);
@@ -264,7 +280,9 @@ class Person:
         """4x4 world pose of a hand: origin at the hand centre, axes of the body heading."""
         p = self.pose_at(t)
         _, _, hand = self.arm_points(p, side)
-        return pose(rot_z(p.heading), hand)
+        c, s = np.cos(p.heading), np.sin(p.heading)          # pose(rot_z(heading), hand), in one array
+        return np.array([[c, -s, 0.0, hand[0]], [s, c, 0.0, hand[1]], [0.0, 0.0, 1.0, hand[2]],
+                         [0.0, 0.0, 0.0, 1.0]], dtype=np.float64)
 
     def primitives(self, t: float) -> list[Primitive]:
         """The body at time ``t`` as exact primitives (empty when not present)."""
@@ -272,12 +290,56 @@ class Person:
             return []
         p = self.pose_at(t)
         swing = self.leg_swing(t, p)
-        key = (p.xy.tobytes(), p.heading, None if p.left is None else p.left.tobytes(),
-               None if p.right is None else p.right.tobytes(), swing)
+        key = _pose_key(p, swing)
         memo = self._memo                                # one read: safe if another thread asks too
         if memo is None or memo[0] != key:               # a person who stands still: the same solids
             memo = self._memo = (key, self.primitives_at(p, swing))
         return list(memo[1])
+
+    def part_poses(self, t: float) -> PartPoses | None:
+        """The body at time ``t`` as arrays (:class:`PartPoses`: the parts of :meth:`primitives`,
+        in order, their poses and lengths to the bit), None when not present; the last pose's
+        answer is kept (a person who stands still: the same object). The posing of a frame in
+        one pass (:func:`_pose_parts`) instead of a solid per part (issue 29)."""
+        if not self.is_present(t):
+            return None
+        p = self.pose_at(t)
+        swing = self.leg_swing(t, p)
+        key = _pose_key(p, swing)
+        memo = self._parts_memo                          # one read: safe if another thread asks too
+        if memo is not None and memo[0] == key:
+            return memo[1]
+        sh = self.shape
+        loc, kinds, L = _body_locals(sh)
+        if sh.legs:                                      # the feet: primitives_at's arithmetic
+            loc = loc.copy()
+            for s, row in ((1.0, 1), (-1.0, 3)):
+                a = swing * s
+                loc[row] = [L * math.sin(a), s * sh.hip_width / 2, sh.hip_z - L * math.cos(a)]
+        T = self._frame(p)
+        R, o = T[:3, :3], T[:3, 3]
+        W = np.ascontiguousarray((R @ loc[:, :, None])[:, :, 0])   # R @ v per row: the same gemv
+        W[:11] += o                                      # points; rows 11-15 are directions
+        L1, L2 = sh.upper_arm, sh.forearm
+        K = len(kinds)
+        Ts, lengths, arms = np.empty((K, 4, 4)), np.empty(K), np.empty((2, 2, 3))
+        _pose_parts(W, np.ascontiguousarray(R), W[8] if p.left is None else np.asarray(p.left, float),
+                    W[10] if p.right is None else np.asarray(p.right, float), p.left is not None,
+                    p.right is not None, bool(sh.legs), float(L1), float(L2), abs(L1 - L2) + 0.05,
+                    0.999 * (L1 + L2), arms, Ts, lengths)
+        Ts.setflags(write=False)
+        lengths.setflags(write=False)
+        memo = self._pose_memo
+        if memo is not None and memo[1] is p:            # the arms of this pose, for arm_points
+            for side, k, sh_row in (("left", 0, 7), ("right", 1, 9)):
+                if side not in memo[2]:
+                    arm = (W[sh_row].copy(), arms[k, 0].copy(), arms[k, 1].copy())
+                    for a in arm:
+                        a.setflags(write=False)
+                    memo[2][side] = arm
+        out = PartPoses(kinds, Ts, lengths)
+        self._parts_memo = (key, out)
+        return out
 
     def leg_swing(self, t: float, p: PersonPose | None = None) -> float:
         """Swing angle (rad) of the left leg at time ``t`` (the right leg swings opposite): grows
@@ -288,8 +350,9 @@ class Person:
         dt = 0.05
         if p is None:
             p = self.pose_at(t)
-        vel = (self._xy_at(t + dt) - self._xy_at(t - dt)) / (2 * dt)
-        v = max(float(vel @ [math.cos(p.heading), math.sin(p.heading)]), 0.0)
+        (x1, y1), (x0, y0) = self._xy_floats(t + dt), self._xy_floats(t - dt)
+        vx, vy = (x1 - x0) / (2 * dt), (y1 - y0) / (2 * dt)      # (_xy_at(t + dt) - _xy_at(t - dt)) / (2 dt)
+        v = max(vx * math.cos(p.heading) + vy * math.sin(p.heading), 0.0)   # its dot product, in order
         return math.radians(25.0) * min(v, 1.0) * math.sin(2 * math.pi * 0.9 * t)
 
     def primitives_at(self, p: PersonPose, swing: float = 0.0) -> list[Primitive]:
@@ -321,3 +384,9 @@ class Person:
             out.append(Capsule.between(E, Hd, sh.forearm_radius, name=f"{n}/{side}_forearm"))
             out.append(Sphere(radius=sh.hand_radius, world_from_local=pose(t=Hd), name=f"{n}/{side}_hand"))
         return out
+
+
+def _pose_key(p: PersonPose, swing: float) -> tuple:
+    """The key of a posed body: equal keys, equal solids (:meth:`Person.primitives`)."""
+    return (p.xy.tobytes(), p.heading, None if p.left is None else p.left.tobytes(),
+            None if p.right is None else p.right.tobytes(), swing)

@@ -26,6 +26,7 @@ from __future__ import annotations
 import itertools
 from typing import NamedTuple
 
+import numba
 import numpy as np
 
 from depthguard.geometry.mesh import Mesh
@@ -101,6 +102,7 @@ class _Packer:
         off = np.zeros((len(parts) + 1, 2), np.int64)
         np.cumsum(nv, out=off[1:, 0])
         np.cumsum(nf, out=off[1:, 1])
+        off.setflags(write=False)            # fixed per topology: a renderer checks it once
         n_v = int(off[-1, 0])
         if n_v > len(self.vertices):
             self.vertices = np.zeros((n_v, 3))
@@ -137,14 +139,105 @@ def pack_primitives(prims, packer: _Packer | None = None) -> PackedMeshes:
     return packer.packed
 
 
+def _kind_part(kind: tuple) -> tuple[tuple, _Part]:
+    """``_part`` of a part named by its kind (:class:`~depthguard.sim.people.PartPoses`)."""
+    if kind[0] == "capsule":
+        return _part(Capsule(radius=kind[1], segments=kind[2]))
+    return _part(Box(size=kind[1]))
+
+
+class _GroupPacker(_Packer):
+    """:class:`_Packer` for parts given as poses (:class:`~depthguard.sim.people.PartPoses` and
+    props). Per topology the parts are grouped by kind and vertex count and laid out one group
+    after the other (``local``, ``out`` (N, 3) float64: each part's local / posed vertices;
+    ``gT`` (P, 4, 4) their poses); a posing is :func:`_lift` (the poses gathered, the capsules'
+    caps apart), per group one stacked ``np.matmul`` (per part the same BLAS call as
+    ``Mesh.transformed``: the same bits) and :func:`_place` (``+ t``, into the packed vertices):
+    a handful of calls, not a few per part (issue 29)."""
+
+    def topology(self, key: tuple, parts: list[_Part]) -> None:
+        super().topology(key, parts)
+        off = self.packed.mesh_off
+        by: dict[tuple, list[int]] = {}
+        for k, part in enumerate(parts):
+            by.setdefault((part.kind == "capsule", len(part.base)), []).append(k)
+        order = [k for ks in by.values() for k in ks]                 # the parts, group after group
+        n_v = sum(len(parts[k].base) for k in order)
+        self.src = np.asarray(order, np.int64)                       # slot -> part
+        self.is_cap = np.asarray([parts[k].kind == "capsule" for k in order])
+        self.local = np.concatenate([parts[k].base for k in order]) if order else np.zeros((0, 3))
+        self.base_z = self.local[:, 2].copy()
+        self.zsign = np.concatenate([parts[k].zsign if parts[k].zsign is not None else np.zeros(len(parts[k].base))
+                                     for k in order]) if order else np.zeros(0)
+        self.vslot = np.repeat(np.arange(len(order), dtype=np.int64), [len(parts[k].base) for k in order])
+        self.vdst = (np.concatenate([np.arange(off[k, 0], off[k + 1, 0]) for k in order]) if order
+                     else np.zeros(0, np.int64)).astype(np.int64)
+        self.out = np.zeros((n_v, 3))
+        self.gT = np.zeros((len(order), 4, 4))
+        groups, s0, v0 = [], 0, 0
+        for (_, n), ks in by.items():                                # views of one group's parts
+            k = len(ks)
+            groups.append((self.local[v0:v0 + k * n].reshape(k, n, 3),
+                           self.gT[s0:s0 + k, :3, :3].transpose(0, 2, 1),      # T[:3, :3].T per part
+                           self.out[v0:v0 + k * n].reshape(k, n, 3)))
+            s0, v0 = s0 + k, v0 + k * n
+        self.groups = groups
+        self.sources: tuple = ()
+
+    def pose(self, T: np.ndarray, length: np.ndarray) -> None:
+        """Write the packed vertices of the parts posed at ``T`` (P, 4, 4) with ``length`` (P,) m:
+        per part ``_capsule_mesh``'s lift of the caps and ``p @ R.T + t`` (``pack_primitives``'
+        arithmetic, the same bits)."""
+        _lift(T, length, self.src, self.is_cap, self.gT, self.vslot, self.base_z, self.zsign, self.local)
+        matmul = np.matmul
+        for local, RT, out in self.groups:
+            matmul(local, RT, out=out)                   # Mesh.transformed: p @ R.T (+ t: _place)
+        _place(self.out, self.gT, self.vslot, self.vdst, self.packed.vertices)
+
+
+@numba.njit(cache=True, nogil=True)
+def _lift(T, length, src, is_cap, gT, vslot, base_z, zsign, local):
+    """The poses ``T`` (P, 4, 4) gathered in slot order (``gT[j] = T[src[j]]``), and each
+    capsule's local z: ``base_z + zsign * (length / 2)`` (``_capsule_mesh``, the same order)."""
+    for j in range(src.shape[0]):
+        gT[j] = T[src[j]]
+    for v in range(vslot.shape[0]):
+        j = vslot[v]
+        if is_cap[j]:
+            local[v, 2] = base_z[v] + zsign[v] * (length[src[j]] / 2)
+
+
+@numba.njit(cache=True, nogil=True)
+def _place(out, gT, vslot, vdst, vertices):
+    """``vertices[vdst[v]] = out[v] + t`` of its part's pose (``dst += T[:3, 3]``)."""
+    for v in range(vslot.shape[0]):
+        j = vslot[v]
+        d = vdst[v]
+        for c in range(3):
+            vertices[d, c] = out[v, c] + gT[j, c, 3]
+
+
 class PosedMeshes:
     """The moving meshes of ``scene`` at a time (module docstring); ``alone``: nothing moves.
-    One object per thread (its buffers are reused)."""
+    One object per thread (its buffers are reused).
+
+    A :class:`~depthguard.sim.scene.Scene` whose people are :class:`~depthguard.sim.people.Person` s
+    (not subclassed) is posed from arrays: each person's parts in one pass
+    (``Person.part_poses``), the parts' vertices a few stacked numpy calls
+    (:class:`_GroupPacker`), and nothing again while no part moves (issue 29); the same bits as
+    :func:`pack_primitives` of ``scene.dynamic_at(t)``, which any other scene takes."""
 
     def __init__(self, scene, alone: bool = False):
+        from depthguard.sim.people import Person
+        from depthguard.sim.scene import Scene
+
         self.scene = scene
         self.alone = bool(alone)
         self._packer = _Packer()
+        self._fast = _GroupPacker()
+        self.posed_as_arrays = (getattr(type(scene), "dynamic_at", None) is Scene.dynamic_at
+                                and getattr(type(scene), "props_at", None) is Scene.props_at
+                                and all(type(p) is Person for p in getattr(scene, "people", ())))
         self._last: tuple[float, PackedMeshes | None] | None = None
 
     def at(self, t: float) -> PackedMeshes | None:
@@ -152,7 +245,36 @@ class PosedMeshes:
         last = self._last
         if last is not None and last[0] == t:
             return last[1]
-        prims = [] if self.alone else self.scene.dynamic_at(t)
-        packed = pack_primitives(prims, self._packer) if prims else None
+        if self.alone:
+            packed = None
+        elif self.posed_as_arrays:
+            packed = self._at_arrays(t)
+        else:
+            prims = self.scene.dynamic_at(t)
+            packed = pack_primitives(prims, self._packer) if prims else None
         self._last = (t, packed)
         return packed
+
+    def _at_arrays(self, t: float) -> PackedMeshes | None:
+        """:meth:`at` of a scene of :class:`~depthguard.sim.people.Person` s (class docstring)."""
+        blocks = [b for b in (p.part_poses(t) for p in self.scene.people) if b is not None]
+        props = self.scene.props_at(t)
+        if not blocks and not props:
+            return None
+        if any(type(p) is not Box and type(p) is not Capsule and type(p) is not Sphere for p in props):
+            return pack_primitives(self.scene.dynamic_at(t), self._packer)   # another solid: its own mesh
+        packer = self._fast
+        key = tuple(b.kinds for b in blocks) + tuple(_part(p)[0] for p in props)
+        if key != packer.key:
+            parts = [_kind_part(k)[1] for b in blocks for k in b.kinds] + [_part(p)[1] for p in props]
+            packer.topology(key, parts)
+        sources = tuple(blocks) + tuple(props)
+        old = packer.sources
+        if len(old) == len(sources) and all(a is b for a, b in zip(old, sources)):
+            return packer.packed                         # nothing moved since the last posing
+        T = np.concatenate([b.T for b in blocks] + [p.world_from_local[None] for p in props])
+        length = np.concatenate([b.length for b in blocks]
+                                + [np.array([float(p.length) if type(p) is Capsule else 0.0]) for p in props])
+        packer.pose(T, length)
+        packer.sources = sources
+        return packer.packed

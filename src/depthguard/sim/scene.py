@@ -17,6 +17,7 @@ such as the C-arm of :mod:`depthguard.sim.carm`.
 
 from __future__ import annotations
 
+import bisect
 import dataclasses
 
 from dataclasses import dataclass, field
@@ -63,6 +64,8 @@ class JointPath:
             raise ValueError(f"JointPath interp must be 'linear' or 'step' (got {self.interp!r})")
         self._t = np.array([t for t, _ in ks])
         self._q = np.stack([q for _, q in ks])
+        self._tl = self._t.tolist()         # the times as floats: bisect finds the key (500 Hz joint ticks)
+        self._ql = list(self._q)
 
     @property
     def end(self) -> float:
@@ -70,12 +73,12 @@ class JointPath:
         return float(self._t[-1])
 
     def __call__(self, t: float) -> np.ndarray:
-        ts, qs = self._t, self._q
+        ts, qs = self._tl, self._ql
         if t <= ts[0] or len(ts) == 1:
             return qs[0].copy()
         if t >= ts[-1]:
             return qs[-1].copy()
-        i = int(np.searchsorted(ts, t, side="right")) - 1
+        i = bisect.bisect_right(ts, t) - 1          # np.searchsorted(side="right") - 1
         if self.interp == "step":
             return qs[i].copy()
         s = (t - ts[i]) / (ts[i + 1] - ts[i])
@@ -107,6 +110,7 @@ class Scene:
         if robot is not None and robot_q0 is None:
             robot_q0 = getattr(robot, "q_home", np.zeros(robot.dof))
         self.robot_q0 = None if robot_q0 is None else np.asarray(robot_q0, dtype=np.float64)
+        self._dof: tuple | None = None       # (robot, its joints): asked once (robot_q runs per joint tick)
         self.robot_path = robot_path
         self.people = list(people)
         self.props = {p.name: p for p in props}
@@ -131,8 +135,13 @@ class Scene:
             return np.zeros(0)
         if self.robot_path is None:
             return self.robot_q0.copy()
-        q = np.asarray(self.robot_path(t), dtype=np.float64)
-        if q.shape != (self.robot.dof,):
+        q = self.robot_path(t)
+        if type(q) is not np.ndarray or q.dtype != np.float64:
+            q = np.asarray(q, dtype=np.float64)
+        memo = self._dof
+        if memo is None or memo[0] is not self.robot:
+            memo = self._dof = (self.robot, self.robot.dof)
+        if q.shape != (memo[1],):
             raise ValueError(f"scene {self.name!r}: robot path gives {q.shape} joint values, robot has {self.robot.dof}")
         return q
 

@@ -101,7 +101,9 @@ class CameraSim:
             off = np.zeros((len(links) + 1, 2), np.int64)
             np.cumsum([len(m.vertices) for m in links], out=off[1:, 0])
             np.cumsum([len(m.faces) for m in links], out=off[1:, 1])
+            off.setflags(write=False)           # fixed: the renderer checks it once (render_arrays)
             self._robot_off = off
+            self._dof = robot.dof
             self._robot_faces = (np.ascontiguousarray(np.concatenate([m.faces for m in links]), dtype=np.int32)
                                  if links else np.zeros((0, 3), np.int32))
             self._robot_vw = np.zeros((int(off[-1, 0]), 3))
@@ -159,9 +161,9 @@ class CameraSim:
         """The robot's (V, 3) world vertices at ``q`` (dof,) rad, all clustered links one after
         the other; posed again only when ``q`` changes (the cameras of one time step share them)."""
         qa = np.asarray(q, dtype=np.float64).reshape(-1)
-        if qa.shape[0] != self.robot.dof or not np.all(np.isfinite(qa)):
+        if qa.shape[0] != self._dof or not np.isfinite(qa).all():
             raise ValueError(f"expected {self.robot.dof} finite joint values, got {qa.tolist()}")
-        if self._robot_q is None or not np.array_equal(self._robot_q, qa):
+        if self._robot_q is None or not (self._robot_q == qa).all():      # np.array_equal, same shapes
             self.robot.render_link_vertices(qa, SIM_CELL, self._robot_vw)
             self._robot_q = qa.copy()
         return self._robot_vw

@@ -13,6 +13,7 @@ own generator (seeded once with ``seed``) advances from capture to capture.
 
 from __future__ import annotations
 
+import functools
 import zlib
 from typing import Sequence
 
@@ -39,8 +40,14 @@ def returns_beyond_the_model(measured: np.ndarray, ideal: np.ndarray, cam: Camer
 
 def frame_rng(seed: int, camera_id: str, stamp: float) -> np.random.Generator:
     """The generator of the noise of one frame: seeded by ``(seed, crc32(camera id), stamp in µs)``."""
-    key = [int(seed) & 0xFFFFFFFF, zlib.crc32(camera_id.encode()), int(round(float(stamp) * 1e6)) & 0xFFFFFFFFFFFF]
-    return np.random.default_rng(np.random.SeedSequence(key))
+    key = [int(seed) & 0xFFFFFFFF, _crc32(camera_id), int(round(float(stamp) * 1e6)) & 0xFFFFFFFFFFFF]
+    return np.random.Generator(np.random.PCG64(np.random.SeedSequence(key)))   # default_rng's, its wrapper aside
+
+
+@functools.lru_cache(maxsize=256)
+def _crc32(camera_id: str) -> int:
+    """``zlib.crc32`` of the camera id (asked at every frame)."""
+    return zlib.crc32(camera_id.encode())
 
 
 class SimulatedCamera:
