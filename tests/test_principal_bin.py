@@ -77,7 +77,7 @@ def test_binned_state_made_on_the_worker_gives_the_grids_answers():
 
 
 @pytest.mark.slow
-@pytest.mark.parametrize("b", [2, 3])
+@pytest.mark.parametrize("b", [2, 3, 4, 8])     # 3, 4, 8: what the grid budget chooses (grid_budget.py)
 def test_property_random_scenes_binned(b):
     """R25 with the binned grid: reported <= true + eps for every point, eps the discretisation
     bound at the binned pixel (its footprint, not the camera's)."""

@@ -65,6 +65,10 @@ class MonitorConfig(BaseModel):
     principal's pixels per grid column side (2: one column per 2x2 pixels, a quarter of
     the columns to classify and look up; distances can only come out smaller, by at most
     a block's width at its depth, 1.1 cm for a 640x480 Kinect at 3 m; 1: the paper's grid).
+    A rig with a robot that does not set it gets the finest column that keeps a point's
+    region of surveillance at the robot within 64 columns across
+    (:func:`depthguard.grid_budget.auto_principal_bin`: the build's cost bounded by design,
+    issue 29; ``Rig.principal_bin_why`` says what was chosen); 2 here otherwise.
     ``fusion_duty`` the share of a core the fusion thread may take (R36): a build of b
     seconds on n numba threads rests b (n / duty - 1) before the next, frames that come
     meanwhile going into that one, so the fusion cannot starve the cameras' workers however

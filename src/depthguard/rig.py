@@ -110,6 +110,7 @@ class Rig:
     depth_scales: dict = field(default_factory=dict)   # camera id -> m per 16-bit unit (``depth_scale:``, R31)
     learned: dict = field(default_factory=dict)   # camera id -> LearnedScene (``scene: {learned: DIR}``, issue 31)
     learned_dir: Optional[Path] = None            # that DIR, resolved
+    principal_bin_why: str = ""                   # how monitor.principal_bin was chosen (grid_budget.py)
 
     def __repr__(self) -> str:
         """One line: the name, file, camera ids, workspace, robot and object names (no mesh arrays)."""
@@ -217,12 +218,30 @@ class Rig:
             inside = robot_inside_objects(robot, q0, objects)     # mounted 20 cm inside its table
             if inside:
                 raise RigError(f"{src}: robot: {inside}")
+        monitor, why = _budgeted_monitor(spec.monitor or MonitorConfig(), cameras, robot, q0)
         return cls(name=spec.name, cameras=cameras, workspace=ws, robot=robot, robot_q0=q0,
                    objects=objects, path=Path(source) if isinstance(source, Path) else None,
-                   description=spec.description, monitor=spec.monitor or MonitorConfig(),
+                   description=spec.description, monitor=monitor, principal_bin_why=why,
                    topics={c.id: c.topic for c in spec.cameras if c.topic},
                    depth_scales={c.id: c.depth_scale for c in spec.cameras if c.depth_scale is not None},
                    learned=learned, learned_dir=learned_dir)
+
+
+def _budgeted_monitor(monitor: MonitorConfig, cameras: list, robot, q0) -> tuple[MonitorConfig, str]:
+    """``monitor`` with ``principal_bin`` chosen from the grid's column budget
+    (:func:`depthguard.grid_budget.auto_principal_bin`, issue 29) when the rig does not set it
+    and has a robot, and the sentence saying why (empty when the rig sets it or has no robot)."""
+    if "principal_bin" in monitor.model_fields_set or robot is None or q0 is None:
+        return monitor, ""
+    from depthguard.grid_budget import auto_principal_bin
+
+    ids = list(monitor.cameras) if monitor.cameras else [c.id for c in cameras]
+    pid = monitor.principal if monitor.principal is not None else (ids[0] if ids else None)
+    cam = next((c for c in cameras if c.id == pid), None)
+    if cam is None:                     # a wrong principal is said where the monitor starts
+        return monitor, ""
+    b, why = auto_principal_bin(cam, robot, q0, monitor.query_rho)
+    return MonitorConfig.model_validate({**monitor.model_dump(exclude_unset=True), "principal_bin": b}), why
 
 
 def _make_object(o: ObjectSpec, base_dir: Path) -> StaticObject:

@@ -202,6 +202,8 @@ def monitor(
         log(f"monitor: ready in {seconds:.1f} s; cameras {', '.join(c.id for c in the_rig.cameras)}; "
             f"sources {', '.join(specs)}; joints {joint_spec}; {'as fast as possible' if fast else 'real time'}"
             + ("" if duration else "; Ctrl-C stops"))
+        if the_rig.principal_bin_why:
+            log(f"monitor: grid {the_rig.principal_bin_why}")
         direct, queued = open_run_sinks(sink_specs, the_rig, context, fast)     # runtime.sink_specs
         fanout = SinkFanout(queued, block=fast)
         # called by the control thread: the robot that obeys, and sinks that only keep the newest reaction
