@@ -52,6 +52,7 @@ from __future__ import annotations
 
 import math
 import threading
+from bisect import bisect_right
 from collections import deque
 
 import numpy as np
@@ -115,6 +116,9 @@ class SimWorld:
         self.states: deque = deque(maxlen=int(5.0 * joint_hz))   # (stamp, q) of every tick, newest last
         self._lock = threading.Lock()
         self._path_end = float(getattr(self.scene.robot_path, "end", 0.0))   # a JointPath loops; a callable does not
+        self._keys = _path_keys(self.scene)       # the JointPath's keys as lists (_path_q), or None
+        self._memo: dict = {}                     # tau -> q of the last path ticks (_path_q)
+        self._reaction = None                     # the newest reaction not yet obeyed (on_reaction)
         # the package's one obeying robot (sim/obeying_robot.py), here on the cell's joint path
         self.robot_sim = ObeyingRobot(PathFollower(self._path_q), self.robot.dof, tau=self.start)
         self._tick = 0                  # next joint tick index (time = origin + tick / joint_hz)
@@ -125,10 +129,22 @@ class SimWorld:
     def on_reaction(self, reaction) -> None:
         """A sink: the robot takes each reaction — the override and the joint-velocity limits
         (R14) scale the speed along its path (a joint path cannot follow the end effector's
-        repulsion, which this robot ignores): :class:`~depthguard.sim.obeying_robot.PathFollower`."""
-        with self._lock:
+        repulsion, which this robot ignores): :class:`~depthguard.sim.obeying_robot.PathFollower`.
+
+        Called on the control thread (500 Hz), it never waits (issue 29: it waited on the world's
+        lock while a camera thread rendered or the joints pump ticked): the reaction is only
+        kept, and :meth:`advance` has the robot obey the newest one before its next tick. Every
+        tick still follows the newest reaction given before it (obeying sets the whole command,
+        so the reactions in between change nothing), as when it obeyed here."""
+        self._reaction = reaction               # one reference stored: atomic, no lock
+
+    def _obey_newest(self) -> None:
+        """The robot obeys the newest reaction given since the last call (under ``_lock``)."""
+        r = self._reaction
+        if r is not None:
+            self._reaction = None
             if self.followed is None:           # a followed robot takes the reaction through its own sink
-                self.robot_sim.obey(reaction)
+                self.robot_sim.obey(r)
 
     def follow(self, spec: str) -> None:
         """From now on the robot is the live robot of joint source ``spec`` (module docstring):
@@ -171,9 +187,41 @@ class SimWorld:
         return s % d if d > 0 else s
 
     def _path_q(self, tau: float) -> np.ndarray:
+        """(dof,) rad, the cell's path at path time ``tau`` (s): ``scene.robot_q``, looping.
+
+        The path follower asks for the same times again (each tick the joint speed at ``tau``
+        and ``tau + dt``, then the new ``tau``: at full speed that is the next tick's
+        ``tau``), so the last few answers are kept (copies handed out); a
+        :class:`~depthguard.sim.scene.JointPath` is evaluated here with ``bisect`` on its keys
+        rather than ``numpy.searchsorted`` (issue 29: the dispatch of a call on a 6-element
+        array, 500 ticks a second, was a quarter of the joints pump's time) — the same
+        arithmetic, bit for bit (``tests/test_sim_source.py``)."""
+        memo = self._memo
+        q = memo.get(tau)
+        if q is None:
+            q = self._path_eval(tau)
+            if len(memo) >= 4:
+                memo.pop(next(iter(memo)))
+            memo[tau] = q
+        return q.copy()
+
+    def _path_eval(self, tau: float) -> np.ndarray:
         if self._path_end > 0:
             tau = tau % self._path_end
-        return self.scene.robot_q(tau)
+        k = self._keys
+        if k is None:
+            return self.scene.robot_q(tau)
+        ts, qs, step = k
+        if tau <= ts[0] or len(ts) == 1:
+            return qs[0].copy()
+        if tau >= ts[-1]:
+            return qs[-1].copy()
+        i = bisect_right(ts, tau) - 1               # = searchsorted(side="right") - 1
+        if step:
+            return qs[i].copy()
+        s = (tau - ts[i]) / (ts[i + 1] - ts[i])
+        s = s * s * (3 - 2 * s)
+        return (1 - s) * qs[i] + s * qs[i + 1]
 
     def start_clock(self, origin: float) -> None:
         """Put the simulator's time 0 at ``origin`` s of the run's clock (module docstring); only
@@ -190,6 +238,7 @@ class SimWorld:
         speed scale of its last tick; ``skipped_ticks`` counts the jump)."""
         new = []
         with self._lock:
+            self._obey_newest()
             if self.followed is not None:
                 return new                      # the live robot's states come through take_states
             dt = 1.0 / self.joint_hz
@@ -213,6 +262,22 @@ class SimWorld:
     def dynamic(self, t: float) -> list:
         """The people and props at the simulator's time ``t`` (s from its start, not the run's clock)."""
         return [] if self.alone else list(self.scene.dynamic_at(self.scene_time(t)))
+
+
+def _path_keys(scene):
+    """``(times list, q arrays, step)`` of a scene's :class:`~depthguard.sim.scene.JointPath` whose
+    values ``SimWorld._path_eval`` may compute itself (a robot whose path has its own dof),
+    else None (then ``scene.robot_q`` answers)."""
+    from depthguard.sim.scene import JointPath
+
+    path, robot = scene.robot_path, scene.robot
+    if type(path) is not JointPath or robot is None:
+        return None
+    ts, qs = getattr(path, "_t", None), getattr(path, "_q", None)
+    if not (isinstance(ts, np.ndarray) and isinstance(qs, np.ndarray) and qs.ndim == 2
+            and qs.shape == (len(ts), robot.dof) and qs.dtype == np.float64 and ts.dtype == np.float64):
+        return None
+    return ts.tolist(), list(qs), path.interp == "step"
 
 
 class SimJoints:
