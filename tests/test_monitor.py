@@ -170,6 +170,11 @@ def test_stopped_camera_stops_the_robot_within_its_limit_and_it_resumes(rig, sti
         r = started(d, cfg)[-1]
         assert r.override == 1.0 and r.reasons == {}, r.reasons
         assert {c: s.state for c, s in r.cameras.items()} == {"cam0": "fresh", "cam1": "fresh"}
+        # issue 29: the step makes its reaction without the dataclass __init__: the same object
+        import dataclasses
+        for x in (r, *r.cameras.values()):
+            assert x == type(x)(**{f.name: getattr(x, f.name) for f in dataclasses.fields(x)})
+            assert set(vars(x)) == {f.name for f in dataclasses.fields(x)}
 
         d.cams.discard("cam1")                      # cam1 delivers nothing more
         t_last = d.last_pushed["cam1"]
