@@ -160,12 +160,18 @@ def reaction_cdr(r, frame_id: str) -> bytes:
     reasons = r.reasons
     n = head[3]
     if reasons:
-        o = _Out()
-        o.n = n
-        o.strings(list(reasons))
-        o.strings(list(reasons.values()))
-        parts += o.parts
-        n = o.n
+        key = (tuple(reasons.items()), n % 4)
+        block = _reason_blocks.get(key)
+        if block is None:                        # the same reasons hold for many cycles: made once
+            o = _Out()
+            o.n = key[1]
+            o.strings([k for k, _ in key[0]])
+            o.strings([v for _, v in key[0]])
+            if len(_reason_blocks) > 256:
+                _reason_blocks.clear()
+            block = _reason_blocks[key] = b"".join(o.parts)
+        parts.append(block)
+        n += len(block)
     else:
         parts.append(_NO_REASONS[n % 4])
         n += len(_NO_REASONS[n % 4])
@@ -181,6 +187,7 @@ def reaction_cdr(r, frame_id: str) -> bytes:
 
 
 _ZERO3 = [0.0, 0.0, 0.0]
+_reason_blocks: dict = {}           # (reasons' items, offset mod 4) -> their two string sequences' bytes
 
 
 def _no_reasons(off: int) -> bytes:
