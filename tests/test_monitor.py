@@ -170,6 +170,11 @@ def test_stopped_camera_stops_the_robot_within_its_limit_and_it_resumes(rig, sti
         r = started(d, cfg)[-1]
         assert r.override == 1.0 and r.reasons == {}, r.reasons
         assert {c: s.state for c, s in r.cameras.items()} == {"cam0": "fresh", "cam1": "fresh"}
+        # issue 29: the step makes its reaction without the dataclass __init__: the same object
+        import dataclasses
+        for x in (r, *r.cameras.values()):
+            assert x == type(x)(**{f.name: getattr(x, f.name) for f in dataclasses.fields(x)})
+            assert set(vars(x)) == {f.name for f in dataclasses.fields(x)}
 
         d.cams.discard("cam1")                      # cam1 delivers nothing more
         t_last = d.last_pushed["cam1"]
@@ -678,3 +683,39 @@ def test_a_frame_in_millimetres_is_refused_with_a_sentence(rig, still, q0):
         st = mon.stats()["cameras"]["cam0"]
         assert st["refused"] == {"bad_units": 1} and "millimetres" in st["last_refusal"]
         assert "cam0" not in mon.step(0.002).frame_stamps
+
+
+def test_the_workers_image_check_gives_check_depth_images_verdicts(rig, still, q0):
+    """issue 29: a camera worker checks a float32/64 frame of its camera's shape without
+    check_depth_image; every other frame still goes through it: the same refusals (bad_image,
+    with its sentence) and the same frames used, as check_depth_image decides (the truth)."""
+    from depthguard.camera import check_depth_image
+
+    cfg = free_cfg(rig)
+    img = still["cam0"]
+    cam = rig.camera("cam0")
+    cases = [img.astype(np.float32), img.astype(np.float64), img.astype(np.float16), img.astype(np.int32),
+             img[:-1], img[None], img.tolist(), img.astype(np.float32)[:, ::-1], img.astype(np.float64).T]
+    verdicts = []
+    with Monitor(rig, cfg) as mon:
+        t = 0.0
+        mon.push_joints(t, q0)
+        for k, depth in enumerate(cases):
+            try:
+                check_depth_image(cam, depth)
+                want = None
+            except ValueError as exc:
+                want = str(exc)
+            before = dict(mon.stats()["cameras"]["cam0"]["refused"])
+            t += 0.01
+            mon.push_joints(t + 0.001, q0)
+            mon.push_frame(Frame("cam0", depth, t))
+            mon.flush()
+            st = mon.stats()["cameras"]["cam0"]
+            got = st["refused"].get("bad_image", 0) - before.get("bad_image", 0)
+            verdicts.append(want is None)
+            if want is None:
+                assert got == 0 and mon.step(t + 0.001).frame_stamps.get("cam0") == t, k
+            else:
+                assert got == 1 and st["last_refusal"].endswith(want), (k, st["last_refusal"])
+    assert verdicts.count(True) >= 4 and verdicts.count(False) >= 3, verdicts     # both kinds were asked

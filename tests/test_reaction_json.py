@@ -165,3 +165,36 @@ def test_results_mcap_markers_equal_rosbags_serialisation():
         me = McapResults.__new__(McapResults)
         me.robot, me._watch, me.frame_id = robot, watch, "world" if k % 3 else "base_link_x"
         assert me.markers_cdr(r) == rosmsg.serialize(me.markers_msg(r)), k
+
+
+def test_made_reactions_are_the_constructed_ones():
+    """issue 29: Reaction.made / CameraStatus.made (the control step's) give the object the frozen
+    dataclass's constructor gives: equal, same fields, still frozen, and the same log line."""
+    import dataclasses
+
+    rng = np.random.default_rng(41)
+    for k in range(50):
+        r = _reaction(rng, ssm=k % 2 == 0, part=k % 3 == 0)
+        fields = {f.name: getattr(r, f.name) for f in dataclasses.fields(Reaction)}
+        fields["cameras"] = {c: CameraStatus.made(s.age_s, s.state, s.frames, s.refused, s.stamp)
+                             for c, s in r.cameras.items()}
+        m = Reaction.made(fields)
+        assert m == Reaction(**fields) and vars(m) == vars(Reaction(**fields))
+        assert all(c == CameraStatus(**vars(c)) for c in m.cameras.values())
+        assert reaction_json(m) == json.dumps(r.to_dict(), allow_nan=False)
+        with pytest.raises(dataclasses.FrozenInstanceError):
+            m.t = 1.0
+
+
+def test_tiny_numbers_take_the_template_path():
+    """The numbers that print in exponent form (0 < |round(x, 6)| < 1e-4) and those ending in
+    ``0.0000dd`` inside a larger one are written by the template, equal to the record's json."""
+    from depthguard.runtime.reaction_json import _fast
+
+    rng = np.random.default_rng(43)
+    for k in range(300):
+        r = _reaction(rng, ssm=k % 2 == 0, part=False, tiny=False)
+        x = float(rng.choice([3.2e-05, -1e-06, 9.9e-05, 1e-05, 10.000032, -7.000001, 1.2345e-05]))
+        r = Reaction(**{**r.__dict__, "repulsion": np.array([x, -x, x / 3])})
+        line = _fast(r)
+        assert line is not None and line == json.dumps(r.to_dict(), allow_nan=False), (k, x)

@@ -224,3 +224,36 @@ def test_zenoh_publisher_refuses_a_bad_cell_name():
         ZenohPublisher("a/b")
     with pytest.raises(SinkError, match="cell name"):
         ZenohPublisher("*")
+
+
+# --------------------------------------------------------------------------- results.mcap's writes
+def test_results_mcap_appender_writes_the_file_rosbags_writes(tmp_path):
+    """issue 29: McapResults appends its messages without Writer.write (runtime.mcap_results._Appender);
+    the file is byte for byte the one rosbags' own Writer.write makes of the same messages, over
+    several chunks (messages of random sizes and channels, equal and decreasing stamps)."""
+    from rosbags.rosbag2 import StoragePlugin, Writer
+    from rosbags.rosbag2.enums import CompressionFormat, CompressionMode
+
+    from depthguard.runtime.mcap_results import _Appender
+    from depthguard.transport import ros_messages as rosmsg
+
+    rng = np.random.default_rng(13)
+    msgs = []
+    ns = 10**9
+    for _ in range(3000):
+        ns += int(rng.choice([0, 1, 2_000_000, -5]))
+        msgs.append((int(rng.integers(0, 3)), ns, rng.bytes(int(rng.integers(0, 1500)))))
+    out = []
+    for fast in (False, True):
+        d = tmp_path / f"{int(fast)}" / "bag"           # the same name: the metadata names the file
+        w = Writer(d, version=9, storage_plugin=StoragePlugin.MCAP)
+        w.set_compression(CompressionMode.STORAGE, CompressionFormat.ZSTD)
+        w.open()
+        cons = [w.add_connection(f"/t{i}", rosmsg.MSG["Float64"], typestore=rosmsg.TYPESTORE) for i in range(3)]
+        app = _Appender(w)
+        assert app.fast
+        for c, t, data in msgs:
+            (app.append if fast else w.write)(cons[c], t, data)
+        w.close()
+        out.append((d / "bag.mcap").read_bytes())
+    assert len(out[0]) > 2**21 and out[0] == out[1]

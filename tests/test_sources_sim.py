@@ -219,3 +219,51 @@ def test_frame_rng_is_default_rng_of_its_seed_sequence():
         got = frame_rng(seed, cam, stamp)
         assert got.integers(0, 1 << 40, 8).tolist() == want.integers(0, 1 << 40, 8).tolist()
         assert got.random(5).tobytes() == want.random(5).tobytes()
+
+
+def test_the_world_path_is_the_scene_path_bit_for_bit():
+    """issue 29: SimWorld keeps its path's last answers; every value is the scene's own
+    ``robot_q``, bit for bit, for every cell's path, at its
+    keys, between them, before and after them, and asked again (copies: a caller may keep one)."""
+    from depthguard.sources.sim_source import SimWorld
+
+    for cell in ("ur3-cell", "flacco-cell"):
+        world = SimWorld(cell, alone=True, noiseless=True)
+        ts = world.scene.robot_path._t
+        rng = np.random.default_rng(5)
+        taus = np.concatenate([ts, ts + 1e-9, ts - 1e-9, rng.uniform(-1.0, float(ts[-1]) * 2.5, 400), [0.0, -3.0]])
+        for tau in [float(x) for x in taus] * 2:
+            ref_tau = tau % world._path_end if world._path_end > 0 else tau
+            a, b = world._path_q(tau), world.scene.robot_q(ref_tau)
+            assert a.dtype == b.dtype and a.tobytes() == b.tobytes(), (cell, tau)
+            a[:] = 99.0                                # the memo hands out copies
+            assert world._path_q(tau).tobytes() == b.tobytes()
+
+
+def test_the_robot_obeys_the_newest_reaction_before_its_next_tick_without_the_lock():
+    """issue 29: on_reaction (the control thread) never takes the world's lock; the robot ticks with
+    the newest reaction given before the tick, as an ObeyingRobot that obeys at once (the truth)."""
+    from types import SimpleNamespace
+
+    from depthguard.sim.obeying_robot import ObeyingRobot, PathFollower
+    from depthguard.sources.sim_source import SimWorld
+
+    world = SimWorld("ur3-cell", alone=True, noiseless=True)
+    dof = world.robot.dof
+    truth = ObeyingRobot(PathFollower(world.scene.robot_q if world._path_end <= 0 else
+                                      (lambda tau: world.scene.robot_q(tau % world._path_end))), dof, tau=world.start)
+    rng = np.random.default_rng(11)
+    t = 0.0
+    world.advance(t)
+    for k in range(300):
+        for _ in range(int(rng.integers(0, 3))):       # none, one or two reactions between ticks
+            k_ = float(rng.choice([0.0, 0.3, 1.0]))
+            r = SimpleNamespace(override=k_, speed_scale=k_, qd_min=-rng.random(dof) * 2, qd_max=rng.random(dof) * 2)
+            with world._lock:                           # held by a renderer: the hand-off does not wait
+                world.on_reaction(r)
+            truth.obey(r)
+        t += 1.0 / world.joint_hz
+        new = world.advance(t)
+        assert len(new) == 1
+        q = truth.step(1.0 / world.joint_hz)
+        assert new[0][1].tobytes() == q.tobytes(), k

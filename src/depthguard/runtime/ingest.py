@@ -41,6 +41,7 @@ from dataclasses import dataclass
 import numpy as np
 
 from depthguard.camera import check_depth_image
+from depthguard.depth_io import depth_units_problem
 from depthguard.filtering.expected import ExpectedDepth
 from depthguard.runtime.drift import DriftWatch
 from depthguard.runtime.frame_pool import BufferPool
@@ -100,6 +101,7 @@ class CameraWorker:
                  on_product, name: str | None = None, drift: dict | None = None, state_options=None,
                  learned=None, scene_change: dict | None = None, ssm_muted=None):
         self.camera = cam
+        self._shape = tuple(cam.shape)      # (H, W): a frame of another shape gets the full check
         # the camera's share of the grid build (R36): state_options() -> (StateOptions, robot_free,
         # pyramids, bin) or None (no state made here; the build works it out)
         self.state_options = state_options
@@ -196,11 +198,14 @@ class CameraWorker:
                     self._busy = False
 
     def _process(self, frame, pushed_at: float) -> None:
-        try:
-            depth = check_depth_image(self.camera, frame.depth)
-        except ValueError as exc:
-            self._refuse("bad_image", str(exc))
-            return
+        depth = frame.depth
+        if not (type(depth) is np.ndarray and depth.ndim == 2 and depth.dtype in _FLOAT_IMAGES
+                and depth.shape == self._shape):     # else the full check (its verdict and sentence)
+            try:
+                depth = check_depth_image(self.camera, depth)
+            except ValueError as exc:
+                self._refuse("bad_image", str(exc))
+                return
         units = _wrong_units(depth, self.camera)
         if units:
             self._refuse("bad_units", units)
@@ -287,10 +292,13 @@ class CameraWorker:
         return self._maker().make(depth, robot_depth, options, robot_free, pyramids, bin_px, out=out or None)
 
 
+#: the frames' dtypes that pass :func:`~depthguard.camera.check_depth_image` when their shape is the
+#: camera's, checked per frame without it (issue 29: ``numpy.issubdtype`` for every frame)
+_FLOAT_IMAGES = (np.dtype(np.float32), np.dtype(np.float64))
+
+
 def _wrong_units(depth: np.ndarray, cam) -> str | None:
     """A sentence when most measured pixels of ``depth`` lie outside what any sensor returns
     (millimetres read as metres, or metres in a millimetre PNG); the one check of
     :func:`depthguard.depth_io.depth_units_problem`. None otherwise."""
-    from depthguard.depth_io import depth_units_problem
-
     return depth_units_problem(depth, cam)

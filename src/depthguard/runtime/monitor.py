@@ -359,7 +359,8 @@ class Monitor(MonitorDistances, UnitStateInput, MonitorPaths, MonitorWatches):
         with self._settings_lock:
             ids = self._camera_ids + tuple(remote) if remote else self._camera_ids
         cams: dict[str, CameraStatus] = {}
-        ages = np.empty(len(ids))
+        ages = [0.0] * len(ids)                      # (n_cam,) s: a list, read by index (stop_reasons)
+        made = CameraStatus.made
         # an added camera is not awaited before its first frame only while some monitored camera
         # has a frame in use: a grid made of removed cameras' frames alone must not run unsupervised
         in_use = any(c in stamps for c in ids)
@@ -375,8 +376,8 @@ class Monitor(MonitorDistances, UnitStateInput, MonitorPaths, MonitorWatches):
             if dw is not None and dw.untrusted:       # R34: moved; latched until recalibrated or accepted
                 state = "untrusted"
                 untrusted[c] = dw.message
-            cams[c] = CameraStatus(age, state, w.frames if w else 0, w.refused if w else 0,
-                                   -math.inf if st is None else st)
+            cams[c] = made(age, state, w.frames if w else 0, w.refused if w else 0,
+                           -math.inf if st is None else st)
         reasons = stop_reasons(ages, limit, ids, obs[:m_cp], D[:m_cp], V[:m_cp], self._cp_names)
         for c, msg in untrusted.items():
             reasons[f"untrusted:{c}"] = msg
@@ -402,12 +403,12 @@ class Monitor(MonitorDistances, UnitStateInput, MonitorPaths, MonitorWatches):
         self.step_s.append(step_s)
         if len(self.step_s) > 100_000:
             del self.step_s[:50_000]
-        r = Reaction(t=float(t), override=float(k), repulsion=rep, qd_min=lo, qd_max=hi,
-                     names=self._names, distance=D, direction=V, observed=obs, is_watch=self._is_watch,
-                     reasons=reasons, cameras=cams, joints_age_s=float(joints_age), q=q.copy(),
-                     frame_stamps=stamps, step_s=step_s, reaction_mode=self._mode, speed_scale=scale,
-                     protective_stop=pstop, ssm=None if ssm is None else ssm.terms,
-                     ssm_scale=1.0 if ssm is None else float(ssm.scale), parts=parts)
+        r = Reaction.made(dict(t=float(t), override=float(k), repulsion=rep, qd_min=lo, qd_max=hi,
+                               names=self._names, distance=D, direction=V, observed=obs, is_watch=self._is_watch,
+                               reasons=reasons, cameras=cams, joints_age_s=float(joints_age), q=q.copy(),
+                               frame_stamps=stamps, step_s=step_s, reaction_mode=self._mode, speed_scale=scale,
+                               protective_stop=pstop, ssm=None if ssm is None else ssm.terms,
+                               ssm_scale=1.0 if ssm is None else float(ssm.scale), parts=parts))
         for s in self.sinks:
             s(r)
         return r

@@ -132,32 +132,88 @@ def reaction_cdr(r, frame_id: str) -> bytes:
     :meth:`~depthguard.runtime.mcap_results.McapResults.reaction_msg` fills it (``within_rho`` =
     finite distance; distance and direction 0 where not; an age of ``inf`` as -1). The parts
     before and after the reasons are each one ``struct`` pack of a layout made once per
-    names, cameras and their states (:class:`_Layout`)."""
+    names, cameras and their states (:class:`_Layout`); the numbers are taken from the arrays
+    with one ``tolist`` each (a reaction's own float64 and bool arrays; others are converted
+    first)."""
     ns = int(round(r.t * 1e9))
     names = tuple(r.names)
-    qd_min = np.asarray(r.qd_min, dtype=np.float64).ravel().tolist()
-    qd_max = np.asarray(r.qd_max, dtype=np.float64).ravel().tolist()
-    dist = np.asarray(r.distance, dtype=np.float64)
-    within = np.isfinite(dist)
-    direc = np.where(within[:, None], np.asarray(r.direction, dtype=np.float64).reshape(-1, 3), 0.0)
+    qd_min = _floats(r.qd_min)
+    qd_max = _floats(r.qd_max)
+    d_l = _floats(r.distance)
+    m = len(d_l)
+    direc = r.direction
+    v_l = direc.tolist() if (type(direc) is np.ndarray and direc.dtype == np.float64 and direc.shape == (m, 3)) \
+        else np.asarray(direc, dtype=np.float64).reshape(-1, 3).tolist()
     head = _cached(_reaction_heads, (frame_id, names, len(qd_min), len(qd_max)), _reaction_head)
     rep = r.repulsion
-    parts = [_HEAD, _pack(head, (ns // 1_000_000_000, ns % 1_000_000_000, float(r.override), float(rep[0]),
-                                 float(rep[1]), float(rep[2]), *qd_min, *qd_max,
-                                 *np.asarray(r.is_watch, dtype=bool).tolist(),
-                                 *np.asarray(r.observed, dtype=bool).tolist(), *within.tolist(),
-                                 *np.where(within, dist, 0.0).tolist(), *direc.ravel().tolist()))]
-    o = _Out()
-    o.n = head[3]
-    o.strings(list(r.reasons))
-    o.strings(list(r.reasons.values()))
-    parts += o.parts
+    vals = [ns // 1_000_000_000, ns % 1_000_000_000, float(r.override), float(rep[0]), float(rep[1]), float(rep[2])]
+    vals += qd_min
+    vals += qd_max
+    vals += _bools(r.is_watch)
+    vals += _bools(r.observed)
+    within = [x - x == 0.0 for x in d_l]          # finite (inf - inf and nan - nan are nan)
+    vals += within
+    vals += [x if w else 0.0 for x, w in zip(d_l, within)]
+    for v, w in zip(v_l, within):
+        vals += v if w else _ZERO3
+    parts = [_HEAD, _pack(head, vals)]
+    reasons = r.reasons
+    n = head[3]
+    if reasons:
+        key = (tuple(reasons.items()), n % 4)
+        block = _reason_blocks.get(key)
+        if block is None:                        # the same reasons hold for many cycles: made once
+            o = _Out()
+            o.n = key[1]
+            o.strings([k for k, _ in key[0]])
+            o.strings([v for _, v in key[0]])
+            if len(_reason_blocks) > 256:
+                _reason_blocks.clear()
+            block = _reason_blocks[key] = b"".join(o.parts)
+        parts.append(block)
+        n += len(block)
+    else:
+        parts.append(_NO_REASONS[n % 4])
+        n += len(_NO_REASONS[n % 4])
     cams = tuple(r.cameras)
     statuses = [r.cameras[c] for c in cams]
-    q = np.asarray(r.q, dtype=np.float64).ravel().tolist()
-    tail = _cached(_reaction_tails, (o.n % 8, cams, tuple(st.state for st in statuses), len(q)), _reaction_tail)
-    parts.append(_pack(tail, (*[_age(st.age_s) for st in statuses], _age(r.joints_age_s), *q)))
+    q = _floats(r.q)
+    tail = _cached(_reaction_tails, (n % 8, cams, tuple([st.state for st in statuses]), len(q)), _reaction_tail)
+    vals = [_age(st.age_s) for st in statuses]
+    vals.append(_age(r.joints_age_s))
+    vals += q
+    parts.append(_pack(tail, vals))
     return b"".join(parts)
+
+
+_ZERO3 = [0.0, 0.0, 0.0]
+_reason_blocks: dict = {}           # (reasons' items, offset mod 4) -> their two string sequences' bytes
+
+
+def _no_reasons(off: int) -> bytes:
+    """Two empty string sequences (no reasons) written at ``off`` (mod 4)."""
+    o = _Out()
+    o.n = off
+    o.u32(0)
+    o.u32(0)
+    return b"".join(o.parts)
+
+
+_NO_REASONS = [_no_reasons(k) for k in range(4)]
+
+
+def _floats(a) -> list:
+    """A float64 array's values as a list (what ``np.asarray(a, float64).ravel().tolist()`` gives)."""
+    if type(a) is np.ndarray and a.dtype == np.float64 and a.ndim == 1:
+        return a.tolist()
+    return np.asarray(a, dtype=np.float64).ravel().tolist()
+
+
+def _bools(a) -> list:
+    """A bool array's values as a list (what ``np.asarray(a, bool).tolist()`` gives)."""
+    if type(a) is np.ndarray and a.dtype == np.bool_ and a.ndim == 1:
+        return a.tolist()
+    return np.asarray(a, dtype=bool).ravel().tolist()
 
 
 _markers: dict = {}                 # (offset mod 8, frame_id, ns, points) -> a marker's layout
@@ -214,15 +270,30 @@ class _Layout:
         self.var("?", k, 1)
 
     def done(self):
+        """``(Struct, template args, runs, size)``: ``runs`` are the slots as ``(start, stop)`` index
+        ranges of consecutive arguments (a message has a dozen, not a slot per number)."""
         slots = [i for i, x in enumerate(self.args) if x is None]
-        return struct.Struct("".join(self.fmt)), self.args, slots, self.n - self.off
+        runs: list = []
+        for i in slots:
+            if runs and runs[-1][1] == i:
+                runs[-1][1] = i + 1
+            else:
+                runs.append([i, i + 1])
+        return struct.Struct("".join(self.fmt)), self.args, tuple((a, b) for a, b in runs), self.n - self.off
 
 
 def _pack(layout, values) -> bytes:
-    st, args, slots, _ = layout
+    """The layout's bytes with ``values`` (a sequence, one per slot, in order) in its slots."""
+    st, args, runs, _ = layout
+    if len(runs) == 1 and runs[0] == (0, len(args)):
+        return st.pack(*values)
     args = list(args)
-    for j, v in zip(slots, values):
-        args[j] = v
+    k = 0
+    for a, b in runs:
+        args[a:b] = values[k:k + b - a]
+        k += b - a
+    if k != len(values):
+        raise ValueError(f"{len(values)} values for {k} slots")
     return st.pack(*args)
 
 

@@ -25,6 +25,11 @@ def explain_stale(reasons: dict[str, str], workers: dict, marks: dict[str, tuple
     for cid, worker in list(workers.items()):
         key = "stale:" + cid
         stale = key in reasons
+        if not stale:                        # the usual cycle: no lock while the frame in use is marked
+            product = worker.product         # (one attribute read; a new one is marked under the lock)
+            mark = marks.get(cid)
+            if mark is not None and mark[0] == (0 if product is None else product.version):
+                continue
         with worker.lock:                    # the counters read once per new frame in use, or when stale
             product = worker.product
             version = 0 if product is None else product.version

@@ -115,6 +115,8 @@ class SimWorld:
         self.states: deque = deque(maxlen=int(5.0 * joint_hz))   # (stamp, q) of every tick, newest last
         self._lock = threading.Lock()
         self._path_end = float(getattr(self.scene.robot_path, "end", 0.0))   # a JointPath loops; a callable does not
+        self._memo: dict = {}                     # tau -> q of the last path ticks (_path_q)
+        self._reaction = None                     # the newest reaction not yet obeyed (on_reaction)
         # the package's one obeying robot (sim/obeying_robot.py), here on the cell's joint path
         self.robot_sim = ObeyingRobot(PathFollower(self._path_q), self.robot.dof, tau=self.start)
         self._tick = 0                  # next joint tick index (time = origin + tick / joint_hz)
@@ -125,10 +127,22 @@ class SimWorld:
     def on_reaction(self, reaction) -> None:
         """A sink: the robot takes each reaction — the override and the joint-velocity limits
         (R14) scale the speed along its path (a joint path cannot follow the end effector's
-        repulsion, which this robot ignores): :class:`~depthguard.sim.obeying_robot.PathFollower`."""
-        with self._lock:
+        repulsion, which this robot ignores): :class:`~depthguard.sim.obeying_robot.PathFollower`.
+
+        Called on the control thread (500 Hz), it never waits (issue 29: it waited on the world's
+        lock while a camera thread rendered or the joints pump ticked): the reaction is only
+        kept, and :meth:`advance` has the robot obey the newest one before its next tick. Every
+        tick still follows the newest reaction given before it (obeying sets the whole command,
+        so the reactions in between change nothing), as when it obeyed here."""
+        self._reaction = reaction               # one reference stored: atomic, no lock
+
+    def _obey_newest(self) -> None:
+        """The robot obeys the newest reaction given since the last call (under ``_lock``)."""
+        r = self._reaction
+        if r is not None:
+            self._reaction = None
             if self.followed is None:           # a followed robot takes the reaction through its own sink
-                self.robot_sim.obey(reaction)
+                self.robot_sim.obey(r)
 
     def follow(self, spec: str) -> None:
         """From now on the robot is the live robot of joint source ``spec`` (module docstring):
@@ -171,9 +185,24 @@ class SimWorld:
         return s % d if d > 0 else s
 
     def _path_q(self, tau: float) -> np.ndarray:
-        if self._path_end > 0:
-            tau = tau % self._path_end
-        return self.scene.robot_q(tau)
+        """(dof,) rad, the cell's path at path time ``tau`` (s): ``scene.robot_q``, looping.
+
+        The path follower asks for the same times again (each tick the joint speed at ``tau``
+        and ``tau + dt``, then the new ``tau``: at full speed that is the next tick's
+        ``tau``), so the last few answers are kept (copies handed out; issue 29, with
+        :class:`~depthguard.sim.scene.JointPath`'s ``bisect``: numpy's dispatch on a 6-element
+        array, 500 ticks a second, was a quarter of the joints pump's time)."""
+        memo = self._memo
+        q = memo.get(tau)
+        if q is None:
+            q = self._path_eval(tau)
+            if len(memo) >= 4:
+                memo.pop(next(iter(memo)))
+            memo[tau] = q
+        return q.copy()
+
+    def _path_eval(self, tau: float) -> np.ndarray:
+        return self.scene.robot_q(tau % self._path_end if self._path_end > 0 else tau)
 
     def start_clock(self, origin: float) -> None:
         """Put the simulator's time 0 at ``origin`` s of the run's clock (module docstring); only
@@ -190,6 +219,7 @@ class SimWorld:
         speed scale of its last tick; ``skipped_ticks`` counts the jump)."""
         new = []
         with self._lock:
+            self._obey_newest()
             if self.followed is not None:
                 return new                      # the live robot's states come through take_states
             dt = 1.0 / self.joint_hz
