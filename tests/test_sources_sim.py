@@ -267,3 +267,23 @@ def test_the_robot_obeys_the_newest_reaction_before_its_next_tick_without_the_lo
         assert len(new) == 1
         q = truth.step(1.0 / world.joint_hz)
         assert new[0][1].tobytes() == q.tobytes(), k
+
+
+def test_frames_each_renders_one_frame_at_a_time_in_capture_order():
+    """issue 29: the real-time pump takes the simulator's frames one by one (``frames_each``): the
+    same frames as ``frames_until`` in capture order, each rendered only when asked for."""
+    from depthguard.sources.sim_source import SimFrames, SimWorld
+
+    a, b = SimFrames(SimWorld("ur3-cell", seed=2)), SimFrames(SimWorld("ur3-cell", seed=2))
+    renders = []
+    render = b.render
+    b.render = lambda cid, tc, q: (renders.append(cid), render(cid, tc, q))[1]
+    t = 0.2                                        # every camera has several captures due
+    want = a.frames_until(t)
+    it = b.frames_each(t)
+    first = next(it)
+    assert len(renders) == 1                       # the first frame is out before the others are made
+    got = [first, *it]
+    assert len(want) >= 8 and [f.stamp for f in want] == sorted(f.stamp for f in want)
+    assert [(f.camera_id, f.stamp) for f in got] == [(f.camera_id, f.stamp) for f in want]
+    assert all(np.array_equal(x.depth, y.depth) for x, y in zip(got, want))

@@ -334,22 +334,26 @@ def _run_threads(monitor, frame_sources, joint_source, duration, stop, emit, all
         background_thread()              # one core, lower priority than the control thread
         pace = _Pace() if stamped else None
         while not stop.is_set():
+            n = 0
             try:
                 items = fn(clock())
+                for x in items:                        # a generator (frames_each): each pushed as it comes
+                    push(x)
+                    n += 1
             except Exception as exc:                   # a failing source: reported, the monitor goes stale
                 stats.source_errors.append(f"{type(exc).__name__}: {exc}")
                 from depthguard.progress import log
                 log(f"source failed, its cameras go stale (R27): {type(exc).__name__}: {exc}")
                 return
-            for it in items:
-                push(it)
             if pace is not None:
                 pace.seen(items)
                 time.sleep(pace.wait(clock()))
-            elif not items:
+            elif not n:
                 time.sleep(POLL_S)
-    threads = [threading.Thread(target=pump, args=(s.frames_until, monitor.push_frame), daemon=True,
-                                name=f"depthguard-source-{i}") for i, s in enumerate(frame_sources)]
+    # a source that renders its frames one at a time (the simulator: frames_each) hands each on
+    # as soon as it is made, not when every camera due is
+    threads = [threading.Thread(target=pump, args=(getattr(s, "frames_each", s.frames_until), monitor.push_frame),
+                                daemon=True, name=f"depthguard-source-{i}") for i, s in enumerate(frame_sources)]
     threads += [threading.Thread(target=pump, args=(s.voxels_until, lambda v: monitor.push_voxels(*v)),
                                  daemon=True, name=f"depthguard-units-{i}")
                 for i, s in enumerate(frame_sources) if hasattr(s, "voxels_until")]

@@ -354,10 +354,17 @@ class SimFrames:
 
     def frames_until(self, t: float) -> list[Frame]:
         """The frames captured by ``t`` (s, the run's clock) not returned yet, stamped on that clock."""
+        return list(self.frames_each(t))
+
+    def frames_each(self, t: float):
+        """:meth:`frames_until` one frame at a time, each rendered when the caller asks for it, in
+        capture order: a real-time run hands each frame on as soon as it is rendered instead of
+        when every camera due has been (issue 29: four cameras due at once held the first frame
+        three renders long, ~15 ms of its age)."""
         self.world.advance(t)
         origin = self.world.origin
         t = min(t, self.world.history.newest_stamp) - origin   # a frame needs the robot's pose at its capture
-        out = []
+        due = []
         sched = self.schedule
         for i, cid in enumerate(self.camera_ids):
             if self.skip_behind and sched.next[i] + sched.period <= t + 1e-12:
@@ -367,16 +374,16 @@ class SimFrames:
             while sched.due(i, t, tol=1e-12):
                 tc = sched.next[i]
                 sched.take(i, tc)
-                if cid in self._stopped and tc >= self._stopped[cid]:
-                    continue
-                try:
-                    q = self.world.history.at(origin + min(tc, t))     # tc <= t up to rounding
-                except OutsideHistory:          # a followed robot: before its first state, or after a gap
-                    self.unposed += 1
-                    continue
-                out.append(Frame(cid, self.render(cid, tc, q), origin + tc))
-        out.sort(key=lambda f: f.stamp)
-        return out
+                if not (cid in self._stopped and tc >= self._stopped[cid]):
+                    due.append((tc, i, cid))
+        due.sort(key=lambda d: d[0])                           # stable: a tie keeps the camera order
+        for tc, _i, cid in due:
+            try:
+                q = self.world.history.at(origin + min(tc, t))     # tc <= t up to rounding
+            except OutsideHistory:          # a followed robot: before its first state, or after a gap
+                self.unposed += 1
+                continue
+            yield Frame(cid, self.render(cid, tc, q), origin + tc)
 
     def close(self) -> None:
         pass
