@@ -134,7 +134,9 @@ def test_frame_state_and_start_depth_equal_twins_with_beyond_range_and_gaps(rng)
     for it in range(3):
         depth = _random_depth(rng, H, W)
         for n_sil in (0, 3):
-            sil = dilate_robot_depth_numpy(robot, n_sil) if n_sil else None
+            # in the robot render's dtype, as the product's silhouette buffers hold it (a minimum of
+            # float32 values: exact); frame_state then has the signatures the worker compiles (R29)
+            sil = dilate_robot_depth_numpy(robot, n_sil).astype(robot.dtype) if n_sil else None
             for n_gap in (0, 1, 2, 3):
                 gaps = gap_depth_numpy(depth, cam.min_range, cam.max_range, n_gap) if n_gap else None
                 for inv, rf in (("unknown", False), ("unknown", True), ("free", True), ("free", False)):

@@ -129,7 +129,9 @@ def test_frame_state_and_start_depth_equal_twins(rng):
     robot[30:70, 50:100] = rng.uniform(0.5, 6, (40, 50))
     robot[0:5, 0:8] = 1.0                                   # touching the border
     for n in (0, 1, 4):
-        sil = dilate_robot_depth_numpy(robot, n) if n else None
+        # in the robot render's dtype, as the product's silhouette buffers hold it (a minimum of float32
+        # values: exact); frame_state then has the signature the worker compiles (R29)
+        sil = dilate_robot_depth_numpy(robot, n).astype(robot.dtype) if n else None
         for inv, rf in (("unknown", False), ("unknown", True), ("free", True), ("free", False)):
             free = np.empty((H, W))
             kind = np.empty((H, W), dtype=np.int8)
