@@ -36,6 +36,7 @@ LAYERS: tuple[str, ...] = (
     "config",         # MonitorConfig (R26-R32)
     "rig_checks",     # sanity checks of a rig's numbers (a mesh's unit, a robot inside its table)
     "rig_schema",     # the rig file's pydantic models (R2)
+    "grid_budget",    # the depth grid's column size from a budget, chosen when a rig loads (issue 29)
     "rig",
     "transport",      # Zenoh settings, the fusion server's wire format and client, ROS 2 over Zenoh
     "filtering",
