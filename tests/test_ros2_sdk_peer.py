@@ -277,13 +277,17 @@ def test_obstacles_point_cloud_from_the_monitor_reaches_an_sdk_subscriber(peer, 
     got: list = []
     sub = peer["sdk"].ROS2Subscriber("/depthguard/obstacles", "sensor_msgs/msg/PointCloud2", got.append, **peer["kw"])
     try:
-        with Monitor(rig, rig.monitor.with_changes(free_space=True, free_space_hz=50.0), sinks=[sink]) as mon:
+        # the map's own thread builds once at the start (no frames yet) and then not for 100 s: the
+        # map compared is the one this test builds, whatever else was published before it
+        with Monitor(rig, rig.monitor.with_changes(free_space=True, free_space_hz=0.01), sinks=[sink]) as mon:
             _fed(mon, t, q, frames)
             snap = mon.free_space.update_now()
-            assert wait_for(lambda: len(got) >= 1, 10.0)
-            snap = mon.free_space.snapshot if snap is None else snap
+            assert snap is not None
+            mine_pc = lambda: [m for m in got if abs(m.header.stamp.sec + m.header.stamp.nanosec * 1e-9  # noqa: E731
+                                                     - snap.stamp) < 1e-6]
+            assert wait_for(lambda: len(mine_pc()) >= 1, 10.0)
             mine = [p.token_key for p in node._entities if p.topic == "/depthguard/obstacles" and "/MP/" in p.token_key]
-        pc = got[-1]
+        pc = mine_pc()[-1]
         assert sink.maps_published >= 1
         assert abs(pc.header.stamp.sec + pc.header.stamp.nanosec * 1e-9 - snap.stamp) < 1e-6
         f = {fd.name: (fd.offset, fd.datatype) for fd in pc.fields}

@@ -250,14 +250,16 @@ class FreeSpaceWorker:
             self._thread.start()
 
     def update_now(self) -> FreeSpaceSnapshot | None:
-        """Build one map now on the calling thread and swap it in (tests, the CLI's one-shot check)."""
+        """Build one map now on the calling thread and swap it in (tests, the CLI's one-shot check).
+        ``on_snapshot`` is called under the build's lock: two builders (the map's thread and a
+        caller) hand their maps on in the order they were swapped in, never an older one last."""
         with self._build_lock:
             snap = self.space.build_from_workers(self.workers, self.latest_q())
             if snap is not None:
                 self.snapshot = snap
                 self.builds += 1
-        if snap is not None and self.on_snapshot is not None:
-            self.on_snapshot(snap)
+                if self.on_snapshot is not None:
+                    self.on_snapshot(snap)
         return snap
 
     def _run(self) -> None:
