@@ -175,8 +175,11 @@ def test_fr3_stops_for_the_person_and_resumes_through_franky_sim(fr3_sim, tmp_pa
     near = (t > 6.0) & (t < 9.0)                                   # the person stands at the path's edge
     assert v[near].size and np.median(v[near]) < 2e-3, (np.median(v[near]), report)   # franky-sim: standing
     # when the person was nearest the robot was at most in its stop's tail (measured 0.000-0.022 rad/s:
-    # the person reaches the path's edge at 6 s while SSM still slows the robot; it stands above)
-    assert v[i] < 0.05, report
+    # the person reaches the path's edge at 6 s while SSM still slows the robot; it stands above) —
+    # where they came near at all: a franky-sim far below real time (375 steps/s once in CI) left the
+    # robot behind on its path, 76 cm away when the person arrived, and SSM lets it move there
+    if sep[i] < 0.35:
+        assert v[i] < 0.05, report
     records = [json.loads(x) for x in (out / "log.jsonl").read_text().splitlines()]
     records = [r for r in records if "t" in r]
     assert any(6.0 < r["t"] - origin < 9.0 and any(k.startswith("ssm:") for k in r["reasons"]) for r in records)
