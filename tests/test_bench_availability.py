@@ -28,6 +28,28 @@ def test_stale_seconds_counts_the_time_from_each_stale_cycle_to_the_next(tmp_pat
     assert stale_seconds(tmp_path / "log.jsonl") == pytest.approx(0.002 * (5 + 4))
 
 
+def test_stale_seconds_leaves_out_the_wait_for_the_first_frames_but_not_a_camera_that_never_came(tmp_path):
+    # cycles every 2 ms: cam0 and cam1 have no frame yet in cycles 0..3, cam1 none in 4..6, then
+    # cam0 goes stale (a late frame) in cycles 10..12
+    def run(n_wait, never=False):
+        lines = []
+        for k in range(20):
+            reasons = {}
+            if k < n_wait or never:
+                reasons["stale:cam1"] = "camera cam1: no frame yet - stale data (R27)"
+            if k < 4:
+                reasons["stale:cam0"] = "camera cam0: no frame yet - stale data (R27)"
+            if 10 <= k <= 12:
+                reasons["stale:cam0"] = "camera cam0: no frame for more than 100 ms - stale data (R27)"
+            lines.append(json.dumps({"t": 0.002 * k, "reasons": reasons}))
+        path = tmp_path / f"log{n_wait}{never}.jsonl"
+        path.write_text("\n".join(lines) + "\n")
+        return stale_seconds(path)
+
+    assert run(7) == pytest.approx(0.002 * 3)            # from cycle 7 on: only the late frame
+    assert run(7, never=True) == pytest.approx(0.002 * 19)  # cam1 never came: every cycle counts
+
+
 def test_the_rig_file_of_a_run_is_the_cells_with_the_setting_changed(tmp_path):
     from depthguard.rig import Rig
     from depthguard.sim import load_cell

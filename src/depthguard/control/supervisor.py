@@ -71,7 +71,8 @@ def stop_reasons(ages, age_limit: float, camera_ids, observed, D, V, names) -> d
 
     ``ages`` (n_cam,) s since each camera's last frame (``inf`` before the
     first); ``observed`` (m,) bool; ``D`` (m,) m; ``V`` (m, 3). Rules:
-    a frame older than ``age_limit`` (stale data, R27); a control point that
+    a frame older than ``age_limit`` (stale data, R27; before a camera's first frame the
+    message says ``no frame yet``); a control point that
     no camera can judge (``observed = False``, R26: the worst case, not free);
     a control point inside an obstacle frustum (finite ``D`` that is 0 or has
     no direction: no way to flee, and R14 gives no limit without ``V``).
@@ -80,7 +81,9 @@ def stop_reasons(ages, age_limit: float, camera_ids, observed, D, V, names) -> d
     reasons = {}
     for i, cid in enumerate(camera_ids):
         if ages[i] > age_limit + 1e-9:
-            reasons[f"stale:{cid}"] = (f"camera {cid}: no frame for more than {age_limit * 1e3:.0f} ms "
+            # the same stop before a camera's first frame, said as it is: nothing to judge yet
+            reasons[f"stale:{cid}"] = (f"camera {cid}: no frame yet - stale data (R27)" if ages[i] == math.inf else
+                                       f"camera {cid}: no frame for more than {age_limit * 1e3:.0f} ms "
                                        f"- stale data (R27)")
     if (isinstance(observed, np.ndarray) and observed.dtype == np.bool_ and isinstance(D, np.ndarray)
             and D.dtype == np.float64 and isinstance(V, np.ndarray) and V.dtype == np.float64 and V.ndim == 2

@@ -16,7 +16,7 @@ the machine's speed.
 Each run is its own process (``python -m depthguard monitor``, a rig file written from the
 built-in cell's with the ``monitor:`` setting changed), so that the runs do not share threads or
 a warm cache beyond numba's on-disk one. The first stamps of a run are excluded up to the
-monitor's first frame of every camera (``waiting``, not ``stale``).
+monitor's first frame of every camera (a reason saying ``no frame yet``, a wait, not a late frame).
 """
 
 from __future__ import annotations
@@ -37,17 +37,23 @@ CASES = (("flacco-cell", True), ("ur3-cell", False))
 
 def stale_seconds(log_path: Path) -> float:
     """Seconds of a run's control cycles (``log.jsonl``) in which some ``stale:`` reason held:
-    each cycle counts the time to the next one (R27)."""
-    ts, stale = [], []
+    each cycle counts the time to the next one (R27). The cycles before the first one in which
+    every camera has had a frame (a reason saying ``no frame yet``: the start's wait, a stop but
+    not a late frame) are not counted; a run in which that never happens counts every cycle."""
+    ts, stale, waiting = [], [], []
     with open(log_path) as fh:
         for line in fh:
             rec = json.loads(line)
+            reasons = rec.get("reasons", {})
             ts.append(float(rec["t"]))
-            stale.append(any(k.startswith("stale:") for k in rec.get("reasons", {})))
+            stale.append(any(k.startswith("stale:") for k in reasons))
+            waiting.append(any(k.startswith("stale:") and "no frame yet" in str(m) for k, m in reasons.items()))
     if len(ts) < 2:
         return float("nan")
+    start = next((i for i, w in enumerate(waiting) if not w), 0)
     dt = np.diff(np.asarray(ts))
-    return float(dt[np.asarray(stale[:-1])].sum())
+    counted = np.asarray(stale[:-1]) & (np.arange(len(dt)) >= start)
+    return float(dt[counted].sum())
 
 
 def _rig_file(cell: str, folder: Path, **monitor) -> Path:
