@@ -64,72 +64,8 @@ def cell_in_capsules(caps, ncaps, fx, fy, cx, cy, gx, gy, d1, d2):
 
 
 @njit(cache=True, inline="always")
-def _ray_capsule(cx_, cy_, cap):
-    """Interval ``[a, b]`` of principal depths ``d`` with ``d * (cx_, cy_, 1)`` inside
-    the capsule ``cap`` (a, b, radius; principal frame); ``a > b`` when empty.
-    The capsule is convex, so the set is one interval: the union of the
-    ray's intervals in the two end spheres and in the cylinder slab."""
-    ax = cap[0]
-    ay = cap[1]
-    az = cap[2]
-    ex = cap[3] - ax
-    ey = cap[4] - ay
-    ez = cap[5] - az
-    r2 = cap[6] * cap[6]
-    lo = np.inf
-    hi = -np.inf
-    rr = cx_ * cx_ + cy_ * cy_ + 1.0
-    # end spheres: |d c - s|^2 <= r^2
-    for e in range(2):
-        sx = ax + e * ex
-        sy = ay + e * ey
-        sz = az + e * ez
-        bb = cx_ * sx + cy_ * sy + sz
-        cc = sx * sx + sy * sy + sz * sz - r2
-        disc = bb * bb - rr * cc
-        if disc >= 0.0:
-            sq = math.sqrt(disc)
-            lo = min(lo, (bb - sq) / rr)
-            hi = max(hi, (bb + sq) / rr)
-    # cylinder: |w - (w.e / e.e) e|^2 <= r^2 with w = d c - a, and 0 <= w.e / e.e <= 1
-    ee = ex * ex + ey * ey + ez * ez
-    if ee > 0.0:
-        ce = cx_ * ex + cy_ * ey + ez
-        ae = ax * ex + ay * ey + az * ez
-        # w.e = d ce - ae ; |w|^2 = d^2 rr - 2 d (c.a) + a.a
-        ca = cx_ * ax + cy_ * ay + az
-        aa = ax * ax + ay * ay + az * az
-        A = rr - ce * ce / ee
-        B = -2.0 * ca + 2.0 * ce * ae / ee
-        C = aa - ae * ae / ee - r2
-        # slab 0 <= (d ce - ae) / ee <= 1 -> d in [s0, s1]
-        if ce > 0.0:
-            s0 = ae / ce
-            s1 = (ee + ae) / ce
-        elif ce < 0.0:
-            s0 = (ee + ae) / ce
-            s1 = ae / ce
-        else:
-            s0 = -np.inf if (ae <= 0.0 and -ae <= ee) else np.inf
-            s1 = np.inf if (ae <= 0.0 and -ae <= ee) else -np.inf
-        if A > 1e-15:
-            disc = B * B - 4.0 * A * C
-            if disc >= 0.0:
-                sq = math.sqrt(disc)
-                c0 = max((-B - sq) / (2.0 * A), s0)
-                c1 = min((-B + sq) / (2.0 * A), s1)
-                if c0 <= c1:
-                    lo = min(lo, c0)
-                    hi = max(hi, c1)
-        elif C <= 0.0 and s0 <= s1:         # ray parallel to the axis, inside the cylinder
-            lo = min(lo, s0)
-            hi = max(hi, s1)
-    return lo, hi
-
-
-@njit(cache=True, inline="always")
 def _capsule_terms(cap):
-    """The terms of :func:`_ray_capsule` that depend on the capsule alone (a, b, radius; principal
+    """The terms of a ray's interval in the capsule that depend on the capsule alone (a, b, radius; principal
     frame, m), computed once per capsule: ``(ax, ay, az, ex, ey, ez, r2, cc0, cc1, ee, ae, aa, C)``
     — the end spheres' ``|s|^2 - r^2`` and the cylinder's constant term, by the same expressions
     as per pixel (so every interval is bit for bit the same)."""
@@ -156,10 +92,8 @@ def _capsule_terms(cap):
 
 @njit(cache=True, inline="always")
 def _ray_capsule_terms(cx_, cy_, rr, terms):
-    """:func:`_ray_capsule` with the capsule's own terms (:func:`_capsule_terms`) given and
-    ``rr = cx_^2 + cy_^2 + 1``: the per-pixel arithmetic only, the same expressions in the same
-    order, so the interval is bit for bit :func:`_ray_capsule`'s (R12, R25; the test compares them
-    pixel by pixel). :func:`capsule_intervals` calls it for ~10k (pixel, capsule) pairs a build
+    """The interval of :func:`_ray_capsule` with the capsule's own terms (:func:`_capsule_terms`)
+    given and ``rr = cx_^2 + cy_^2 + 1``: the per-pixel arithmetic only (R12, R25). :func:`capsule_intervals` calls it for ~10k (pixel, capsule) pairs a build
     (ur3-cell); with the capsule's terms worked out once per row and capsule instead of per pixel
     the kernel took 0.86-0.91x the time (0.593 -> 0.537 ms median on ur3-cell's builds, one thread)."""
     ax, ay, az, ex, ey, ez, r2, cc0, cc1, ee, ae, aa, C = terms
@@ -210,6 +144,16 @@ def _ray_capsule_terms(cx_, cy_, rr, terms):
 
 
 MAX_CAPS_PER_PIXEL = 8
+
+
+@njit(cache=True, inline="always")
+def _ray_capsule(cx_, cy_, cap):
+    """Interval ``[a, b]`` of principal depths ``d`` with ``d * (cx_, cy_, 1)`` inside
+    the capsule ``cap`` (a, b, radius; principal frame); ``a > b`` when empty.
+    The capsule is convex, so the set is one interval: the union of the
+    ray's intervals in the two end spheres and in the cylinder slab
+    (:func:`_ray_capsule_terms` with the capsule's terms worked out here)."""
+    return _ray_capsule_terms(cx_, cy_, cx_ * cx_ + cy_ * cy_ + 1.0, _capsule_terms(cap))
 
 
 @njit(cache=True, parallel=True, nogil=True)
