@@ -35,7 +35,8 @@ from pathlib import Path
 
 import numpy as np
 
-from depthguard.runtime.reaction_cdr import float64_cdr, markers_cdr, reaction_cdr
+from depthguard.runtime.reaction_cdr import float64_cdr, markers_cdr
+from depthguard.runtime.reaction_cdr_fill import reaction_cdr_filled
 from depthguard.transport import ros_messages as rosmsg
 
 __all__ = ["McapResults", "REACTION_MSG", "REACTION_TYPE", "TOPICS"]
@@ -195,6 +196,7 @@ class McapResults:
         T = rosmsg.TYPESTORE.types
         for msg in (self.reaction_msg(r), T[rosmsg.MSG["Float64"]](data=0.0), self.markers_msg(r)):
             rosmsg.serialize(msg)
+        reaction_cdr_filled(r, self.frame_id)      # its kernel compiled or loaded (numba) here too
 
     # ------------------------------------------------------------ messages
     def reaction_msg(self, r):
@@ -276,7 +278,7 @@ class McapResults:
             return                                  # a ROS time cannot hold it (never on the monitor's clocks)
         ns = rosmsg.stamp_ns(r.t)
         # the bytes rosbags serialises from reaction_msg(r) and a Float64, written directly (issue 29)
-        reaction, override = reaction_cdr(r, self.frame_id), float64_cdr(r.override)
+        reaction, override = reaction_cdr_filled(r, self.frame_id), float64_cdr(r.override)
         append, con = self._append, self._con
         with self._lock:
             if self._writer is None:

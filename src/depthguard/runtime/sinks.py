@@ -48,6 +48,9 @@ class JsonlLog:
         except FileExistsError:
             raise SinkError(f"log {self.path} exists already; choose a new file") from None
         self.lines = 0
+        from depthguard.runtime.reaction_text import warm_up
+
+        warm_up()                                   # its compiled writer ready before the run's clock
 
     def __call__(self, reaction: Reaction) -> None:
         if self._fh is None:
