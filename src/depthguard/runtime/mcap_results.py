@@ -276,7 +276,7 @@ class McapResults:
             raise ValueError(f"{self.path}: closed")
         if not (math.isfinite(r.t) and r.t >= 0):
             return                                  # a ROS time cannot hold it (never on the monitor's clocks)
-        ns = rosmsg.stamp_ns(r.t)
+        ns = int(round(r.t * 1e9))                 # rosmsg.stamp_ns(r.t) for a finite t >= 0, without its message
         # the bytes rosbags serialises from reaction_msg(r) and a Float64, written directly (issue 29)
         reaction, override = reaction_cdr_filled(r, self.frame_id), float64_cdr(r.override)
         append, con = self._append, self._con
