@@ -18,6 +18,14 @@ anything else than the usual finite values (a NaN distance, an infinite term, an
 that is not an ``int``), is encoded by the reference path, which raises the same
 ``ValueError`` where the record has one. Measured 2026-11-26 on ur3-cell's reactions (CPU,
 A/B in one process): 116-132 us a line before, 55-64 us after.
+
+The monitor's usual line — no policy with terms or a record of its own, float64 arrays — is
+written by a compiled kernel instead (:func:`_compiled`, :mod:`depthguard.runtime.reaction_text`):
+the same layout's literals made once from the template, the numbers written between them by
+``encode_line`` with the same digits (``repr(round(x, 6))``, taken exactly); anything it
+refuses goes to the template, then to the reference. Measured 2026-11-26 (CPU, A/B in one
+process, ur3-cell's 1501 reactions of a ``--fast`` run, medians of 7 rounds): 52-61 us a line by
+the template, 21-28 us by the kernel.
 """
 
 from __future__ import annotations
