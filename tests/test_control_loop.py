@@ -82,6 +82,20 @@ def test_stop_reasons_rules():
     assert r == {}
 
 
+def test_stale_reasons_say_each_camera_and_limit_every_cycle():
+    """The stale sentences (made once per camera and limit, issue 29) are the ones R27 asks for, for
+    each camera, limit and 'no frame yet', however often and in whatever order they are asked."""
+    ok = np.ones(2, bool), np.full(2, np.inf), np.zeros((2, 3))
+    for _ in range(3):
+        for limit in (0.1, 0.25, 0.1004):
+            for ages, cams in (([0.3, np.inf], ["camA", "camB"]), ([np.inf, 0.3], ["camB", "camA"])):
+                r = stop_reasons(np.array(ages), limit, cams, *ok, ["ee", "elbow"])
+                said = {f"stale:{c}": (f"camera {c}: no frame yet - stale data (R27)" if a == np.inf else
+                                       f"camera {c}: no frame for more than {round(limit * 1e3)} ms - stale data (R27)")
+                        for a, c in zip(ages, cams)}
+                assert r == said, (limit, ages, cams)
+
+
 def test_loop_config_rejects_bad_values():
     with pytest.raises(ValueError, match="rho"):
         LoopConfig(rho=0.0)

@@ -123,6 +123,7 @@ def test_results_mcap_messages_equal_rosbags_serialisation():
 
     from depthguard.runtime.mcap_results import McapResults, _register
     from depthguard.runtime.reaction_cdr import float64_cdr, reaction_cdr
+    from depthguard.runtime.reaction_cdr_fill import _layouts, reaction_cdr_filled
     from depthguard.transport import ros_messages as rosmsg
 
     _register()
@@ -136,7 +137,10 @@ def test_results_mcap_messages_equal_rosbags_serialisation():
         if k % 13 == 0:
             r = Reaction(**{**r.__dict__, "names": (), "distance": np.zeros(0), "direction": np.zeros((0, 3)),
                             "observed": np.zeros(0, bool), "is_watch": np.zeros(0, bool)})
-        assert reaction_cdr(r, "world") == rosmsg.serialize(McapResults.reaction_msg(me, r)), k
+        truth = rosmsg.serialize(McapResults.reaction_msg(me, r))
+        assert reaction_cdr(r, "world") == truth, k
+        assert reaction_cdr_filled(r, "world") == truth, k                    # the compiled fill, twice:
+        assert reaction_cdr_filled(r, "world") == truth, k                    # its layout made, then reused
         T = rosmsg.TYPESTORE.types
         assert float64_cdr(r.override) == rosmsg.serialize(T[rosmsg.MSG["Float64"]](data=float(r.override)))
 
@@ -189,7 +193,7 @@ def test_made_reactions_are_the_constructed_ones():
 def test_tiny_numbers_take_the_template_path():
     """The numbers that print in exponent form (0 < |round(x, 6)| < 1e-4) and those ending in
     ``0.0000dd`` inside a larger one are written by the template, equal to the record's json."""
-    from depthguard.runtime.reaction_json import _fast
+    from depthguard.runtime.reaction_json import _compiled, _fast
 
     rng = np.random.default_rng(43)
     for k in range(300):
@@ -198,3 +202,54 @@ def test_tiny_numbers_take_the_template_path():
         r = Reaction(**{**r.__dict__, "repulsion": np.array([x, -x, x / 3])})
         line = _fast(r)
         assert line is not None and line == json.dumps(r.to_dict(), allow_nan=False), (k, x)
+        assert _compiled(r) == line, (k, x)              # the compiled writer's too
+
+
+def test_compiled_line_equals_the_json_of_the_record():
+    """issue 29: the compiled writer (runtime.reaction_text.encode_line) writes the record's json
+    for every reaction whose policies add no terms or record of their own (SSM terms or not,
+    no obstacle, cannot judge, watch points, reasons, cameras before their first frame, values
+    that round to -0.0, print in exponent form or sit on a rounding tie), and leaves the others
+    (a NaN, an infinite term, a number of 1e9) to the reference path."""
+    from depthguard.runtime.reaction_json import _compiled
+
+    rng = np.random.default_rng(53)
+    done = 0
+    for k in range(1500):
+        r = _reaction(rng, ssm=k % 3 == 1, part=False, tiny=k % 2 == 0)
+        if k % 5 == 0:                               # ties of the 7th decimal, both signs
+            x = (2 * int(rng.integers(-10**6, 10**6)) + 1) / 128      # x * 1e6 = k + 1/2 exactly
+            r = Reaction(**{**r.__dict__, "repulsion": np.array([x, -x, (int(rng.integers(0, 10**6)) + 0.5) / 1e6]),
+                            "t": 1.0078125})
+        line = _compiled(r)
+        assert line == json.dumps(r.to_dict(), allow_nan=False), k
+        done += 1
+    assert done == 1500
+    r = _reaction(rng, ssm=True, part=False)
+    for bad in (dict(q=np.array([math.nan] * 6)), dict(repulsion=np.array([1e9, 0.0, 0.0])),
+                dict(ssm=np.full_like(r.ssm, math.inf)), dict(joints_age_s=math.nan)):
+        assert _compiled(Reaction(**{**r.__dict__, **bad})) is None, bad
+    r = _reaction(rng, ssm=False, part=True)         # a policy's own terms: the template's
+    assert _compiled(r) is None and reaction_json(r) == json.dumps(r.to_dict(), allow_nan=False)
+
+
+def test_compiled_number_equals_repr_of_round():
+    """runtime.reaction_text's number is ``repr(round(x, 6))`` (its twin): ties of the 7th decimal
+    (half to even on the exact binary value), the floats beside them, exponent forms, -0.0,
+    the largest and smallest magnitudes it takes, and what it refuses (None)."""
+    from depthguard.runtime.reaction_text import num_text, num_text_reference
+
+    rng = np.random.default_rng(59)
+    scale = rng.choice([1e-8, 1e-7, 1e-6, 1e-5, 1e-4, 1e-2, 1.0, 1e3, 1e6, 1e8], size=40000)
+    xs = list(rng.normal(size=40000) * scale)
+    # exact ties are the odd multiples of 1/128 (x * 1e6 = k + 1/2); beside them, the nearest floats
+    # to a decimal tie (k + 1/2) / 1e6, which the product must not round onto one
+    ties = np.array([(2.0 * float(j) + 1.0) / 128 for j in rng.integers(-64 * 10**9, 64 * 10**9, 4000)]
+                    + [(2 * j + 1) / 128 for j in range(-300, 300)]
+                    + [(float(k) + 0.5) / 1e6 for k in rng.integers(-10**15, 10**15, 4000)]
+                    + [(k + 0.5) / 1e6 for k in range(-2000, 2000)])
+    xs += list(ties) + list(np.nextafter(ties, np.inf)) + list(np.nextafter(ties, -np.inf))
+    xs += [0.0, -0.0, 5e-7, -5e-7, 1.5e-6, 2.5e-7, 1e-5, 9.99995e-5, 9.9995e-5, 1e-4, 5e-324, -1e-300,
+           999999999.9999999, 1e9, -1e9, math.inf, -math.inf, math.nan]
+    for x in xs:
+        assert num_text(float(x)) == num_text_reference(float(x)), repr(x)

@@ -66,6 +66,9 @@ class SafetySupervisor:
         return self.k
 
 
+_stale_said: dict = {}              # (camera, age limit, before its first frame) -> (key, message)
+
+
 def stop_reasons(ages, age_limit: float, camera_ids, observed, D, V, names) -> dict[str, str]:
     """The conditions that make the supervisor stop the robot, ``key -> message`` (R26, R27).
 
@@ -82,9 +85,15 @@ def stop_reasons(ages, age_limit: float, camera_ids, observed, D, V, names) -> d
     for i, cid in enumerate(camera_ids):
         if ages[i] > age_limit + 1e-9:
             # the same stop before a camera's first frame, said as it is: nothing to judge yet
-            reasons[f"stale:{cid}"] = (f"camera {cid}: no frame yet - stale data (R27)" if ages[i] == math.inf else
-                                       f"camera {cid}: no frame for more than {age_limit * 1e3:.0f} ms "
-                                       f"- stale data (R27)")
+            first = ages[i] == math.inf
+            said = _stale_said.get((cid, age_limit, first))
+            if said is None:                    # made once per camera and limit (issue 29: every stale cycle)
+                if len(_stale_said) > 1024:
+                    _stale_said.clear()
+                said = _stale_said[(cid, age_limit, first)] = (
+                    "stale:" + cid, f"camera {cid}: no frame yet - stale data (R27)" if first else
+                    f"camera {cid}: no frame for more than {age_limit * 1e3:.0f} ms - stale data (R27)")
+            reasons[said[0]] = said[1]
     if (isinstance(observed, np.ndarray) and observed.dtype == np.bool_ and isinstance(D, np.ndarray)
             and D.dtype == np.float64 and isinstance(V, np.ndarray) and V.dtype == np.float64 and V.ndim == 2
             and not points_hold_robot(observed, D, V)):

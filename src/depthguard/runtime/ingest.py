@@ -138,6 +138,7 @@ class CameraWorker:
         self.frames = 0
         self.dropped = 0
         self.refusals: dict[str, int] = {}
+        self._refused = 0               # sum(refusals.values())
         self.last_refusal: str | None = None
         self._version = 0
         self._stop = False
@@ -146,7 +147,8 @@ class CameraWorker:
 
     @property
     def refused(self) -> int:
-        return sum(self.refusals.values())
+        """Frames refused so far: ``sum(refusals.values())``, counted as they are (read every cycle)."""
+        return self._refused
 
     def offer(self, frame, pushed_at: float) -> None:
         """Hand ``frame`` over (any thread). Its depth array becomes the product's as it is when
@@ -175,6 +177,7 @@ class CameraWorker:
     def _refuse(self, key: str, message: str) -> None:
         with self.lock:
             self.refusals[key] = self.refusals.get(key, 0) + 1
+            self._refused += 1
             prefix = f"camera {self.id}: "       # a message from depth_io already names the camera
             self.last_refusal = message if message.startswith(prefix) else prefix + message
 

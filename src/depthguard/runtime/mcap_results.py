@@ -35,7 +35,8 @@ from pathlib import Path
 
 import numpy as np
 
-from depthguard.runtime.reaction_cdr import float64_cdr, markers_cdr, reaction_cdr
+from depthguard.runtime.reaction_cdr import float64_cdr, markers_cdr
+from depthguard.runtime.reaction_cdr_fill import reaction_cdr_filled
 from depthguard.transport import ros_messages as rosmsg
 
 __all__ = ["McapResults", "REACTION_MSG", "REACTION_TYPE", "TOPICS"]
@@ -195,6 +196,7 @@ class McapResults:
         T = rosmsg.TYPESTORE.types
         for msg in (self.reaction_msg(r), T[rosmsg.MSG["Float64"]](data=0.0), self.markers_msg(r)):
             rosmsg.serialize(msg)
+        reaction_cdr_filled(r, self.frame_id)      # its kernel compiled or loaded (numba) here too
 
     # ------------------------------------------------------------ messages
     def reaction_msg(self, r):
@@ -274,9 +276,9 @@ class McapResults:
             raise ValueError(f"{self.path}: closed")
         if not (math.isfinite(r.t) and r.t >= 0):
             return                                  # a ROS time cannot hold it (never on the monitor's clocks)
-        ns = rosmsg.stamp_ns(r.t)
+        ns = int(round(r.t * 1e9))                 # rosmsg.stamp_ns(r.t) for a finite t >= 0, without its message
         # the bytes rosbags serialises from reaction_msg(r) and a Float64, written directly (issue 29)
-        reaction, override = reaction_cdr(r, self.frame_id), float64_cdr(r.override)
+        reaction, override = reaction_cdr_filled(r, self.frame_id), float64_cdr(r.override)
         append, con = self._append, self._con
         with self._lock:
             if self._writer is None:

@@ -80,12 +80,12 @@ _reaction_heads: dict = {}          # (frame_id, names, dofs, m) -> the layout u
 _reaction_tails: dict = {}          # (offset mod 8, cameras, states, dof) -> the layout after them
 
 
-def _reaction_head(frame_id: str, names: tuple, n_min: int, n_max: int):
+def _reaction_head(frame_id: str, names: tuple, n_min: int, n_max: int, marks: list | None = None):
     """The :class:`_Layout` of a Reaction from its header to its directions; slots: the stamp's
     sec and nanosec, override, repulsion (3), qd_min, qd_max, watch, observed, within_rho,
-    distance (m each) and direction (3 m)."""
+    distance (m each) and direction (3 m). ``marks``: gets each of these ten fields' offset."""
     m = len(names)
-    o = _Layout(0)
+    o = _Layout(0, marks)
     o.var("i", 1, 4)
     o.var("I", 1, 4)
     o.string(frame_id)
@@ -101,14 +101,14 @@ def _reaction_head(frame_id: str, names: tuple, n_min: int, n_max: int):
     o.u32(m)                             # direction: m Vector3 (3 float64 each)
     if m:
         o.pad(8)
-        o.var("d", 3 * m, 8)
+    o.var("d", 3 * m, 8)
     return o.done()
 
 
-def _reaction_tail(off: int, cams: tuple, states: tuple, n_q: int):
+def _reaction_tail(off: int, cams: tuple, states: tuple, n_q: int, marks: list | None = None):
     """The :class:`_Layout` of a Reaction from its cameras on, starting at ``off`` (mod 8); slots:
-    the cameras' ages, joints_age_s and q."""
-    o = _Layout(off)
+    the cameras' ages, joints_age_s and q (``marks``: their three offsets from ``off``)."""
+    o = _Layout(off, marks)
     o.strings(cams)
     o.strings(states)
     o.f64s(len(cams))
@@ -224,8 +224,9 @@ class _Layout:
     are fixed when it is made, the variable fields are its ``slots`` (in order).
     :meth:`done` -> ``(Struct, template args, slots, size)``; ``size`` counts from ``off``."""
 
-    def __init__(self, off: int):
+    def __init__(self, off: int, marks: list | None = None):
         self.fmt, self.args, self.off, self.n = ["<"], [], off, off
+        self.marks = [] if marks is None else marks    # each var()'s offset from off, in order
 
     def pad(self, a: int) -> None:
         r = (-self.n) % a
@@ -239,6 +240,7 @@ class _Layout:
         self.n += len(b)
 
     def var(self, code: str, k: int, size: int) -> None:
+        self.marks.append(self.n - self.off)
         if k:
             self.fmt.append(f"{k}{code}")
             self.args.extend([None] * k)
@@ -263,7 +265,7 @@ class _Layout:
         self.u32(k)
         if k:
             self.pad(8)
-            self.var("d", k, 8)
+        self.var("d", k, 8)
 
     def bools(self, k: int) -> None:
         self.u32(k)

@@ -18,6 +18,14 @@ anything else than the usual finite values (a NaN distance, an infinite term, an
 that is not an ``int``), is encoded by the reference path, which raises the same
 ``ValueError`` where the record has one. Measured 2026-11-26 on ur3-cell's reactions (CPU,
 A/B in one process): 116-132 us a line before, 55-64 us after.
+
+The monitor's usual line — no policy with terms or a record of its own, float64 arrays — is
+written by a compiled kernel instead (:func:`_compiled`, :mod:`depthguard.runtime.reaction_text`):
+the same layout's literals made once from the template, the numbers written between them by
+``encode_line`` with the same digits (``repr(round(x, 6))``, taken exactly); anything it
+refuses goes to the template, then to the reference. Measured 2026-11-26 (CPU, A/B in one
+process, ur3-cell's 1501 reactions of a ``--fast`` run, medians of 7 rounds): 52-61 us a line by
+the template, 21-28 us by the kernel.
 """
 
 from __future__ import annotations
@@ -25,11 +33,13 @@ from __future__ import annotations
 import json
 import math
 import re
+import threading
 from itertools import repeat
 from json.encoder import encode_basestring_ascii as _s
 
 import numpy as np
 
+from depthguard.runtime import reaction_text as T
 from depthguard.runtime.result import _SSM_TERMS    # the record's own column names
 
 __all__ = ["reaction_json", "reaction_json_reference"]
@@ -48,7 +58,9 @@ def reaction_json(r) -> str:
     """``json.dumps(r.to_dict(), allow_nan=False)`` (module docstring), for a
     :class:`~depthguard.runtime.result.Reaction`."""
     try:
-        fast = _fast(r)
+        fast = _compiled(r)
+        if fast is None:
+            fast = _fast(r)
     except Exception:  # noqa: BLE001 - anything unusual: the reference path (and its error)
         fast = None
     return fast if fast is not None else reaction_json_reference(r)
@@ -226,3 +238,132 @@ def _fast(r) -> str | None:
         line = _EXPONENT.sub(_exponent, line)
     # every number left ends at a \0 with a nonzero decimal: its zeros stripped segment by segment
     return "".join(map(str.rstrip, line.split("\x00"), _ZEROS)).replace("\x01", "")
+
+
+_programs: dict = {}                # layout key (with the reasons' JSON) -> the compiled writer's program
+_SLOT = re.compile("(%\\.6f\x00|%d|%s|%%)")
+_local = threading.local()          # each thread's output buffer (the sinks' thread: one)
+
+
+def _program(tpl: str, rj: str, fin, n_ssm: int, cam_fin, ja_fin: bool, n_q: int):
+    """``(lits, lit_off, src, idx)`` of :func:`~depthguard.runtime.reaction_text.encode_line` for
+    the layout of ``tpl`` with the reasons ``rj``: the template's literals (its ``%%`` undone, the
+    reasons in, no policies' record) and its number slots, the values' sources in the order the
+    template writes them (:func:`_fast`'s ``fl``); None if the template's slots do not match."""
+    slots = [(T.SRC_SCALAR, 0), (T.SRC_SCALAR, 1), (T.SRC_SCALAR, 2), (T.SRC_SCALAR, 3), (T.SRC_SCALAR, 4)]
+    for i, f in enumerate(fin):
+        if f:
+            slots += [(T.SRC_DISTANCE, i)] + [(T.SRC_DIRECTION, 3 * i + c) for c in range(3)]
+        if i < n_ssm:
+            slots += [(T.SRC_SSM, len(_SSM_TERMS) * i + c) for c in range(len(_SSM_TERMS))]
+    for c, a_fin in enumerate(cam_fin):
+        if a_fin:
+            slots.append((T.SRC_SCALAR, 8 + c))
+        slots += [(T.SRC_INT, 2 * c), (T.SRC_INT, 2 * c + 1)]
+    if ja_fin:
+        slots.append((T.SRC_SCALAR, 5))
+    slots += [(T.SRC_Q, i) for i in range(n_q)] + [(T.SRC_SCALAR, 6), (T.SRC_SCALAR, 7)]
+    lits, cur, k, strings = [], [], 0, [rj, ""]
+    for tok in _SLOT.split(tpl):
+        if tok == "%%":
+            cur.append("%")
+        elif tok == "%s":
+            cur.append(strings.pop(0))
+        elif tok in (_NUM, "%d"):
+            if k >= len(slots) or (tok == "%d") != (slots[k][0] == T.SRC_INT):
+                return None
+            lits.append("".join(cur))
+            cur = []
+            k += 1
+        else:
+            cur.append(tok)
+    lits.append("".join(cur))
+    if k != len(slots) or strings:
+        return None
+    b = [x.encode("ascii") for x in lits]
+    off = np.zeros(len(b) + 1, dtype=np.int64)
+    off[1:] = np.cumsum([len(x) for x in b])
+    return (np.frombuffer(b"".join(b), dtype=np.uint8).copy(), off, np.array([s for s, _ in slots], dtype=np.int64),
+            np.array([i for _, i in slots], dtype=np.int64), int(off[-1]) + T.SLOT_BYTES * len(slots))
+
+
+def _compiled(r) -> str | None:
+    """The line written by :func:`~depthguard.runtime.reaction_text.encode_line` (issue 29): for
+    a reaction whose arrays are float64 and whose policies add no terms or record of their own
+    (the monitor's usual line); None: :func:`_fast` writes it. Per cycle only the layout's key
+    and the numbers are gathered in Python."""
+    names, dist, direc, rep, q = r.names, r.distance, r.direction, r.repulsion, r.q
+    if not (type(names) is tuple and type(dist) is np.ndarray and dist.dtype == np.float64
+            and type(direc) is np.ndarray and direc.dtype == np.float64 and type(rep) is np.ndarray
+            and rep.dtype == np.float64 and rep.shape == (3,) and type(q) is np.ndarray and q.dtype == np.float64
+            and q.ndim == 1):
+        return None
+    m = len(names)
+    if dist.shape != (m,) or direc.shape != (m, 3):
+        return None
+    parts = r.parts
+    if parts:
+        for name, p in parts.items():
+            if p.record or (name != "ssm" and p.terms is not None):
+                return None                           # a policy's own terms or record: _fast
+    ssm = r.ssm
+    if ssm is None:
+        n_ssm, ssm = 0, _NO_SSM
+    elif _terms_ok(ssm) and ssm.dtype == np.float64:
+        n_ssm = min(len(ssm), m)
+    else:
+        return None
+    fin = np.isfinite(dist)
+    fb = fin.tobytes()
+    if fb.count(0) and np.isnan(dist).any():
+        return None                                   # a NaN distance: the reference raises
+    ja = r.joints_age_s
+    if type(ja) is not float or ja != ja:
+        return None
+    ja_fin = ja - ja == 0.0
+    scal = [float(r.t), float(r.override), *rep.tolist(), ja, float(r.speed_scale), float(r.ssm_scale)]
+    ints = []
+    c_key = []
+    cams = r.cameras
+    for c, st in cams.items():
+        age = st.age_s
+        if type(st.frames) is not int or type(st.refused) is not int or type(age) is not float:
+            return None
+        c_key.append((c, st.state, age - age == 0.0))
+        scal.append(age)
+        ints.append(st.frames)
+        ints.append(st.refused)
+    reasons = r.reasons
+    rj = _reasons_text(reasons) if reasons else "{}"
+    key = (names, r.is_watch.tobytes(), fb, r.observed.tobytes(), n_ssm, tuple(c_key), ja_fin, len(q),
+           r.reaction_mode, bool(r.protective_stop), rj)
+    prog = _programs.get(key)
+    if prog is None:
+        if len(_programs) > 256:
+            _programs.clear()
+        fin_l = fin.tolist()
+        tpl = _template(r, fin_l, r.observed.tolist(), n_ssm, (), list(cams.items()), ja_fin)
+        prog = _programs[key] = _program(tpl, rj, fin_l, n_ssm, [k[2] for k in c_key], ja_fin, len(q))
+    if prog is None:
+        return None
+    lits, off, src, idx, size = prog
+    out = getattr(_local, "out", None)
+    if out is None or len(out) < size:
+        out = _local.out = np.empty(max(size, 4096), dtype=np.uint8)
+    n = T.encode_line(lits, off, src, idx, np.array(scal, dtype=np.float64), np.ascontiguousarray(dist),
+                      np.ascontiguousarray(direc), np.ascontiguousarray(ssm), np.ascontiguousarray(q),
+                      np.array(ints, dtype=np.int64), out)
+    return None if n < 0 else out[:n].tobytes().decode("ascii")
+
+
+_NO_SSM = np.zeros((0, len(_SSM_TERMS)))
+
+
+def _reasons_text(reasons) -> str:
+    items = tuple(reasons.items())
+    rj = _reasons_json.get(items)
+    if rj is None:
+        if len(_reasons_json) > 256:
+            _reasons_json.clear()
+        rj = _reasons_json[items] = json.dumps(dict(reasons), allow_nan=False)
+    return rj

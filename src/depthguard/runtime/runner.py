@@ -117,7 +117,9 @@ class RunStats:
         name, d = r.nearest()
         if d < self.nearest:
             self.nearest, self.nearest_at = d, (name, r.t)
-        if not r.observed.all():          # watch points too: one no camera judges is reported
+        obs = r.observed
+        if not (obs.all() if obs.dtype != np.bool_ else False not in obs.tolist()):   # watch points too: one no
+            # camera judges is reported (a bool array's list: ~0.3 us against all()'s ~2 us a cycle)
             self.unobserved_cycles += 1
             for i in np.flatnonzero(~r.observed):
                 self.unobserved_points[r.names[i]] = self.unobserved_points.get(r.names[i], 0) + 1

