@@ -85,6 +85,40 @@ def test_frames_equal_the_numpy_twin_frame_after_frame(name, invalid):
             np.testing.assert_array_equal(_bits(got), _bits(want), err_msg=f"frame {k}, noiseless {noiseless}")
 
 
+def _bar(u0, u1, v0, v1, z):
+    out = np.zeros((H, W), np.float32)
+    out[max(v0, 0):v1, max(u0, 0):u1] = z
+    return out
+
+
+@pytest.mark.parametrize("name", ["realsense_d435", "tof", "kinect_v1"])
+def test_two_layers_apart_on_the_same_rows(name):
+    """The robot's and the person's pixels are worked as two intervals per row (not their hull):
+    two bars on the same rows, apart by 0 to 6 pixels (touching, within the edge test's reach of
+    one another, apart), swapping sides, overlapping, one leaving, frame after frame — each frame
+    equal to the former way on its plain-numpy twins, bit for bit (a frame restores what the one
+    before changed, in either interval or between them)."""
+    model = sensor_model(name)
+    static = _static(np.random.default_rng(3))
+    fx, lo, max_range = 60.0, model.min_range, model.max_range
+    hi = model.returns_to(max_range)
+    cam = LayeredCamera(static, model, fx, lo, hi, max_range, invalid="unknown")
+    k = 0
+    for gap in (0, 1, 2, 3, 6, -4, 20):
+        for left_robot in (True, False):
+            for rows in ((5, 30), (0, 12), (25, H)):
+                a = _bar(3, 20, *rows, 1.0)                      # the left bar
+                b = _bar(20 + gap, 40 + gap, rows[0] + 2, rows[1] + 2, 2.0 + 0.1 * gap)
+                robot, person = (a, b) if left_robot else (b, a)
+                if k % 5 == 4:
+                    person = None
+                got = cam.frame(robot, person, frame_rng(1, "c", k / 30), dark=k % 3 == 0)
+                want = reference_frame(static, robot, person, model, fx, lo, hi, max_range, frame_rng(1, "c", k / 30),
+                                       invalid="unknown", dark=k % 3 == 0, use_numpy=True)
+                np.testing.assert_array_equal(_bits(got), _bits(want), err_msg=f"frame {k}: gap {gap}, rows {rows}")
+                k += 1
+
+
 def test_layer_spans_hold_every_nonzero_pixel():
     """Per row the span is exactly first..last pixel whose float32 bits are not +0.0 (numpy's
     ``flatnonzero`` on the bits), (0, 0) for an empty row; also for rows wider than the 16-word scan."""

@@ -8,11 +8,13 @@ nothing), and only the pixels they can change are worked again:
 1. :func:`layer_spans`: per row, the span ``[a, b)`` of a layer's nonzero pixels (a run list;
    on the built-in cells 10-30 % of a 640x480 image), read only inside the window its meshes
    project to (:func:`mesh_window`);
-2. :func:`compose_edges`, one sweep down the rows: the previous frame's spans are restored from the static scene, the
-   layers are combined with it per pixel in their spans (the nearest surface wins:
-   :func:`depthguard.render.composite.nearest_depth`'s rule), and the depth edges are found
-   again in the spans grown by the edge test's reach (one pixel and one row); the per-row
-   counts of valid and edge pixels follow, so the draws are known before any is made;
+2. :func:`compose_edges`, one sweep down the rows: the previous frame's spans are restored from
+   the static scene, the layers are combined with it per pixel in their spans — the robot's and
+   the person's as two intervals, not their hull (the nearest surface wins:
+   :func:`depthguard.render.composite.nearest_depth`'s rule) — and the depth edges are found
+   again in the spans grown by the edge test's reach (one pixel and one row,
+   :mod:`depthguard.sources.layer_edges`); the per-row counts of valid and edge pixels follow,
+   so the draws are known before any is made;
 3. the draws of :func:`depthguard.sources.noise.apply_noise`, in its order;
 4. :func:`~depthguard.sources.frame_measure.measure_frame`: one pass over the image — the noise
    model, the range rule and the invalid pixels' policy (``camera_sim``'s step 3) together.
@@ -21,7 +23,9 @@ The result is bit for bit the frame of the former way (copy the static scene, ``
 of each layer, ``apply_noise``, ``returns_beyond_the_model``), which stays as
 :func:`reference_frame` — with ``use_numpy=True`` on the plain-numpy twins — for the tests and
 the bench (``sim.ur3_cell.frame_cpu_ms``). The kernels run on the calling thread and allocate
-nothing; the frame's own image is the one allocation.
+nothing; the frame's own image is the one allocation. Their loops run on 0-based row slices
+(``a[v, a0:b0]``), so that the compiler makes vector instructions of them: a loop from a span's
+start keeps numba's negative-index check and ran 3x slower (issue 29).
 """
 
 from __future__ import annotations
@@ -32,6 +36,7 @@ import numpy as np
 from depthguard.config import PRODUCT_INVALID   # the product's defaults, defined once
 from depthguard.render.composite import nearest_depth
 from depthguard.sources.frame_measure import dark_layer, depth_of, measure_frame
+from depthguard.sources.layer_edges import _edges_span, static_edges
 from depthguard.sources.noise import EDGE_JUMP_ABS, EDGE_JUMP_REL, _draws, _params, apply_noise
 
 __all__ = ["LayeredCamera", "layer_spans", "mesh_window", "layer_window", "compose_edges", "measure_frame", "reference_frame",
@@ -138,119 +143,6 @@ def layer_window(meshes, cam, near: float, pose=None, win=None) -> tuple | None:
 
 
 @numba.njit(cache=True, nogil=True, inline="always")
-def _pick(zp, zq, jump_abs, jump_rel, e, best, oth):
-    """One neighbour ``zq`` of pixel ``zp`` (m, 0 = invalid) in the edge test: the updated ``(edge,
-    largest step, depth across it)`` — :func:`depthguard.sources.noise._edge_step` written with
-    selects, so that a loop of it compiles to vector instructions."""
-    valid = zq > 0.0
-    step = abs(zp - zq) if valid else np.inf
-    is_e = (not valid) | (step > jump_abs + jump_rel * min(zp, zq))
-    better = is_e & (step > best)
-    return e | is_e, step if better else best, zq if better else oth
-
-
-@numba.njit(cache=True, nogil=True, inline="always")
-def _edge_general(zu, zm, zd, u, up, down, W, jump_abs, jump_rel):
-    """``(edge, depth across)`` of pixel ``u`` of the sanitized row ``zm`` (float64 m, 0 = invalid)
-    with the rows above / below (``up`` / ``down``: whether they exist) on an image border."""
-    zp = zm[u]
-    e = False
-    best = 0.0
-    oth = 0.0
-    if zp > 0.0:
-        if u > 0:
-            e, best, oth = _pick(zp, zm[u - 1], jump_abs, jump_rel, e, best, oth)
-        if u < W - 1:
-            e, best, oth = _pick(zp, zm[u + 1], jump_abs, jump_rel, e, best, oth)
-        if up:
-            e, best, oth = _pick(zp, zu[u], jump_abs, jump_rel, e, best, oth)
-        if down:
-            e, best, oth = _pick(zp, zd[u], jump_abs, jump_rel, e, best, oth)
-    return e, oth
-
-
-@numba.njit(cache=True, nogil=True, inline="always")
-def _is_edge(zp, zq, jump_abs, jump_rel):
-    """Whether neighbour ``zq`` makes pixel ``zp`` an edge: :func:`_pick`'s ``is_e`` alone."""
-    return (not zq > 0.0) | (abs(zp - zq) > jump_abs + jump_rel * min(zp, zq))
-
-
-@numba.njit(cache=True, nogil=True)
-def _edges_span(zu, zm, zd, up, down, a, b, jump_abs, jump_rel, erow, orow, keep=True):
-    """Edge test of pixels ``[a, b)`` of the row ``zm`` (W,) float64 m (0 = invalid: the composite
-    as :func:`~depthguard.sources.frame_measure.depth_of` reads it), with the rows above / below ``zu``, ``zd`` (``up`` / ``down``:
-    whether they exist), into ``erow`` (W,) uint8 and ``orow`` (W,) float32 m, as
-    :func:`depthguard.sources.noise.depth_edges` (neighbours left, right, up, down; an image
-    border has none); the interior pixels in a loop of selects (vector instructions).
-    ``keep`` False: ``orow`` is not written (a scratch row: only flying pixels read the depths
-    across the edges), and the interior pixels' loop tests the edges alone (the same flags,
-    half the work: issue 29). Returns the span's ``(valid, edge)`` counts."""
-    W = zm.shape[0]
-    ia = max(a, 1)
-    ib = min(b, W - 1)
-    if not (up and down) or ib <= ia:         # no interior: every pixel on the border path
-        ia = b
-        ib = b
-    nv = 0
-    ne = 0
-    if not keep:
-        for u in range(ia, ib):               # interior pixels, the flags alone (no depth across)
-            zp = zm[u]
-            ok = zp > 0.0
-            e = ok & (_is_edge(zp, zm[u - 1], jump_abs, jump_rel) | _is_edge(zp, zm[u + 1], jump_abs, jump_rel)
-                      | _is_edge(zp, zu[u], jump_abs, jump_rel) | _is_edge(zp, zd[u], jump_abs, jump_rel))
-            erow[u] = np.uint8(e)
-            nv += np.int64(ok)
-            ne += np.int64(e)
-    for u in range(ia, ib if keep else ia):   # interior pixels: four neighbours, no branches
-        zp = zm[u]
-        e, best, oth = _pick(zp, zm[u - 1], jump_abs, jump_rel, False, 0.0, 0.0)
-        e, best, oth = _pick(zp, zm[u + 1], jump_abs, jump_rel, e, best, oth)
-        e, best, oth = _pick(zp, zu[u], jump_abs, jump_rel, e, best, oth)
-        e, best, oth = _pick(zp, zd[u], jump_abs, jump_rel, e, best, oth)
-        ok = zp > 0.0
-        e = e & ok
-        erow[u] = np.uint8(e)
-        orow[u] = np.float32(oth if e else 0.0)
-        nv += np.int64(ok)
-        ne += np.int64(e)
-    for u in range(a, ia):                    # the image's border pixels
-        e, oth = _edge_general(zu, zm, zd, u, up, down, W, jump_abs, jump_rel)
-        erow[u] = np.uint8(e)
-        orow[u] = np.float32(oth)
-        nv += np.int64(zm[u] > 0.0)
-        ne += np.int64(e)
-    for u in range(max(ib, ia), b):
-        e, oth = _edge_general(zu, zm, zd, u, up, down, W, jump_abs, jump_rel)
-        erow[u] = np.uint8(e)
-        orow[u] = np.float32(oth)
-        nv += np.int64(zm[u] > 0.0)
-        ne += np.int64(e)
-    return nv, ne
-
-
-@numba.njit(cache=True, nogil=True)
-def static_edges(static, z, jump_abs, jump_rel, edge, other, valid_cum, edge_cum):
-    """The static scene's edges, once per camera, of the raw (H, W) float32 image ``static``:
-    ``edge`` (H, W) uint8, ``other`` (H, W) float32 m (the depth across the edge, as
-    :func:`depthguard.sources.noise.depth_edges`), and ``valid_cum``, ``edge_cum`` (H, W + 1)
-    int32: per row the valid / edge pixels left of each column (``[v, W]``: the row's count).
-    ``z`` (H, W) float64: scratch (``static`` as the noise reads it, :func:`~depthguard.sources.frame_measure.depth_of`)."""
-    H, W = static.shape
-    for v in range(H):
-        for u in range(W):
-            z[v, u] = depth_of(static[v, u])
-    for v in range(H):
-        _edges_span(z[max(v - 1, 0)], z[v], z[min(v + 1, H - 1)], v > 0, v < H - 1, np.int64(0), W, jump_abs, jump_rel,
-                    edge[v], other[v if other.shape[0] > 1 else 0], other.shape[0] > 1)
-        valid_cum[v, 0] = 0
-        edge_cum[v, 0] = 0
-        for u in range(W):
-            valid_cum[v, u + 1] = valid_cum[v, u] + (1 if z[v, u] > 0.0 else 0)
-            edge_cum[v, u + 1] = edge_cum[v, u] + edge[v, u]
-
-
-@numba.njit(cache=True, nogil=True, inline="always")
 def _hull(spans, r0, r1, grow, W):
     """``[a, b)``: the hull of the non-empty ``spans[r0:r1]``, grown by ``grow`` and clipped to
     ``[0, W)``; ``(0, 0)`` when all are empty."""
@@ -265,6 +157,94 @@ def _hull(spans, r0, r1, grow, W):
     return max(a - grow, 0), min(b + grow, W)
 
 
+@numba.njit(cache=True, nogil=True, inline="always")
+def _union(xa, xb, ya, yb):
+    """The union of ``[xa, xb)`` and ``[ya, yb)`` (either may be empty) as a *pair* ``(a0, b0, a1,
+    b1)``: two disjoint intervals, ``a0 <= b0 <= a1 <= b1`` (one interval: ``a1 = b1 = b0``;
+    none: ``(0, 0, 0, 0)``), merged when they overlap or touch."""
+    if xb <= xa:
+        if yb <= ya:
+            return 0, 0, 0, 0
+        return ya, yb, yb, yb
+    if yb <= ya:
+        return xa, xb, xb, xb
+    if ya < xa:
+        xa, xb, ya, yb = ya, yb, xa, xb
+    if ya <= xb:
+        b = max(xb, yb)
+        return xa, b, b, b
+    return xa, xb, ya, yb
+
+
+@numba.njit(cache=True, nogil=True, inline="always")
+def _pair_hull(r_spans, p_spans, r0, r1, grow, W):
+    """The pair (:func:`_union`) of the robot's and the person's hulls (:func:`_hull`) over rows
+    ``r0 .. r1 - 1``, each grown by ``grow``: the two layers apart, not the gap between them."""
+    ra, rb = _hull(r_spans, r0, r1, grow, W)
+    pa, pb = _hull(p_spans, r0, r1, grow, W)
+    return _union(ra, rb, pa, pb)
+
+
+@numba.njit(cache=True, nogil=True, inline="always")
+def _copy(dst, src):
+    """``dst[:] = src`` (n,), a loop from 0 (vector instructions)."""
+    for u in range(dst.shape[0]):
+        dst[u] = src[u]
+
+
+@numba.njit(cache=True, nogil=True, inline="always")
+def _restore(dst, src, v, x, y, n0, n1, n2, n3):
+    """``dst[v, u] = src[v, u]`` for ``u`` in ``[x, y)`` outside the pair ``(n0, n1, n2, n3)``
+    (all >= 0: plain slices)."""
+    if y <= x:
+        return
+    _copy(dst[v, x:min(y, n0)], src[v, x:min(y, n0)])
+    _copy(dst[v, max(x, n1):min(y, n2)], src[v, max(x, n1):min(y, n2)])
+    _copy(dst[v, max(x, n3):y], src[v, max(x, n3):y])
+
+
+@numba.njit(cache=True, nogil=True, inline="always")
+def _nearest(zc, static, layer):
+    """``zc = static`` with ``layer`` nearer where it has a surface (n,) float32 m:
+    :func:`depthguard.render.composite.nearest_depth`'s rule, a loop from 0."""
+    for u in range(zc.shape[0]):
+        x = static[u]
+        y = layer[u]
+        zc[u] = y if (y > 0.0) & ((x == 0.0) | (y < x)) else x
+
+
+@numba.njit(cache=True, nogil=True, inline="always")
+def _nearest2(zc, static, person, robot):
+    """:func:`_nearest` of the person, then of the robot, in one loop."""
+    for u in range(zc.shape[0]):
+        x = static[u]
+        y = person[u]
+        x = y if (y > 0.0) & ((x == 0.0) | (y < x)) else x
+        y = robot[u]
+        zc[u] = y if (y > 0.0) & ((x == 0.0) | (y < x)) else x
+
+
+@numba.njit(cache=True, nogil=True, inline="always")
+def _depths(zr, zc):
+    """``zr`` (n,) float64 = :func:`~depthguard.sources.frame_measure.depth_of` of ``zc`` (n,) float32."""
+    for u in range(zr.shape[0]):
+        zr[u] = depth_of(zc[u])
+
+
+@numba.njit(cache=True, nogil=True, inline="always")
+def _blend(zc, static, robot, person, v, a, b, has_r, has_p):
+    """Row ``v``, columns ``[a, b)`` (>= 0) of the composite: the nearest of static, person, robot
+    (:func:`depthguard.render.composite.nearest_depth`'s rule, person first, then robot)."""
+    if b <= a:
+        return
+    if has_p and has_r:
+        _nearest2(zc[v, a:b], static[v, a:b], person[v, a:b], robot[v, a:b])
+    elif has_p:
+        _nearest(zc[v, a:b], static[v, a:b], person[v, a:b])
+    else:
+        _nearest(zc[v, a:b], static[v, a:b], robot[v, a:b])
+
+
 @numba.njit(cache=True, nogil=True)
 def compose_edges(static, s_edge, s_other, s_valid_cum, s_edge_cum, robot, r_spans, person, p_spans,
                   zc, edge, other, valid_row, edge_row, c_spans, e_spans, rows, jump_abs, jump_rel, do_edges):
@@ -275,51 +255,39 @@ def compose_edges(static, s_edge, s_other, s_valid_cum, s_edge_cum, robot, r_spa
     ``robot``, ``person`` (H, W) float32 m with their spans ``r_spans``, ``p_spans`` (H, 2) int32
     (:func:`layer_spans`; all ``(0, 0)``: no layer, the image is then not read).
     The frame's state: ``zc`` (H, W) float32 the raw composite, ``edge``, ``other`` as the static
-    ones (``other`` and ``s_other`` (1, W): not kept, a scratch row — only flying pixels read them), ``valid_row``, ``edge_row`` (H,) int64 the counts per row; ``c_spans``, ``e_spans`` (H,
-    2) int32 the spans composed and edge-tested, on entry the previous frame's (restored from the
-    static scene first), on return this frame's; ``rows`` (3, W) float64 scratch: three rows of
-    the composite as the edge test reads it (:func:`~depthguard.sources.frame_measure.depth_of`). ``do_edges`` False (noiseless): the
-    composite alone. Row ``i`` is composed, row ``i - 2`` read into ``rows``, row ``i - 3``
-    edge-tested — while the rows are in the cache.
+    ones (``other`` and ``s_other`` (1, W): not kept, a scratch row — only flying pixels read them),
+    ``valid_row``, ``edge_row`` (H,) int64 the counts per row; ``c_spans``, ``e_spans`` (H, 4)
+    int32 per row the pair (:func:`_union`: two disjoint intervals) of pixels composed and
+    edge-tested, on entry the previous frame's (restored from the static scene first), on return
+    this frame's; ``rows`` (3, W) float64 scratch: three rows of the composite as the edge test
+    reads it (:func:`~depthguard.sources.frame_measure.depth_of`). ``do_edges`` False
+    (noiseless): the composite alone. Row ``i`` is composed, row ``i - 2`` read into ``rows``,
+    row ``i - 3`` edge-tested — while the rows are in the cache. The robot's and the person's
+    pixels are worked as two intervals per row, not their hull (issue 29: the gap between them
+    was a third of the hull's pixels on the ur3-cell, half on the flacco-cell).
     Returns ``(valid pixels, edge pixels)`` of the frame.
     """
     H, W = static.shape
     n_valid = 0
     n_edge = 0
+    keep = other.shape[0] > 1                # the depths across the edges are kept (ToF)
     for i in range(H + 3):
         if i < H:                            # compose row i: the nearest of static, person, robot
             v = i
             ra, rb = r_spans[v, 0], r_spans[v, 1]
             pa, pb = p_spans[v, 0], p_spans[v, 1]
-            a = min(ra if rb > ra else W, pa if pb > pa else W)
-            b = max(rb if rb > ra else 0, pb if pb > pa else 0)
-            if b <= a:
-                a = 0
-                b = 0
+            a0, b0, a1, b1 = _union(ra, rb, pa, pb)
             # the previous frame's pixels that this one does not compose again: back to static
-            for u in range(c_spans[v, 0], min(c_spans[v, 1], a)):
-                zc[v, u] = static[v, u]
-            for u in range(max(c_spans[v, 0], b), c_spans[v, 1]):
-                zc[v, u] = static[v, u]
-            c_spans[v, 0] = a
-            c_spans[v, 1] = b
-            if pb > pa and rb > ra:          # a layer is 0 outside its span: read over the hull
-                for u in range(a, b):
-                    x = static[v, u]
-                    y = person[v, u]
-                    x = y if (y > 0.0) & ((x == 0.0) | (y < x)) else x
-                    y = robot[v, u]
-                    zc[v, u] = y if (y > 0.0) & ((x == 0.0) | (y < x)) else x
-            elif pb > pa:
-                for u in range(a, b):
-                    x = static[v, u]
-                    y = person[v, u]
-                    zc[v, u] = y if (y > 0.0) & ((x == 0.0) | (y < x)) else x
-            else:
-                for u in range(a, b):
-                    x = static[v, u]
-                    y = robot[v, u]
-                    zc[v, u] = y if (y > 0.0) & ((x == 0.0) | (y < x)) else x
+            _restore(zc, static, v, c_spans[v, 0], c_spans[v, 1], a0, b0, a1, b1)
+            _restore(zc, static, v, c_spans[v, 2], c_spans[v, 3], a0, b0, a1, b1)
+            c_spans[v, 0] = a0
+            c_spans[v, 1] = b0
+            c_spans[v, 2] = a1
+            c_spans[v, 3] = b1
+            has_r = rb > ra
+            has_p = pb > pa
+            _blend(zc, static, robot, person, v, a0, b0, has_r, has_p)   # a layer is 0 outside its span
+            _blend(zc, static, robot, person, v, a1, b1, has_r, has_p)
         if not do_edges:
             if i < H:
                 valid_row[i] = s_valid_cum[i, W]
@@ -329,32 +297,31 @@ def compose_edges(static, s_edge, s_other, s_valid_cum, s_edge_cum, robot, r_spa
             continue
         r = i - 2
         if r >= 0 and r < H:                 # row r as the edge tests of rows r - 1 .. r + 1 read it
-            a, b = _hull(c_spans, max(0, r - 2), min(H, r + 3), 2, W)
+            a0, b0, a1, b1 = _pair_hull(r_spans, p_spans, max(0, r - 2), min(H, r + 3), 2, W)
             zr = rows[r % 3]
-            for u in range(a, b):
-                zr[u] = depth_of(zc[r, u])
+            _depths(zr[a0:b0], zc[r, a0:b0])
+            _depths(zr[a1:b1], zc[r, a1:b1])
         v = i - 3
         if v >= 0:                           # edge test of row v where the composite changed
-            a, b = _hull(c_spans, max(0, v - 1), min(H, v + 2), 1, W)
-            keep = other.shape[0] > 1            # the depths across the edges are kept (ToF)
-            for u in range(e_spans[v, 0], min(e_spans[v, 1], a)):   # tested last frame, not now
-                edge[v, u] = s_edge[v, u]
-            for u in range(max(e_spans[v, 0], b), e_spans[v, 1]):
-                edge[v, u] = s_edge[v, u]
-            if keep:
-                for u in range(e_spans[v, 0], min(e_spans[v, 1], a)):
-                    other[v, u] = s_other[v, u]
-                for u in range(max(e_spans[v, 0], b), e_spans[v, 1]):
-                    other[v, u] = s_other[v, u]
-            e_spans[v, 0] = a
-            e_spans[v, 1] = b
+            a0, b0, a1, b1 = _pair_hull(r_spans, p_spans, max(0, v - 1), min(H, v + 2), 1, W)
+            for j in range(2):               # tested last frame, not now: the static scene's
+                _restore(edge, s_edge, v, e_spans[v, 2 * j], e_spans[v, 2 * j + 1], a0, b0, a1, b1)
+                if keep:
+                    _restore(other, s_other, v, e_spans[v, 2 * j], e_spans[v, 2 * j + 1], a0, b0, a1, b1)
+            e_spans[v, 0] = a0
+            e_spans[v, 1] = b0
+            e_spans[v, 2] = a1
+            e_spans[v, 3] = b1
             valid_row[v] = s_valid_cum[v, W]
             edge_row[v] = s_edge_cum[v, W]
-            if b > a:
-                nv, ne = _edges_span(rows[(v + 2) % 3], rows[v % 3], rows[(v + 1) % 3], v > 0, v < H - 1, a, b,
-                                     jump_abs, jump_rel, edge[v], other[v if keep else 0], keep)
-                valid_row[v] += nv - (s_valid_cum[v, b] - s_valid_cum[v, a])
-                edge_row[v] += ne - (s_edge_cum[v, b] - s_edge_cum[v, a])
+            for j in range(2):
+                a = a0 if j == 0 else a1
+                b = b0 if j == 0 else b1
+                if b > a:
+                    nv, ne = _edges_span(rows[(v + 2) % 3], rows[v % 3], rows[(v + 1) % 3], v > 0, v < H - 1, a, b,
+                                         jump_abs, jump_rel, edge[v], other[v if keep else 0], keep)
+                    valid_row[v] += nv - (s_valid_cum[v, b] - s_valid_cum[v, a])
+                    edge_row[v] += ne - (s_edge_cum[v, b] - s_edge_cum[v, a])
             n_valid += valid_row[v]
             n_edge += edge_row[v]
     return n_valid, n_edge
@@ -390,8 +357,8 @@ class LayeredCamera:
         self.edge, self.other = self.s_edge.copy(), self.s_other.copy()
         self.valid_row = self.s_valid_cum[:, W].astype(np.int64)
         self.edge_row = self.s_edge_cum[:, W].astype(np.int64)
-        self.c_spans = np.zeros((H, 2), np.int32)
-        self.e_spans = np.zeros((H, 2), np.int32)
+        self.c_spans = np.zeros((H, 4), np.int32)     # per row a pair of intervals (compose_edges)
+        self.e_spans = np.zeros((H, 4), np.int32)
         self.r_spans = np.zeros((H, 2), np.int32)
         self.p_spans = np.zeros((H, 2), np.int32)
         self._empty = np.zeros((1, 1), np.float32)
