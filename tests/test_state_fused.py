@@ -15,8 +15,9 @@ import depthguard as dg
 from depthguard.distance.gaps import GapBuffers
 from depthguard.distance.silhouette import SilhouetteBuffers
 from depthguard.fusion import depth_grid_ref as ref
-from depthguard.fusion.depth_grid_state import (StateOptions, bin_state_numpy, state_into,
-                                                state_into_unfused)
+from depthguard.fusion.depth_grid_kernels import build_pyramids
+from depthguard.fusion.depth_grid_state import (StateMaker, StateOptions, bin_state_numpy, pyramid_layout,
+                                                pyramid_levels, state_into, state_into_unfused, state_pyramids)
 
 
 def _cam(w, h, f=130.0):
@@ -71,7 +72,7 @@ def test_fused_state_equals_unfused_passes_and_numpy_twin(shape, dtype):
             opts = StateOptions(0.03, invalid, "unknown", n_sil, n_gap)
             for rd in (robot, None):
                 want_f, want_k = ref.frame_state_numpy(cam, depth, rd, 0.03, invalid, robot_free, n_sil, n_gap)
-                for b in (1, 2, 3):
+                for b in (1, 2, 3, 4):
                     hb, wb = -(-H // b), -(-W // b)
                     f1, k1 = np.full((hb, wb), -7.0), np.full((hb, wb), 9, np.int8)
                     f2, k2 = np.full((hb, wb), -7.0), np.full((hb, wb), 9, np.int8)
@@ -83,7 +84,7 @@ def test_fused_state_equals_unfused_passes_and_numpy_twin(shape, dtype):
                     np.testing.assert_array_equal(f1, tf)
                     np.testing.assert_array_equal(k1, tk)
                     checked += 1
-    assert checked == 5 * 3 * 2 * 3
+    assert checked == 5 * 3 * 2 * 4
     # the images do exercise both rules: the silhouette and the gaps change the state
     opts_on, opts_off = StateOptions(0.03, "unknown", "unknown", 4, 3), StateOptions(0.03, "unknown", "unknown", 0, 0)
     on, off = np.empty((H, W)), np.empty((H, W))
@@ -109,7 +110,7 @@ def test_fused_state_in_a_wider_buffer_and_robot_free_everywhere():
     all_invalid = np.zeros((30, 40), np.float32)
     opts = StateOptions(0.03, "unknown", "unknown", 4, 3)
     for d, rd in ((depth, robot), (depth, all_robot), (all_invalid, robot), (all_invalid, all_robot)):
-        for b in (1, 2):
+        for b in (1, 2, 4):
             f1, k1 = np.full((50, 70), -7.0), np.full((50, 70), 9, np.int8)
             f2, k2 = np.full((50, 70), -7.0), np.full((50, 70), 9, np.int8)
             state_into(cam, d, rd, opts, False, sil, gaps, f1, k1, b)
@@ -118,6 +119,46 @@ def test_fused_state_in_a_wider_buffer_and_robot_free_everywhere():
             np.testing.assert_array_equal(k1, k2)
             hb, wb = -(-30 // b), -(-40 // b)
             assert (f1[hb:, :] == -7.0).all() and (f1[:, wb:] == -7.0).all() and (f1[:hb, :wb] != -7.0).all()
+
+
+@pytest.mark.parametrize("shape", [(48, 64), (61, 87), (45, 1), (1, 7), (1, 1), (33, 32)])
+def test_state_pyramids_equal_build_pyramids_and_the_blocks(shape):
+    """The worker's pyramids (:func:`state_pyramids`, what :meth:`StateMaker.make` writes with
+    ``pyramids=True``) are :func:`build_pyramids`' bit for bit, and level ``l`` holds the min / max
+    of the aligned ``2^l x 2^l`` blocks of the state (clipped at an odd border), computed here by
+    numpy from the state itself; level 0 is left as it was (neither writes it) unless it is the only one."""
+    rng = np.random.default_rng(11 + shape[1])
+    H, W = shape
+    free = rng.uniform(0.3, 6.0, (H, W))
+    free[rng.random((H, W)) < 0.1] = np.inf
+    free[rng.random((H, W)) < 0.1] = 0.3
+    levels = pyramid_levels(H, W)
+    offs, dims, size = pyramid_layout(H, W, levels)
+    got = [np.full(size, -9.0) for _ in range(2)]
+    want = [np.full(size, -9.0) for _ in range(2)]
+    state_pyramids(free, H, W, got[0], got[1], offs, dims)
+    build_pyramids(free, H, W, want[0], want[1], offs, dims)
+    np.testing.assert_array_equal(got[0].view(np.int64), want[0].view(np.int64))
+    np.testing.assert_array_equal(got[1].view(np.int64), want[1].view(np.int64))
+    for lv in range(levels):
+        s, (h, w) = 2 ** lv, dims[lv]
+        pmin = got[0][offs[lv]:offs[lv] + h * w].reshape(h, w)
+        pmax = got[1][offs[lv]:offs[lv] + h * w].reshape(h, w)
+        if lv == 0 and levels > 1:
+            assert (pmin == -9.0).all() and (pmax == -9.0).all()
+            continue
+        bmin = np.array([[free[v * s:v * s + s, u * s:u * s + s].min() for u in range(w)] for v in range(h)])
+        bmax = np.array([[free[v * s:v * s + s, u * s:u * s + s].max() for u in range(w)] for v in range(h)])
+        np.testing.assert_array_equal(pmin, bmin)
+        np.testing.assert_array_equal(pmax, bmax)
+    if H >= 16 and W >= 16:                           # and StateMaker.make writes them with the state
+        cam = _cam(W, H)
+        depth, robot = _images(rng, H, W, np.float32)
+        st = StateMaker(cam).make(depth, robot, StateOptions(0.03, "unknown", "unknown", 4, 3), pyramids=True)
+        ref_min, ref_max = np.empty(size), np.empty(size)
+        build_pyramids(st.free, H, W, ref_min, ref_max, offs, dims)
+        np.testing.assert_array_equal(st.pmin[offs[1]:], ref_min[offs[1]:])
+        np.testing.assert_array_equal(st.pmax[offs[1]:], ref_max[offs[1]:])
 
 
 @pytest.mark.parametrize("dtype,shape", [(np.float32, (48, 64)), (np.float64, (48, 64)), (np.float32, (45, 61))])

@@ -33,7 +33,7 @@ from depthguard.fusion.depth_grid_kernels import build_pyramids, frame_state, pi
 from depthguard.fusion.depth_grid_state_fused import frame_state_fused
 
 __all__ = ["StateOptions", "CameraState", "StateMaker", "state_into", "pyramid_levels", "pyramid_layout",
-           "bin_state", "bin_state_numpy", "frame_state_binned", "frame_state_fused",
+           "bin_state", "bin_state_numpy", "state_pyramids", "frame_state_binned", "frame_state_fused",
            "state_into_unfused"]
 
 
@@ -133,6 +133,50 @@ def bin_state(free, kind, b, out_free, out_kind):
                         k = kind[v, u]
             out_free[j, i] = m
             out_kind[j, i] = k
+
+
+@njit(cache=True, parallel=True, nogil=True)
+def state_pyramids(free, H, W, pmin, pmax, offsets, dims):
+    """:func:`~depthguard.fusion.depth_grid_kernels.build_pyramids` (the same arrays, bit for bit:
+    level ``l`` >= 1 of ``pmin`` / ``pmax`` the min / max of the aligned ``2^l x 2^l`` blocks of
+    ``free`` (H, W) float64 m, flat at ``offsets`` (levels,) with ``dims`` (levels, 2),
+    :func:`pyramid_layout`; level 0 not written unless it is the only one) for the camera worker
+    (R36, issue 29): a level's full pairs of columns in a loop over row views indexed from 0
+    (LLVM vectorises it), the last column of an odd width after it. A min / max selects, and a
+    state's free depth is never NaN: the order of the pairs does not change a bit."""
+    nl = offsets.shape[0]
+    if nl == 1:
+        build_pyramids(free, H, W, pmin, pmax, offsets, dims)
+        return
+    for lv in range(1, nl):
+        hp = H if lv == 1 else dims[lv - 1, 0]
+        wp = W if lv == 1 else dims[lv - 1, 1]
+        hl = dims[lv, 0]
+        wl = dims[lv, 1]
+        op = offsets[lv - 1]
+        ol = offsets[lv]
+        half = wp // 2
+        for v in prange(hl):
+            r0 = 2 * v
+            r1 = min(2 * v + 1, hp - 1)
+            if lv == 1:
+                a = free[r0, :]
+                b = free[r1, :]
+                c = a
+                d = b
+            else:
+                a = pmin[op + r0 * wp:op + r0 * wp + wp]
+                b = pmin[op + r1 * wp:op + r1 * wp + wp]
+                c = pmax[op + r0 * wp:op + r0 * wp + wp]
+                d = pmax[op + r1 * wp:op + r1 * wp + wp]
+            omin = pmin[ol + v * wl:ol + v * wl + wl]
+            omax = pmax[ol + v * wl:ol + v * wl + wl]
+            for u in range(half):
+                omin[u] = min(min(a[2 * u], a[2 * u + 1]), min(b[2 * u], b[2 * u + 1]))
+                omax[u] = max(max(c[2 * u], c[2 * u + 1]), max(d[2 * u], d[2 * u + 1]))
+            if wl > half:                      # an odd width: the last column repeats itself
+                omin[half] = min(a[wp - 1], b[wp - 1])
+                omax[half] = max(c[wp - 1], d[wp - 1])
 
 
 def bin_state_numpy(free: np.ndarray, kind: np.ndarray, b: int) -> tuple[np.ndarray, np.ndarray]:
@@ -299,7 +343,7 @@ class StateMaker:
         levels = pyramid_levels(cam.height, cam.width)
         offs, dims, _size = self._pyramid_layout()
         pmin, pmax = out[2], out[3]
-        build_pyramids(free, cam.height, cam.width, pmin, pmax, offs, dims)
+        state_pyramids(free, cam.height, cam.width, pmin, pmax, offs, dims)
         return CameraState(free, kind, options, bool(robot_free), pmin, pmax, levels)
 
     def _pyramid_layout(self):
