@@ -54,7 +54,8 @@ from depthguard.fusion.depth_grid_data import lazy_model
 from depthguard.fusion.depth_grid_query import GridQuery
 from depthguard.fusion.depth_grid_robot import GridRobot
 from depthguard.fusion.depth_grid_offline import corner_rays, default_cache_dir, load_map, map_key, save_map
-from depthguard.fusion.depth_grid_state import StateOptions, bin_state, pyramid_layout, pyramid_levels, state_into
+from depthguard.fusion.depth_grid_state import (StateOptions, bin_state, pyramid_layout, pyramid_levels, state_into,
+                                              state_pyramids)
 
 __all__ = ["DepthGridMap", "default_cache_dir"]
 
@@ -430,8 +431,9 @@ class DepthGridMap(GridRobot, GridQuery):
                 np.copyto(self._kpmax[k][o:n], used.pmax[o:])
                 self.pyramids_used += 1
                 continue
-            depth_grid_kernels.build_pyramids(self._kfree[k], cam.height, cam.width, self._kpmin[k], self._kpmax[k],
-                             self._koff[k], self._kdims[k])
+            # build_pyramids' arrays bit for bit, in vectorised row passes (0.5x its time, issue 29)
+            state_pyramids(self._kfree[k], cam.height, cam.width, self._kpmin[k], self._kpmax[k],
+                           self._koff[k], self._kdims[k])
         self._set_band(reach)
         self.lazy = bool(lazy)
         self.set_robot_capsules(robot_capsules)
