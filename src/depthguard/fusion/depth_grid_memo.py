@@ -185,29 +185,33 @@ def _centre_blocks(kfree, rays, origins, kint, k, u, v, dc):
 def _camera_stretch(kfree, kpmin, kpmax, koff, kdims, rays, origins, kint, nk, k, u, v, g0, g1, dmin, dd,
                     kdone, kclr):
     """Evaluate ``cleared_k`` for slices ``g0..g1`` of column ``(u, v)`` and set their bits:
-    each cell first by its centre (:func:`_centre_blocks`, the column's centre ray taken once:
-    a few multiplications, two divisions and a lookup settle a cell ``k`` does not clear, most
-    of the cells asked of a camera with a new frame: the gray cells no camera clears), then —
-    from a cell the centre does not settle — stretches settled from camera ``k``'s pyramids
-    where they can be (growing after a success, shrinking after a failure), the rest cell by
-    cell by the cell's footprint. (Before, pyramid stretches were tried first and, failing on
-    runs of such cells, re-tried every other cell; every test is exact, so the bits are the
-    same whichever settles a cell.) Every piece is bounded by the cross-sections at ``dmin + g * dd``
+    stretches settled from camera ``k``'s pyramids where they can be (growing after a
+    success, shrinking after a failure), the rest cell by cell — first by the cell's centre
+    (:func:`_centre_blocks`, the column's centre ray taken once: most cells left to this are
+    ones ``k`` does not clear), else by the cell's footprint. After a cell its centre settled,
+    the next cells are tested by their centre before any stretch, until one it does not
+    settle: on a run of cells ``k`` does not clear (the gray cells no camera clears, asked of a
+    camera with a new frame) no stretch is re-tried every other cell. Every test is exact, so
+    the bits are the same whichever settles a cell. Every piece is bounded by the cross-sections at ``dmin + g * dd``
     (one float per boundary ``g``), so a boundary's cross-section is projected once and shared
     by the pieces on both sides of it: 4 corners per cell or stretch test, not 8."""
     span_next = 64
     sec_g = g0 - 1          # the boundary whose cross-section ``sec`` holds (none yet)
     sec = (False, 0.0, 0.0, 0.0, 0.0, 0.0, 0.0)
     rx, ry, rz = _centre_ray(rays, k, u, v)
+    centre_first = False    # after a cell its centre settled: the centre before any stretch
     g = g0
     while g <= g1:
         w = g >> 6
         b = _ONE << np.uint64(g & 63)
-        if _centre_blocks_ray(kfree, origins, kint, k, rx, ry, rz, dmin + (g + 0.5) * dd):
-            # not cleared by k (exact): no stretch tried from a cell its centre settles
-            kdone[k, v, u, w] = kdone[k, v, u, w] | b
-            g += 1
-            continue
+        open_ = False       # the centre is known not to settle cell g
+        if centre_first:
+            if _centre_blocks_ray(kfree, origins, kint, k, rx, ry, rz, dmin + (g + 0.5) * dd):
+                kdone[k, v, u, w] = kdone[k, v, u, w] | b      # not cleared by k (exact)
+                g += 1
+                continue
+            centre_first = False
+            open_ = True
         span = min(span_next, g1 - g + 1)
         if span > 1:
             if sec_g != g:
@@ -231,13 +235,16 @@ def _camera_stretch(kfree, kpmin, kpmax, koff, kdims, rays, origins, kint, nk, k
         else:
             span_next = min(span_next * 2, 8)
         kdone[k, v, u, w] = kdone[k, v, u, w] | b
-        if sec_g != g:
-            sec = _section(rays, origins, kint, k, u, v, dmin + g * dd)
-        s2 = _section(rays, origins, kint, k, u, v, dmin + (g + 1) * dd)
-        if _cleared_by_sections(kfree, kint, k, sec, s2):
-            kclr[k, v, u, w] = kclr[k, v, u, w] | b
-        sec = s2
-        sec_g = g + 1
+        if not open_ and _centre_blocks_ray(kfree, origins, kint, k, rx, ry, rz, dmin + (g + 0.5) * dd):
+            centre_first = True
+        else:
+            if sec_g != g:
+                sec = _section(rays, origins, kint, k, u, v, dmin + g * dd)
+            s2 = _section(rays, origins, kint, k, u, v, dmin + (g + 1) * dd)
+            if _cleared_by_sections(kfree, kint, k, sec, s2):
+                kclr[k, v, u, w] = kclr[k, v, u, w] | b
+            sec = s2
+            sec_g = g + 1
         g += 1
 
 
@@ -259,8 +266,9 @@ def gray_stretch(u, v, g, e, kfree, kpmin, kpmax, koff, kdims, rays, origins, ki
     # first what the cameras whose bits hold for their frame clear already (bit operations
     # only), so that a camera that must evaluate (a new frame, or cells not yet asked of it)
     # looks only at the cells none of them clears; a cell's class is the same whatever order
-    # the cameras are asked in (obstacle = not any cleared_k, each bit exact)
-    for k in range(nk):
+    # the cameras are asked in (obstacle = not any cleared_k, each bit exact); one camera: the
+    # loop below does the same
+    for k in range(nk if nk > 1 else 0):
         if kstamp[k, v, u] == kver[k]:
             for w in range(g >> 6, (e >> 6) + 1):
                 obits[v, u, w] = obits[v, u, w] & ~(kclr[k, v, u, w] & mask_range(w, g, e))
