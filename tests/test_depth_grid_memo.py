@@ -79,3 +79,41 @@ def test_centre_shortcut_only_on_cells_the_camera_does_not_clear():
                     n_seen_conf += 1
                     n_blocked_seen += blocked
     assert n_seen_conf >= 1000 and n_blocked_seen >= 0.5 * n_seen_conf, (n_blocked_seen, n_seen_conf, n_blocked)
+
+
+def test_gray_stretch_asks_a_new_frame_only_what_no_valid_memo_clears():
+    """``gray_stretch`` after camera 0's new frame (its memo dropped, camera 1's kept): every
+    cell's class is the rule's (an obstacle iff no camera clears it, ``cell_cleared`` per
+    camera), and camera 0 evaluates none of the cells camera 1's memo knows it clears (the
+    cameras with valid bits are applied first), while it still evaluates every other cell."""
+    rng, grid = _grid(33)
+    H, W, nd = grid.shape
+    nk = len(grid.others)
+    assert nk == 2
+    nw = (nd + 63) // 64
+    kmemo = M.new_memo(nk, H, W, nw)
+    kver, kstamp, kdone, kclr = kmemo
+    obits = np.zeros((H, W, nw), dtype=np.uint64)
+    cbits = np.zeros((H, W, nw), dtype=np.uint64)
+    bits = lambda x: np.unpackbits(x.view(np.uint8), bitorder="little")[:nd].astype(bool)  # noqa: E731
+    n_skipped = n_obst = 0
+    for u, v in _columns(rng, grid, 40):
+        g0 = int(rng.integers(0, nd // 2))
+        args = (grid._kfree, grid._kpmin, grid._kpmax, grid._koff, grid._kdims, grid.rays, grid.origins,
+                grid._kint, nk, grid.d_min, grid.delta_d, kmemo, obits, cbits)
+        M.gray_stretch(u, v, g0, nd - 1, *args)        # both cameras' bits for their frames
+        kver[0] += 1                                    # camera 0 loads a new frame
+        obits[v, u] = 0
+        cbits[v, u] = 0
+        M.gray_stretch(u, v, g0, nd - 1, *args)
+        clr = np.array([[g >= g0 and _cleared_by(grid, k, u, v, g) for g in range(nd)] for k in range(nk)])
+        want_obst = (np.arange(nd) >= g0) & ~clr[0] & ~clr[1]
+        np.testing.assert_array_equal(bits(obits[v, u]), want_obst, err_msg=f"column {(u, v)}")
+        np.testing.assert_array_equal(bits(cbits[v, u]), np.arange(nd) >= g0)
+        # camera 1's memo holds the cells camera 0 left to it on the first call (not those both clear)
+        known1 = clr[1] & ~clr[0]
+        asked = bits(kdone[0, v, u])
+        np.testing.assert_array_equal(asked, (np.arange(nd) >= g0) & ~known1, err_msg=f"column {(u, v)}")
+        n_skipped += int(known1.sum())
+        n_obst += int(want_obst.sum())
+    assert n_skipped >= 200 and n_obst >= 200, (n_skipped, n_obst)   # both kinds of cell met

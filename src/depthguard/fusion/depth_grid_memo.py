@@ -140,18 +140,19 @@ _Z_MARGIN = 1e-9
 
 
 @njit(cache=True, inline="always")
-def _centre_blocks(kfree, rays, origins, kint, k, u, v, dc):
-    """Exact shortcut for a cell camera ``k`` does not clear (R12): the cell's centre (principal
-    pixel ``(u, v)``'s centre ray at depth ``dc``, the mean of its 4 corner rays) projects into
-    pixel ``(iu, iv)`` of ``k`` with depth ``zc``; when ``kfree[k, iv, iu] <= zc``, that pixel —
-    inside the cell's footprint, the centre being inside the cell — is not free beyond
-    ``dend_k >= zc``, so :func:`~depthguard.fusion.depth_grid_kernels.cell_cleared` is False for
-    ``k`` whether or not ``k`` sees the cell whole. One point projected instead of the cell's
-    cross-sections; False = no conclusion (then the full rule). The margins keep the
-    conclusion exact where the centre's pixel or depth sits within rounding of a bound."""
+def _centre_ray(rays, k, u, v):
+    """Principal pixel ``(u, v)``'s centre ray in camera ``k``: the mean of its 4 corner rays
+    ``rays[k, v:v+2, u:u+2]`` ((K, H+1, W+1, 3) float64, per metre of principal depth)."""
     rx = 0.25 * ((rays[k, v, u, 0] + rays[k, v, u + 1, 0]) + (rays[k, v + 1, u, 0] + rays[k, v + 1, u + 1, 0]))
     ry = 0.25 * ((rays[k, v, u, 1] + rays[k, v, u + 1, 1]) + (rays[k, v + 1, u, 1] + rays[k, v + 1, u + 1, 1]))
     rz = 0.25 * ((rays[k, v, u, 2] + rays[k, v, u + 1, 2]) + (rays[k, v + 1, u, 2] + rays[k, v + 1, u + 1, 2]))
+    return rx, ry, rz
+
+
+@njit(cache=True, inline="always")
+def _centre_blocks_ray(kfree, origins, kint, k, rx, ry, rz, dc):
+    """:func:`_centre_blocks` with the column's centre ray ``(rx, ry, rz)`` (:func:`_centre_ray`)
+    given: :func:`_camera_stretch` takes it once per column, not once per cell."""
     Z = origins[k, 2] + dc * rz
     if not Z > _Z_MARGIN:
         return False
@@ -166,21 +167,51 @@ def _centre_blocks(kfree, rays, origins, kint, k, u, v, dc):
     return kfree[k, int(fv), int(fu)] <= Z - _Z_MARGIN
 
 
+@njit(cache=True, inline="always")
+def _centre_blocks(kfree, rays, origins, kint, k, u, v, dc):
+    """Exact shortcut for a cell camera ``k`` does not clear (R12): the cell's centre (principal
+    pixel ``(u, v)``'s centre ray at depth ``dc``, the mean of its 4 corner rays) projects into
+    pixel ``(iu, iv)`` of ``k`` with depth ``zc``; when ``kfree[k, iv, iu] <= zc``, that pixel —
+    inside the cell's footprint, the centre being inside the cell — is not free beyond
+    ``dend_k >= zc``, so :func:`~depthguard.fusion.depth_grid_kernels.cell_cleared` is False for
+    ``k`` whether or not ``k`` sees the cell whole. One point projected instead of the cell's
+    cross-sections; False = no conclusion (then the full rule). The margins keep the
+    conclusion exact where the centre's pixel or depth sits within rounding of a bound."""
+    rx, ry, rz = _centre_ray(rays, k, u, v)
+    return _centre_blocks_ray(kfree, origins, kint, k, rx, ry, rz, dc)
+
+
 @njit(cache=True, nogil=True)
 def _camera_stretch(kfree, kpmin, kpmax, koff, kdims, rays, origins, kint, nk, k, u, v, g0, g1, dmin, dd,
                     kdone, kclr):
     """Evaluate ``cleared_k`` for slices ``g0..g1`` of column ``(u, v)`` and set their bits:
     stretches settled from camera ``k``'s pyramids where they can be (growing after a
     success, shrinking after a failure), the rest cell by cell — first by the cell's centre
-    (:func:`_centre_blocks`: most cells left to this are ones ``k`` does not clear), else by
-    the cell's footprint. Every piece is bounded by the cross-sections at ``dmin + g * dd``
+    (:func:`_centre_blocks`, the column's centre ray taken once: most cells left to this are
+    ones ``k`` does not clear), else by the cell's footprint. After a cell its centre settled,
+    the next cells are tested by their centre before any stretch, until one it does not
+    settle: on a run of cells ``k`` does not clear (the gray cells no camera clears, asked of a
+    camera with a new frame) no stretch is re-tried every other cell. Every test is exact, so
+    the bits are the same whichever settles a cell. Every piece is bounded by the cross-sections at ``dmin + g * dd``
     (one float per boundary ``g``), so a boundary's cross-section is projected once and shared
     by the pieces on both sides of it: 4 corners per cell or stretch test, not 8."""
     span_next = 64
     sec_g = g0 - 1          # the boundary whose cross-section ``sec`` holds (none yet)
     sec = (False, 0.0, 0.0, 0.0, 0.0, 0.0, 0.0)
+    rx, ry, rz = _centre_ray(rays, k, u, v)
+    centre_first = False    # after a cell its centre settled: the centre before any stretch
     g = g0
     while g <= g1:
+        w = g >> 6
+        b = _ONE << np.uint64(g & 63)
+        open_ = False       # the centre is known not to settle cell g
+        if centre_first:
+            if _centre_blocks_ray(kfree, origins, kint, k, rx, ry, rz, dmin + (g + 0.5) * dd):
+                kdone[k, v, u, w] = kdone[k, v, u, w] | b      # not cleared by k (exact)
+                g += 1
+                continue
+            centre_first = False
+            open_ = True
         span = min(span_next, g1 - g + 1)
         if span > 1:
             if sec_g != g:
@@ -203,10 +234,10 @@ def _camera_stretch(kfree, kpmin, kpmax, koff, kdims, rays, origins, kint, nk, k
             span_next = max(span // 4, 1)
         else:
             span_next = min(span_next * 2, 8)
-        w = g >> 6
-        b = _ONE << np.uint64(g & 63)
         kdone[k, v, u, w] = kdone[k, v, u, w] | b
-        if not _centre_blocks(kfree, rays, origins, kint, k, u, v, dmin + (g + 0.5) * dd):
+        if not open_ and _centre_blocks_ray(kfree, origins, kint, k, rx, ry, rz, dmin + (g + 0.5) * dd):
+            centre_first = True
+        else:
             if sec_g != g:
                 sec = _section(rays, origins, kint, k, u, v, dmin + g * dd)
             s2 = _section(rays, origins, kint, k, u, v, dmin + (g + 1) * dd)
@@ -223,13 +254,24 @@ def gray_stretch(u, v, g, e, kfree, kpmin, kpmax, koff, kdims, rays, origins, ki
     """Classify slices ``g..e`` of column ``(u, v)``, all gray cells (none in a robot capsule,
     none the measured surface, all inside the band and the grid, ``nk >= 1``): an obstacle
     unless another camera clears it (R12). Sets their ``cbits`` and, for the obstacles,
-    ``obits``. Camera by camera, only the cells that no camera before it cleared are
-    looked at, from the memo where camera ``k`` already evaluated them for its frame."""
+    ``obits``. First the cameras whose bits hold for their frame drop the cells they are
+    known to clear (bit operations), then camera by camera only the cells that no camera
+    cleared so far are looked at, from the memo where camera ``k`` already evaluated them
+    for its frame (a camera with a new frame evaluates only what the others do not clear)."""
     kver, kstamp, kdone, kclr = kmemo
     for w in range(g >> 6, (e >> 6) + 1):
         m = mask_range(w, g, e)
         cbits[v, u, w] = cbits[v, u, w] | m
         obits[v, u, w] = obits[v, u, w] | m          # candidates; cleared ones are dropped below
+    # first what the cameras whose bits hold for their frame clear already (bit operations
+    # only), so that a camera that must evaluate (a new frame, or cells not yet asked of it)
+    # looks only at the cells none of them clears; a cell's class is the same whatever order
+    # the cameras are asked in (obstacle = not any cleared_k, each bit exact); one camera: the
+    # loop below does the same
+    for k in range(nk if nk > 1 else 0):
+        if kstamp[k, v, u] == kver[k]:
+            for w in range(g >> 6, (e >> 6) + 1):
+                obits[v, u, w] = obits[v, u, w] & ~(kclr[k, v, u, w] & mask_range(w, g, e))
     for k in range(nk):
         if kstamp[k, v, u] != kver[k]:
             for w in range(kdone.shape[3]):
