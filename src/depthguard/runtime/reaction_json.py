@@ -212,16 +212,7 @@ def _fast(r) -> str | None:
     if s - s != 0.0 or max(fl) >= 1e9 or min(fl) <= -1e9 or max(fl2) >= 1e9 or min(fl2) <= -1e9:
         return None                                   # non-finite (the reference raises) or too large
     reasons = r.reasons
-    if reasons:
-        items = tuple(reasons.items())
-        rj = _reasons_json.get(items)
-        if rj is None:
-            if len(_reasons_json) > 256:
-                _reasons_json.clear()
-            rj = _reasons_json[items] = json.dumps(dict(reasons), allow_nan=False)
-    else:
-        rj = "{}"
-    fl.append(rj)
+    fl.append(_reasons_text(reasons) if reasons else "{}")
     fl += tail
     if ja_fin:
         fl.append(ja)
@@ -360,6 +351,7 @@ _NO_SSM = np.zeros((0, len(_SSM_TERMS)))
 
 
 def _reasons_text(reasons) -> str:
+    """The reasons' JSON object, made once per distinct set of reasons (kept for up to 256 sets)."""
     items = tuple(reasons.items())
     rj = _reasons_json.get(items)
     if rj is None:
