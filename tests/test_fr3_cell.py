@@ -193,6 +193,12 @@ def test_fr3_stops_for_the_person_and_resumes_through_franky_sim(fr3_sim, tmp_pa
     fresh = {w: np.mean([not any(k.startswith("stale:") for k in r["reasons"]) for r in records
                          if lo < r["t"] - origin < hi]) for w, (lo, hi) in {"before": (0, 4.5), "after": (13.5, 18)}.items()}
     report += f"; cycles with fresh data: before {fresh['before']:.0%}, after {fresh['after']:.0%}"
+    first = next((r["t"] - origin for r in records
+                  if not any("no frame yet" in str(m) for m in r["reasons"].values())), float("nan"))
+    report += f"; every camera's first frame at scene t {first:.2f} s"
+    stale_keys = sorted({k for r in records for k in r["reasons"] if k.startswith("stale:")})
+    report += "; stale cycles by reason: " + ", ".join(
+        f"{k} {np.mean([k in r['reasons'] for r in records]):.0%}" for k in stale_keys)
     print(report)
     if min(fresh.values()) < 0.5 or len(steps) < 0.2 * 18000:
         pytest.skip(f"the robot was never reached ({report}), but this machine could not keep the simulated "
