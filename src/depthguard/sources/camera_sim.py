@@ -65,6 +65,15 @@ class Shot(NamedTuple):
     scene_s: float
 
 
+class _RobotSlot:
+    """The robot posed for a camera: ``vw`` (V, 3) float64 m world vertices at joints ``q``."""
+
+    __slots__ = ("vw", "q")
+
+    def __init__(self, vw):
+        self.vw, self.q = vw, None
+
+
 class CameraSim:
     """The depth cameras ``cams`` of a cell (module docstring).
 
@@ -75,7 +84,9 @@ class CameraSim:
         product's (:data:`depthguard.config.PRODUCT_INVALID`).
     parallel : the renderers' numba threads (False: one, e.g. on a camera thread).
 
-    One object per thread: each camera's buffers are reused from frame to frame.
+    One object per thread: each camera's buffers are reused from frame to frame; or, after
+    :meth:`own_robot_buffers`, one thread per camera (each camera's renderers, noise and posed
+    robot are its own).
     """
 
     def __init__(self, cams: Sequence, robot=None, static_meshes=(), seed: int = 0, noiseless: bool = False,
@@ -95,7 +106,7 @@ class CameraSim:
         self._robot = {c.id: Renderer(c, parallel=parallel, ids=parallel) for c in cams}   # the robot layer's own
         # the robot's clustered links packed once; their world vertices posed once per joint
         # values, for every camera (RobotModel.render_link_vertices: the bits of render_link_meshes)
-        self._robot_vw = self._robot_q = None
+        self._robot_vw = None
         if hasattr(robot, "render_link_vertices") and hasattr(robot, "render_link_topology"):   # a RobotModel
             links = robot.render_link_topology(SIM_CELL)
             off = np.zeros((len(links) + 1, 2), np.int64)
@@ -107,9 +118,20 @@ class CameraSim:
             self._robot_faces = (np.ascontiguousarray(np.concatenate([m.faces for m in links]), dtype=np.int32)
                                  if links else np.zeros((0, 3), np.int32))
             self._robot_vw = np.zeros((int(off[-1, 0]), 3))
+        # the posed robot's (vertices, joints) per camera: one shared slot (the cameras of one time
+        # step pose it once), or each camera's own (own_robot_buffers: a thread per camera)
+        shared = _RobotSlot(self._robot_vw)
+        self._robot_slots = {c.id: shared for c in cams}
         self.layered = {c.id: LayeredCamera(self.expected[c.id].static, self.sims[c.id].model, c.fx, c.min_range,
                                             self.sims[c.id].model.returns_to(c.max_range), c.max_range,
                                             noiseless=noiseless, invalid=invalid) for c in cams}
+
+    def own_robot_buffers(self) -> None:
+        """Each camera poses the robot into its own buffer from now on (a thread per camera, R29:
+        one camera's render never reads vertices another camera's thread is writing); the frames
+        are the same bits."""
+        if self._robot_vw is not None:
+            self._robot_slots = {cid: _RobotSlot(np.zeros_like(self._robot_vw)) for cid in self.cams}
 
     @property
     def camera_ids(self) -> list[str]:
@@ -131,7 +153,7 @@ class CameraSim:
         t0 = time.perf_counter()
         rd = rsp = psp = None
         if self.robot is not None and q is not None and self._robot_vw is not None:
-            vw = self._robot_vertices(q)                             # as ExpectedDepth.robot renders it
+            vw = self._robot_vertices(q, camera_id)                  # as ExpectedDepth.robot renders it
             rd = self._robot[camera_id].render_arrays(vw, self._robot_faces, self._robot_off)[0]  # its buffer
             rsp = self._robot[camera_id].spans
         elif self.robot is not None and q is not None:               # another machine (sim/carm.py)
@@ -157,16 +179,18 @@ class CameraSim:
                                           robot_spans=rsp, person_spans=psp)
         return Shot(d, robot_depth, t1 - t0, time.perf_counter() - t1)
 
-    def _robot_vertices(self, q) -> np.ndarray:
+    def _robot_vertices(self, q, camera_id: str | None = None) -> np.ndarray:
         """The robot's (V, 3) world vertices at ``q`` (dof,) rad, all clustered links one after
-        the other; posed again only when ``q`` changes (the cameras of one time step share them)."""
+        the other, in camera ``camera_id``'s slot (``__init__``); posed again only when ``q``
+        changes (the cameras of one time step share them, unless each has its own)."""
         qa = np.asarray(q, dtype=np.float64).reshape(-1)
         if qa.shape[0] != self._dof or not np.isfinite(qa).all():
             raise ValueError(f"expected {self.robot.dof} finite joint values, got {qa.tolist()}")
-        if self._robot_q is None or not (self._robot_q == qa).all():      # np.array_equal, same shapes
-            self.robot.render_link_vertices(qa, SIM_CELL, self._robot_vw)
-            self._robot_q = qa.copy()
-        return self._robot_vw
+        slot = self._robot_slots[camera_id] if camera_id is not None else next(iter(self._robot_slots.values()))
+        if slot.q is None or not (slot.q == qa).all():                    # np.array_equal, same shapes
+            self.robot.render_link_vertices(qa, SIM_CELL, slot.vw)
+            slot.q = qa.copy()
+        return slot.vw
 
     def depth(self, camera_id: str, t: float, q, moving: Sequence = (), dark: bool = False) -> np.ndarray:
         """The measured (H, W) float32 depth alone (:meth:`shot`)."""
