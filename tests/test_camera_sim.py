@@ -129,3 +129,35 @@ def test_people_posed_in_place_give_the_whole_scene(cell):
         assert moving is not None
         np.testing.assert_array_equal(sim.depth(cam.id, t, cell.scene.robot_q(t), moving),
                                       _whole_scene(cell, cam, t))
+
+
+@pytest.mark.parametrize("own", [False, True])
+def test_a_robot_standing_still_is_not_drawn_again_and_the_frames_are_the_same(cell, own):
+    """A camera whose robot stands still (the same joints as its last frame, e.g. stopped, R27)
+    keeps its robot image instead of drawing it again: each frame is still the whole scene
+    rendered at once (the second implementation), bit for bit, whether the cameras share the posed
+    robot or each has its own (``own_robot_buffers``); the robot's renderer draws only when the
+    joints a camera sees change, or another camera moved the shared robot in between."""
+    cams = cell.rig.cameras[:2]
+    sim = CameraSim(cams, robot=cell.scene.robot, static_meshes=cell.scene.static_meshes, seed=1, invalid=None)
+    if own:
+        sim.own_robot_buffers()
+    draws = {c.id: 0 for c in cams}
+    for c in cams:
+        r = sim._robot[c.id]
+        r.render_arrays = (lambda f, cid: lambda *a, **k: (draws.__setitem__(cid, draws[cid] + 1), f(*a, **k))[1])(
+            r.render_arrays, c.id)
+    q_still, q_moved = cell.scene.robot_q(T), cell.scene.robot_q(T + 0.5)
+    assert not np.array_equal(q_still, q_moved)
+    # (camera, time, joints): camA twice still, camB still, camA still, then moved and still again
+    plan = [(0, T, q_still), (0, T + 0.05, q_still), (1, T + 0.06, q_still), (0, T + 0.1, q_still),
+            (1, T + 0.11, q_moved), (0, T + 0.12, q_still), (0, T + 0.15, q_moved), (0, T + 0.2, q_moved)]
+    for i, t, q in plan:
+        cam = cams[i]
+        moving, _ = cell.scene.moving_meshes_at(t)
+        meshes, _ = cell.scene.meshes_at(t, robot=False)              # as _whole_scene, robot at q
+        want = SimulatedCamera(cam, seed=1).capture(meshes + cell.scene.robot.render_link_meshes(q, SIM_CELL), stamp=t)
+        np.testing.assert_array_equal(sim.shot(cam.id, t, q, moving).depth, want)
+    # camA: drawn at the first frame, at q_still again after camB moved the shared robot (own
+    # buffers: not needed), and at q_moved; camB: at q_still and q_moved
+    assert draws == ({cams[0].id: 2, cams[1].id: 2} if own else {cams[0].id: 3, cams[1].id: 2})

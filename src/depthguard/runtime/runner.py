@@ -8,8 +8,10 @@ source is done, or the caller stops it (Ctrl-C, ``stop`` event).
   (from 0, from a recording's first stamp, or the wall clock ``time.time()``
   when a source is live; a source with ``start_clock(t0)``, the simulator, is
   told where that clock starts) and pushes what it returns; the calling
-  thread steps the monitor every ``1 / control_hz`` s. The control thread
-  never waits for a frame. For the run's length the objects made before it are
+  thread steps the monitor every ``1 / control_hz`` s. A source with
+  ``camera_streams()`` (the simulator) has a thread per camera instead, asleep
+  until that camera's next capture: a frame never waits for another camera's
+  render. The control thread never waits for a frame. For the run's length the objects made before it are
   left out of the cyclic garbage collector (:func:`frozen_heap`): a full
   collection then walks only what the run made.
 - **Fast** (``fast=True``): one thread; at each control cycle ``t = k dt``
@@ -352,10 +354,43 @@ def _run_threads(monitor, frame_sources, joint_source, duration, stop, emit, all
                 time.sleep(pace.wait(clock()))
             elif not n:
                 time.sleep(POLL_S)
-    # a source that renders its frames one at a time (the simulator: frames_each) hands each on
-    # as soon as it is made, not when every camera due is
-    threads = [threading.Thread(target=pump, args=(getattr(s, "frames_each", s.frames_until), monitor.push_frame),
-                                daemon=True, name=f"depthguard-source-{i}") for i, s in enumerate(frame_sources)]
+    def camera_pump(stream, push):
+        """One simulated camera (``stream``, :class:`~depthguard.sources.sim_source.CameraStream`):
+        asleep until its next frame can be rendered (``wake_at``), then rendered and pushed."""
+        from depthguard.runtime.ingest import background_thread
+
+        background_thread()
+        while not stop.is_set():
+            wait = stream.wake_at() - clock()
+            if wait > 0:
+                time.sleep(min(wait, STREAM_WAIT_MAX_S))        # woken for stop at least that often
+                continue
+            n = 0
+            try:
+                for f in stream.frames_each(clock()):
+                    push(f)
+                    n += 1
+            except Exception as exc:                   # a failing camera: reported, it goes stale
+                stats.source_errors.append(f"{type(exc).__name__}: {exc}")
+                from depthguard.progress import log
+                log(f"source failed, its cameras go stale (R27): {type(exc).__name__}: {exc}")
+                return
+            if not n:
+                time.sleep(POLL_S)                     # due but not renderable yet (a followed robot's state)
+
+    # a source that renders each camera on its own thread (the simulator: camera_streams, issue 29)
+    # has one thread per camera, woken at its capture times; one that renders its frames one at a
+    # time (frames_each) hands each on as soon as it is made, not when every camera due is
+    threads = []
+    for i, s in enumerate(frame_sources):
+        streams = s.camera_streams() if hasattr(s, "camera_streams") else None
+        if streams:
+            threads += [threading.Thread(target=camera_pump, args=(st, monitor.push_frame), daemon=True,
+                                         name=f"depthguard-source-{i}-{st.camera_id}") for st in streams]
+        else:
+            threads.append(threading.Thread(target=pump, args=(getattr(s, "frames_each", s.frames_until),
+                                                               monitor.push_frame),
+                                            daemon=True, name=f"depthguard-source-{i}"))
     threads += [threading.Thread(target=pump, args=(s.voxels_until, lambda v: monitor.push_voxels(*v)),
                                  daemon=True, name=f"depthguard-units-{i}")
                 for i, s in enumerate(frame_sources) if hasattr(s, "voxels_until")]
@@ -387,6 +422,9 @@ def _run_threads(monitor, frame_sources, joint_source, duration, stop, emit, all
 
 #: the source threads' polling period when nothing came (s)
 POLL_S = 0.0005
+
+#: the longest sleep of a simulated camera's thread before its next capture (s): it sees ``stop``
+STREAM_WAIT_MAX_S = 0.05
 
 
 class _Pace:

@@ -22,7 +22,9 @@ rendered once, a renderer for what moves, the sensor's noise model); a frame is 
    (``Renderer.spans``), so the layers are not scanned again. The robot's vertices are posed
    once per joint values and the people and props once per time
    (:class:`~depthguard.sim.posed.PosedMeshes`), in place, and rendered where they lie
-   (``Renderer.render_arrays``): no mesh is made per frame;
+   (``Renderer.render_arrays``): no mesh is made per frame; a camera whose robot stands still
+   (the same joints as its last frame: stopped, R27) keeps its robot image (a frame of ur3-cell
+   0.78x the CPU then);
 3. the invalid pixels follow one vocabulary, the monitor's (``MonitorConfig.invalid``, R28):
    ``"unknown"`` — no return stays 0, and a ray that meets nothing the scene models returns
    from beyond the rated range, as a real cell's walls would; ``"free"`` — every invalid
@@ -65,6 +67,17 @@ class Shot(NamedTuple):
     scene_s: float
 
 
+class _RobotSlot:
+    """The robot posed for a camera: ``vw`` (V, 3) float64 m world vertices at joints ``q``;
+    ``posings`` counts the times ``vw`` was written (a camera's robot image drawn from it stays
+    valid while the count does)."""
+
+    __slots__ = ("vw", "q", "posings")
+
+    def __init__(self, vw):
+        self.vw, self.q, self.posings = vw, None, 0
+
+
 class CameraSim:
     """The depth cameras ``cams`` of a cell (module docstring).
 
@@ -75,7 +88,9 @@ class CameraSim:
         product's (:data:`depthguard.config.PRODUCT_INVALID`).
     parallel : the renderers' numba threads (False: one, e.g. on a camera thread).
 
-    One object per thread: each camera's buffers are reused from frame to frame.
+    One object per thread: each camera's buffers are reused from frame to frame; or, after
+    :meth:`own_robot_buffers`, one thread per camera (each camera's renderers, noise and posed
+    robot are its own).
     """
 
     def __init__(self, cams: Sequence, robot=None, static_meshes=(), seed: int = 0, noiseless: bool = False,
@@ -95,7 +110,7 @@ class CameraSim:
         self._robot = {c.id: Renderer(c, parallel=parallel, ids=parallel) for c in cams}   # the robot layer's own
         # the robot's clustered links packed once; their world vertices posed once per joint
         # values, for every camera (RobotModel.render_link_vertices: the bits of render_link_meshes)
-        self._robot_vw = self._robot_q = None
+        self._robot_vw = None
         if hasattr(robot, "render_link_vertices") and hasattr(robot, "render_link_topology"):   # a RobotModel
             links = robot.render_link_topology(SIM_CELL)
             off = np.zeros((len(links) + 1, 2), np.int64)
@@ -107,9 +122,24 @@ class CameraSim:
             self._robot_faces = (np.ascontiguousarray(np.concatenate([m.faces for m in links]), dtype=np.int32)
                                  if links else np.zeros((0, 3), np.int32))
             self._robot_vw = np.zeros((int(off[-1, 0]), 3))
+        # the posed robot's (vertices, joints) per camera: one shared slot (the cameras of one time
+        # step pose it once), or each camera's own (own_robot_buffers: a thread per camera)
+        shared = _RobotSlot(self._robot_vw)
+        self._robot_slots = {c.id: shared for c in cams}
+        # per camera (slot, its posings, image) of the robot layer last drawn: a robot standing still
+        # (stopped, R27) is not drawn again; its renderer's image and spans are kept as they were
+        # (the frame reads them only: LayeredCamera takes read-only views), the same bits
+        self._robot_drawn: dict[str, tuple] = {}
         self.layered = {c.id: LayeredCamera(self.expected[c.id].static, self.sims[c.id].model, c.fx, c.min_range,
                                             self.sims[c.id].model.returns_to(c.max_range), c.max_range,
                                             noiseless=noiseless, invalid=invalid) for c in cams}
+
+    def own_robot_buffers(self) -> None:
+        """Each camera poses the robot into its own buffer from now on (a thread per camera, R29:
+        one camera's render never reads vertices another camera's thread is writing); the frames
+        are the same bits."""
+        if self._robot_vw is not None:
+            self._robot_slots = {cid: _RobotSlot(np.zeros_like(self._robot_vw)) for cid in self.cams}
 
     @property
     def camera_ids(self) -> list[str]:
@@ -131,8 +161,14 @@ class CameraSim:
         t0 = time.perf_counter()
         rd = rsp = psp = None
         if self.robot is not None and q is not None and self._robot_vw is not None:
-            vw = self._robot_vertices(q)                             # as ExpectedDepth.robot renders it
-            rd = self._robot[camera_id].render_arrays(vw, self._robot_faces, self._robot_off)[0]  # its buffer
+            vw = self._robot_vertices(q, camera_id)                  # as ExpectedDepth.robot renders it
+            slot = self._robot_slots[camera_id]
+            drawn = self._robot_drawn.get(camera_id)
+            if drawn is not None and drawn[0] is slot and drawn[1] == slot.posings:
+                rd = drawn[2]                   # the robot where this camera last drew it: its image as is
+            else:
+                rd = self._robot[camera_id].render_arrays(vw, self._robot_faces, self._robot_off)[0]  # its buffer
+                self._robot_drawn[camera_id] = (slot, slot.posings, rd)
             rsp = self._robot[camera_id].spans
         elif self.robot is not None and q is not None:               # another machine (sim/carm.py)
             qa = np.asarray(q, dtype=np.float64).reshape(-1)
@@ -140,6 +176,7 @@ class CameraSim:
                 raise ValueError(f"expected {self.robot.dof} finite joint values, got {qa.tolist()}")
             meshes = self.robot.render_link_meshes(qa, SIM_CELL)
             rd = self._robot[camera_id].render(meshes)[0]            # the renderer's buffer
+            self._robot_drawn.pop(camera_id, None)
             rsp = self._robot[camera_id].spans
         robot_depth = np.array(rd, copy=True) if keep_robot and rd is not None else None
         t1 = time.perf_counter()
@@ -157,16 +194,19 @@ class CameraSim:
                                           robot_spans=rsp, person_spans=psp)
         return Shot(d, robot_depth, t1 - t0, time.perf_counter() - t1)
 
-    def _robot_vertices(self, q) -> np.ndarray:
+    def _robot_vertices(self, q, camera_id: str | None = None) -> np.ndarray:
         """The robot's (V, 3) world vertices at ``q`` (dof,) rad, all clustered links one after
-        the other; posed again only when ``q`` changes (the cameras of one time step share them)."""
+        the other, in camera ``camera_id``'s slot (``__init__``); posed again only when ``q``
+        changes (the cameras of one time step share them, unless each has its own)."""
         qa = np.asarray(q, dtype=np.float64).reshape(-1)
         if qa.shape[0] != self._dof or not np.isfinite(qa).all():
             raise ValueError(f"expected {self.robot.dof} finite joint values, got {qa.tolist()}")
-        if self._robot_q is None or not (self._robot_q == qa).all():      # np.array_equal, same shapes
-            self.robot.render_link_vertices(qa, SIM_CELL, self._robot_vw)
-            self._robot_q = qa.copy()
-        return self._robot_vw
+        slot = self._robot_slots[camera_id] if camera_id is not None else next(iter(self._robot_slots.values()))
+        if slot.q is None or not (slot.q == qa).all():                    # np.array_equal, same shapes
+            self.robot.render_link_vertices(qa, SIM_CELL, slot.vw)
+            slot.q = qa.copy()
+            slot.posings += 1
+        return slot.vw
 
     def depth(self, camera_id: str, t: float, q, moving: Sequence = (), dark: bool = False) -> np.ndarray:
         """The measured (H, W) float32 depth alone (:meth:`shot`)."""

@@ -41,7 +41,11 @@ sink), not to the simulator. A frame captured before the first state kept is not
 (``no_robot_state`` in :meth:`SimFrames.counters`); while the states stop coming (a lost
 robot) no frame is due either: the cameras go stale with the joints (R27).
 
-In a real-time run (the runner says so) a camera that falls more than a period
+In a real-time run (the runner says so) each camera renders on its own thread
+(:meth:`SimFrames.camera_streams`), woken at its own next capture, as real cameras
+deliver independently of each other; the world they share (``advance``, the joint
+history, the scene's posing) is under locks, each camera's buffers its own. A camera
+that falls more than a period
 behind drops the frames it could not render, and the cameras take their noise's
 normals from a pre-drawn bank (:class:`~depthguard.sources.noise.NormalBank`: the
 same law per frame, 3 ms of a 640x480 frame's 10 ms saved). Fast runs keep the
@@ -63,8 +67,9 @@ from depthguard.sim.posed import PosedMeshes
 from depthguard.sources.base import register_joints, register_source
 from depthguard.sources.camera_sim import CameraSchedule, CameraSim
 from depthguard.sources.frame import Frame
+from depthguard.sources.sim_streams import CameraStream, _Counts
 
-__all__ = ["SimWorld", "SimFrames", "SimJoints", "FollowedJoints", "parse_sim_spec", "sim_world"]
+__all__ = ["SimWorld", "SimFrames", "SimJoints", "CameraStream", "FollowedJoints", "parse_sim_spec", "sim_world"]
 
 _FLAGS = ("alone", "dark", "noiseless")
 
@@ -296,8 +301,9 @@ class SimFrames:
         self._posed = PosedMeshes(world.scene, alone=world.alone)   # the people and props, posed in place
         self._stopped: dict[str, float] = {}
         self.skip_behind = False        # set by a real-time run: frames a slow machine cannot render are dropped
-        self.skipped = 0
-        self.unposed = 0                # frames of a followed robot with no state around their capture
+        self._counts = _Counts()        # frames_each's skipped and unposed (each stream keeps its own)
+        self._streams: list[CameraStream] = []    # camera_streams: one per camera, real time
+        self._scene_lock = threading.Lock()       # the scene posed by one camera thread at a time
         self.done = False
         self.lost = None
 
@@ -340,6 +346,31 @@ class SimFrames:
                        no_robot_state=int(self.unposed))
         return out
 
+    @property
+    def skipped(self) -> int:
+        """Frames not rendered because the simulator was behind real time (:meth:`counters`)."""
+        return self._counts.skipped + sum(s.counts.skipped for s in self._streams)
+
+    @property
+    def unposed(self) -> int:
+        """Frames of a followed robot with no state around their capture (not rendered)."""
+        return self._counts.unposed + sum(s.counts.unposed for s in self._streams)
+
+    def camera_streams(self) -> list[CameraStream]:
+        """Real time (the runner asks, R29): one :class:`CameraStream` per camera, each rendered on
+        its own thread and woken at its own camera's next capture, as a real camera delivers on
+        its own (issue 29: one thread rendering the four cameras of ur3-cell in turn, ~80 % busy,
+        held a frame behind the others' renders, capture -> rendered p50 15-32 ms). Each stream
+        poses the people and props into its own buffers and the robot into its camera's own
+        (:meth:`CameraSim.own_robot_buffers`); the world (``advance``, the joint history) is shared
+        under its lock. Call before the run starts; :meth:`frames_each` then is not to be used."""
+        if not self._streams:
+            self.sim.own_robot_buffers()
+            self._streams = [CameraStream(self, i) for i in range(len(self.camera_ids))]
+            for st in self._streams:        # each stream's buffers sized before the clock starts
+                st._posed.at(self.world.scene_time(0.0))
+        return list(self._streams)
+
     def stop_camera(self, camera_id: str, after: float = -math.inf) -> None:
         """Fault injection: camera ``camera_id`` delivers nothing captured after ``after`` s."""
         self._stopped[camera_id] = after
@@ -349,7 +380,12 @@ class SimFrames:
 
     def render(self, camera_id: str, t: float, q: np.ndarray) -> np.ndarray:
         """The measured (H, W) float32 depth of camera ``camera_id`` at run time ``t``, robot at ``q``."""
-        moving = self._posed.at(self.world.scene_time(t))       # world.dynamic(t), packed in place
+        return self._render(camera_id, t, q, self._posed)
+
+    def _render(self, camera_id: str, t: float, q: np.ndarray, posed: PosedMeshes) -> np.ndarray:
+        """:meth:`render` with the people and props posed into ``posed``'s buffers."""
+        with self._scene_lock:          # the scene's memos, shared by the camera threads
+            moving = posed.at(self.world.scene_time(t))         # world.dynamic(t), packed in place
         return self.sim.depth(camera_id, t, q, moving, dark=self.world.dark)
 
     def frames_until(self, t: float) -> list[Frame]:
@@ -361,16 +397,22 @@ class SimFrames:
         capture order: a real-time run hands each frame on as soon as it is rendered instead of
         when every camera due has been (issue 29: four cameras due at once held the first frame
         three renders long, ~15 ms of its age)."""
+        return self._frames_each(t, range(len(self.camera_ids)), self._counts, self.render)
+
+    def _frames_each(self, t: float, cameras, counts: _Counts, render):
+        """:meth:`frames_each` of the cameras of indices ``cameras``; their skipped and unposed frames
+        counted in ``counts``; ``render(camera_id, tc, q)`` makes a frame's depth."""
         self.world.advance(t)
         origin = self.world.origin
         t = min(t, self.world.history.newest_stamp) - origin   # a frame needs the robot's pose at its capture
         due = []
         sched = self.schedule
-        for i, cid in enumerate(self.camera_ids):
+        for i in cameras:
+            cid = self.camera_ids[i]
             if self.skip_behind and sched.next[i] + sched.period <= t + 1e-12:
                 # behind by more than a period (real time, a slow machine): a camera drops the
                 # frames it could not deliver rather than queue them; the latest due is captured
-                self.skipped += sched.skip_to_latest(i, t)        # frames not rendered
+                counts.skipped += sched.skip_to_latest(i, t)      # frames not rendered
             while sched.due(i, t, tol=1e-12):
                 tc = sched.next[i]
                 sched.take(i, tc)
@@ -381,9 +423,9 @@ class SimFrames:
             try:
                 q = self.world.history.at(origin + min(tc, t))     # tc <= t up to rounding
             except OutsideHistory:          # a followed robot: before its first state, or after a gap
-                self.unposed += 1
+                counts.unposed += 1
                 continue
-            yield Frame(cid, self.render(cid, tc, q), origin + tc)
+            yield Frame(cid, render(cid, tc, q), origin + tc)
 
     def close(self) -> None:
         pass
