@@ -120,6 +120,8 @@ class Monitor(MonitorDistances, UnitStateInput, MonitorPaths, MonitorWatches):
         self.sinks = list(sinks)
         # control-thread state (preallocated)
         self._data = self.robot.create_data()
+        self._fk = self.robot.forward_into(self._data)    # step's forward kinematics, bound once
+        self._q_shape = (self.robot.dof,)
         self._cp_names = tuple(c.name for c in self.robot.control_points)
         self._watch = np.array([w.position for w in cfg.watch_points], dtype=np.float64).reshape(-1, 3)
         self._names = self._cp_names + tuple(w.name for w in cfg.watch_points)
@@ -341,7 +343,8 @@ class Monitor(MonitorDistances, UnitStateInput, MonitorPaths, MonitorWatches):
                                                        else np.asarray(self.rig.robot_q0, dtype=np.float64))
         q = np.asarray(q, dtype=np.float64)
         self._last_q = q
-        robot.forward(q, data)
+        if q.shape != self._q_shape or not self._fk(q):
+            robot.forward(q, data)                     # its ValueError: a wrong length or a value not finite
         m_cp = len(self._cp_names)
         self._P[:m_cp] = data.cp_positions
         if len(self._watch):
