@@ -43,14 +43,15 @@ import numpy as np
 from depthguard.config import MonitorConfig
 from depthguard.control.policy import Cycle, PolicySetup, make_policies
 from depthguard.control.repulsion_limits import repulsion_and_limits
-from depthguard.control.supervisor import SafetySupervisor, point_reasons, points_hold_robot, stale_reason
+from depthguard.control.supervisor import SafetySupervisor, point_reasons, points_hold_robot
 from depthguard.runtime.monitor_distances import MonitorDistances
 from depthguard.runtime.monitor_paths import MonitorPaths
 from depthguard.runtime.monitor_watches import MonitorWatches
+from depthguard.runtime.camera_supervision import camera_pass
 from depthguard.runtime.fusion_worker import FusionWorker
 from depthguard.runtime.ingest import CameraWorker
 from depthguard.robot.joint_history import JointHistory
-from depthguard.runtime.result import CameraStatus, Reaction
+from depthguard.runtime.result import Reaction
 from depthguard.runtime.refusals import explain_stale
 from depthguard.runtime.unit_states import UnitStateInput, UnitWorker
 from depthguard.runtime.warm_up import warm_up
@@ -362,42 +363,7 @@ class Monitor(MonitorDistances, UnitStateInput, MonitorPaths, MonitorWatches):
         # stale data, then the control points'), made in this one pass over the cameras (issue 29)
         with self._settings_lock:
             ids = self._camera_ids + tuple(remote) if remote else self._camera_ids
-        cams: dict[str, CameraStatus] = {}
-        reasons: dict[str, str] = {}
-        made = CameraStatus.made
-        workers, added = self._workers, self._added_at
-        stale_at = limit + 1e-9
-        # an added camera is not awaited before its first frame only while some monitored camera
-        # has a frame in use: a grid made of removed cameras' frames alone must not run unsupervised
-        in_use = any(c in stamps for c in ids) if added else False
-        untrusted = None
-        for c in ids:
-            w = workers.get(c)
-            st = stamps.get(c)
-            if st is None:
-                age = math.inf
-                state = "waiting"
-                if not (c in added and in_use):      # added, no frame yet: not awaited
-                    key, msg = stale_reason(c, limit, True)
-                    reasons[key] = msg
-            else:
-                age = t - st
-                if age > stale_at:
-                    state = "stale"
-                    key, msg = stale_reason(c, limit, age == math.inf)
-                    reasons[key] = msg
-                else:
-                    state = "fresh"
-            if w is None:
-                cams[c] = made(age, state, 0, 0, -math.inf if st is None else st)
-                continue
-            dw = w.drift
-            if dw is not None and dw.untrusted:       # R34: moved; latched until recalibrated or accepted
-                state = "untrusted"
-                if untrusted is None:
-                    untrusted = {}
-                untrusted[c] = dw.message
-            cams[c] = made(age, state, w.frames, w.refused, -math.inf if st is None else st)
+        cams, reasons, untrusted = camera_pass(t, ids, stamps, self._workers, self._added_at, limit)
         o_cp, D_cp, V_cp = obs[:m_cp], D[:m_cp], V[:m_cp]
         if points_hold_robot(o_cp, D_cp, V_cp):       # the usual cycle: every point observed, none enclosed
             point_reasons(reasons, o_cp, D_cp, V_cp, self._cp_names)
