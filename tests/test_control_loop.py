@@ -54,6 +54,46 @@ def test_supervisor_ramps_and_reports():
     assert k == pytest.approx(1.0) and ep["t_end"] == pytest.approx(0.6)
 
 
+
+def _update_reference(sup, t, reasons, dt):
+    """The supervisor's update as it was before its no-reason shortcut (issue 29): every loop run."""
+    sup.down, sup.up = max(0.0, dt) / sup.stop_time, max(0.0, dt) / sup.resume_time
+    for key, msg in reasons.items():
+        if key not in sup._open:
+            ep = {"reason": msg, "key": key, "t_start": round(t, 4), "t_end": None, "t_stopped": None}
+            sup._open[key] = ep
+            sup.episodes.append(ep)
+    for key in [k for k in sup._open if k not in reasons]:
+        sup._open.pop(key)["t_end"] = round(t, 4)
+    if reasons:
+        sup.k = max(0.0, sup.k - sup.down)
+        if sup.k == 0.0:
+            for ep in sup._open.values():
+                if ep["t_stopped"] is None:
+                    ep["t_stopped"] = round(t, 4)
+    else:
+        sup.k = min(1.0, sup.k + sup.up)
+    return sup.k
+
+
+def test_supervisor_update_equals_the_full_loop_on_random_reason_sequences():
+    """The usual cycle's shortcut (no reason, no episode open) changes neither the override nor
+    the episodes: the same k and episodes as the full update over random runs of reasons, gaps
+    and irregular dt."""
+    rng = np.random.default_rng(29)
+    keys = ["stale:camA", "stale:camB", "unobserved:ee", "stale:joints"]
+    for k0 in (0.0, 1.0):
+        fast, ref = (SafetySupervisor(dt=0.002, stop_time=0.05, resume_time=0.1, k0=k0) for _ in range(2))
+        t = 0.0
+        for i in range(3000):
+            dt = float(rng.choice([0.002, 0.002, 0.0035, 0.0]))
+            t += dt
+            quiet = rng.random() < 0.7 if (i // 100) % 2 else rng.random() < 0.05
+            reasons = {} if quiet else {k: f"{k} holds" for k in keys if rng.random() < 0.5}
+            assert fast.update(t, reasons, dt=dt) == _update_reference(ref, t, reasons, dt)
+        assert fast.episodes == ref.episodes and len(fast.episodes) > 10
+        assert any(e["t_end"] is not None for e in fast.episodes)
+
 def test_supervisor_starts_stopped_and_ramps_up_only_once_nothing_stops_it():
     """R26/R27: before the first cycle without a stop reason nothing is known: the override is 0
     from the first cycle on (never a ramp down from full speed while blind), and it rises over

@@ -23,6 +23,7 @@ import pytest
 from depthguard.sources.sim_source import sim_world
 
 from depthguard.filtering.expected import ExpectedDepth
+from depthguard.control.supervisor import stop_reasons
 from depthguard.runtime.monitor import Monitor, warm_up
 from depthguard.sim import load_cell
 from depthguard.sim.ground_truth import true_distance
@@ -182,6 +183,14 @@ def test_stopped_camera_stops_the_robot_within_its_limit_and_it_resumes(rig, sti
         # not before its limit ...
         early = [r for r in rs if r.t < t_last + limit - dt and r.reasons]
         assert not early, f"stopped before the stale limit: {early[0].t} {early[0].reasons}"
+        # issue 29: the step makes supervisor.stop_reasons' reasons in its one pass over the cameras:
+        # the same keys, sentences and order as stop_reasons given the cycle's ages and points
+        m_cp = len(mon.robot.control_points)
+        for r in rs:
+            ages = [s.age_s for s in r.cameras.values()]
+            want = stop_reasons(ages, limit, list(r.cameras), r.observed[:m_cp], r.distance[:m_cp],
+                                r.direction[:m_cp], r.names[:m_cp])
+            assert list(r.reasons.items()) == list(want.items()), (r.t, r.reasons, want)
         # ... and at its limit (+ one period), naming the camera
         r_stale = first(rs, lambda r: "stale:cam1" in r.reasons)
         assert r_stale is not None and r_stale.t <= t_last + limit + dt + EPS, (t_last, r_stale and r_stale.t)

@@ -193,6 +193,26 @@ def test_forward_reuses_its_buffers(lwr):
     np.testing.assert_allclose(data.cp_jacobians, lwr.control_point_jacobians(np.zeros(7)), atol=0)
 
 
+
+def test_forward_into_writes_what_forward_writes_bit_for_bit(lwr, ur3, rng):
+    """issue 29: the control cycle's forward kinematics with the arrays bound once
+    (``RobotModel.forward_into``) gives ``forward``'s buffers exactly, into the data it was bound to;
+    a non-finite joint returns False and leaves them untouched (``forward`` then raises)."""
+    for robot in (lwr, ur3):
+        ref, data = robot.create_data(), robot.create_data()
+        fk = robot.forward_into(data)
+        for q in _random_q(robot, rng, 20):
+            robot.forward(q, ref)
+            assert fk(q) is True
+            for name in ("link_poses", "joint_frames", "cp_positions", "cp_jacobians"):
+                assert np.array_equal(getattr(data, name), getattr(ref, name)), name
+        before = data.cp_positions.copy()
+        bad = q.copy()
+        bad[1] = np.nan
+        assert fk(bad) is False and np.array_equal(data.cp_positions, before)
+        with pytest.raises(ValueError, match="finite"):
+            robot.forward(bad, data)
+
 # ------------------------------------------------------------------ DH tables
 def _elementary(d, a, alpha, theta):
     Rz, Tz, Tx, Rx = np.eye(4), np.eye(4), np.eye(4), np.eye(4)

@@ -15,7 +15,8 @@ from __future__ import annotations
 import numpy as np
 
 from depthguard.control.policy import Cycle, Part, PolicySetup
-from depthguard.control.repulsion_limits import repulsion_and_limits
+from depthguard.control.joint_limits import INFLUENCE_TOL
+from depthguard.control.repulsion_limits import _repulsion_and_limits_kernel
 
 __all__ = ["Repulsion"]
 
@@ -50,6 +51,8 @@ class Repulsion:
             self._D[self._D > rho] = np.inf
             D = self._D
         n = self._q_min.shape[0]
-        rep, lo, hi = repulsion_and_limits(D, c.direction, c.jacobians, c.q, self._q_min, self._q_max, self._qd_max,
-                               dt, rho, v_max, alpha, c.override, out=(np.empty(3), np.empty(n), np.empty(n)))
+        rep, lo, hi = np.empty(3), np.empty(n), np.empty(n)       # fresh: the reaction keeps them
+        # repulsion_and_limits' kernel called as it calls it, its floats read once per configuration (issue 29)
+        _repulsion_and_limits_kernel(D, c.direction, c.jacobians, c.q, self._q_min, self._q_max, self._qd_max,
+                                     dt, rho, v_max, alpha, float(c.override), INFLUENCE_TOL, rep, lo, hi)
         return Part(repulsion=rep, qd_min=lo, qd_max=hi)

@@ -14,7 +14,8 @@ import math
 import numba
 import numpy as np
 
-__all__ = ["SafetySupervisor", "stop_reasons", "points_hold_robot", "points_hold_robot_numpy"]
+__all__ = ["SafetySupervisor", "stop_reasons", "stale_reason", "point_reasons", "points_hold_robot",
+           "points_hold_robot_numpy"]
 
 
 class SafetySupervisor:
@@ -47,6 +48,9 @@ class SafetySupervisor:
         if dt is not None:
             self.down = max(0.0, dt) / self.stop_time
             self.up = max(0.0, dt) / self.resume_time
+        if not reasons and not self._open:       # the usual cycle: nothing holds, nothing to close
+            self.k = min(1.0, self.k + self.up)
+            return self.k
         for key, msg in reasons.items():
             ep = self._open.get(key)
             if ep is None:
@@ -69,6 +73,20 @@ class SafetySupervisor:
 _stale_said: dict = {}              # (camera, age limit, before its first frame) -> (key, message)
 
 
+def stale_reason(cid: str, age_limit: float, first: bool) -> tuple[str, str]:
+    """``(key, message)`` of camera ``cid``'s stale-data stop (R27): its newest frame older than
+    ``age_limit`` s, or ``first`` — no frame yet. Made once per camera and limit (issue 29: every
+    stale cycle asks)."""
+    said = _stale_said.get((cid, age_limit, first))
+    if said is None:
+        if len(_stale_said) > 1024:
+            _stale_said.clear()
+        said = _stale_said[(cid, age_limit, first)] = (
+            "stale:" + cid, f"camera {cid}: no frame yet - stale data (R27)" if first else
+            f"camera {cid}: no frame for more than {age_limit * 1e3:.0f} ms - stale data (R27)")
+    return said
+
+
 def stop_reasons(ages, age_limit: float, camera_ids, observed, D, V, names) -> dict[str, str]:
     """The conditions that make the supervisor stop the robot, ``key -> message`` (R26, R27).
 
@@ -85,19 +103,21 @@ def stop_reasons(ages, age_limit: float, camera_ids, observed, D, V, names) -> d
     for i, cid in enumerate(camera_ids):
         if ages[i] > age_limit + 1e-9:
             # the same stop before a camera's first frame, said as it is: nothing to judge yet
-            first = ages[i] == math.inf
-            said = _stale_said.get((cid, age_limit, first))
-            if said is None:                    # made once per camera and limit (issue 29: every stale cycle)
-                if len(_stale_said) > 1024:
-                    _stale_said.clear()
-                said = _stale_said[(cid, age_limit, first)] = (
-                    "stale:" + cid, f"camera {cid}: no frame yet - stale data (R27)" if first else
-                    f"camera {cid}: no frame for more than {age_limit * 1e3:.0f} ms - stale data (R27)")
-            reasons[said[0]] = said[1]
+            key, msg = stale_reason(cid, age_limit, ages[i] == math.inf)
+            reasons[key] = msg
     if (isinstance(observed, np.ndarray) and observed.dtype == np.bool_ and isinstance(D, np.ndarray)
             and D.dtype == np.float64 and isinstance(V, np.ndarray) and V.dtype == np.float64 and V.ndim == 2
             and not points_hold_robot(observed, D, V)):
         return reasons                  # the usual cycle: every point observed, none enclosed (R26)
+    point_reasons(reasons, observed, D, V, names)
+    return reasons
+
+
+def point_reasons(reasons: dict[str, str], observed, D, V, names) -> None:
+    """Add to ``reasons`` the control points' stops of :func:`stop_reasons` (R26): ``unobserved:<name>``
+    for each point ``observed`` (m,) False, then ``inside:<name>`` for each finite ``D`` (m,) m that
+    is <= 0 or whose direction ``V`` (m, 3) is 0. The monitor's cycle calls it only when
+    :func:`points_hold_robot` says one holds."""
     for j in np.nonzero(~np.asarray(observed, dtype=bool))[0]:
         reasons[f"unobserved:{names[j]}"] = f"control point {names[j]} is not observed by any camera (R26)"
     D = np.asarray(D, dtype=np.float64)
@@ -105,7 +125,6 @@ def stop_reasons(ages, age_limit: float, camera_ids, observed, D, V, names) -> d
     for j in np.nonzero(inside)[0]:
         reasons[f"inside:{names[j]}"] = (f"control point {names[j]} lies inside an obstacle frustum "
                                          f"(D = 0, no direction)")
-    return reasons
 
 
 @numba.njit(cache=True)      # microseconds: keeps the GIL (a release costs the control thread a hand-over)

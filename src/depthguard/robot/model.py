@@ -237,6 +237,19 @@ class RobotModel:
             self.check_q(q)  # raises, naming the bad value
         return data
 
+    def forward_into(self, data: RobotData):
+        """``fk(q) -> bool``: :meth:`forward` into ``data`` with the model's arrays bound once (the
+        control cycle's, issue 29: no attribute look-ups nor checks per call). ``q`` must be a
+        float64 (dof,) array — the caller checks it (a wrong length reads out of bounds); False when
+        a value of ``q`` is not finite (``data`` untouched)."""
+        c = self.chain
+        args = (self.base, c.xf, c.ints, c.axis, c.support, self._cp_link, self._cp_off, data.link_poses,
+                data.joint_frames, data.scratch, data.cp_positions, data.cp_jacobians)
+
+        def fk(q, _kernel=forward_kernel, _args=args):
+            return _kernel(q, *_args)
+        return fk
+
     # ------------------------------------------------------------ conveniences
     def _run(self, q, cp_link: np.ndarray, cp_off: np.ndarray):
         q = self.check_q(q)

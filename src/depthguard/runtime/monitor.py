@@ -43,14 +43,15 @@ import numpy as np
 from depthguard.config import MonitorConfig
 from depthguard.control.policy import Cycle, PolicySetup, make_policies
 from depthguard.control.repulsion_limits import repulsion_and_limits
-from depthguard.control.supervisor import SafetySupervisor, stop_reasons
+from depthguard.control.supervisor import SafetySupervisor, point_reasons, points_hold_robot
 from depthguard.runtime.monitor_distances import MonitorDistances
 from depthguard.runtime.monitor_paths import MonitorPaths
 from depthguard.runtime.monitor_watches import MonitorWatches
+from depthguard.runtime.camera_supervision import camera_pass
 from depthguard.runtime.fusion_worker import FusionWorker
 from depthguard.runtime.ingest import CameraWorker
 from depthguard.robot.joint_history import JointHistory
-from depthguard.runtime.result import CameraStatus, Reaction
+from depthguard.runtime.result import Reaction
 from depthguard.runtime.refusals import explain_stale
 from depthguard.runtime.unit_states import UnitStateInput, UnitWorker
 from depthguard.runtime.warm_up import warm_up
@@ -120,6 +121,8 @@ class Monitor(MonitorDistances, UnitStateInput, MonitorPaths, MonitorWatches):
         self.sinks = list(sinks)
         # control-thread state (preallocated)
         self._data = self.robot.create_data()
+        self._fk = self.robot.forward_into(self._data)    # step's forward kinematics, bound once
+        self._q_shape = (self.robot.dof,)
         self._cp_names = tuple(c.name for c in self.robot.control_points)
         self._watch = np.array([w.position for w in cfg.watch_points], dtype=np.float64).reshape(-1, 3)
         self._names = self._cp_names + tuple(w.name for w in cfg.watch_points)
@@ -341,7 +344,8 @@ class Monitor(MonitorDistances, UnitStateInput, MonitorPaths, MonitorWatches):
                                                        else np.asarray(self.rig.robot_q0, dtype=np.float64))
         q = np.asarray(q, dtype=np.float64)
         self._last_q = q
-        robot.forward(q, data)
+        if q.shape != self._q_shape or not self._fk(q):
+            robot.forward(q, data)                     # its ValueError: a wrong length or a value not finite
         m_cp = len(self._cp_names)
         self._P[:m_cp] = data.cp_positions
         if len(self._watch):
@@ -355,32 +359,17 @@ class Monitor(MonitorDistances, UnitStateInput, MonitorPaths, MonitorWatches):
         if remote:                                     # the units' voxel boxes (R20, R25)
             caps = robot.collision_segments(q, cfg.robot_padding)
             stamps.update(self.voxels.nearest(self._P, query_rho, D, V, robot_capsules=caps))
-        # supervision (R26, R27)
+        # supervision (R26, R27): the stop reasons of supervisor.stop_reasons, in its order (the cameras'
+        # stale data, then the control points'), made in this one pass over the cameras (issue 29)
         with self._settings_lock:
             ids = self._camera_ids + tuple(remote) if remote else self._camera_ids
-        cams: dict[str, CameraStatus] = {}
-        ages = [0.0] * len(ids)                      # (n_cam,) s: a list, read by index (stop_reasons)
-        made = CameraStatus.made
-        # an added camera is not awaited before its first frame only while some monitored camera
-        # has a frame in use: a grid made of removed cameras' frames alone must not run unsupervised
-        in_use = any(c in stamps for c in ids)
-        untrusted: dict[str, str] = {}
-        for i, c in enumerate(ids):
-            w = self._workers.get(c)
-            st = stamps.get(c)
-            age = math.inf if st is None else t - st
-            awaited = not (st is None and c in self._added_at and in_use)   # added, no frame yet: not awaited
-            ages[i] = age if awaited else 0.0
-            state = "waiting" if st is None else ("stale" if age > limit + 1e-9 else "fresh")
-            dw = w.drift if w is not None else None
-            if dw is not None and dw.untrusted:       # R34: moved; latched until recalibrated or accepted
-                state = "untrusted"
-                untrusted[c] = dw.message
-            cams[c] = made(age, state, w.frames if w else 0, w.refused if w else 0,
-                           -math.inf if st is None else st)
-        reasons = stop_reasons(ages, limit, ids, obs[:m_cp], D[:m_cp], V[:m_cp], self._cp_names)
-        for c, msg in untrusted.items():
-            reasons[f"untrusted:{c}"] = msg
+        cams, reasons, untrusted = camera_pass(t, ids, stamps, self._workers, self._added_at, limit)
+        o_cp, D_cp, V_cp = obs[:m_cp], D[:m_cp], V[:m_cp]
+        if points_hold_robot(o_cp, D_cp, V_cp):       # the usual cycle: every point observed, none enclosed
+            point_reasons(reasons, o_cp, D_cp, V_cp, self._cp_names)
+        if untrusted:
+            for c, msg in untrusted.items():
+                reasons[f"untrusted:{c}"] = msg
         explain_stale(reasons, self._workers, self._refusal_marks)     # a stale camera's refused frames
         if joints_age > cfg.joints_stale_s + 1e-9:
             reasons["stale:joints"] = (f"joint states: none for more than {cfg.joints_stale_s * 1e3:.0f} ms "
@@ -390,8 +379,8 @@ class Monitor(MonitorDistances, UnitStateInput, MonitorPaths, MonitorWatches):
         self._t_last = t
         k = self._sup.update(t, reasons, dt=dt)
         age = t - min(stamps.values()) if stamps else cfg.camera_stale_limit   # none: nothing observed
-        cycle = Cycle(float(t), dt, q, None if qd is None else np.asarray(qd, dtype=np.float64), D[:m_cp],
-                      V[:m_cp], obs[:m_cp], data.cp_positions, data.cp_jacobians, age, float(k), reasons, cfg)
+        cycle = Cycle(float(t), dt, q, None if qd is None else np.asarray(qd, dtype=np.float64), D_cp,
+                      V_cp, o_cp, data.cp_positions, data.cp_jacobians, age, float(k), reasons, cfg)
         rep, lo, hi, s_pol, pstop, parts = self._react(cycle)
         for part in parts.values():
             if part.reasons:

@@ -25,11 +25,14 @@ def explain_stale(reasons: dict[str, str], workers: dict, marks: dict[str, tuple
     for cid, worker in list(workers.items()):
         key = "stale:" + cid
         stale = key in reasons
-        if not stale:                        # the usual cycle: no lock while the frame in use is marked
-            product = worker.product         # (one attribute read; a new one is marked under the lock)
-            mark = marks.get(cid)
-            if mark is not None and mark[0] == (0 if product is None else product.version):
-                continue
+        # no lock while the frame in use is marked and, when stale, nothing was refused since the mark
+        # (attribute reads; a new frame or refusal is read under the lock, at the latest the next cycle):
+        # the usual cycle, and every cycle of a camera that is stale for lack of frames (issue 29)
+        product = worker.product
+        mark = marks.get(cid)
+        if mark is not None and mark[0] == (0 if product is None else product.version) and \
+                (not stale or worker.refused <= mark[1]):
+            continue
         with worker.lock:                    # the counters read once per new frame in use, or when stale
             product = worker.product
             version = 0 if product is None else product.version
