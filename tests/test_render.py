@@ -511,3 +511,42 @@ def test_composite_of_separate_renders_is_the_joint_render():
             assert np.array_equal(got, want)
     with pytest.raises(ValueError, match="one shape"):
         nearest_depth(np.zeros((2, 3), np.float32), np.zeros((3, 2), np.float32))
+
+
+def test_copy_depth_rows_over_spans_equals_a_whole_copy():
+    """``copy_depth_rows`` into a buffer that held another robot image (and into a new one, its
+    spans the whole rows) over the spans of both gives, frame after frame as the robot moves in
+    and out of view, bit for bit ``numpy.copyto`` of the renderer's image, and the renderer's
+    spans; spans that leave a drawn pixel out would not (the check can fail)."""
+    from depthguard.filtering.expected import ExpectedDepth
+    from depthguard.render.composite import copy_depth_rows
+    from depthguard.sim import load_cell
+
+    rig = load_cell("ur3-cell").rig
+    robot = rig.robot
+    rng = np.random.default_rng(11)
+    qs = [np.clip(robot.q_home + rng.uniform(-1.5, 1.5, robot.dof), robot.q_min, robot.q_max) for _ in range(5)]
+    cam = rig.cameras[0]
+    H, W = cam.shape
+    ex, away = ExpectedDepth(cam, robot, []), ExpectedDepth(cam, robot.with_base(_tz(50.0)), [])
+    dst = rng.uniform(0.1, 5.0, (H, W)).astype(np.float32)      # a new buffer: anything in it
+    spans = np.zeros((H, 2), np.int32)
+    spans[:, 1] = W
+    drawn = 0
+    for e, q in [(ex, q) for q in qs] + [(away, qs[0]), (ex, qs[1]), (ex, qs[1])]:
+        src = e.robot(q)
+        copy_depth_rows(dst, spans, src, e.robot_spans)
+        assert np.array_equal(dst.view(np.uint32), np.asarray(src).view(np.uint32))
+        assert np.array_equal(spans, e.robot_spans)
+        drawn += int((src > 0).sum())
+    assert drawn > 5000
+    # spans one pixel short on a row with robot pixels: that pixel is not copied
+    src = ex.robot(qs[2])
+    v = int(np.flatnonzero((src > 0).any(axis=1))[0])
+    short = np.array(ex.robot_spans, copy=True)
+    short[v, 1] -= 1
+    dst2 = np.zeros((H, W), np.float32)
+    copy_depth_rows(dst2, np.zeros((H, 2), np.int32), src, short)
+    assert not np.array_equal(dst2, src)
+    with pytest.raises(ValueError, match="do not match"):
+        copy_depth_rows(dst, spans, np.zeros((2, 3), np.float32), spans)

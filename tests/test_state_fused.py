@@ -192,3 +192,52 @@ def test_units_counts_equal_numpy_twin_at_the_limits(dtype, shape):
         want = _units_counts_numpy(d[::4, ::4], far, near)
         assert tuple(int(x) for x in got) == want
         assert (depth_units_problem(d, cam) is None) == (share_far < 0.5)
+
+
+def test_robot_spans_leave_the_state_unchanged():
+    """The state made with the robot depth's rows' spans (the camera worker passes its renderer's:
+    the robot's pixels are looked for within them alone) is, bit for bit, the state of the unfused
+    passes, with spans that fit each row's robot pixels, that hold more, and whole rows; on a
+    robot lying diagonally, whose rows each cover a small part of its box (the silhouette's row
+    pass is worked out near each row's robot pixels). Spans that leave robot pixels out change
+    the state (the check can fail)."""
+    rng = np.random.default_rng(5)
+    H, W = 90, 120
+    cam = _cam(W, H)
+    depth, _ = _images(rng, H, W, np.float32)
+    robot = np.zeros((H, W), np.float32)
+    for v in range(10, 80):                          # a diagonal arm 6-9 px wide
+        u = 10 + v
+        robot[v, u:u + 6 + v % 4] = rng.uniform(0.8, 3.0, 6 + v % 4)
+    robot[40, 100] = 2.0                             # a lone pixel to the right of the arm
+    depth[robot > 0] = 0.0                           # invalid pixels on and next to the robot
+    depth[::7, 30:110] = 0.0
+    sil, gaps = SilhouetteBuffers(cam.shape), GapBuffers(cam.shape)
+    tight = np.zeros((H, 2), np.int32)
+    for v in range(H):
+        cols = np.flatnonzero(robot[v] > 0)
+        if cols.size:
+            tight[v] = (cols[0], cols[-1] + 1)
+    loose = tight.copy()
+    loose[:, 0] = np.maximum(loose[:, 0] - 5, 0)
+    loose[:, 1] = np.minimum(np.where(loose[:, 1] > 0, loose[:, 1] + 5, 30), W)
+    whole = np.zeros((H, 2), np.int32)
+    whole[:, 1] = W
+    opts = StateOptions(0.03, "unknown", "unknown", 4, 3)
+    for b in (1, 4):
+        hb, wb = -(-H // b), -(-W // b)
+        want_f, want_k = np.empty((hb, wb)), np.empty((hb, wb), np.int8)
+        state_into_unfused(cam, depth, robot, opts, False, sil, gaps, want_f, want_k, b)
+        assert (want_k == 1).sum() > 50 // b
+        for spans in (tight, loose, whole, None):
+            f, k = np.full((hb, wb), -7.0), np.full((hb, wb), 9, np.int8)
+            state_into(cam, depth, robot, opts, False, sil, gaps, f, k, b, robot_spans=spans)
+            np.testing.assert_array_equal(f, want_f)
+            np.testing.assert_array_equal(k, want_k)
+        cut = tight.copy()
+        cut[40] = (0, 0)                             # row 40's robot pixels left out
+        f, k = np.full((hb, wb), -7.0), np.full((hb, wb), 9, np.int8)
+        state_into(cam, depth, robot, opts, False, sil, gaps, f, k, b, robot_spans=cut)
+        assert not (np.array_equal(f, want_f) and np.array_equal(k, want_k))
+    with pytest.raises(ValueError, match="robot_spans"):
+        state_into(cam, depth, robot, opts, False, sil, gaps, f, k, 4, robot_spans=tight[:-1])

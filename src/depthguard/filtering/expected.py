@@ -62,6 +62,8 @@ class ExpectedDepth:
         self._known = np.zeros(cam.shape, dtype=np.float32)
         self._no_robot = np.zeros(cam.shape, dtype=np.float32)
         self._no_robot.flags.writeable = False
+        self._no_spans = np.zeros((cam.shape[0], 2), dtype=np.int32)
+        self._no_spans.flags.writeable = False
         # a RobotModel fills the bound renderer's vertex buffer itself (no meshes made per frame)
         self._vertices = None
         self._last_q = None                  # the joints of the image in the renderer's buffer
@@ -87,6 +89,14 @@ class ExpectedDepth:
             self._last_q = qa.copy()
             return depth
         return self._renderer.render(self.robot_model.render_link_meshes(qa, self.robot_cell))[0]
+
+    @property
+    def robot_spans(self) -> np.ndarray:
+        """(H, 2) int32 (read-only, overwritten by the next :meth:`robot` call): per row the span
+        ``[a, b)`` outside which the image :meth:`robot` returned last is 0 (``(0, 0)``: all of the
+        row), the renderer's ``spans`` — what :func:`~depthguard.render.composite.copy_depth_rows`
+        copies (R16)."""
+        return self._no_spans if self.robot_model is None else self._renderer.spans
 
     def known(self, q) -> np.ndarray:
         """(H, W) float32 m: static scene and robot at ``q`` together (R16); reused buffer."""

@@ -238,7 +238,8 @@ def frame_state_binned(depth, robot_depth, use_robot, min_range, max_range, robo
 
 
 def state_into(cam, depth, robot_depth, options: StateOptions, robot_free: bool, silhouette: SilhouetteBuffers,
-               gaps: GapBuffers, out_free: np.ndarray, out_kind: np.ndarray, bin: int = 1) -> None:
+               gaps: GapBuffers, out_free: np.ndarray, out_kind: np.ndarray, bin: int = 1,
+               robot_spans: np.ndarray | None = None) -> None:
     """Write the state of ``depth`` (H, W) m with the robot rendered as ``robot_depth`` (H, W) m
     (None: no robot) into ``out_free`` / ``out_kind`` (>= H, >= W; the top-left (H, W) is
     written; with ``bin > 1`` the binned state, :func:`frame_state_binned`, into the top-left
@@ -247,7 +248,10 @@ def state_into(cam, depth, robot_depth, options: StateOptions, robot_free: bool,
     :func:`state_into_unfused`). The one place that turns a frame into its state: the grid's own
     build and :class:`StateMaker` both call it (R9, R28, R32), in one pass over the image
     (:func:`~depthguard.fusion.depth_grid_state_fused.frame_state_fused`: the arrays of the
-    unfused passes bit for bit, in about a third of their CPU on a 640x480 frame)."""
+    unfused passes bit for bit, in about a third of their CPU on a 640x480 frame). ``robot_spans``
+    (H, 2) int32 or None: per row ``[a, b)`` outside which ``robot_depth`` is 0 (the renderer's
+    spans, as the camera worker keeps them): the robot's pixels are looked for there alone (the
+    same arrays)."""
     d = check_depth_image(cam, depth)
     if d.dtype not in (np.float32, np.float64):
         d = d.astype(np.float64)
@@ -261,9 +265,30 @@ def state_into(cam, depth, robot_depth, options: StateOptions, robot_free: bool,
     n_sil = check_silhouette_px(options.silhouette_px)
     n_gap = check_gap_px(options.gap_px)
     tmp, masked, rows = silhouette.scratch(rd.dtype, d.shape)
+    if robot_spans is None:
+        robot_spans = _whole_rows(d.shape)
+    elif not (use and isinstance(robot_spans, np.ndarray) and robot_spans.shape == (d.shape[0], 2)
+              and robot_spans.dtype == np.int32):
+        raise ValueError(f"robot_spans must be ({d.shape[0]}, 2) int32 with a robot depth, "
+                         f"got {getattr(robot_spans, 'shape', robot_spans)}")
     frame_state_fused(d, rd, use, cam.min_range, cam.max_range, float(options.robot_offset),
                       options.invalid == "free", bool(robot_free), n_sil, n_gap, max(int(bin), 1), tmp, masked, rows,
-                      out_free, out_kind)
+                      out_free, out_kind, robot_spans)
+
+
+#: (H, 2) int32 spans ``(0, W)`` per image shape: the whole of every row (one compiled signature
+#: whether or not the caller knows where the robot depth is 0)
+_WHOLE_ROWS: dict = {}
+
+
+def _whole_rows(shape) -> np.ndarray:
+    H, W = int(shape[0]), int(shape[1])
+    spans = _WHOLE_ROWS.get((H, W))
+    if spans is None:
+        spans = np.zeros((H, 2), dtype=np.int32)
+        spans[:, 1] = W
+        _WHOLE_ROWS[(H, W)] = spans
+    return spans
 
 
 def state_into_unfused(cam, depth, robot_depth, options: StateOptions, robot_free: bool,
@@ -301,29 +326,34 @@ class StateMaker:
         self._silhouette = SilhouetteBuffers(cam.shape)
         self._gaps = GapBuffers(cam.shape)
         self._pyr = None                   # pyramid_layout of the camera, made once
+        self._layouts: dict = {}           # layout() by (pyramids, bin)
 
     def layout(self, pyramids: bool = False, bin: int = 1) -> tuple:
         """``((shape, dtype), ...)`` of the arrays :meth:`make` writes with these arguments:
         ``free`` float64 and ``kind`` int8 at the camera's pixel (or, ``bin > 1``, the binned
         one), then with ``pyramids`` the flat ``pmin`` and ``pmax`` float64
         (:func:`pyramid_layout`) — the ``out`` a caller that reuses buffers passes in."""
-        cam = self.camera
-        b = max(int(bin), 1)
-        shape = (-(-cam.height // b), -(-cam.width // b)) if b > 1 else tuple(cam.shape)
-        out = ((shape, np.float64), (shape, np.int8))
-        if pyramids and b == 1:
-            size = pyramid_layout(cam.height, cam.width, pyramid_levels(cam.height, cam.width))[2]
-            out += (((size,), np.float64), ((size,), np.float64))
+        key = (bool(pyramids), max(int(bin), 1))
+        out = self._layouts.get(key)            # made once per key (issue 29: asked twice a frame)
+        if out is None:
+            cam = self.camera
+            b = key[1]
+            shape = (-(-cam.height // b), -(-cam.width // b)) if b > 1 else tuple(cam.shape)
+            out = ((shape, np.float64), (shape, np.int8))
+            if pyramids and b == 1:
+                size = pyramid_layout(cam.height, cam.width, pyramid_levels(cam.height, cam.width))[2]
+                out += (((size,), np.float64), ((size,), np.float64))
+            self._layouts[key] = out
         return out
 
     def make(self, depth, robot_depth, options: StateOptions, robot_free: bool = False,
-             pyramids: bool = False, bin: int = 1, out=None) -> CameraState:
+             pyramids: bool = False, bin: int = 1, out=None, robot_spans=None) -> CameraState:
         """The state of one frame, in new arrays (the grid copies them in; the frame's product
         holds them) or in ``out`` (arrays of :meth:`layout`, e.g. from the worker's
         :class:`~depthguard.runtime.frame_pool.BufferPool`: every element is written); with
         ``pyramids`` (a camera other than the principal) its min / max pyramids too; with
         ``bin > 1`` (the principal of a grid with ``principal_bin``) at the binned pixel
-        (:func:`bin_state`; no pyramids)."""
+        (:func:`bin_state`; no pyramids). ``robot_spans``: :func:`state_into`'s."""
         cam = self.camera
         b = max(int(bin), 1)
         if out is None:
@@ -335,9 +365,11 @@ class StateMaker:
                 raise ValueError(f"out must be C-contiguous arrays of {want}")
         free, kind = out[0], out[1]
         if b > 1:
-            state_into(cam, depth, robot_depth, options, robot_free, self._silhouette, self._gaps, free, kind, b)
+            state_into(cam, depth, robot_depth, options, robot_free, self._silhouette, self._gaps, free, kind, b,
+                       robot_spans)
             return CameraState(free, kind, options, bool(robot_free), bin=b)
-        state_into(cam, depth, robot_depth, options, robot_free, self._silhouette, self._gaps, free, kind)
+        state_into(cam, depth, robot_depth, options, robot_free, self._silhouette, self._gaps, free, kind, 1,
+                   robot_spans)
         if not pyramids:
             return CameraState(free, kind, options, bool(robot_free))
         levels = pyramid_levels(cam.height, cam.width)

@@ -8,7 +8,7 @@
 (nearly all) go through a branch-free loop that LLVM vectorises, a chunk of a row holding an
 invalid pixel is gone over again by the whole rule between its first and last invalid pixel, and
 the two rules that only invalid pixels read are worked out there — the silhouette's column min
-over the robot's rows dilated within its bounding box (:func:`_robot_rows`), the small gap by
+over the robot's rows dilated near its pixels (:func:`_robot_rows`), the small gap by
 :func:`~depthguard.distance.gaps.gap_at`. Measured on ``ur3-cell`` 640x480 frames (one thread):
 the state with both rules 3-4.7 ms before, about 1-1.5 ms after, on a loaded machine
 (``depthguard bench --only share``: ``share.state_cpu_ms``). The principal's binned state
@@ -33,7 +33,7 @@ __all__ = ["frame_state_fused"]
 
 
 @njit(cache=True, parallel=True, nogil=True)
-def _robot_rows(robot_depth, n, tmp, masked, rows):
+def _robot_rows(robot_depth, n, tmp, masked, rows, spans):
     """The robot's rows for the silhouette rule (R32) of :func:`frame_state_fused`: per row ``v``
     of ``robot_depth`` (H, W) m the first and last column with a robot pixel (``> 0``) in
     ``rows[v]`` (``-1, -2`` where none), and the box ``(v0, v1, u0, u1)`` of them returned
@@ -41,20 +41,28 @@ def _robot_rows(robot_depth, n, tmp, masked, rows):
     ``v0..v1`` over columns ``u0 - n .. u1 + n`` (clipped) hold the smallest robot depth within
     ``n`` columns (+inf where none): the row pass of
     :func:`~depthguard.distance.silhouette.dilate_robot_depth`, whose column pass the state
-    pass does at the invalid pixels alone; ``masked`` (like ``tmp``) is scratch."""
+    pass does at the invalid pixels alone; ``masked`` (like ``tmp``) is scratch. ``spans`` (>= H, 2)
+    int32: per row ``[a, b)`` outside which ``robot_depth`` is 0 (a renderer's spans,
+    :func:`~depthguard.render.composite.copy_depth_rows`; ``(0, W)``: the whole row): only those
+    pixels are looked at.
+    A row's window minimum is worked out within ``n`` columns of its own robot pixels (beyond,
+    every window holds no robot: +inf), not over the whole box (issue 29: an arm across the
+    image has a box several times its rows' extent)."""
     H, W = robot_depth.shape
     inf = tmp.dtype.type(np.inf)
     for v in prange(H):
-        row = robot_depth[v]
+        s0 = max(min(np.int64(spans[v, 0]), W), 0)
+        s1 = max(min(np.int64(spans[v, 1]), W), s0)
+        row = robot_depth[v, s0:s1]
         a = np.int32(W)
         b = np.int32(-1)
-        for u in range(W):                 # branch-free in 32-bit lanes: LLVM vectorises it
+        for u in range(s1 - s0):           # branch-free in 32-bit lanes: LLVM vectorises it
             pos = row[u] > 0.0
             uu = np.int32(u)
             a = min(a, uu if pos else np.int32(W))
             b = max(b, uu if pos else np.int32(-1))
-        rows[v, 0] = a if b >= 0 else -1
-        rows[v, 1] = b if b >= 0 else -2
+        rows[v, 0] = a + s0 if b >= 0 else -1
+        rows[v, 1] = b + s0 if b >= 0 else -2
     v0 = H
     v1 = -1
     u0 = W
@@ -69,15 +77,25 @@ def _robot_rows(robot_depth, n, tmp, masked, rows):
         return v0, v1, u0, u1
     ua = max(u0 - n, 0)
     ub = min(u1 + n, W - 1)
-    L = ub - ua + 1
     for v in prange(v0, v1 + 1):
-        trow = tmp[v, ua:ub + 1]
         if rows[v, 0] < 0:
-            for i in range(L):
+            trow = tmp[v, ua:ub + 1]
+            for i in range(ub - ua + 1):
                 trow[i] = inf
             continue
-        src = robot_depth[v, ua:ub + 1]
-        mrow = masked[v, ua:ub + 1]
+        # beyond n columns of the row's robot pixels every window holds none: +inf there
+        la = max(rows[v, 0] - n, ua)
+        lb = min(rows[v, 1] + n, ub)
+        head = tmp[v, ua:la]
+        for i in range(la - ua):
+            head[i] = inf
+        tail = tmp[v, lb + 1:ub + 1]
+        for i in range(ub - lb):
+            tail[i] = inf
+        L = lb - la + 1
+        trow = tmp[v, la:lb + 1]
+        src = robot_depth[v, la:lb + 1]
+        mrow = masked[v, la:lb + 1]
         for i in range(L):
             x = src[i]
             x = x if x > 0.0 else inf
@@ -225,7 +243,7 @@ def _lexmin(f0, k0, f1, k1):
 
 @njit(cache=True, parallel=True, nogil=True)
 def frame_state_fused(depth, robot_depth, use_robot, min_range, max_range, robot_offset, invalid_free, robot_free,
-                      n_sil, n_gap, b, tmp, masked, rows, out_free, out_kind):
+                      n_sil, n_gap, b, tmp, masked, rows, out_free, out_kind, robot_spans):
     """A frame's per-pixel state in one pass over the image (R9, R28, R32): exactly
     :func:`~depthguard.fusion.depth_grid_kernels.frame_state` (``b = 1``) or
     :func:`frame_state_binned` (``b > 1``) fed with
@@ -240,7 +258,9 @@ def frame_state_fused(depth, robot_depth, use_robot, min_range, max_range, robot
     depth, robot_depth : (H, W) float m (``robot_depth`` read only when ``use_robot``);
     tmp, masked : (>= H, >= W) scratch of ``robot_depth``'s dtype; rows : (>= H, 2) int64 scratch;
     out_free (float64 m) / out_kind (int8) : (>= ceil(H / b), >= ceil(W / b)), the top-left
-    written. No allocation.
+    written; robot_spans : (>= H, 2) int32, per row ``[a, b)`` outside which ``robot_depth`` is 0
+    (a renderer's spans, or ``(0, W)``: the robot's pixels are looked for there alone, :func:`_robot_rows`).
+    No allocation.
     """
     H, W = depth.shape
     limit = RETURN_LIMIT_FACTOR * max_range    # a return beyond the rated range up to this: no look around
@@ -252,7 +272,7 @@ def frame_state_fused(depth, robot_depth, use_robot, min_range, max_range, robot
     ua = 0
     ub = -1
     if use_robot and n_sil > 0 and not invalid_free:
-        v0, v1, u0, u1 = _robot_rows(robot_depth, n_sil, tmp, masked, rows)
+        v0, v1, u0, u1 = _robot_rows(robot_depth, n_sil, tmp, masked, rows, robot_spans)
         if v1 >= v0:
             ga = max(v0 - n_sil, 0)
             gb = min(v1 + n_sil, H - 1)

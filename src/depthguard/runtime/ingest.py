@@ -43,6 +43,7 @@ import numpy as np
 from depthguard.camera import check_depth_image
 from depthguard.depth_io import depth_units_problem
 from depthguard.filtering.expected import ExpectedDepth
+from depthguard.render.composite import copy_depth_rows
 from depthguard.runtime.drift import DriftWatch
 from depthguard.runtime.frame_pool import BufferPool
 from depthguard.robot.joint_history import JointHistory, OutsideHistory
@@ -110,6 +111,7 @@ class CameraWorker:
         self.pool = BufferPool()
         self._depth_pool = BufferPool(cap=3)      # a depth that is not float32 C-contiguous, converted
         self._rd_layout = ((tuple(cam.shape), np.float32),)
+        self._spans_layout = (((cam.shape[0], 2), np.int32),)
         self.id = cam.id
         # the known static scene: the CAD and the learned scene (issue 31: a LearnedScene or None), nearer wins
         self.expected = ExpectedDepth(cam, robot, static_meshes,
@@ -238,7 +240,9 @@ class CameraWorker:
         wanted = self.state_options() if self.state_options is not None else None
         bufs = self._buffers(wanted)
         rd = bufs[0]
-        np.copyto(rd, self.expected.robot(q))     # the renderer's buffer is overwritten by its next call
+        # the renderer's buffer is overwritten by its next call: copied, over the rows' spans of the
+        # robot now and of what the pooled buffer held (issue 29: not the whole image)
+        copy_depth_rows(rd, bufs[1], self.expected.robot(q), self.expected.robot_spans)
         if self.scene_change is not None:
             self.scene_change.update(depth, rd, stamp)
         if self.ssm_muted is not None:            # R17's filter: the known scene and the robot removed
@@ -249,7 +253,7 @@ class CameraWorker:
             vs = vfilter.filter(depth, expected=self._known)
             push(self.id, vs.centres(), vs.voxel_size, stamp)
         d = self._own_depth(depth)
-        state = self._state(d, rd, wanted, bufs[1:])
+        state = self._state(d, rd, wanted, bufs[2:], bufs[1])
         with self.lock:
             self._version += 1
             self.product = CameraProduct(d, rd, stamp, q, pushed_at, self._version, state)
@@ -259,12 +263,20 @@ class CameraWorker:
 
     def _buffers(self, wanted) -> list:
         """This frame's arrays from the worker's pool (:mod:`depthguard.runtime.frame_pool`): the
-        robot depth (H, W) float32, then the state's (:meth:`StateMaker.layout
+        robot depth (H, W) float32 and its rows' spans (H, 2) int32 (per row ``[a, b)``: the
+        depth is 0 outside, :func:`~depthguard.render.composite.copy_depth_rows`; a new set's
+        span is the whole row, its content unknown), then the state's (:meth:`StateMaker.layout
         <depthguard.fusion.depth_grid_state.StateMaker.layout>`) when ``wanted``."""
-        layout = self._rd_layout
+        layout = self._rd_layout + self._spans_layout
         if wanted is not None:
             layout = layout + self._maker().layout(wanted[2], wanted[3])
-        return self.pool.take(layout)
+        made = self.pool.made
+        bufs = self.pool.take(layout)
+        if self.pool.made != made:          # new arrays (np.empty): every pixel is to be written
+            spans = bufs[1]
+            spans[:, 0] = 0
+            spans[:, 1] = self._shape[1]
+        return bufs
 
     def _own_depth(self, depth: np.ndarray) -> np.ndarray:
         """The frame's depth as the product holds it: the frame's own array when it is float32 and
@@ -284,15 +296,17 @@ class CameraWorker:
             self._state_maker = StateMaker(self.camera)
         return self._state_maker
 
-    def _state(self, depth, robot_depth, wanted, out=None):
+    def _state(self, depth, robot_depth, wanted, out=None, robot_spans=None):
         """The frame's per-pixel state for the depth grid, made here on the camera's thread rather
         than in the fusion's build (R36: the camera's share, in parallel with the other cameras'
         fusion), into ``out`` (pooled arrays of the maker's layout; None: new ones); None where
-        the monitor asks for none (``wanted`` None)."""
+        the monitor asks for none (``wanted`` None); ``robot_spans`` (H, 2) int32: the rows' spans
+        outside which ``robot_depth`` is 0 (:meth:`_buffers`), or None."""
         if wanted is None:
             return None
         options, robot_free, pyramids, bin_px = wanted
-        return self._maker().make(depth, robot_depth, options, robot_free, pyramids, bin_px, out=out or None)
+        return self._maker().make(depth, robot_depth, options, robot_free, pyramids, bin_px, out=out or None,
+                                  robot_spans=robot_spans)
 
 
 #: the frames' dtypes that pass :func:`~depthguard.camera.check_depth_image` when their shape is the
