@@ -79,9 +79,9 @@ def test_the_longest_files_go_first_and_each_file_keeps_its_order(tmp_path):
     log = tmp_path / "turns.jsonl"
     env = {**os.environ, "TURNS_LOG": str(log)}
     env.pop("DEPTHGUARD_CI_REQUIRES", None)
-    res = subprocess.run([sys.executable, "-m", "pytest", "-q", "-p", "no:cacheprovider", "-n", "2", "--dist", "loadfile",
-                          "--no-loadscope-reorder", str(tmp_path)], capture_output=True, text=True, env=env,
-                         cwd=tmp_path, timeout=300)
+    res = subprocess.run([sys.executable, "-m", "pytest", "-q", "-p", "no:cacheprovider", "-n", "2",
+                          "--dist", "loadfile", "--no-loadscope-reorder", str(tmp_path)],
+                         capture_output=True, text=True, env=env, cwd=tmp_path, timeout=300)
     assert res.returncode == 0, res.stdout + res.stderr
     runs = {name: t0 for name, t0, _ in (json.loads(line) for line in log.read_text().splitlines())}
     assert len(runs) == 17
@@ -91,3 +91,29 @@ def test_the_longest_files_go_first_and_each_file_keeps_its_order(tmp_path):
     for f in range(3):
         starts = [runs[f"plain{f}_{k}"] for k in range(5)]
         assert starts == sorted(starts)
+
+
+def test_files_with_a_test_that_runs_alone_come_first_then_the_longest(tmp_path):
+    """The collection's order (what `make test` hands the workers, file by file): the files that
+    hold a test marked realtime or multiprocess first, then FILE_SECONDS' files longest first, then
+    the rest in name order; each file's tests in their own order. Truth: pytest's own list."""
+    import importlib.util
+
+    spec = importlib.util.spec_from_file_location("suite_conftest", CONFTEST)
+    conf = importlib.util.module_from_spec(spec)
+    spec.loader.exec_module(conf)
+    longest = sorted(conf.FILE_SECONDS, key=lambda f: -conf.FILE_SECONDS[f])[:2]
+    shutil.copy(CONFTEST, tmp_path / "conftest.py")
+    files = {"test_a_plain.py": _tests("p", 3),
+             "test_zz_alone.py": _tests("z", 1) + _tests("y", 1, "@pytest.mark.realtime"),
+             longest[1]: _tests("l", 2), longest[0]: _tests("k", 2)}
+    for name, tests in files.items():
+        (tmp_path / name).write_text(TIMED.format(tests=tests))
+    env = {k: v for k, v in os.environ.items() if k not in ("DEPTHGUARD_CI_REQUIRES", "PYTEST_ADDOPTS")}
+    res = subprocess.run([sys.executable, "-m", "pytest", "-q", "-p", "no:cacheprovider", "--collect-only",
+                          str(tmp_path)], capture_output=True, text=True, env=env, cwd=tmp_path, timeout=300)
+    assert res.returncode == 0, res.stdout + res.stderr
+    got = [ln.split("/")[-1] for ln in res.stdout.splitlines() if "::" in ln]
+    assert got == ["test_zz_alone.py::test_z0", "test_zz_alone.py::test_y0", f"{longest[0]}::test_k0",
+                   f"{longest[0]}::test_k1", f"{longest[1]}::test_l0", f"{longest[1]}::test_l1",
+                   "test_a_plain.py::test_p0", "test_a_plain.py::test_p1", "test_a_plain.py::test_p2"], got
