@@ -39,13 +39,15 @@ $(BAG_SDK)/.installed: $(STAMP)
 ## TEST_JOBS pytest-xdist processes (--dist loadfile: a module's fixtures are made once; a test
 ## marked realtime or multiprocess runs alone, tests/conftest.py); 0: one process. With 2 on the
 ## 2-core machine a fresh clone's tests took 12.7 min (1144 passed) against 16.5-18 in one process.
+## --no-loadscope-reorder: the files in the collection's order, the longest first (tests/conftest.py,
+## FILE_SECONDS), not xdist's by number of tests, which left the long one-test files to the end.
 TEST_JOBS ?= 2
 ## PYTHONDONTWRITEBYTECODE (set in some environments) made pytest rewrite every test module's
 ## assertions in each worker on every run: collection 15-16 CPU-s a worker instead of 6 once the
 ## rewritten modules are cached (measured: pytest --collect-only, 1160 tests). Empty = unset.
 test test-fast: export PYTHONDONTWRITEBYTECODE =
 test: warm-up $(BAG_SDK)/.installed
-	$(PY) -m pytest -q -p no:cacheprovider --durations=40 -n $(TEST_JOBS) --dist loadfile
+	$(PY) -m pytest -q -p no:cacheprovider --durations=40 -n $(TEST_JOBS) --dist loadfile --no-loadscope-reorder
 
 ## Everything but the tests marked slow.
 test-fast: warm-up $(BAG_SDK)/.installed

@@ -162,12 +162,54 @@ def pytest_addoption(parser):
 
 
 def pytest_collection_modifyitems(config, items):
-    if config.getoption("--soak"):
-        return
-    kept = [it for it in items if it.get_closest_marker("soak") is None]
-    if len(kept) != len(items):
-        config.hook.pytest_deselected(items=[it for it in items if it.get_closest_marker("soak") is not None])
-        items[:] = kept
+    if not config.getoption("--soak"):
+        kept = [it for it in items if it.get_closest_marker("soak") is None]
+        if len(kept) != len(items):
+            config.hook.pytest_deselected(items=[it for it in items if it.get_closest_marker("soak") is not None])
+            items[:] = kept
+    items[:] = heavy_files_first(items)
+
+
+# ---------------------------------------------------------------- two test processes, long files first
+# `make test` hands whole files to the two workers (--dist loadfile) in the order of the collection
+# (--no-loadscope-reorder). xdist's own order, by number of tests per file, sent the long files of
+# one or two tests (the path watch, the tutorial, the fr3 loop...) last, where one worker ran them
+# while the other had nothing left. The files measured longest go first, longest first (seconds:
+# the sum of a file's tests in `make test` from an empty numba cache on the 2-core machine at load
+# 5-7, 2026-11-27); every other file after them, in the collection's order. Only the order changes.
+FILE_SECONDS = {
+    "test_ur_rtde.py": 196, "test_control_loop.py": 123, "test_calibration.py": 123, "test_state_fused.py": 114,
+    "test_cli_rig.py": 107, "test_bag_bad.py": 95, "test_depth_grid.py": 93, "test_cli_monitor.py": 68,
+    "test_gaps_beyond_range.py": 61, "test_voxels.py": 57, "test_onto_path.py": 56, "test_ssm.py": 47,
+    "test_realsense_modes.py": 44, "test_control_reactions.py": 44, "test_path_check.py": 44,
+    "test_distributed_auth.py": 43, "test_view_replay.py": 42, "test_silhouette.py": 42,
+    "test_distributed.py": 41, "test_learned_scene.py": 36, "test_monitor.py": 34,
+    "test_own_cell_tutorial.py": 30, "test_run_reaction.py": 30, "test_fr3_cell.py": 29,
+    "test_edges_properties.py": 28, "test_sources_sim.py": 27, "test_franky.py": 26, "test_sim_posed.py": 26,
+    "test_bench_monitor.py": 23, "test_realsense_bad_input.py": 23, "test_distributed_restart.py": 22,
+    "test_realsense_clock.py": 22,
+}
+
+
+def heavy_files_first(items):
+    """``items`` with the files holding a test that runs alone first (below), then the files of
+    :data:`FILE_SECONDS`, longest first; each file's tests in their order, the other files after
+    them in theirs (a stable sort). The files with tests that run alone go first so that the two
+    workers mostly take turns between such tests: a test that runs alone waits for the other
+    worker's test to end, and among the long files that wait was long (measured at load 5-7: the
+    33 tests that run alone ran 177 s and waited 174 s for their turns)."""
+    first, alone = {}, set()
+    for k, it in enumerate(items):
+        f = it.nodeid.split("::")[0]
+        first.setdefault(f, k)
+        if any(it.get_closest_marker(m) is not None for m in _ALONE):
+            alone.add(f)
+
+    def key(it):
+        f = it.nodeid.split("::")[0]
+        return f not in alone, -FILE_SECONDS.get(f.rsplit("/", 1)[-1], 0.0), first[f]
+
+    return sorted(items, key=key)
 
 
 # ---------------------------------------------------------------- CI: no silent skips

@@ -166,18 +166,23 @@ def _check_path(cell: str) -> None:
 #: kernels of the monitor's path and wait for nothing the other compiles (the monitor's job: the
 #: frame and cells' classification; the grid job: the lookup). The grid job ends first: then the
 #: closed-loop run, whose simulator compiles its own render and edges (about 55 CPU-s) before it
-#: reaches the monitor's kernels, in the cache by then; the small jobs fill in after the monitor's
-#: job. A process that reaches a kernel the other one is compiling waits for it (compile_locks):
-#: a core idle. Measured from an empty cache (2 cores, load 4-8 from other work): with the grid
+#: reaches the monitor's kernels, in the cache by then, and check-path (the next largest, about
+#: 40 CPU-s: the path check's and the free space's kernels); the small jobs fill in after the
+#: monitor's job. (Measured 2026-11-27 from an empty cache at load 5-7: the monitor's job 162
+#: CPU-s, the grid's 81, the run's 91 and check-path's 55, of which the rasteriser's second
+#: signatures for a writable ``mesh_off``, 57 CPU-s, are gone since the renderer passes it
+#: read-only; with check-path after the small jobs the process that took it ended last.)
+#: A process that reaches a kernel the other one is compiling waits for it (compile_locks): a
+#: core idle. Measured from an empty cache (2 cores, load 4-8 from other work): with the grid
 #: job classifying its own frames the monitor's job waited 250 of its 418 s for it; with the run
 #: after the small jobs it started only once the monitor's job ended and ran alone at the end.
 JOBS: list[tuple[str, object, tuple]] = [
     ("monitor flacco-cell", _monitor, ("flacco-cell",)),
     ("grid query on one thread, flacco-cell", _grid_one_thread, ("flacco-cell",)),
     ("run reach 0.3 s", _cli, ("run", "-s", "reach", "--duration", "0.3", "-o", "{tmp}/run", "--quiet")),
+    ("check-path flacco-cell", _check_path, ("flacco-cell",)),
     ("scenes render flacco-cell", _cli, ("scenes", "render", "flacco-cell", "--out", "{tmp}/render")),
     ("placement c-arm-room", _cli, ("placement", "--cell", "c-arm-room", "--no-improve")),
-    ("check-path flacco-cell", _check_path, ("flacco-cell",)),
     ("record 0.2 s and monitor the bag, flacco-cell", _bag_replay, ("flacco-cell",)),
     ("run reach ssm 0.3 s", _cli, ("run", "-s", "reach", "--reaction", "ssm", "--duration", "0.3", "-o", "{tmp}/run",
                                    "--quiet")),
