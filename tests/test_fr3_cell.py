@@ -172,8 +172,6 @@ def test_fr3_stops_for_the_person_and_resumes_through_franky_sim(fr3_sim, tmp_pa
     swept = np.concatenate([a + np.linspace(0.0, 1.0, 40)[:, None] * (b - a) for a, b in zip(wps[:-1], wps[1:])])
     assert min(_separation(cell, qk, 7.5) for qk in swept) < 0.35
     assert sep[i] > 0.0, report                                    # and the robot never reached them
-    near = (t > 6.0) & (t < 9.0)                                   # the person stands at the path's edge
-    assert v[near].size and np.median(v[near]) < 2e-3, (np.median(v[near]), report)   # franky-sim: standing
     # when the person was nearest the robot was at most in its stop's tail (measured 0.000-0.022 rad/s:
     # the person reaches the path's edge at 6 s while SSM still slows the robot; it stands above) —
     # where they came near at all: a franky-sim far below real time (375 steps/s once in CI) left the
@@ -204,6 +202,11 @@ def test_fr3_stops_for_the_person_and_resumes_through_franky_sim(fr3_sim, tmp_pa
         pytest.skip(f"the robot was never reached ({report}), but this machine could not keep the simulated "
                     "cameras or franky-sim near real time, so the robot stood for stale data (R27) or hardly "
                     "moved, and its return to the path was not judged")
+    # standing while the person is at the path's edge: judged only here too, where the machine kept
+    # franky-sim and the cameras near real time (a franky-sim at 59-443 steps/s stretched the stop's
+    # tail over the window in wall time: median 0.0033 rad/s, measured 2026-11-27 under load)
+    near = (t > 6.0) & (t < 9.0)
+    assert v[near].size and np.median(v[near]) < 2e-3, (np.median(v[near]), report)   # franky-sim: standing
     assert v[before].max() > 0.2 and v[after].max() > 0.2, (v[before].max(), v[after].max(), report)
     # back on the path: joint 1 swings between the waypoints, the others stay at the path's values
     assert np.abs(q[after][:, 1:] - wps[0, 1:]).max() < 0.05
