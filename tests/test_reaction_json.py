@@ -253,3 +253,23 @@ def test_compiled_number_equals_repr_of_round():
            999999999.9999999, 1e9, -1e9, math.inf, -math.inf, math.nan]
     for x in xs:
         assert num_text(float(x)) == num_text_reference(float(x)), repr(x)
+
+
+def test_reasons_that_change_every_cycle_share_one_compiled_layout():
+    """issue 29: an SSM reason's sentence carries the cycle's distances, so nearly every line has
+    reasons of its own (2,067 sets in 3,818 cycles of fr3-cell); the compiled writer keeps one
+    program per layout and splices the reasons in — each line still the record's json, a sentence
+    holding the splice's marker byte (JSON-escaped) included."""
+    from depthguard.runtime import reaction_json as rjson
+
+    rng = np.random.default_rng(7)
+    base = _reaction(rng, ssm=True, part=False, tiny=False)
+    rjson._programs.clear()
+    for k in range(300):
+        d = float(rng.random() * 2)
+        reasons = {f"ssm:{base.names[0]}": f"protective stop (R33): control point at {d:.3f} m",
+                   "odd\x01key": f"a sentence with \x01 inside, {k}"} if k % 4 else {}
+        r = Reaction(**{**base.__dict__, "reasons": reasons})
+        line = rjson._compiled(r)
+        assert line == json.dumps(r.to_dict(), allow_nan=False), k
+    assert len(rjson._programs) == 1

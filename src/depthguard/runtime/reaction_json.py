@@ -231,7 +231,7 @@ def _fast(r) -> str | None:
     return "".join(map(str.rstrip, line.split("\x00"), _ZEROS)).replace("\x01", "")
 
 
-_programs: dict = {}                # layout key (with the reasons' JSON) -> the compiled writer's program
+_programs: dict = {}                # layout key (the reasons apart) -> the compiled writer's program
 _SLOT = re.compile("(%\\.6f\x00|%d|%s|%%)")
 _local = threading.local()          # each thread's output buffer (the sinks' thread: one)
 
@@ -326,15 +326,18 @@ def _compiled(r) -> str | None:
         ints.append(st.refused)
     reasons = r.reasons
     rj = _reasons_text(reasons) if reasons else "{}"
+    # the reasons are not part of the layout (issue 29: an SSM reason's sentence carries the cycle's
+    # distances, 2,067 distinct sets in 3,818 cycles of fr3-cell, and a program made per line kept
+    # the sinks thread at 0.48 cores): the program writes _REASONS where they go, spliced below
     key = (names, r.is_watch.tobytes(), fb, r.observed.tobytes(), n_ssm, tuple(c_key), ja_fin, len(q),
-           r.reaction_mode, bool(r.protective_stop), rj)
+           r.reaction_mode, bool(r.protective_stop))
     prog = _programs.get(key)
     if prog is None:
         if len(_programs) > 256:
             _programs.clear()
         fin_l = fin.tolist()
         tpl = _template(r, fin_l, r.observed.tolist(), n_ssm, (), list(cams.items()), ja_fin)
-        prog = _programs[key] = _program(tpl, rj, fin_l, n_ssm, [k[2] for k in c_key], ja_fin, len(q))
+        prog = _programs[key] = _program(tpl, _REASONS, fin_l, n_ssm, [k[2] for k in c_key], ja_fin, len(q))
     if prog is None:
         return None
     lits, off, src, idx, size = prog
@@ -344,8 +347,15 @@ def _compiled(r) -> str | None:
     n = T.encode_line(lits, off, src, idx, np.array(scal, dtype=np.float64), np.ascontiguousarray(dist),
                       np.ascontiguousarray(direc), np.ascontiguousarray(ssm), np.ascontiguousarray(q),
                       np.array(ints, dtype=np.int64), out)
-    return None if n < 0 else out[:n].tobytes().decode("ascii")
+    if n < 0:
+        return None
+    line = out[:n].tobytes().decode("ascii")
+    # the one _REASONS byte of the line (names and sentences are JSON-escaped: "\u0001")
+    return line.replace(_REASONS, rj, 1) if line.count(_REASONS) == 1 else None
 
+
+#: where a program writes the reasons' JSON object (spliced in per line; no JSON text holds it raw)
+_REASONS = "\x01"
 
 _NO_SSM = np.zeros((0, len(_SSM_TERMS)))
 
