@@ -273,3 +273,19 @@ def test_reasons_that_change_every_cycle_share_one_compiled_layout():
         line = rjson._compiled(r)
         assert line == json.dumps(r.to_dict(), allow_nan=False), k
     assert len(rjson._programs) == 1
+
+
+def test_wall_clock_stamps_take_the_compiled_line():
+    """issue 29: with a live source the run's clock is the wall clock (~1.8e9 s), beyond the compiled
+    numbers' range; the compiled writer still writes the line, the record's json byte for byte
+    (``t`` as ``repr(round(t, 6))``, ties of the 7th decimal and whole seconds included), so a live
+    run's 500 lines a second do not all go through ``json.dumps``."""
+    from depthguard.runtime.reaction_json import _compiled
+
+    rng = np.random.default_rng(11)
+    base = _reaction(rng, ssm=True, part=False, tiny=False)
+    stamps = [1795750609.947228, 1795750609.0, 1e9, -1.5e9, 9.99e9 + 0.1234565] + list(1.7e9 + rng.random(300) * 1e8)
+    for t in stamps:
+        r = Reaction(**{**base.__dict__, "t": float(t)})
+        line = _compiled(r)
+        assert line is not None and line == json.dumps(r.to_dict(), allow_nan=False), t

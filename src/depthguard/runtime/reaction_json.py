@@ -312,7 +312,13 @@ def _compiled(r) -> str | None:
     if type(ja) is not float or ja != ja:
         return None
     ja_fin = ja - ja == 0.0
-    scal = [float(r.t), float(r.override), *rep.tolist(), ja, float(r.speed_scale), float(r.ssm_scale)]
+    t = float(r.t)
+    # a live source's clock is the wall clock (~1.8e9 s), beyond the compiled numbers' range
+    # (|x| < 1e9): the line is written with t = 0.0 and its first number put back as the record
+    # writes it, repr(round(t, 6)) (issue 29: every line of a live run took the reference path)
+    t_text = repr(round(t, 6)) if (t >= 1e9 or t <= -1e9) and t - t == 0.0 else None
+    scal = [0.0 if t_text is not None else t, float(r.override), *rep.tolist(), ja, float(r.speed_scale),
+            float(r.ssm_scale)]
     ints = []
     c_key = []
     cams = r.cameras
@@ -350,9 +356,16 @@ def _compiled(r) -> str | None:
     if n < 0:
         return None
     line = out[:n].tobytes().decode("ascii")
+    if t_text is not None:
+        if not line.startswith(_T_ZERO):
+            return None
+        line = '{"t": ' + t_text + line[len(_T_ZERO) - 1:]
     # the one _REASONS byte of the line (names and sentences are JSON-escaped: "\u0001")
     return line.replace(_REASONS, rj, 1) if line.count(_REASONS) == 1 else None
 
+
+#: how a line written with t = 0.0 starts (the record's first key, then its value)
+_T_ZERO = '{"t": 0.0,'
 
 #: where a program writes the reasons' JSON object (spliced in per line; no JSON text holds it raw)
 _REASONS = "\x01"
