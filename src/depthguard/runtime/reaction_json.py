@@ -25,7 +25,11 @@ the same layout's literals made once from the template, the numbers written betw
 ``encode_line`` with the same digits (``repr(round(x, 6))``, taken exactly); anything it
 refuses goes to the template, then to the reference. Measured 2026-11-26 (CPU, A/B in one
 process, ur3-cell's 1501 reactions of a ``--fast`` run, medians of 7 rounds): 52-61 us a line by
-the template, 21-28 us by the kernel.
+the template, 21-28 us by the kernel. Two things of a line are not in its compiled layout: the
+reasons' JSON (an SSM reason's sentence carries the cycle's distances) is spliced in at a marker
+byte, and a ``t`` of 1e9 s or more (a live source's wall clock) is written as
+``repr(round(t, 6))`` in Python over the kernel's ``0.0`` (issue 29: before, every line of a
+live run went through ``json.dumps``, the sinks thread at 0.35 cores beside franky-sim).
 """
 
 from __future__ import annotations
