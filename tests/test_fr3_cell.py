@@ -202,15 +202,31 @@ def test_fr3_stops_for_the_person_and_resumes_through_franky_sim(fr3_sim, tmp_pa
         pytest.skip(f"the robot was never reached ({report}), but this machine could not keep the simulated "
                     "cameras or franky-sim near real time, so the robot stood for stale data (R27) or hardly "
                     "moved, and its return to the path was not judged")
-    # standing while the person is at the path's edge: judged only here too, where the machine kept
-    # franky-sim and the cameras near real time (a franky-sim at 59-443 steps/s stretched the stop's
-    # tail over the window in wall time: median 0.0033 rad/s, measured 2026-11-27 under load)
-    near = (t > 6.0) & (t < 9.0)
-    assert v[near].size and np.median(v[near]) < 2e-3, (np.median(v[near]), report)   # franky-sim: standing
     assert v[before].max() > 0.2 and v[after].max() > 0.2, (v[before].max(), v[after].max(), report)
     # back on the path: joint 1 swings between the waypoints, the others stay at the path's values
     assert np.abs(q[after][:, 1:] - wps[0, 1:]).max() < 0.05
     assert np.ptp(q[after][:, 0]) > 0.3, (np.ptp(q[after][:, 0]), report)
+    # standing while the person is at the path's edge (scene t 6-9 s): the monitor stopped the robot
+    # before they got there and held it until it let it go again, and the robot stood once
+    # franky-sim had had 1 s of its own time to brake (the FR3 stops from 2 rad/s in 0.74 s of it).
+    # Franky-sim's time, not the wall clock: it ran at 250-490 steps/s beside the monitor here, and
+    # a stop then lasted 1.5-4 s of the wall clock (a median 0.017 rad/s over 6-9 s in CI, when
+    # slowing down also braked softly)
+    scale = [(r["t"] - origin, r["speed_scale"]) for r in records]
+    t_stop = max((x for x, k in scale if 4.5 < x < 9.0 and k > 0.0), default=4.5)
+    assert t_stop < 6.0, (t_stop, report)                          # the last cycle that let it move
+    t_go = min((x for x, k in scale if x > t_stop and k > 0.0), default=18.0)
+    assert t_go > 9.0, (t_go, report)                              # held while the person stood there
+    k_stop = next(k for k, x in enumerate(steps) if x[0] - origin > t_stop)
+    held = [x for x in steps[k_stop + 1000:] if x[0] - origin < t_go]
+    report += (f"; stopped at scene t {t_stop:.2f} s, let go at {t_go:.2f} s, standing judged over {len(held)} "
+               "of franky-sim's steps")
+    if len(held) < 100:
+        pytest.skip(f"franky-sim ran too slowly to judge the standing robot after its stop ({report})")
+    v_held = np.array([np.abs(x[2]).max() for x in held])
+    assert np.median(v_held) < 2e-3, (np.median(v_held), report)                   # franky-sim: standing
+    assert np.ptp(np.array([x[1] for x in held]), axis=0).max() < 2e-3, report     # rad: it does not creep
+    print(report)
 
 
 def cell_path():

@@ -62,39 +62,58 @@ def _window(fr3, a, b):
     return np.array([x[1] for x in rows]), np.array([np.abs(x[2]).max() for x in rows])
 
 
-def _drive(sink, scale, seconds):
-    """The monitor's side: a reaction every 10 ms with ``speed_scale`` for ``seconds``; (start, end) monotonic."""
+def _drive_for(sink, scale, seconds):
+    """The monitor's side: a reaction every 10 ms with ``speed_scale`` for ``seconds`` of the wall clock."""
     start = time.monotonic()
     while time.monotonic() - start < seconds:
         sink(types.SimpleNamespace(speed_scale=scale))
         time.sleep(0.01)
+
+
+def _drive(sink, fr3, scale, steps, fast=None, wall_s=60.0):
+    """The monitor's side: a reaction every 10 ms with ``speed_scale`` until franky-sim has made
+    ``steps`` physics steps (ms of its time: under load it runs at a fraction of real time, and a
+    phase timed by the wall clock then left the robot mid-way: a stop judged after 1.5 s of the
+    wall clock was 0.3 s into its tail), or once a joint moves faster than ``fast`` rad/s;
+    (start, end) monotonic."""
+    start = time.monotonic()
+    with fr3.lock:
+        n0 = len(fr3.truth)
+    while time.monotonic() - start < wall_s:
+        sink(types.SimpleNamespace(speed_scale=scale))
+        time.sleep(0.01)
+        with fr3.lock:
+            if len(fr3.truth) - n0 >= steps or (fast is not None and np.abs(fr3.truth[-1][2]).max() > fast):
+                break
     return start, time.monotonic()
 
 
 @pytest.mark.slow
 def test_sink_slows_stops_and_resumes_the_path_as_franky_sim_reports(fr3):
     home = np.array(fr3.robot.inner_state.q, dtype=float)
-    far = home + np.array([0.5, 0.0, 0.0, 0.0, 0.0, 0.0, 0.0])
+    far = home + np.array([1.4, 0.0, 0.0, 0.0, 0.0, 0.0, 0.0])
     sink = FrankySink(fr3.host, np.array([home, far]))
     try:
-        full = _drive(sink, 1.0, 1.5)
-        slow = _drive(sink, 0.3, 1.5)
-        stop = _drive(sink, 0.0, 1.5)
-        q_stop = _window(fr3, stop[1] - 0.5, stop[1])[0]
-        resume = _drive(sink, 1.0, 1.5)
+        full = _drive(sink, fr3, 1.0, 3000, fast=1.5)                 # until joint 1 is past 1.5 rad/s
+        slow = _drive(sink, fr3, 0.1, 1500)
+        stop = _drive(sink, fr3, 0.0, 1500)
+        resume = _drive(sink, fr3, 1.0, 1500)
         _, v_full = _window(fr3, full[0], full[1])
-        _, v_slow = _window(fr3, slow[0] + 0.75, slow[1])          # after slowing down from full speed
-        _, v_stop = _window(fr3, stop[1] - 0.5, stop[1])
+        _, v_slow = _window(fr3, slow[0], slow[1])
+        q_stop, v_stop = _window(fr3, stop[0], stop[1])
         _, v_res = _window(fr3, resume[0], resume[1])
-        # franky-sim's joint velocities: moving, slower at 0.3, zero when stopped, moving again
-        assert v_full.max() > 0.5, v_full.max()
-        assert 0.05 < v_slow.max() < 0.45 * v_full.max(), (v_slow.max(), v_full.max())
-        assert v_stop.max() < 2e-3, v_stop.max()
-        assert np.ptp(q_stop, axis=0).max() < 1e-3                  # standing: the joints do not move
+        # franky-sim's joint velocities: moving, slower at 0.1, zero when stopped, moving again.
+        # Slowing down brakes with the robot's full deceleration: from > 1.5 rad/s to 0.1 of joint
+        # 1's velocity limit (2.62 rad/s, the FR3's data sheet) within 0.7 s of franky-sim's time
+        # (0.43 s measured; 1.38 s when franky's one factor also scaled the deceleration)
+        assert v_full.max() > 1.5, v_full.max()
+        assert 0.05 < v_slow[700:].max() < 1.1 * 0.1 * 2.62, (v_slow[700:].max(), v_full.max())
+        assert v_stop[-500:].max() < 2e-3, v_stop[-500:].max()       # the last 0.5 s of franky-sim's time
+        assert np.ptp(q_stop[-500:], axis=0).max() < 1e-3            # standing: the joints do not move
         assert v_res.max() > 0.5, v_res.max()
         kinds = [k for _t, k, _i, _f in sink.legs]
         assert "stop" in kinds and kinds[kinds.index("stop") + 1] == "leg"
-        assert {round(f, 2) for _t, k, _i, f in sink.legs if k == "leg"} >= {1.0, 0.3}
+        assert {round(f, 2) for _t, k, _i, f in sink.legs if k == "leg"} >= {1.0, 0.1}
         # the monitor goes silent: no reaction for more than 0.1 s stops the robot (R27)
         silent = time.monotonic()
         end = silent + 30.0
@@ -199,10 +218,10 @@ def test_a_lost_robot_is_said_and_the_joints_go_stale(fr3):
         sink = FrankySink(robot.hostname, np.array([home, home + [0.5, 0, 0, 0, 0, 0, 0]]))
         src = open_joints(f"franky:{robot.hostname}", rig, {})
         try:
-            _drive(sink, 1.0, 1.0)
+            _drive_for(sink, 1.0, 1.0)
             assert src.received > 0 and sink.lost is None
             server.__exit__(None, None, None)
-            _drive(sink, 1.0, 3.0)
+            _drive_for(sink, 1.0, 3.0)
             n = src.received
             time.sleep(0.5)
             assert sink.lost is not None and "R27" in sink.lost, sink.events
