@@ -55,44 +55,50 @@ def test_supervisor_ramps_and_reports():
 
 
 
-def _update_reference(sup, t, reasons, dt):
-    """The supervisor's update as it was before its no-reason shortcut (issue 29): every loop run."""
-    sup.down, sup.up = max(0.0, dt) / sup.stop_time, max(0.0, dt) / sup.resume_time
-    for key, msg in reasons.items():
-        if key not in sup._open:
-            ep = {"reason": msg, "key": key, "t_start": round(t, 4), "t_end": None, "t_stopped": None}
-            sup._open[key] = ep
-            sup.episodes.append(ep)
-    for key in [k for k in sup._open if k not in reasons]:
-        sup._open.pop(key)["t_end"] = round(t, 4)
-    if reasons:
-        sup.k = max(0.0, sup.k - sup.down)
-        if sup.k == 0.0:
-            for ep in sup._open.values():
+def _ramp_and_episodes(k0, stop_time, resume_time, cycles):
+    """The truth from R26/R27 alone, not from the supervisor's fields: the override falls by
+    ``dt / stop_time`` in a cycle with a reason and rises by ``dt / resume_time`` in one without,
+    within [0, 1]; an episode per reason key runs from the first cycle with it to the first
+    without it, ``t_stopped`` the first cycle within it with the override at 0. ``cycles``:
+    ``(t, dt, reasons)``; returns the overrides and the episodes in the order they began."""
+    k, ks, episodes, open_ = k0, [], [], {}
+    for t, dt, reasons in cycles:
+        for key in [x for x in open_ if x not in reasons]:
+            open_.pop(key)["t_end"] = round(t, 4)
+        for key, msg in reasons.items():
+            if key not in open_:
+                open_[key] = {"reason": msg, "key": key, "t_start": round(t, 4), "t_end": None, "t_stopped": None}
+                episodes.append(open_[key])
+        k = max(0.0, k - dt / stop_time) if reasons else min(1.0, k + dt / resume_time)
+        if k == 0.0:
+            for ep in open_.values():
                 if ep["t_stopped"] is None:
                     ep["t_stopped"] = round(t, 4)
-    else:
-        sup.k = min(1.0, sup.k + sup.up)
-    return sup.k
+        ks.append(k)
+    return ks, episodes
 
 
-def test_supervisor_update_equals_the_full_loop_on_random_reason_sequences():
-    """The usual cycle's shortcut (no reason, no episode open) changes neither the override nor
-    the episodes: the same k and episodes as the full update over random runs of reasons, gaps
-    and irregular dt."""
+def test_supervisor_ramps_and_episodes_follow_r26_r27_on_random_reason_sequences():
+    """The override and the episodes over random runs of reasons, gaps and irregular dt (the
+    usual cycle takes a shortcut, issue 29) against :func:`_ramp_and_episodes`."""
     rng = np.random.default_rng(29)
     keys = ["stale:camA", "stale:camB", "unobserved:ee", "stale:joints"]
     for k0 in (0.0, 1.0):
-        fast, ref = (SafetySupervisor(dt=0.002, stop_time=0.05, resume_time=0.1, k0=k0) for _ in range(2))
-        t = 0.0
+        sup = SafetySupervisor(dt=0.002, stop_time=0.05, resume_time=0.1, k0=k0)
+        cycles, t = [], 0.0
         for i in range(3000):
             dt = float(rng.choice([0.002, 0.002, 0.0035, 0.0]))
             t += dt
             quiet = rng.random() < 0.7 if (i // 100) % 2 else rng.random() < 0.05
-            reasons = {} if quiet else {k: f"{k} holds" for k in keys if rng.random() < 0.5}
-            assert fast.update(t, reasons, dt=dt) == _update_reference(ref, t, reasons, dt)
-        assert fast.episodes == ref.episodes and len(fast.episodes) > 10
-        assert any(e["t_end"] is not None for e in fast.episodes)
+            cycles.append((t, dt, {} if quiet else {k: f"{k} holds" for k in keys if rng.random() < 0.5}))
+        got = [sup.update(t, reasons, dt=dt) for t, dt, reasons in cycles]
+        ks, episodes = _ramp_and_episodes(k0, 0.05, 0.1, cycles)
+        assert np.allclose(got, ks, rtol=0.0, atol=1e-9)
+        rise, fall = np.diff(got) > 0, np.diff(got) < 0
+        assert rise.any() and fall.any() and min(got) == 0.0 and max(got) > 0.5      # ramps both ways, stops
+        assert sup.episodes == episodes and len(episodes) > 10
+        assert any(e["t_end"] is not None for e in episodes) and any(e["t_stopped"] is not None for e in episodes)
+
 
 def test_supervisor_starts_stopped_and_ramps_up_only_once_nothing_stops_it():
     """R26/R27: before the first cycle without a stop reason nothing is known: the override is 0

@@ -127,6 +127,27 @@ def test_sink_slows_stops_and_resumes_the_path_as_franky_sim_reports(fr3):
         sink.close()
 
 
+def test_the_sink_tells_ssm_the_legs_full_speed(fr3):
+    """``commanded_qd``: towards the waypoint the robot goes to (the next one where it stands at
+    it), the joint with the farthest to go, relative to its limit, at its limit (by hand); the
+    monitor takes it once attached (R33)."""
+    home = np.array(fr3.robot.inner_state.q, dtype=float)
+    far = home + np.array([1.4, 0.0, 0.0, 0.0, 0.0, 0.0, 0.0])
+    sink = FrankySink(fr3.host, np.array([home, far]))
+    try:
+        assert sink.index == 0                                       # no reaction yet: it stands at home
+        assert np.allclose(sink.commanded_qd(home), [2.62, 0, 0, 0, 0, 0, 0])          # at home: on to far
+        q = home + np.array([0.7, 0.35, 0.0, 0.0, 0.0, 1.5, 0.0])
+        expected = -np.array([0.7, 0.35, 0.0, 0.0, 0.0, 1.5, 0.0]) / max(0.7 / 2.62, 0.35 / 2.62, 1.5 / 4.18)
+        assert np.allclose(sink.commanded_qd(q), expected)                              # back to home
+        assert np.isclose(np.abs(expected[5]), 4.18)                 # joint 6 limits this one
+        monitor = types.SimpleNamespace(commanded_qd=None)
+        sink.attach(monitor)
+        assert np.allclose(monitor.commanded_qd(q), expected)
+    finally:
+        sink.close()
+
+
 def test_joints_are_franky_sims_stamped_on_arrival_with_the_robot_time(fr3):
     rig = load_cell("flacco-cell").rig                  # 7 joints, limits that hold the FR3's home
     t0 = time.time()

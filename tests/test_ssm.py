@@ -208,6 +208,42 @@ def test_monitor_ssm_log_recomputes(tmp_path):
     assert s == pytest.approx(r.ssm_scale)
 
 
+def test_monitor_takes_the_programs_velocity_from_commanded_qd():
+    """``Monitor.commanded_qd`` (a sink that runs the program sets it, R33): ``step`` without a
+    ``qd`` scales that velocity — v_r as with the same ``qd`` given — and without it the joints'
+    measured rate (standing: 0, so v_r = 0 everywhere)."""
+    from depthguard.filtering.expected import ExpectedDepth
+    from depthguard.runtime.monitor import Monitor, warm_up
+    from depthguard.sim import load_cell
+    from depthguard.sources.frame import Frame
+
+    rig = load_cell("flacco-cell").rig
+    cfg = rig.monitor.with_changes(reaction="ssm", ssm={"range": 0.6})
+    warm_up(rig, cfg)
+    q0 = np.asarray(rig.robot_q0, dtype=np.float64)
+    qd = np.linspace(-0.6, 0.8, rig.robot.dof)
+    asked = []
+    with Monitor(rig, cfg) as mon:
+        for j in range(3):
+            mon.push_joints(j * 0.001, q0)
+        for cid in mon.camera_ids:
+            cam = rig.camera(cid)
+            mon.push_frame(Frame(cid, np.array(ExpectedDepth(cam, rig.robot, rig.static_meshes()).known(q0)), 0.0))
+        mon.flush()
+        given = mon.step(0.002, q0, qd=qd).to_dict()
+        mon.commanded_qd = lambda q: (asked.append(np.array(q)), qd)[1]
+        program = mon.step(0.004).to_dict()
+        mon.commanded_qd = None
+        measured = mon.step(0.006).to_dict()
+    n = len(rig.robot.control_points)
+    v_given = np.array([p["ssm"]["v_r"] for p in given["points"][:n]])
+    v_program = np.array([p["ssm"]["v_r"] for p in program["points"][:n]])
+    v_measured = np.array([p["ssm"]["v_r"] for p in measured["points"][:n]])
+    assert len(asked) == 1 and np.array_equal(asked[0], q0)           # at the cycle's joints
+    assert np.abs(v_given).max() > 0.05 and np.allclose(v_program, v_given, atol=1e-6)
+    assert np.all(v_measured == 0.0)
+
+
 def test_measured_vh_follows_the_approach_with_a_floor():
     """v_h measured: a distance shrinking at 1.3 m/s with the robot standing gives v_h -> 1.3;
     a receding obstacle gives the floor."""

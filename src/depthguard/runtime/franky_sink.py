@@ -20,6 +20,14 @@ a CSV file of 7 numbers a line in the spec, or the name of a built-in cell that 
   ``franky.JointStopMotion`` (the robot decelerates on its path within its limits and holds);
 - back above the floor: the leg to the same waypoint starts again (resume).
 
+The sink is the program, so it tells the monitor what speed scale 1 means (:meth:`attach`,
+R33): :meth:`commanded_qd` is the joint velocity of the running leg at its full speed, a
+straight line in joint space towards its waypoint with the joint that has the farthest to go
+at its velocity limit (``qd_max``, the rig's). Without it SSM would scale the joints'
+measured rate — the motion already slowed by the reaction — and this sink would apply that
+relative scale to the full speed: faster than SSM allowed, and rising again as soon as the
+robot had slowed (measured 1.2-1.7 rad/s of joint 1 where SSM allowed 0.1-0.5 of it).
+
 Stale data and lost connections stop the robot (R27): stale joints or cameras through the
 reaction itself (override 0); no reaction for more than ``stale_s`` (0.1 s: the monitor hung
 or ended) stops it here; an error of franky or libfranka (a reflex, a lost connection) is
@@ -77,14 +85,19 @@ class FrankySink:
     """Runs ``path`` on the FR3 at ``host`` and applies the reactions to it (module docstring).
 
     ``q_min``/``q_max``: (7,) rad, the rig's limits; a waypoint outside them is refused at
-    construction. ``tolerance``: rad, a waypoint counts as reached when every joint is within it.
+    construction. ``qd_max``: (7,) rad/s, the joints' velocity limits (default: the FR3's data
+    sheet), for :meth:`commanded_qd`. ``tolerance``: rad, a waypoint counts as reached when every
+    joint is within it.
     """
 
     name = "franky"
     direct = True                  # keeps the newest reaction (runtime.sink_specs)
     live = True                    # drives a robot: never a run as fast as possible
 
-    def __init__(self, host: str, path, *, q_min=None, q_max=None, floor: float = 0.05, step: float = 0.1,
+    #: rad/s, the FR3's joint velocity limits (Franka's data sheet), where no rig gives them
+    FR3_QD_MAX = (2.62, 2.62, 2.62, 2.62, 5.26, 4.18, 5.26)
+
+    def __init__(self, host: str, path, *, q_min=None, q_max=None, qd_max=None, floor: float = 0.05, step: float = 0.1,
                  stale_s: float = 0.1, rate_hz: float = 100.0, tolerance: float = 2e-3, retry_s: float = 1.0):
         if not 0.0 < floor < 1.0 or not 0.0 < step < 1.0 or not stale_s > 0 or not rate_hz > 0:
             raise FrankyError("franky sink: floor and step must be in (0, 1), stale_s and rate_hz > 0")
@@ -96,6 +109,10 @@ class FrankySink:
                 i, j = (int(x) for x in bad[0])
                 raise FrankyError(f"franky sink: waypoint {i + 1}, joint {j + 1} = {self.path[i, j]:.6g} is outside the "
                                   f"rig's limits [{lo[j]:.6g}, {hi[j]:.6g}]")
+        self.qd_max = np.array(self.FR3_QD_MAX if qd_max is None else qd_max, dtype=np.float64).reshape(-1)
+        if self.qd_max.shape != (FRANKA_DOF,) or not np.all(np.isfinite(self.qd_max) & (self.qd_max > 0)):
+            raise FrankyError(f"franky sink: qd_max must be {FRANKA_DOF} velocity limits > 0 rad/s (got {qd_max!r})")
+        self._qd = np.zeros(FRANKA_DOF)                  # commanded_qd's answer, the control thread's
         self.host, self.floor, self.step, self.stale_s = host, float(floor), float(step), float(stale_s)
         self.period, self.tolerance, self.retry_s = 1.0 / float(rate_hz), float(tolerance), float(retry_s)
         self.link = link_for(host)
@@ -115,6 +132,25 @@ class FrankySink:
     def __call__(self, reaction) -> None:
         with self._cond:
             self._newest = (float(reaction.speed_scale), time.monotonic())
+
+    def attach(self, monitor) -> None:
+        """The monitor's SSM takes this program's speed at scale 1 (:meth:`commanded_qd`, R33)."""
+        monitor.commanded_qd = self.commanded_qd
+
+    def commanded_qd(self, q) -> np.ndarray:
+        """(7,) rad/s: the joint velocity at speed scale 1 at ``q`` (7,) rad — towards the waypoint
+        the robot goes to (the next one where it stands at it), along the straight line in joint
+        space, the joint with the farthest to go relative to its limit at ``qd_max``. A franky leg
+        keeps every joint within these limits and, started from rest, on that line; one that
+        replaced a moving leg bends towards it. The same array each call, overwritten by the next."""
+        target = self.path[self.index]
+        np.subtract(target, q, out=self._qd)
+        if np.max(np.abs(self._qd)) <= self.tolerance:
+            np.subtract(self.path[(self.index + 1) % len(self.path)], q, out=self._qd)
+        reach = np.max(np.abs(self._qd) / self.qd_max)       # seconds of the slowest joint at its limit
+        if reach > 0.0:
+            self._qd /= reach
+        return self._qd
 
     def _event(self, sentence: str) -> None:
         self.events.append((time.monotonic(), sentence))
@@ -243,4 +279,5 @@ def open_franky_sink(argument: str, rig=None, context: dict | None = None) -> Fr
         raise FrankyError(f"--sink franky:{host}: a Franka has {FRANKA_DOF} joints, the rig's robot {robot.name} has "
                           f"{robot.dof}: use the rig of this robot")
     return FrankySink(host, path, q_min=None if robot is None else robot.q_min,
-                      q_max=None if robot is None else robot.q_max)
+                      q_max=None if robot is None else robot.q_max,
+                      qd_max=None if robot is None else robot.qd_max)

@@ -119,6 +119,11 @@ class Monitor(MonitorDistances, UnitStateInput, MonitorPaths, MonitorWatches):
         from depthguard.runtime.voxel_input import VoxelObstacles
         self.voxels = VoxelObstacles()            # the remote units' voxels (R20)
         self.sinks = list(sinks)
+        #: ``commanded_qd(q) -> (dof,) rad/s or None``: the program's joint velocity at speed scale 1
+        #: at ``q``, for SSM when ``step`` is given no ``qd`` (R33); set by the sink that runs the
+        #: robot's motion (:meth:`depthguard.runtime.franky_sink.FrankySink.attach`). None: the
+        #: joints' measured rate, which is the motion already scaled by the reaction
+        self.commanded_qd = None
         # control-thread state (preallocated)
         self._data = self.robot.create_data()
         self._fk = self.robot.forward_into(self._data)    # step's forward kinematics, bound once
@@ -332,7 +337,8 @@ class Monitor(MonitorDistances, UnitStateInput, MonitorPaths, MonitorWatches):
         """The reaction at time ``t`` (s) with the robot at ``q`` (dof,) rad — default: the newest
         joint state received. Never waits for a frame (module docstring). ``qd`` (dof,) rad/s:
         the commanded joint velocity before any scaling, for speed and separation monitoring
-        (R33; default: the joints' rate between the last two cycles)."""
+        (R33; default: :attr:`commanded_qd` at ``q`` where a sink sets it, else the joints' rate
+        between the last two cycles)."""
         t_wall = time.perf_counter()
         cfg = self.config
         _, query_rho, limit = self._derived(cfg)
@@ -375,6 +381,8 @@ class Monitor(MonitorDistances, UnitStateInput, MonitorPaths, MonitorWatches):
             reasons["stale:joints"] = (f"joint states: none for more than {cfg.joints_stale_s * 1e3:.0f} ms "
                                        f"- stale data (R27)" if latest is not None else
                                        "joint states: none received yet (R27)")
+        if qd is None and self.commanded_qd is not None:
+            qd = self.commanded_qd(q)
         dt = cfg.dt if self._t_last is None else min(max(t - self._t_last, 0.0), 1.0)
         self._t_last = t
         k = self._sup.update(t, reasons, dt=dt)
