@@ -42,6 +42,7 @@ def test_fast_run_writes_a_log_line_per_cycle_and_a_summary_that_agrees(tmp_path
 
 
 @pytest.mark.slow
+@pytest.mark.realtime              # its real-time factor is the wall clock's: alone (tests/conftest.py)
 def test_monitor_alone_runs_in_real_time_and_stops_cleanly_on_ctrl_c(tmp_path, monitor_kernels):
     out = tmp_path / "live"
     proc = subprocess.Popen(DG + ["monitor", "--out", str(out)], stdout=subprocess.PIPE,
