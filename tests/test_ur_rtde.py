@@ -159,6 +159,42 @@ def test_joints_of_the_robot_are_stamped_on_arrival_and_equal_the_servers(server
         np.testing.assert_allclose(q, truth, atol=1e-12)
 
 
+@pytest.mark.slow
+def test_the_joints_tell_ssm_the_programs_speed_whatever_the_slider(server):
+    """``commanded_qd`` (R33): the measured joint velocity over the slider times the limiter, as the
+    server's program runs at slider 1 — ``a 2 pi c cos(2 pi phase)`` at the state's own timestamp,
+    by hand — at a slider of 0.3; held while the slider is 0; the monitor takes it once attached."""
+    from depthguard.runtime.ur_sink import UrSpeedSlider
+    from depthguard.sim import load_cell
+    from depthguard.sources.base import open_joints
+
+    rig = load_cell("ur3-cell").rig
+    src = open_joints(f"ur-rtde:{server.host}", rig)
+    sink = UrSpeedSlider(server.host, resume_hold_s=0.05, stale_s=2.0)
+    a, c = np.array([0.6, 0.3, 0.3, 0.2, 0.2, 0.4]), 0.1                # the server's defaults
+    try:
+        _feed(sink, [0.3] * 300)                                         # 0.6 s: 0, the floor, then 0.3
+        assert _wait(lambda: server.sliders and server.sliders[-1][1] == 0.3)
+        time.sleep(0.2)
+        stamp, nominal = src.nominal
+        truth = a * 2.0 * np.pi * c * np.cos(2.0 * np.pi * server.call("phase_at", stamp))
+        _, moving = server.joints_at(stamp)                              # what the robot did: 0.3 of it
+        np.testing.assert_allclose(nominal, truth, rtol=1e-9, atol=1e-12)
+        np.testing.assert_allclose(moving, 0.3 * truth, rtol=1e-9, atol=1e-12)
+        monitor = SimpleNamespace(commanded_qd=None)
+        src.attach(monitor)
+        assert monitor.commanded_qd(None) is src.nominal[1]
+        _feed(sink, [0.0] * 100)                                         # stopped: the last velocity held
+        assert _wait(lambda: server.sliders[-1][1] == 0.0)
+        time.sleep(0.2)
+        held_at = src.nominal[0]
+        stop_at = server.sliders[-1][0]
+        assert held_at <= stop_at + 0.01 and src.received > 100
+    finally:
+        sink.close()
+        src.close()
+
+
 def test_a_robot_outside_the_rig_is_refused_in_one_sentence():
     from depthguard.sim import load_cell
     from depthguard.sources.base import open_joints

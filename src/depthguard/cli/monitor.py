@@ -208,7 +208,9 @@ def monitor(
         fanout = SinkFanout(queued, block=fast)
         # called by the control thread: the robot that obeys, and sinks that only keep the newest reaction
         mon = Monitor(the_rig, cfg, sinks=reaction_subscribers(*sources, joint_source) + direct + [fanout])
-        for x in [*direct, *queued]:
+        if hasattr(joint_source, "attach"):       # ur-rtde: the program's speed at scale 1 for SSM (R33)
+            joint_source.attach(mon)
+        for x in [*direct, *queued]:              # after it: the sink that runs the program knows better
             if hasattr(x, "attach"):
                 x.attach(mon)
             if getattr(x, "describe", None):

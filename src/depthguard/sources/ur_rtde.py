@@ -1,6 +1,7 @@
 """Joint states of a Universal Robots arm through RTDE: ``--joints ur-rtde:HOST`` (R27, R30, R31).
 
-Reads ``actual_q`` (and the robot's ``timestamp``) with ``rtde_receive.RTDEReceiveInterface``
+Reads ``actual_q`` (and the robot's ``timestamp``, ``actual_qd``, ``speed_scaling`` and
+``target_speed_fraction``) with ``rtde_receive.RTDEReceiveInterface``
 of the ``ur-rtde`` package (extra ``depthguard[ur]``), in a child process
 (:mod:`depthguard.transport.ur_rtde_worker`). Each state is stamped on this host's wall clock
 (``time.time()``, s) when it arrives — a live source, like ``zenoh:`` — and the robot's own
@@ -16,6 +17,15 @@ and the monitor stops the robot (R27). An address that does not answer on port 3
 no state comes, the joints go stale, the robot stops (R27). Beside ``sim:`` frames the
 simulated cameras follow this robot: they render it at its states
 (:class:`~depthguard.sources.sim_source.FollowedJoints`), on the wall clock.
+
+What speed scale 1 means (R33, :meth:`UrRtdeJoints.attach`): the program runs in the robot's
+controller, which scales it by the speed slider times its own trajectory limiter
+(``target_speed_fraction`` x ``speed_scaling``, what UR's ROS 2 driver publishes as its speed
+scaling). The program's joint velocity at scale 1 is the measured one divided by that
+product (:meth:`~UrRtdeJoints.commanded_qd`), held while the product is below 0.05 (a robot
+slowed to nearly nothing says little of its program; it goes on at the held velocity when it
+resumes). Speed and separation monitoring then scales the program's speed, not the speed the
+slider already slowed.
 """
 
 from __future__ import annotations
@@ -63,6 +73,10 @@ class UrRtdeJoints:
         self._lost: str | None = None
         self._closed = False
         self._queue = StampedQueue(8192)
+        #: ``(robot timestamp s, (6,) rad/s)``: the program's joint velocity at speed scale 1, from
+        #: the newest state whose scaling was at least :attr:`SCALING_FLOOR` (None: none yet)
+        self.nominal: tuple[float, np.ndarray] | None = None
+        self._zero_qd = np.zeros(UR_DOF)
         self._first = threading.Event()
         self._first_error: str | None = None
         try:
@@ -82,10 +96,28 @@ class UrRtdeJoints:
     def _connect(self) -> Worker:
         return Worker("receive", self.host, on_line=self._on_line, on_end=self._on_end, frequency=self.frequency)
 
+    #: the speed slider times the trajectory limiter below which the program's velocity is held
+    SCALING_FLOOR = 0.05
+
+    def attach(self, monitor) -> None:
+        """The monitor's SSM takes the program's speed at scale 1 (:meth:`commanded_qd`, R33)."""
+        monitor.commanded_qd = self.commanded_qd
+
+    def commanded_qd(self, q=None) -> np.ndarray:
+        """(6,) rad/s: the program's joint velocity at speed scale 1 (module docstring), zeros before
+        the robot was seen moving at a scaling >= :attr:`SCALING_FLOOR`. ``q`` is not read: the
+        controller's program is where the robot is. Never written by the caller."""
+        nominal = self.nominal
+        return self._zero_qd if nominal is None else nominal[1]
+
     def _on_line(self, line: str) -> None:
         try:
-            host_stamp, robot_stamp, q = json.loads(line)
+            host_stamp, robot_stamp, q, qd, scaling = json.loads(line)
             stamp, arr = check_joint_state(self._robot, host_stamp, q)
+            qd = np.asarray(qd, dtype=np.float64)
+            if qd.shape != (UR_DOF,) or not np.all(np.isfinite(qd)) or not np.isfinite(scaling):
+                raise ValueError(f"joint velocities {qd.tolist()} at a speed scaling of {scaling} are not "
+                                 f"{UR_DOF} finite values")
         except (ValueError, TypeError) as exc:
             self.rejected += 1
             if self.last_error is None and self._first.is_set():     # said once until a state is used again
@@ -99,6 +131,8 @@ class UrRtdeJoints:
         self.last_error = None
         self.received += 1
         self.robot_stamps.append((stamp, float(robot_stamp)))
+        if scaling >= self.SCALING_FLOOR:
+            self.nominal = (float(robot_stamp), qd / float(scaling))       # a new array: readers keep theirs
         what = self._queue.offer(stamp, (stamp, arr))
         if what == "out_of_order":
             self.out_of_order += 1

@@ -167,7 +167,8 @@ def _io(host: str) -> None:
 def _receive(host: str, frequency: float) -> None:
     import rtde_receive
 
-    receiver = rtde_receive.RTDEReceiveInterface(host, frequency, ["timestamp", "actual_q"])
+    receiver = rtde_receive.RTDEReceiveInterface(host, frequency, ["timestamp", "actual_q", "actual_qd",
+                                                                   "speed_scaling", "target_speed_fraction"])
     _say("ready")
     threading.Thread(target=_watch_parent, daemon=True).start()
     last = None
@@ -179,8 +180,10 @@ def _receive(host: str, frequency: float) -> None:
         if stamp != last:
             now = time.time()
             q = receiver.getActualQ()
+            qd = receiver.getActualQd()
+            scaling = receiver.getSpeedScaling() * receiver.getTargetSpeedFraction()
             last = stamp
-            _say(json.dumps([now, stamp, list(q)]))
+            _say(json.dumps([now, stamp, list(q), list(qd), scaling]))
         time.sleep(0.0005)
 
 
