@@ -29,9 +29,9 @@ def cell():
     return c
 
 
-def run(cell, known_scene, extra=()):
+def run(cell, known_scene, extra=(), range_m=0.8):
     cfg = cell.rig.monitor.with_changes(invalid="free", control_hz=100.0, reaction="ssm",
-                                        ssm=SSMConfig(range=0.8, known_scene=known_scene))
+                                        ssm=SSMConfig(range=range_m, known_scene=known_scene))
     b = Bench(cell, cfg)
     b.meshes = b.meshes + list(extra)
     try:
@@ -67,3 +67,24 @@ def test_muted_ssm_does_not_see_the_table_but_sees_a_person(cell):
     assert np.all(d2[near] <= true[near] + 0.08), (d2, true)
     far = true >= 0.8 + 0.08                                             # nothing but the box: not the table
     assert np.all(d2[far] >= 0.8), (d2, true)
+
+
+@pytest.mark.slow
+def test_muted_ssm_sees_a_person_outside_the_workspace_within_its_range(cell):
+    """The muted voxels reach as far as SSM looks (R33): a person-sized box beyond the workspace's
+    side (flacco-cell: x >= -1.5 m), 0.89 m from the end effector, within a 1.3 m range, is seen at
+    its distance — not taken for "nothing within range" (D = 1.3 m, the robot then moves)."""
+    rig = cell.rig
+    assert rig.workspace.lo[0] == pytest.approx(-1.5)
+    data = rig.robot.create_data()
+    rig.robot.forward(np.asarray(rig.robot_q0, dtype=float), data)
+    P = np.asarray(data.cp_positions)
+    lo, hi = np.array([-1.85, -0.2, 0.0]), np.array([-1.55, 0.2, 1.8])          # wholly outside the box
+    box = Box.from_bounds(lo, hi, name="person")
+    true = np.linalg.norm(np.maximum(np.maximum(lo - P, P - hi), 0.0), axis=1)
+    assert 0.7 < true.min() < 1.2
+    r, _ = run(cell, "muted", [box.mesh()], range_m=1.3)
+    d = r.ssm[:, _D]
+    i = int(np.argmin(true))
+    assert d[i] == pytest.approx(true[i], abs=0.08), (d, true)
+    assert np.all(d <= true + 0.08), (d, true)

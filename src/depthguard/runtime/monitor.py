@@ -190,12 +190,19 @@ class Monitor(MonitorDistances, UnitStateInput, MonitorPaths, MonitorWatches):
                                           ssm_muted=self._ssm_muted(cid))
 
     def _ssm_muted(self, cid: str):
-        """``(VoxelFilter, push)`` for camera ``cid`` when SSM mutes the known scene, else None."""
+        """``(VoxelFilter, push)`` for camera ``cid`` when SSM mutes the known scene, else None. The
+        filter's box is the workspace grown by SSM's separation range (sideways and up; not below
+        its floor): a person outside the workspace but within the range of the robot is seen,
+        not taken for "nothing within range" (R33)."""
         if self._ssm_voxels is None:
             return None
+        from depthguard.control.policy_ssm import SpeedSeparationPolicy
         from depthguard.fusion.voxels import VoxelFilter
         ws = self.rig.workspace
-        return (VoxelFilter(self._cameras[cid], (ws.lo, ws.hi), voxel_size=self.config.ssm.muted_voxel_size),
+        r = SpeedSeparationPolicy.separation_range(self.config)
+        lo = np.asarray(ws.lo, dtype=np.float64) - (r, r, 0.0)
+        hi = np.asarray(ws.hi, dtype=np.float64) + r
+        return (VoxelFilter(self._cameras[cid], (lo, hi), voxel_size=self.config.ssm.muted_voxel_size),
                 self._ssm_voxels.push)
 
     def _state_options(self, cid: str):
