@@ -120,9 +120,10 @@ class Monitor(MonitorDistances, UnitStateInput, MonitorPaths, MonitorWatches):
         self.voxels = VoxelObstacles()            # the remote units' voxels (R20)
         self.sinks = list(sinks)
         #: ``commanded_qd(q) -> (dof,) rad/s or None``: the program's joint velocity at speed scale 1
-        #: at ``q``, for SSM when ``step`` is given no ``qd`` (R33); set by the sink that runs the
-        #: robot's motion (:meth:`depthguard.runtime.franky_sink.FrankySink.attach`). None: the
-        #: joints' measured rate, which is the motion already scaled by the reaction
+        #: at ``q``, for SSM when ``step`` is given no ``qd`` (R33); set by what knows the robot's
+        #: program: the sink that runs it (:meth:`depthguard.runtime.franky_sink.FrankySink.attach`)
+        #: or a robot that reports its speed scaling (:meth:`depthguard.sources.ur_rtde.UrRtdeJoints.attach`).
+        #: None: the joints' measured rate, which is the motion already scaled by the reaction
         self.commanded_qd = None
         # control-thread state (preallocated)
         self._data = self.robot.create_data()
@@ -344,7 +345,7 @@ class Monitor(MonitorDistances, UnitStateInput, MonitorPaths, MonitorWatches):
         """The reaction at time ``t`` (s) with the robot at ``q`` (dof,) rad — default: the newest
         joint state received. Never waits for a frame (module docstring). ``qd`` (dof,) rad/s:
         the commanded joint velocity before any scaling, for speed and separation monitoring
-        (R33; default: :attr:`commanded_qd` at ``q`` where a sink sets it, else the joints' rate
+        (R33; default: :attr:`commanded_qd` at ``q`` where it is set, else the joints' rate
         between the last two cycles)."""
         t_wall = time.perf_counter()
         cfg = self.config
