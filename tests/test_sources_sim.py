@@ -189,6 +189,35 @@ def test_sim_joint_states_come_once_each_in_order_whoever_moves_the_robot():
     frames.close()
 
 
+def test_sim_joints_tell_ssm_the_paths_speed_while_the_robot_is_slowed():
+    """``commanded_qd`` of the ``sim`` joints (R33): the cell's path's joint velocity at the robot's
+    path time — a central difference of ``scene.robot_q`` by hand — while the robot, slowed to
+    0.3 by the reaction, moves at 0.3 of it; the monitor takes it once attached."""
+    from types import SimpleNamespace
+
+    from depthguard.sources.base import open_joints, open_source
+
+    ctx = {}
+    rig = load_cell("ur3-cell").rig
+    frames = open_source("sim:ur3-cell:alone:noiseless", rig, ctx)       # the cell's world, its path
+    frames.close()
+    joints = open_joints("sim", rig, ctx)
+    world = sim_world(ctx)
+    dof, big = rig.robot.dof, np.full(rig.robot.dof, 1e3)
+    joints.start_clock(0.0)
+    world.on_reaction(SimpleNamespace(override=0.3, speed_scale=0.3, qd_min=-big, qd_max=big))
+    states = joints.states_until(4.0)
+    tau, h = world.robot_sim.tau, 1e-4
+    truth = (world.scene.robot_q(tau + h) - world.scene.robot_q(tau - h)) / (2 * h)
+    assert np.abs(truth).max() > 0.05 and world.robot_sim.rate == pytest.approx(0.3)
+    np.testing.assert_allclose(world.commanded_qd(), truth, atol=0.01 * np.abs(truth).max())
+    (t0, q0), (t1, q1) = states[-2], states[-1]
+    np.testing.assert_allclose((q1 - q0) / (t1 - t0), 0.3 * truth, atol=0.01 * np.abs(truth).max())
+    monitor = SimpleNamespace(commanded_qd=None)
+    joints.attach(monitor)
+    assert monitor.commanded_qd(None) is world.qd_nominal and world.qd_nominal.shape == (dof,)
+
+
 def test_a_warmed_up_simulator_delivers_the_same_frames():
     """``SimFrames.warm_up`` (a real-time run calls it before its clock starts) renders and drops
     a frame per camera; each frame's noise is drawn from its own stamp's generator, so every

@@ -116,13 +116,18 @@ class PathFollower:
         if bot.qd_min is None or s <= 0.0:
             bot.rate = max(s, 0.0)
             return
-        qd = (self.path_q(bot.tau + dt) - self.path_q(bot.tau)) / dt          # joint speed at scale 1
+        qd = self.qd_nominal(bot, dt)
         for v, lo, hi in zip(qd, bot.qd_min, bot.qd_max):
             if v > 1e-12:
                 s = min(s, max(hi, 0.0) / v)
             elif v < -1e-12:
                 s = min(s, max(-lo, 0.0) / -v)
         bot.rate = max(s, 0.0)
+
+    def qd_nominal(self, bot: ObeyingRobot, dt: float) -> np.ndarray:
+        """(dof,) rad/s: the path's joint velocity at scale 1 at ``bot.tau``, over a tick of ``dt``
+        s — what the reaction's speed scale scales (R33)."""
+        return (self.path_q(bot.tau + dt) - self.path_q(bot.tau)) / dt
 
     def move(self, bot: ObeyingRobot, dt: float) -> None:
         bot.tau += bot.rate * dt

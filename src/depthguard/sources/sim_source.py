@@ -128,6 +128,7 @@ class SimWorld:
         self.origin = 0.0               # the run's clock at the simulator's time 0 (start_clock)
         self.skipped_ticks = 0          # joint ticks jumped over by a world far behind (advance)
         self.followed: str | None = None  # the live joint source the robot follows (module docstring)
+        self.qd_nominal = np.zeros(self.robot.dof)   # the path's velocity at scale 1 (commanded_qd)
 
     def on_reaction(self, reaction) -> None:
         """A sink: the robot takes each reaction — the override and the joint-velocity limits
@@ -243,7 +244,14 @@ class SimWorld:
                 self.states.append((ts, q))
                 new.append((ts, q))
                 self._tick += 1
+            if new:                               # a new array: a reader keeps the one it has
+                self.qd_nominal = self.robot_sim.controller.qd_nominal(self.robot_sim, dt)
         return new
+
+    def commanded_qd(self, q=None) -> np.ndarray:
+        """(dof,) rad/s: the cell's path's joint velocity at scale 1 where the robot is on it — what
+        SSM scales (R33, :meth:`SimJoints.attach`); ``q`` is not read. Never written by the caller."""
+        return self.qd_nominal
 
     def dynamic(self, t: float) -> list:
         """The people and props at the simulator's time ``t`` (s from its start, not the run's clock)."""
@@ -263,6 +271,10 @@ class SimJoints:
     def start_clock(self, origin: float) -> None:
         """The run's clock origin (module docstring)."""
         self.world.start_clock(origin)
+
+    def attach(self, monitor) -> None:
+        """SSM scales the path's speed, not the robot's already slowed one (R33)."""
+        monitor.commanded_qd = self.world.commanded_qd
 
     def states_until(self, t: float) -> list[tuple[float, np.ndarray]]:
         """The robot's states up to ``t`` not returned yet (the frame source may have moved the
