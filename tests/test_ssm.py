@@ -174,24 +174,30 @@ def test_protective_stop_hysteresis_and_ramp():
     assert not stop and s > s_before
 
 
+def _feed_still(mon, rig, q0):
+    """Joints standing at ``q0`` and each camera's frame of the known scene with the robot at it."""
+    from depthguard.filtering.expected import ExpectedDepth
+    from depthguard.sources.frame import Frame
+
+    for j in range(3):
+        mon.push_joints(j * 0.001, q0)
+    for cid in mon.camera_ids:
+        cam = rig.camera(cid)
+        mon.push_frame(Frame(cid, np.array(ExpectedDepth(cam, rig.robot, rig.static_meshes()).known(q0)), 0.0))
+    mon.flush()
+
+
 def test_monitor_ssm_log_recomputes(tmp_path):
     """A monitor in ssm mode: the log's terms add up to S_p and the scale keeps D >= S_p."""
-    from depthguard.filtering.expected import ExpectedDepth
     from depthguard.runtime.monitor import Monitor, warm_up
     from depthguard.sim import load_cell
-    from depthguard.sources.frame import Frame
 
     rig = load_cell("flacco-cell").rig
     cfg = rig.monitor.with_changes(reaction="both", ssm={"range": 0.6})
     warm_up(rig, cfg)                        # numba compilation out of the way of flush()
     q0 = np.asarray(rig.robot_q0, dtype=np.float64)
     with Monitor(rig, cfg) as mon:
-        for j in range(3):
-            mon.push_joints(j * 0.001, q0)
-        for cid in mon.camera_ids:
-            cam = rig.camera(cid)
-            mon.push_frame(Frame(cid, np.array(ExpectedDepth(cam, rig.robot, rig.static_meshes()).known(q0)), 0.0))
-        mon.flush()
+        _feed_still(mon, rig, q0)
         qd = np.full(rig.robot.dof, 0.4)
         r = mon.step(0.002, q0, qd=qd)
     d = r.to_dict()
@@ -209,13 +215,12 @@ def test_monitor_ssm_log_recomputes(tmp_path):
 
 
 def test_monitor_takes_the_programs_velocity_from_commanded_qd():
-    """``Monitor.commanded_qd`` (a sink that runs the program sets it, R33): ``step`` without a
-    ``qd`` scales that velocity — v_r as with the same ``qd`` given — and without it the joints'
-    measured rate (standing: 0, so v_r = 0 everywhere)."""
-    from depthguard.filtering.expected import ExpectedDepth
+    """``Monitor.commanded_qd`` (what knows the program sets it, R33): ``step`` without a ``qd``
+    scales that velocity — each point's v_r is its velocity at ``q0`` moving by ``qd`` (forward
+    kinematics differenced, not the Jacobian) along the logged direction, or its whole speed where
+    nothing is within range — and without it the joints' measured rate (standing: 0)."""
     from depthguard.runtime.monitor import Monitor, warm_up
     from depthguard.sim import load_cell
-    from depthguard.sources.frame import Frame
 
     rig = load_cell("flacco-cell").rig
     cfg = rig.monitor.with_changes(reaction="ssm", ssm={"range": 0.6})
@@ -224,12 +229,7 @@ def test_monitor_takes_the_programs_velocity_from_commanded_qd():
     qd = np.linspace(-0.6, 0.8, rig.robot.dof)
     asked = []
     with Monitor(rig, cfg) as mon:
-        for j in range(3):
-            mon.push_joints(j * 0.001, q0)
-        for cid in mon.camera_ids:
-            cam = rig.camera(cid)
-            mon.push_frame(Frame(cid, np.array(ExpectedDepth(cam, rig.robot, rig.static_meshes()).known(q0)), 0.0))
-        mon.flush()
+        _feed_still(mon, rig, q0)
         given = mon.step(0.002, q0, qd=qd).to_dict()
         mon.commanded_qd = lambda q: (asked.append(np.array(q)), qd)[1]
         program = mon.step(0.004).to_dict()
@@ -240,7 +240,16 @@ def test_monitor_takes_the_programs_velocity_from_commanded_qd():
     v_program = np.array([p["ssm"]["v_r"] for p in program["points"][:n]])
     v_measured = np.array([p["ssm"]["v_r"] for p in measured["points"][:n]])
     assert len(asked) == 1 and np.array_equal(asked[0], q0)           # at the cycle's joints
-    assert np.abs(v_given).max() > 0.05 and np.allclose(v_program, v_given, atol=1e-6)
+    data, eps = rig.robot.create_data(), 1e-6
+    rig.robot.forward(q0 + eps * qd, data)
+    ahead = np.array(data.cp_positions)
+    rig.robot.forward(q0 - eps * qd, data)
+    xdot = (ahead - np.array(data.cp_positions)) / (2 * eps)            # (m, 3) m/s
+    truth = [float(np.dot(p["direction"], x)) if p["direction"] is not None else float(np.linalg.norm(x))
+             for p, x in zip(program["points"][:n], xdot)]
+    assert np.abs(truth).max() > 0.05
+    np.testing.assert_allclose(v_program, truth, atol=1e-5)
+    np.testing.assert_allclose(v_given, truth, atol=1e-5)
     assert np.all(v_measured == 0.0)
 
 

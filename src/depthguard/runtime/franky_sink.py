@@ -113,6 +113,7 @@ class FrankySink:
         if self.qd_max.shape != (FRANKA_DOF,) or not np.all(np.isfinite(self.qd_max) & (self.qd_max > 0)):
             raise FrankyError(f"franky sink: qd_max must be {FRANKA_DOF} velocity limits > 0 rad/s (got {qd_max!r})")
         self._qd = np.zeros(FRANKA_DOF)                  # commanded_qd's answer, the control thread's
+        self._reach = np.zeros(FRANKA_DOF)               # its scratch: nothing allocated per cycle
         self.host, self.floor, self.step, self.stale_s = host, float(floor), float(step), float(stale_s)
         self.period, self.tolerance, self.retry_s = 1.0 / float(rate_hz), float(tolerance), float(retry_s)
         self.link = link_for(host)
@@ -143,14 +144,15 @@ class FrankySink:
         space, the joint with the farthest to go relative to its limit at ``qd_max``. A franky leg
         keeps every joint within these limits and, started from rest, on that line; one that
         replaced a moving leg bends towards it. The same array each call, overwritten by the next."""
-        target = self.path[self.index]
-        np.subtract(target, q, out=self._qd)
-        if np.max(np.abs(self._qd)) <= self.tolerance:
-            np.subtract(self.path[(self.index + 1) % len(self.path)], q, out=self._qd)
-        reach = np.max(np.abs(self._qd) / self.qd_max)       # seconds of the slowest joint at its limit
+        qd, tmp = self._qd, self._reach
+        np.subtract(self.path[self.index], q, out=qd)
+        if np.abs(qd, out=tmp).max() <= self.tolerance:
+            np.subtract(self.path[(self.index + 1) % len(self.path)], q, out=qd)
+        np.abs(qd, out=tmp)
+        reach = np.divide(tmp, self.qd_max, out=tmp).max()   # seconds of the slowest joint at its limit
         if reach > 0.0:
-            self._qd /= reach
-        return self._qd
+            qd /= reach
+        return qd
 
     def _event(self, sentence: str) -> None:
         self.events.append((time.monotonic(), sentence))
