@@ -74,6 +74,19 @@ def _digest(*arrays) -> str:
     return h.hexdigest()
 
 
+def _level1(cam) -> int:
+    """Where level 1 starts in a camera's flat pyramids."""
+    from depthguard.fusion.depth_grid_state import pyramid_layout, pyramid_levels
+
+    return int(pyramid_layout(cam.height, cam.width, pyramid_levels(cam.height, cam.width))[0][1])
+
+
+def _state_arrays(p) -> list:
+    """A product's arrays: its depth, robot depth and state (with the pyramids where it has them)."""
+    st = p.state
+    return [p.depth, p.robot_depth, st.free, st.kind] + ([st.pmin, st.pmax] if st.pmin is not None else [])
+
+
 @pytest.fixture(scope="module")
 def cell_frames():
     """flacco-cell: noisy frames of both cameras along the robot's path (the monitor's settings)."""
@@ -224,10 +237,16 @@ def test_the_workers_products_are_those_of_new_arrays_and_held_products_keep_the
                 st = makers[cid].make(np.array(src, dtype=np.float32), rd, *w.state_options())
                 np.testing.assert_array_equal(p.state.free, st.free)
                 np.testing.assert_array_equal(p.state.kind, st.kind)
+                # another camera's min / max pyramids come with its state (the build copies them)
+                assert (p.state.pmin is not None) == (cid != d.mon.camera_ids[0])
+                if st.pmin is not None:                # level 0 is never written nor read
+                    o = _level1(w.camera)
+                    np.testing.assert_array_equal(p.state.pmin[o:], st.pmin[o:])
+                    np.testing.assert_array_equal(p.state.pmax[o:], st.pmax[o:])
                 if k % 2 == 0:
-                    held.append((p, _digest(p.depth, p.robot_depth, p.state.free, p.state.kind)))
+                    held.append((p, _digest(*_state_arrays(p))))
         for p, digest in held:
-            assert _digest(p.depth, p.robot_depth, p.state.free, p.state.kind) == digest
+            assert _digest(*_state_arrays(p)) == digest
         assert all(w.pool.reused > 0 for w in d.mon._workers.values())
     finally:
         d.mon.close()
