@@ -484,7 +484,8 @@ class DepthGridMap(GridRobot, GridQuery):
                 and state.bin == 1 and state.free.shape == cam.shape):
             H, W = cam.shape
             np.copyto(out_free[:H, :W], state.free)
-            np.copyto(out_kind[:H, :W], state.kind)
+            if out_kind is not self._kkind:       # the other cameras' kind is scratch nothing reads
+                np.copyto(out_kind[:H, :W], state.kind)
             self.states_used += 1
             return state
         state_into(cam, depth, robot_depth, options, robot_free, self._silhouette, self._gaps, out_free, out_kind)
