@@ -6,7 +6,10 @@ A frame goes through two threads before a control cycle can use it:
    up the joints at the frame's capture stamp in the joint history (R30:
    interpolated, never extrapolated; a frame outside the history is refused
    and counted), and renders the robot at those joints into the camera
-   (R9). Only the newest frame waiting is processed: a camera that delivers
+   (R9) — or, for a simulated frame that carries the simulator's robot layer
+   drawn with this robot and camera at these joints' bits, takes that image once
+   its first ones matched its own render bit for bit (:meth:`CameraWorker.handed_robot`,
+   issue 29). Only the newest frame waiting is processed: a camera that delivers
    faster than it can be processed loses its older frames (counted as
    ``dropped``), never the newest one.
 2. the **fusion worker** (:class:`~depthguard.runtime.fusion_worker.FusionWorker`) loads the newest product of
@@ -116,6 +119,11 @@ class CameraWorker:
         # the known static scene: the CAD and the learned scene (issue 31: a LearnedScene or None), nearer wins
         self.expected = ExpectedDepth(cam, robot, static_meshes,
                                       learned=None if learned is None else learned.depth)
+        # the source's robot image instead of this render, once checked (handed_robot, issue 29)
+        self.handover: bool | None = None
+        self.handover_off: str | None = None
+        self._handover_checked = 0
+        self.robot_handed = 0
         # R34: the drift watch on the static scene (settings: DriftWatch's keywords), None = off; a
         # learned surface's observed spread widens its tolerance where it exceeds the sensor's
         self.drift = (DriftWatch(cam, self.expected.static, sigma=None if learned is None else learned.sigma,
@@ -239,10 +247,14 @@ class CameraWorker:
             return
         wanted = self.state_options() if self.state_options is not None else None
         bufs = self._buffers(wanted)
-        rd = bufs[0]
-        # the renderer's buffer is overwritten by its next call: copied, over the rows' spans of the
-        # robot now and of what the pooled buffer held (issue 29: not the whole image)
-        copy_depth_rows(rd, bufs[1], self.expected.robot(q), self.expected.robot_spans)
+        handed = self.handed_robot(frame, q)
+        if handed is not None:                    # the source drew this very image (issue 29)
+            rd, rspans = handed.depth, handed.spans
+        else:
+            rd, rspans = bufs[0], bufs[1]
+            # the renderer's buffer is overwritten by its next call: copied, over the rows' spans of
+            # the robot now and of what the pooled buffer held (issue 29: not the whole image)
+            copy_depth_rows(rd, rspans, self.expected.robot(q), self.expected.robot_spans)
         if self.scene_change is not None:
             self.scene_change.update(depth, rd, stamp)
         if self.ssm_muted is not None:            # R17's filter: the known scene and the robot removed
@@ -253,13 +265,44 @@ class CameraWorker:
             vs = vfilter.filter(depth, expected=self._known)
             push(self.id, vs.centres(), vs.voxel_size, stamp)
         d = self._own_depth(depth)
-        state = self._state(d, rd, wanted, bufs[2:], bufs[1])
+        state = self._state(d, rd, wanted, bufs[2:], rspans)
         with self.lock:
             self._version += 1
             self.product = CameraProduct(d, rd, stamp, q, pushed_at, self._version, state)
             self.frames += 1
         self.on_product(self.id)
 
+
+    def handed_robot(self, frame, q):
+        """The frame's :class:`~depthguard.sources.frame.RobotImage` (the simulator's robot layer)
+        when it is what this worker would render at the capture joints ``q`` (R9), else None.
+        Taken only for this worker's own robot model and camera objects and the same bits of
+        ``q``; its first :data:`HANDOVER_CHECKS` images with the robot in view are checked
+        against the worker's own render, bit for bit (image and rows' spans), and are not taken
+        meanwhile; one that differs turns the hand-over off for this worker (``handover``:
+        None while checking, True, False; ``handover_off`` says why). ``robot_handed`` counts
+        the frames that took it."""
+        img = getattr(frame, "robot_image", None)      # (a frame of another source may lack it)
+        if img is None or self.handover is False:
+            return None
+        qa = np.asarray(q, dtype=np.float64)
+        if (img.robot is not self.expected.robot_model or img.camera is not self.camera
+                or img.depth.shape != self._shape or img.q.tobytes() != qa.tobytes()):
+            return None
+        if self.handover is None:
+            own = self.expected.robot(qa)
+            if not (np.array_equal(own, img.depth) and np.array_equal(self.expected.robot_spans, img.spans)):
+                self.handover = False
+                self.handover_off = (f"frame at {frame.stamp:.6f} s: the source's robot image differs from "
+                                     f"this worker's render at the same joints")
+                return None
+            if np.any(img.spans[:, 1] > img.spans[:, 0]):
+                self._handover_checked += 1
+                if self._handover_checked >= HANDOVER_CHECKS:
+                    self.handover = True
+            return None
+        self.robot_handed += 1
+        return img
 
     def _buffers(self, wanted) -> list:
         """This frame's arrays from the worker's pool (:mod:`depthguard.runtime.frame_pool`): the
@@ -308,6 +351,10 @@ class CameraWorker:
         return self._maker().make(depth, robot_depth, options, robot_free, pyramids, bin_px, out=out or None,
                                   robot_spans=robot_spans)
 
+
+#: a source's robot images with the robot in view that a worker checks against its own render
+#: before it takes them (CameraWorker.handed_robot)
+HANDOVER_CHECKS = 3
 
 #: the frames' dtypes that pass :func:`~depthguard.camera.check_depth_image` when their shape is the
 #: camera's, checked per frame without it (issue 29: ``numpy.issubdtype`` for every frame)

@@ -313,6 +313,7 @@ class SimFrames:
         self._posed = PosedMeshes(world.scene, alone=world.alone)   # the people and props, posed in place
         self._stopped: dict[str, float] = {}
         self.skip_behind = False        # set by a real-time run: frames a slow machine cannot render are dropped
+        self.hand_robot = True          # frames_each's frames carry the robot layer (Frame.robot_image)
         self._counts = _Counts()        # frames_each's skipped and unposed (each stream keeps its own)
         self._streams: list[CameraStream] = []    # camera_streams: one per camera, real time
         self._scene_lock = threading.Lock()       # the scene posed by one camera thread at a time
@@ -437,7 +438,10 @@ class SimFrames:
             except OutsideHistory:          # a followed robot: before its first state, or after a gap
                 counts.unposed += 1
                 continue
-            yield Frame(cid, render(cid, tc, q), origin + tc)
+            depth = render(cid, tc, q)
+            # the robot layer drawn into it goes with the frame: the monitor's worker takes it for its
+            # own render of the robot where it is the same bits (Frame.robot_image, issue 29)
+            yield Frame(cid, depth, origin + tc, robot_image=self.sim.robot_image(cid) if self.hand_robot else None)
 
     def close(self) -> None:
         pass
