@@ -250,3 +250,50 @@ def test_the_workers_products_are_those_of_new_arrays_and_held_products_keep_the
         assert all(w.pool.reused > 0 for w in d.mon._workers.values())
     finally:
         d.mon.close()
+
+
+MIXED_RIG = """\
+version: 1
+name: mixed-resolutions
+workspace: {min: [-1.0, -1.0, 0.0], max: [1.0, 1.0, 1.5]}
+cameras:
+  - {id: a, sensor: realsense_d435, width: 640, height: 480, pose: {look_at: {eye: [1.1, -0.9, 1.7], target: [0.0, 0.0, 0.85], up: [0, 0, 1]}}}
+  - {id: b, sensor: realsense_d435, width: 640, height: 480, pose: {look_at: {eye: [1.1, 0.9, 1.7], target: [0.0, 0.0, 0.85], up: [0, 0, 1]}}}
+  - {id: c, sensor: realsense_d435, width: 424, height: 240, pose: {look_at: {eye: [-1.1, 0.9, 1.7], target: [0.0, 0.0, 0.85], up: [0, 0, 1]}}}
+robot:
+  name: ur3
+  base: {translation: [0.0, 0.0, 0.8]}
+  joints: [0.0, -1.5708, 1.5708, -1.5708, -1.5708, 0.0]
+objects:
+  - {name: table_top, box: {size: [1.2, 0.8, 0.04]}, pose: {translation: [0.0, 0.0, 0.78]}}
+"""
+
+
+def test_a_camera_whose_pyramids_the_grid_cannot_use_is_not_asked_for_them(tmp_path):
+    """Mixed resolutions: the grid's pyramid levels come from its largest other camera (640x480:
+    11), so a 424x240 camera's own (10) would go unread; its worker makes none and the build makes
+    them, while the 640x480 one's are copied in. The answers equal a grid loaded with private
+    copies of the same frames (which works everything out itself)."""
+    from depthguard.rig import Rig
+    from depthguard.sim.cells import cell_from_rig
+    from depthguard.sources.sim_source import SimFrames, SimWorld
+
+    path = tmp_path / "mixed.yaml"
+    path.write_text(MIXED_RIG)
+    rig = Rig.load(path)
+    cell = cell_from_rig(rig)
+    sim = SimFrames(SimWorld("", rig=rig, seed=0))
+    d = _Driver(cell)
+    try:
+        assert [d.mon._workers[c].state_options()[2] for c in ("a", "b", "c")] == [False, True, False]
+        q = np.asarray(rig.robot_q0, dtype=np.float64)
+        d.scene = type("Still", (), {"robot_q": staticmethod(lambda t: q)})()
+        depths = {c.id: np.array(sim.render(c.id, 1.0, q), dtype=np.float32) for c in rig.cameras}
+        d.frame(1.0, q, depths, ("a", "b", "c"))
+        assert d.mon.fusion._build()
+        buf = d.mon.fusion.front
+        assert buf.grid.pyramids_used == 1
+        points = np.random.default_rng(1).uniform(rig.workspace.lo, rig.workspace.hi, (60, 3))
+        assert d.same_answers(buf, points)
+    finally:
+        d.mon.close()

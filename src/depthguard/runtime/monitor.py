@@ -210,7 +210,7 @@ class Monitor(MonitorDistances, UnitStateInput, MonitorPaths, MonitorWatches):
         """``(StateOptions, robot_free, pyramids, bin)`` for camera ``cid``'s frames as the depth grid will
         load them (its role: the principal, or another camera whose pyramids the grid reads), or
         None with one camera (no grid, R36)."""
-        from depthguard.fusion.depth_grid_state import StateOptions
+        from depthguard.fusion.depth_grid_state import StateOptions, pyramid_levels
 
         with self._settings_lock:
             cfg, ids = self.config, self._camera_ids
@@ -219,8 +219,16 @@ class Monitor(MonitorDistances, UnitStateInput, MonitorPaths, MonitorWatches):
         other = cid != ids[0]
         # another camera's min / max pyramids are made on its worker, into the worker's pooled
         # buffers (frame_pool: no page faults, never one a reader holds), and the build copies
-        # them: 0.36-0.45 ms of the build after that camera's frame becomes a ~0.1 ms copy
-        return StateOptions.of(cfg), cfg.robot_in_others == "free" and other, other, 1 if other else cfg.principal_bin
+        # them: 0.36-0.45 ms of the build after that camera's frame becomes a ~0.1 ms copy. Only
+        # where the grid's levels (from the largest other camera) are the camera's own: else
+        # the grid makes them (DepthGridMap._load_frames) and the worker's would go unread
+        pyramids = False
+        if other:
+            cams = [self._cameras[c] for c in ids[1:]]
+            cam = self._cameras[cid]
+            pyramids = (pyramid_levels(cam.height, cam.width)
+                        == pyramid_levels(max(c.height for c in cams), max(c.width for c in cams)))
+        return StateOptions.of(cfg), cfg.robot_in_others == "free" and other, pyramids, 1 if other else cfg.principal_bin
 
     def _make_grid(self, cams: tuple[str, ...]):
         from depthguard.fusion.depth_grid import DepthGridMap
