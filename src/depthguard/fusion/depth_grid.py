@@ -437,8 +437,7 @@ class DepthGridMap(GridRobot, GridQuery):
         self._set_band(reach)
         self.lazy = bool(lazy)
         self.set_robot_capsules(robot_capsules)
-        if self.lazy:
-            depth_grid_lazy.tile_min_free(self._pfree, self._tmin)
+        if self.lazy:                             # (the tiles' free depths: set_robot_capsules)
             self.has_frames = True
             return
         depth_grid_eager.column_runs(self._pfree, self._pkind, self._pint, self.d_min, self.delta_d, self.n_d,

@@ -223,7 +223,7 @@ def capsule_intervals(caps, ncaps, boxes, fx, fy, cx, cy, H, W, out_lo, out_hi, 
                 out_n[v, u] = min(n + 1, MAX_CAPS_PER_PIXEL + 1)
 
 
-@njit(cache=True, nogil=True)
+@njit(cache=True)      # microseconds: keeps the GIL (a release costs a retake behind the other threads)
 def capsule_boxes(caps, ncaps, fx, fy, cx, cy, H, W, out):
     """(ncaps, 4) int64 written into ``out``: the inclusive pixel box ``u0, u1, v0, v1`` holding
     each capsule's projection (principal frame capsules): the projected corners of its

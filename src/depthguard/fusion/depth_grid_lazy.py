@@ -35,26 +35,34 @@ from depthguard.fusion.depth_grid_memo import gray_stretch
 from depthguard.fusion.depth_grid_memo import mask_range as _mask_range
 from depthguard.fusion.depth_grid_memo import msb as _msb
 
-__all__ = ["tile_min_free", "ensure_cells"]
+__all__ = ["new_pixel_memo", "ensure_cells"]
 
 _ONE = np.uint64(1)
 _ALL = np.uint64(0xFFFFFFFFFFFFFFFF)
 
 
 @njit(cache=True, nogil=True)
-def tile_min_free(pfree, out):
-    """(ceil(H/TILE), ceil(W/TILE)) float64: per tile the smallest principal free depth.
-    A point with ``dp + rho`` below it has every pixel of the tile in case 1 (R12)."""
+def new_pixel_memo(pfree, free_to, clear, tmin):
+    """A new frame's per-pixel memo (module docstring), in one pass over the principal's free
+    depths ``pfree`` (H, W) float64 m: ``free_to`` (H, W) float64 = ``pfree``, ``clear`` (H, W)
+    int32 = -1, and ``tmin`` (ceil(H/TILE), ceil(W/TILE)) float64 per tile the smallest free
+    depth (a point with ``dp + rho`` below it has every pixel of the tile in case 1, R12). One
+    call: two numpy calls and a kernel each gave the GIL away and waited to take it back in a
+    real-time run (issue 29)."""
     H = pfree.shape[0]
     W = pfree.shape[1]
-    for ty in range(out.shape[0]):
-        for tx in range(out.shape[1]):
-            m = np.inf
-            for v in range(ty * TILE, min(H, ty * TILE + TILE)):
-                for u in range(tx * TILE, min(W, tx * TILE + TILE)):
-                    if pfree[v, u] < m:
-                        m = pfree[v, u]
-            out[ty, tx] = m
+    for ty in range(tmin.shape[0]):
+        for tx in range(tmin.shape[1]):
+            tmin[ty, tx] = np.inf
+    for v in range(H):
+        ty = v // TILE
+        for u in range(W):
+            x = pfree[v, u]
+            free_to[v, u] = x
+            clear[v, u] = -1
+            tx = u // TILE
+            if x < tmin[ty, tx]:
+                tmin[ty, tx] = x
 
 
 @njit(cache=True, inline="always")

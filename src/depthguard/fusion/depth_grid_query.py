@@ -14,6 +14,7 @@ from depthguard.config import PRODUCT_INVALID, PRODUCT_METHOD, PRODUCT_RHO, PROD
 from depthguard.distance.api import DistanceResult, check_points, check_rho
 from depthguard.fusion import depth_grid_kernels, depth_grid_lazy, depth_grid_lazy_lookup, depth_grid_lookup
 from depthguard.fusion.depth_grid_data import lazy_frame, lazy_memo
+from depthguard.numba_threads import NUMBA_NUM_THREADS, thread_settings
 
 __all__ = ["GridQuery"]
 
@@ -63,32 +64,23 @@ class GridQuery:
         n = len(p)
         if n > self._cap:
             self._alloc_points(n)
-        prev = None
+        if threads is not None and int(threads) < 1:
+            raise ValueError(f"threads must be >= 1 (got {threads!r})")
         auto = threads is None and n < PARALLEL_MIN_POINTS
-        if auto:
-            threads = 1
+        chosen = 0 if threads is None else min(int(threads), NUMBA_NUM_THREADS)    # 0: the caller's count
         prefill = self.lazy and self._queried != self._frame
-        if threads is not None:
-            import numba
-
-            if int(threads) < 1:
-                raise ValueError(f"threads must be >= 1 (got {threads!r})")
-            prev = numba.get_num_threads()
-            numba.set_num_threads(min(int(threads), numba.config.NUMBA_NUM_THREADS))
         self._queried = self._frame
+        # the thread counts and chunk size set and restored in compiled calls that keep the GIL
+        # (numba's Python functions for them are ctypes calls, each giving the GIL away: issue 29)
+        before = thread_settings(chosen, ENSURE_CHUNK_ROWS if prefill else -1)
         try:
             if prefill:                       # the frame's cells, merged per pixel (and on all
-                if auto:                      # threads unless the caller chose)
-                    numba.set_num_threads(prev)
-                self._ensure(p, n, r)
-                if auto:
-                    numba.set_num_threads(1)
-            self._run_query(p, n, r, m, rc)
+                self._ensure_rows(p, n, r)    # threads unless the caller chose)
+            lookup = 1 if auto else chosen
+            thread_settings(lookup, before[1])
+            self._run_query(p, n, r, m, rc, (lookup or before[0]) == 1)
         finally:
-            if prev is not None:
-                import numba
-
-                numba.set_num_threads(prev)
+            thread_settings(before[0], before[1])
         return DistanceResult(self._dist[:n], self._dir[:n], self._obs[:n], self._count[:n])
 
     def principal_view(self) -> tuple:
@@ -102,19 +94,21 @@ class GridQuery:
         """Classify (lazy, on the current numba threads) every cell a query of ``p`` needs.
         Rows are handed out in chunks of a few (the work gathers around the robot, so two
         contiguous halves of the image would leave one thread idle)."""
-        import numba
-
-        with numba.parallel_chunksize(ENSURE_CHUNK_ROWS):
+        before = thread_settings(0, ENSURE_CHUNK_ROWS)
+        try:
             self._ensure_rows(p, n, r)
+        finally:
+            thread_settings(0, before[1])
 
     def _ensure_rows(self, p, n, r) -> None:
         depth_grid_lazy.ensure_cells(self._lazy_model, lazy_frame(self), lazy_memo(self), p, n, r, self._ws, self._span)
 
-    def _run_query(self, p, n, r, m, rc=None) -> None:
+    def _run_query(self, p, n, r, m, rc=None, fill=None) -> None:
+        """The lookup (lazy: ``fill`` = on one thread, classifying on the way what a point needs
+        and no query of this frame classified; None: worked out from the thread count)."""
         if self.lazy:
-            import numba
-
-            fill = numba.get_num_threads() == 1
+            if fill is None:
+                fill = thread_settings(0, -1)[0] == 1
             if not fill:
                 self._ensure(p, n, r)
             depth_grid_lazy_lookup.grid_distances_lazy(self._lazy_model, lazy_frame(self), lazy_memo(self), p, n, r, m,

@@ -10,7 +10,7 @@ from __future__ import annotations
 
 import numpy as np
 
-from depthguard.fusion import depth_grid_capsules, depth_grid_reach
+from depthguard.fusion import depth_grid_capsules, depth_grid_lazy, depth_grid_reach
 
 __all__ = ["GridRobot"]
 
@@ -98,8 +98,7 @@ class GridRobot:
             self._caps = np.zeros((1, 7))
         self._ncaps = len(caps)
         self._frame += 1          # memoised cells (lazy) were classified with the old volume
-        np.copyto(self._free_to, self._pfree)
-        self._clear.fill(-1)
+        depth_grid_lazy.new_pixel_memo(self._pfree, self._free_to, self._clear, self._tmin)
 
     def _capsule_boxes(self, caps: np.ndarray) -> np.ndarray:
         """(C, 4) inclusive pixel boxes holding each capsule's projection (principal frame
