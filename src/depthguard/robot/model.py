@@ -100,6 +100,7 @@ class RobotModel:
         self._mesh_link = np.array([chain.link_index(ln) for ln in order], dtype=np.int64)
         self._meshes = tuple(Mesh(_ro(meshes[ln].vertices), _ro_faces(meshes[ln].faces)) for ln in order)
         self._render_meshes = {}         # render_link_meshes per cell, clustered on first use
+        self._render_local = {}          # their link-frame vertices one after the other, per cell
         self._render_counts = {}         # their vertex counts per cell (render_link_vertices)
         caps = tuple(capsules)
         for c in caps:
@@ -306,8 +307,12 @@ class RobotModel:
         rendered from at every frame (R9; within ``sqrt(3) cell`` of the model's surface)."""
         meshes = self._clustered(cell)
         poses = self.link_poses(q)
-        return [Mesh(transform_points(poses[k], m.vertices), m.faces)
-                for k, m in zip(self._mesh_link, meshes)]
+        out = []
+        for k, m in zip(self._mesh_link, meshes):      # posed as render_link_vertices poses them: the same bits
+            v = np.empty((len(m.vertices), 3))
+            _pose_vertices(v, poses, np.array([k], dtype=np.int64), np.array([len(v)], dtype=np.int64), _local(m))
+            out.append(Mesh(v, m.faces))
+        return out
 
     def _clustered(self, cell: float | None) -> tuple[Mesh, ...]:
         from depthguard.geometry.decimate import RENDER_CELL, cluster_decimate
@@ -326,19 +331,16 @@ class RobotModel:
 
     def render_link_vertices(self, q, cell: float | None, out: np.ndarray) -> np.ndarray:
         """The world vertices of :meth:`render_link_meshes` ``(q, cell)``, all links one after the
-        other, written into ``out`` (V, 3) float64 C-contiguous (the same bits: the same
-        ``p @ R.T + t`` per link, into ``out`` instead of new arrays); returns ``out[:V]`` (R16)."""
+        other, written into ``out`` (V, 3) float64 C-contiguous (the same bits: both posed by
+        :func:`_pose_vertices`, into ``out`` instead of new arrays); returns ``out[:V]`` (R16)."""
         meshes = self._clustered(cell)
         poses = self.link_poses(q)
-        o = 0
-        for k, m in zip(self._mesh_link, meshes):
-            n = len(m.vertices)
-            np.matmul(m.vertices, poses[k, :3, :3].T, out=out[o:o + n])
-            o += n
-        # the translations in one compiled loop (issue 29: 8 broadcast adds of a strided (3,) were 40 us a
-        # frame); an addition is the same IEEE operation in numpy and numba: the same bits
-        _add_translations(out, poses, self._mesh_link, self._vertex_counts(cell, meshes))
-        return out[:o]
+        local = self._render_local.get(cell)
+        if local is None:                            # the links' vertices one after the other, once per cell
+            local = self._render_local[cell] = np.ascontiguousarray(np.concatenate([m.vertices for m in meshes]),
+                                                                    dtype=np.float64)
+        _pose_vertices(out, poses, self._mesh_link, self._vertex_counts(cell, meshes), local)
+        return out[:len(local)]
 
     def _vertex_counts(self, cell: float | None, meshes) -> np.ndarray:
         """(links with geometry,) int64: the vertex count of each clustered mesh, made once per cell."""
@@ -372,19 +374,38 @@ class RobotModel:
                 for i, c in enumerate(self.capsules)]
 
 
-@njit(cache=True, nogil=True)
-def _add_translations(out, poses, mesh_link, counts):
-    """``out[rows of mesh i] += poses[mesh_link[i], :3, 3]``: the translation of each link's pose
-    (``poses`` (L, 4, 4)) added to its rotated vertices (``out`` (V, 3) float64 m, the meshes one
-    after the other with ``counts`` (M,) vertices each), in place (R16)."""
+@njit(cache=True)      # ~0.1 ms a frame: keeps the GIL (a release costs a retake behind the other threads)
+def _pose_vertices(out, poses, mesh_link, counts, local):
+    """``out[rows of mesh i] = local[rows] @ R.T + t`` with ``R``, ``t`` the rotation and
+    translation of link ``mesh_link[i]``'s pose (``poses`` (L, 4, 4)): the links' world vertices
+    (``local`` and ``out`` (V, 3) float64 m, the meshes one after the other with ``counts`` (M,)
+    vertices each), R16. One compiled call per posing: a numpy ``matmul`` per link gave the GIL
+    away and waited to take it back, each, in a real-time run (issue 29)."""
     o = 0
     for i in range(counts.shape[0]):
         k = mesh_link[i]
+        r00 = poses[k, 0, 0]
+        r01 = poses[k, 0, 1]
+        r02 = poses[k, 0, 2]
+        r10 = poses[k, 1, 0]
+        r11 = poses[k, 1, 1]
+        r12 = poses[k, 1, 2]
+        r20 = poses[k, 2, 0]
+        r21 = poses[k, 2, 1]
+        r22 = poses[k, 2, 2]
         tx = poses[k, 0, 3]
         ty = poses[k, 1, 3]
         tz = poses[k, 2, 3]
         for j in range(o, o + counts[i]):
-            out[j, 0] += tx
-            out[j, 1] += ty
-            out[j, 2] += tz
+            x = local[j, 0]
+            y = local[j, 1]
+            z = local[j, 2]
+            out[j, 0] = (x * r00 + y * r01 + z * r02) + tx
+            out[j, 1] = (x * r10 + y * r11 + z * r12) + ty
+            out[j, 2] = (x * r20 + y * r21 + z * r22) + tz
         o += counts[i]
+
+
+def _local(mesh) -> np.ndarray:
+    """A mesh's vertices as :func:`_pose_vertices` reads them ((V, 3) float64 C-contiguous)."""
+    return np.ascontiguousarray(mesh.vertices, dtype=np.float64)
