@@ -126,7 +126,7 @@ def _arm(S, tgt, down, pole, side_dir, L1, L2, lo, hi, out):
     out[1, 2] = S[2] + d * u2
 
 
-@numba.njit(cache=True, nogil=True)
+@numba.njit(cache=True)      # microseconds: keeps the GIL (a release costs a retake behind the other threads)
 def _pose_parts(W, R, left, right, has_left, has_right, legs, L1, L2, lo, hi, arms, T, length):
     """The parts of ``Person.primitives_at`` into ``T`` (K, 4, 4), ``length`` (K,) from the
     world points ``W`` (16, 3) (rows of :func:`_body_locals`, posed), the body's rotation ``R``

@@ -195,7 +195,7 @@ class _GroupPacker(_Packer):
         _place(self.out, self.gT, self.vslot, self.vdst, self.packed.vertices)
 
 
-@numba.njit(cache=True, nogil=True)
+@numba.njit(cache=True)      # microseconds: keeps the GIL (a release costs a retake behind the other threads)
 def _lift(T, length, src, is_cap, gT, vslot, base_z, zsign, local):
     """The poses ``T`` (P, 4, 4) gathered in slot order (``gT[j] = T[src[j]]``), and each
     capsule's local z: ``base_z + zsign * (length / 2)`` (``_capsule_mesh``, the same order)."""
@@ -207,7 +207,7 @@ def _lift(T, length, src, is_cap, gT, vslot, base_z, zsign, local):
             local[v, 2] = base_z[v] + zsign[v] * (length[src[j]] / 2)
 
 
-@numba.njit(cache=True, nogil=True)
+@numba.njit(cache=True)      # microseconds: keeps the GIL (a release costs a retake behind the other threads)
 def _place(out, gT, vslot, vdst, vertices):
     """``vertices[vdst[v]] = out[v] + t`` of its part's pose (``dst += T[:3, 3]``)."""
     for v in range(vslot.shape[0]):
