@@ -128,7 +128,7 @@ def depth_units_problem(depth: np.ndarray, cam) -> str | None:
     return None
 
 
-@njit(cache=True, nogil=True)
+@njit(cache=True)      # ~35 us a 640x480 frame: keeps the GIL (a release costs a retake behind the other threads)
 def _units_counts(depth, step, far_limit, near_limit):
     """``(measured, far, near)`` pixel counts of :func:`depth_units_problem` over every
     ``step``-th pixel of ``depth`` (H, W) in both directions; the limits (m) of the image's dtype.

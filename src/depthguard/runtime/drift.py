@@ -167,7 +167,7 @@ class DriftWatch:
             self.flagged_at = float("nan")
 
 
-@njit(cache=True, nogil=True)
+@njit(cache=True)      # microseconds: keeps the GIL (a release costs a retake behind the other threads)
 def _drift_counts(flat, index, near_limit, far_limit):
     """``(far, seen)`` of :meth:`DriftWatch.statistic` over the samples ``index`` (S,) int64 of the
     frame ``flat`` (H * W,) m: ``far`` the samples measured beyond ``far_limit`` (S,) float32 m
