@@ -24,6 +24,7 @@ __all__ = ["LAYERS"]
 LAYERS: tuple[str, ...] = (
     "layers",         # this order; imports nothing
     "progress",       # log lines and progress bars; imports nothing of the package
+    "numba_threads",  # numba's per-thread settings made without giving the GIL away (issue 29)
     "transforms",
     "camera",
     "geometry",       # primitives, meshes, the voxel grid
