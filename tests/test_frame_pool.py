@@ -17,7 +17,7 @@ from typing import NamedTuple
 import numpy as np
 import pytest
 
-from depthguard.runtime.frame_pool import BufferPool
+from depthguard.frame_pool import BufferPool
 
 LAYOUT = (((6, 5), np.float32), ((3, 3), np.float64), ((3, 3), np.int8))
 

@@ -25,6 +25,7 @@ LAYERS: tuple[str, ...] = (
     "layers",         # this order; imports nothing
     "progress",       # log lines and progress bars; imports nothing of the package
     "numba_threads",  # numba's per-thread settings made without giving the GIL away (issue 29)
+    "frame_pool",     # frame-sized buffers reused once nobody holds them (the camera workers, the simulator)
     "transforms",
     "camera",
     "geometry",       # primitives, meshes, the voxel grid

@@ -367,7 +367,7 @@ class StateMaker:
              pyramids: bool = False, bin: int = 1, out=None, robot_spans=None) -> CameraState:
         """The state of one frame, in new arrays (the grid copies them in; the frame's product
         holds them) or in ``out`` (arrays of :meth:`layout`, e.g. from the worker's
-        :class:`~depthguard.runtime.frame_pool.BufferPool`: every element is written); with
+        :class:`~depthguard.frame_pool.BufferPool`: every element is written); with
         ``pyramids`` (a camera other than the principal) its min / max pyramids too; with
         ``bin > 1`` (the principal of a grid with ``principal_bin``) at the binned pixel
         (:func:`bin_state`; no pyramids). ``robot_spans``: :func:`state_into`'s."""

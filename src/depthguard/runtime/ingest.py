@@ -48,7 +48,7 @@ from depthguard.depth_io import depth_units_problem
 from depthguard.filtering.expected import ExpectedDepth
 from depthguard.render.composite import copy_depth_rows
 from depthguard.runtime.drift import DriftWatch
-from depthguard.runtime.frame_pool import BufferPool
+from depthguard.frame_pool import BufferPool
 from depthguard.robot.joint_history import JointHistory, OutsideHistory
 
 __all__ = ["CameraProduct", "CameraWorker", "background_thread"]
@@ -305,7 +305,7 @@ class CameraWorker:
         return img
 
     def _buffers(self, wanted) -> list:
-        """This frame's arrays from the worker's pool (:mod:`depthguard.runtime.frame_pool`): the
+        """This frame's arrays from the worker's pool (:mod:`depthguard.frame_pool`): the
         robot depth (H, W) float32 and its rows' spans (H, 2) int32 (per row ``[a, b)``: the
         depth is 0 outside, :func:`~depthguard.render.composite.copy_depth_rows`; a new set's
         span is the whole row, its content unknown), then the state's (:meth:`StateMaker.layout

@@ -45,6 +45,7 @@ import numpy as np
 
 from depthguard.config import PRODUCT_INVALID
 from depthguard.filtering.expected import ExpectedDepth
+from depthguard.frame_pool import BufferPool
 from depthguard.geometry.decimate import SIM_CELL
 from depthguard.render import Renderer
 from depthguard.render.composite import copy_depth_rows
@@ -110,6 +111,7 @@ class CameraSim:
         # the layers need depth alone: on one core, depth-only renderers (Renderer ids=False)
         self._moving = {c.id: Renderer(c, parallel=parallel, ids=parallel) for c in cams}
         self._robot = {c.id: Renderer(c, parallel=parallel, ids=parallel) for c in cams}   # the robot layer's own
+        self._robot_images = {c.id: BufferPool() for c in cams}   # robot_image's arrays, reused once unheld
         # the robot's clustered links packed once; their world vertices posed once per joint
         # values, for every camera (RobotModel.render_link_vertices: the bits of render_link_meshes)
         self._robot_vw = None
@@ -200,19 +202,25 @@ class CameraSim:
         return Shot(d, robot_depth, t1 - t0, time.perf_counter() - t1)
 
     def robot_image(self, camera_id: str) -> RobotImage | None:
-        """The robot layer of camera ``camera_id``'s last :meth:`shot`, copied into new arrays (the
-        renderer's are drawn again by the next shot) with the joints it was drawn at, or None
+        """The robot layer of camera ``camera_id``'s last :meth:`shot`, copied into arrays of its
+        own (the renderer's are drawn again by the next shot) with the joints it was drawn at, or None
         (no robot in that shot, or a robot that is not a RobotModel). Call on the shot's thread,
         before the camera's next shot. The rows' spans alone are copied (~0.1 ms against ~1 ms of
-        a render: issue 29)."""
+        a render: issue 29), into arrays of the camera's :class:`~depthguard.frame_pool.BufferPool`,
+        given out again only once nothing refers to them (a fresh pair each time was ~0.1 ms of
+        zeroing and page faults a frame, and a release of the GIL)."""
         drawn = self._robot_drawn.get(camera_id)
         if not self._robot_in_shot.get(camera_id) or drawn is None:
             return None
         slot, posings, rd = drawn
         if slot.posings != posings or slot.q is None:       # posed again since (a shared slot)
             return None
-        depth = np.zeros(rd.shape, dtype=np.float32)
-        spans = np.zeros((rd.shape[0], 2), dtype=np.int32)
+        pool = self._robot_images[camera_id]
+        made = pool.made
+        depth, spans = pool.take(((rd.shape, np.float32), ((rd.shape[0], 2), np.int32)))
+        if pool.made != made:               # new arrays: every row's pixels are to be written
+            spans[:, 0] = 0
+            spans[:, 1] = rd.shape[1]
         copy_depth_rows(depth, spans, rd, self._robot[camera_id].spans)
         return RobotImage(slot.q.copy(), depth, spans, self.robot, self.cams[camera_id])
 

@@ -102,7 +102,7 @@ def _worker_cpu(cell, frames) -> tuple[list[float], list[float]]:
     frame (module docstring, ``share.worker_cpu_ms``), alternated frame by frame; ``frames``:
     ``(stamp, camera id, depth, state role)`` in stamp order."""
     from depthguard.robot.joint_history import JointHistory
-    from depthguard.runtime.frame_pool import BufferPool
+    from depthguard.frame_pool import BufferPool
     from depthguard.runtime.ingest import CameraWorker
     from depthguard.sources.frame import Frame
 

@@ -1,4 +1,6 @@
-"""A camera worker's frame buffers, reused once nobody holds them (issue 29, R36).
+"""Frame buffers reused once nobody holds them (issue 29, R36): a camera worker's products, the
+simulator's robot images (:meth:`~depthguard.sources.camera_sim.CameraSim.robot_image`). At the
+package's top, below the sources and the runtime that use it.
 
 A camera's worker (:class:`~depthguard.runtime.ingest.CameraWorker`) hands each frame on as a
 :class:`~depthguard.runtime.ingest.CameraProduct`: the robot rendered at the capture joints
