@@ -46,6 +46,14 @@ __all__ = ["LayeredCamera", "layer_spans", "mesh_window", "layer_window", "compo
 POLICY_CODES = {None: 0, "unknown": 1, "free": 2}
 
 
+@numba.njit(cache=True)      # microseconds: keeps the GIL (a release costs a retake behind the other threads)
+def _copy_spans(dst, src):
+    """``dst[:] = src`` for two (H, 2) int32 row spans."""
+    for v in range(dst.shape[0]):
+        dst[v, 0] = src[v, 0]
+        dst[v, 1] = src[v, 1]
+
+
 @numba.njit(cache=True, nogil=True)
 def layer_spans(bits, spans, v0, v1, u0, u1):
     """Per row, the span of a layer's nonzero pixels (step 1 of the module docstring).
@@ -382,7 +390,10 @@ class LayeredCamera:
         if given is not None:               # the renderer's own spans (Renderer.spans): taken as they are
             if given.shape != spans.shape:
                 raise ValueError(f"a layer's spans must be ({self.shape[0]}, 2), got {given.shape}")
-            np.copyto(spans, given, casting="same_kind")
+            if given.dtype == spans.dtype:
+                _copy_spans(spans, given)      # (H, 2): numpy's copy of it gave the GIL away
+            else:
+                np.copyto(spans, given, casting="same_kind")
             return view
         v0, v1, u0, u1 = (0, self.shape[0], 0, self.shape[1]) if window is None else window
         layer_spans(view.view(np.uint32), spans, int(v0), int(v1), int(u0), int(u1))
