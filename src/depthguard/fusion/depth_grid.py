@@ -54,8 +54,8 @@ from depthguard.fusion.depth_grid_data import lazy_model
 from depthguard.fusion.depth_grid_query import GridQuery
 from depthguard.fusion.depth_grid_robot import GridRobot
 from depthguard.fusion.depth_grid_offline import corner_rays, default_cache_dir, load_map, map_key, save_map
-from depthguard.fusion.depth_grid_state import (StateOptions, bin_state, pyramid_layout, pyramid_levels, state_into,
-                                              state_pyramids)
+from depthguard.fusion.depth_grid_state import (StateOptions, bin_state, copy_state, pyramid_layout, pyramid_levels,
+                                              state_into, state_pyramids)
 
 __all__ = ["DepthGridMap", "default_cache_dir"]
 
@@ -418,19 +418,20 @@ class DepthGridMap(GridRobot, GridQuery):
             if cam.id not in fresh:
                 continue
             self._kmemo[0][k] += 1                # its memoised clearings belong to the old frame
-            used = None
-            if cam.id in depths:
-                used = self._state(cam, depths[cam.id], robot_depths.get(cam.id), off,
-                                   self._kfree[k], self._kkind, robot_in_others == "free", states.get(cam.id))
-            else:
-                self._kfree[k].fill(0.0)          # nothing seen: clears nothing
-            if used is not None and used.pmin is not None and used.levels == self._koff.shape[1]:
-                n = len(used.pmin)                # the camera's pyramids, made with its state
-                o = self._koff[k, 1] if self._koff.shape[1] > 1 else 0    # level 0 is never read
-                np.copyto(self._kpmin[k][o:n], used.pmin[o:])
-                np.copyto(self._kpmax[k][o:n], used.pmax[o:])
+            state = states.get(cam.id)
+            if (cam.id in depths and self._usable(state, cam, robot_in_others == "free") and state.pmin is not None
+                    and state.levels == self._koff.shape[1]):
+                # the camera's state and pyramids, made on its worker, copied in one call (level 0 is never read)
+                copy_state(self._kfree[k], state.free, self._kpmin[k], state.pmin, self._kpmax[k], state.pmax,
+                           self._koff[k, 1] if self._koff.shape[1] > 1 else 0)
+                self.states_used += 1
                 self.pyramids_used += 1
                 continue
+            if cam.id in depths:
+                self._state(cam, depths[cam.id], robot_depths.get(cam.id), off,
+                            self._kfree[k], self._kkind, robot_in_others == "free", state)
+            else:
+                self._kfree[k].fill(0.0)          # nothing seen: clears nothing
             # build_pyramids' arrays bit for bit, in vectorised row passes (0.5x its time, issue 29)
             state_pyramids(self._kfree[k], cam.height, cam.width, self._kpmin[k], self._kpmax[k],
                            self._koff[k], self._kdims[k])
@@ -479,8 +480,7 @@ class DepthGridMap(GridRobot, GridQuery):
         camera's worker) when it was made with this build's options and role (returned), else
         worked out here (None returned)."""
         options = self._loaded_options_pending
-        if (state is not None and state.options == options and state.robot_free == bool(robot_free)
-                and state.bin == 1 and state.free.shape == cam.shape):
+        if self._usable(state, cam, robot_free):
             H, W = cam.shape
             np.copyto(out_free[:H, :W], state.free)
             if out_kind is not self._kkind:       # the other cameras' kind is scratch nothing reads
@@ -489,6 +489,12 @@ class DepthGridMap(GridRobot, GridQuery):
             return state
         state_into(cam, depth, robot_depth, options, robot_free, self._silhouette, self._gaps, out_free, out_kind)
         return None
+
+    def _usable(self, state, cam, robot_free) -> bool:
+        """``state`` (a :class:`~depthguard.fusion.depth_grid_state.CameraState` or None) was made
+        with this build's options and camera ``cam``'s role, at its full resolution."""
+        return (state is not None and state.options == self._loaded_options_pending
+                and state.robot_free == bool(robot_free) and state.bin == 1 and state.free.shape == cam.shape)
 
     def __repr__(self) -> str:
         H, W, nd = self.shape

@@ -1,5 +1,7 @@
-"""numba's per-thread settings made without giving the GIL away (issue 29): ``thread_settings``
-against numba's own API, and the depth grid's query making no ctypes call into numba's layer."""
+"""Compiled calls that replace numpy and ctypes calls for the GIL's sake (issue 29): each of those
+gave the GIL away and waited to take it back in a real-time run. ``thread_settings`` against
+numba's own API, the depth grid's query making no ctypes call into numba's layer, and the kernels
+that replace numpy copies against those copies."""
 
 from __future__ import annotations
 
@@ -89,3 +91,22 @@ def test_new_pixel_memo_equals_numpy_twin():
         padded = np.full((ty * TILE, tx * TILE), np.inf)
         padded[:H, :W] = pfree
         np.testing.assert_array_equal(tmin, padded.reshape(ty, TILE, tx, TILE).min(axis=(1, 3)))
+
+
+def test_copy_state_equals_numpy_copies():
+    from depthguard.fusion.depth_grid_state import copy_state
+
+    rng = np.random.default_rng(4)
+    free = rng.uniform(0.1, 6.0, (45, 61))
+    pmin, pmax = rng.uniform(0, 6, 300), rng.uniform(0, 6, 300)
+    out = np.full((48, 64), -1.0)
+    omin, omax = np.full(320, -2.0), np.full(320, -3.0)
+    copy_state(out, free, omin, pmin, omax, pmax, 17)
+    np.testing.assert_array_equal(out[:45, :61], free)
+    assert (out[45:] == -1).all() and (out[:, 61:] == -1).all()           # outside the camera: untouched
+    np.testing.assert_array_equal(omin[17:300], pmin[17:])
+    np.testing.assert_array_equal(omax[17:300], pmax[17:])
+    assert (omin[:17] == -2).all() and (omin[300:] == -2).all() and (omax[:17] == -3).all()
+    copy_state(out, free * 2, omin, pmin * 2, omax, pmax * 2, -1)         # -1: the image alone
+    np.testing.assert_array_equal(out[:45, :61], free * 2)
+    np.testing.assert_array_equal(omin[17:300], pmin[17:])
