@@ -104,8 +104,9 @@ class GridQuery:
         depth_grid_lazy.ensure_cells(self._lazy_model, lazy_frame(self), lazy_memo(self), p, n, r, self._ws, self._span)
 
     def _run_query(self, p, n, r, m, rc=None, fill=None) -> None:
-        """The lookup (lazy: ``fill`` = on one thread, classifying on the way what a point needs
-        and no query of this frame classified; None: worked out from the thread count)."""
+        """The lookup. Lazy grid: ``fill`` True = it runs on one thread and classifies on the way
+        the cells a point needs that no query of this frame classified; False = those cells are
+        classified first, on the current threads; None = True when numba runs one thread."""
         if self.lazy:
             if fill is None:
                 fill = thread_settings(0, -1)[0] == 1
