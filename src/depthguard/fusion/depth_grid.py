@@ -418,20 +418,15 @@ class DepthGridMap(GridRobot, GridQuery):
             if cam.id not in fresh:
                 continue
             self._kmemo[0][k] += 1                # its memoised clearings belong to the old frame
-            state = states.get(cam.id)
-            if (cam.id in depths and self._usable(state, cam, robot_in_others == "free") and state.pmin is not None
-                    and state.levels == self._koff.shape[1]):
-                # the camera's state and pyramids, made on its worker, copied in one call (level 0 is never read)
-                copy_state(self._kfree[k], state.free, self._kpmin[k], state.pmin, self._kpmax[k], state.pmax,
-                           self._koff[k, 1] if self._koff.shape[1] > 1 else 0)
-                self.states_used += 1
-                self.pyramids_used += 1
-                continue
+            used = None
             if cam.id in depths:
-                self._state(cam, depths[cam.id], robot_depths.get(cam.id), off,
-                            self._kfree[k], self._kkind, robot_in_others == "free", state)
+                used = self._state(cam, depths[cam.id], robot_depths.get(cam.id), off,
+                                   self._kfree[k], self._kkind, robot_in_others == "free", states.get(cam.id), k)
             else:
                 self._kfree[k].fill(0.0)          # nothing seen: clears nothing
+            if used is not None and self._pyramids_usable(used):
+                self.pyramids_used += 1           # the camera's pyramids, made with its state, copied with it
+                continue
             # build_pyramids' arrays bit for bit, in vectorised row passes (0.5x its time, issue 29)
             state_pyramids(self._kfree[k], cam.height, cam.width, self._kpmin[k], self._kpmax[k],
                            self._koff[k], self._kdims[k])
@@ -474,21 +469,31 @@ class DepthGridMap(GridRobot, GridQuery):
         state_into(self.principal_full, depth, robot_depth, self._loaded_options_pending, False, self._silhouette,
                    self._gaps, self._pfree, self._pkind, b)
 
-    def _state(self, cam, depth, robot_depth, off, out_free, out_kind, robot_free, state=None):
+    def _state(self, cam, depth, robot_depth, off, out_free, out_kind, robot_free, state=None, k=None):
         """Camera ``cam``'s per-pixel state into ``out_free`` / ``out_kind``: copied from ``state``
         (a :class:`~depthguard.fusion.depth_grid_state.CameraState` made off the build, e.g. by the
         camera's worker) when it was made with this build's options and role (returned), else
-        worked out here (None returned)."""
+        worked out here (None returned). ``k``: the index of another camera, whose pyramids are
+        copied in the same call when the state has them at the grid's levels."""
         options = self._loaded_options_pending
         if self._usable(state, cam, robot_free):
             H, W = cam.shape
-            np.copyto(out_free[:H, :W], state.free)
+            if k is not None and self._pyramids_usable(state):
+                # free depths and pyramids in one compiled call (level 0 of a pyramid is never read)
+                copy_state(out_free, state.free, self._kpmin[k], state.pmin, self._kpmax[k], state.pmax,
+                           self._koff[k, 1] if self._koff.shape[1] > 1 else 0)
+            else:
+                np.copyto(out_free[:H, :W], state.free)
             if out_kind is not self._kkind:       # the other cameras' kind is scratch nothing reads
                 np.copyto(out_kind[:H, :W], state.kind)
             self.states_used += 1
             return state
         state_into(cam, depth, robot_depth, options, robot_free, self._silhouette, self._gaps, out_free, out_kind)
         return None
+
+    def _pyramids_usable(self, state) -> bool:
+        """``state`` holds min / max pyramids with the levels of this grid's others."""
+        return state.pmin is not None and state.levels == self._koff.shape[1]
 
     def _usable(self, state, cam, robot_free) -> bool:
         """``state`` (a :class:`~depthguard.fusion.depth_grid_state.CameraState` or None) was made

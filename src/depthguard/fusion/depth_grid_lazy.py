@@ -316,7 +316,8 @@ def _lowest_stop(cbits, obits, v, u, lo, hi, with_obst):
     return -1
 
 
-@njit(cache=True, parallel=True, nogil=True)
+@njit(cache=True, parallel=True)  # no nogil: numba's launcher takes the GIL to start each prange region
+# (numba/np/ufunc/parallel.py): called without the GIL, a call with k regions took it back 1 + 2k times, not k
 def ensure_cells(model, fr, memo, points, n_points, rho, ws, span):
     """Lazy per-frame work (R12): classify every cell that a query of these points can
     look at — per pixel of each point's region of surveillance outside case 1, the

@@ -133,7 +133,8 @@ def _column_bits(u, v, gs, ncp, nd, obits, caps, ncaps, cap_lo, cap_hi, ax, ay, 
     return found, best2, bvx, bvy, bvz
 
 
-@njit(cache=True, parallel=True, nogil=True)
+@njit(cache=True, parallel=True)  # no nogil: numba's launcher takes the GIL to start each prange region
+# (numba/np/ufunc/parallel.py): called without the GIL, a call with k regions took it back 1 + 2k times, not k
 def grid_distances_lazy(model, fr, memo, points, n_points, rho, method, out, fill, axbuf, rho_core):
     """:func:`~depthguard.fusion.depth_grid_lookup.grid_distances` over the memoised cells: same cases, same R10 distance, same
     R7 reduction. ``fill`` False: :func:`ensure_cells` was called first with the same

@@ -241,7 +241,8 @@ def _lexmin(f0, k0, f1, k1):
     return (f1 if take else f0), (k1 if take else k0)
 
 
-@njit(cache=True, parallel=True, nogil=True)
+@njit(cache=True, parallel=True)  # no nogil: numba's launcher takes the GIL to start each prange region
+# (numba/np/ufunc/parallel.py): called without the GIL, a call with k regions took it back 1 + 2k times, not k
 def frame_state_fused(depth, robot_depth, use_robot, min_range, max_range, robot_offset, invalid_free, robot_free,
                       n_sil, n_gap, b, tmp, masked, rows, out_free, out_kind, robot_spans):
     """A frame's per-pixel state in one pass over the image (R9, R28, R32): exactly
