@@ -48,7 +48,7 @@ from depthguard.config import PRODUCT_INVALID, PRODUCT_ROBOT_IN_OTHERS, PRODUCT_
 from depthguard.camera import Camera
 from depthguard.distance.gaps import GapBuffers, check_gap_px
 from depthguard.distance.silhouette import SilhouetteBuffers, check_silhouette_px
-from depthguard.fusion import depth_grid_capsules, depth_grid_eager, depth_grid_kernels, depth_grid_lazy, depth_grid_lookup
+from depthguard.fusion import depth_grid_capsules, depth_grid_eager, depth_grid_kernels, depth_grid_lookup
 from depthguard.fusion.depth_grid_memo import new_memo
 from depthguard.fusion.depth_grid_data import lazy_model
 from depthguard.fusion.depth_grid_query import GridQuery
