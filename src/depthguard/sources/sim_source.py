@@ -341,10 +341,30 @@ class SimFrames:
         costs put the simulator 0.1 s behind the clock at the start of every ``depthguard
         monitor`` run (2-4 frames skipped, a camera stale for a moment). Each frame's noise
         comes from its own stamp's generator, so the frames that follow are the same with or
-        without it."""
+        without it. Also at the first moment each person of the scene is in it (if not at the
+        start): the first frames with a person loaded the posing's and the person's render
+        kernels and built the posing's buffers, on every camera's thread at once, holding
+        Python's interpreter lock (ur3-cell, whose operator walks in at 1 s: every camera stale
+        from 1.07 s for 0.1-0.4 s in nearly every run, issue 29)."""
         q = self.world.robot_sim.q
-        for cid in self.camera_ids:
-            self.render(cid, 0.0, q)
+        for t in self._warm_times():
+            for cid in self.camera_ids:
+                self.render(cid, t, q)
+
+    def _warm_times(self) -> list[float]:
+        """Run times to render before the clock: the start, and the first moment of each person's
+        presence within the scene's first loop from the run's start (:meth:`warm_up`)."""
+        times = [0.0]
+        scene, d = self.world.scene, self.world.scene.duration
+        s0 = self.world.scene_time(0.0)
+        for person in getattr(scene, "people", ()):
+            enter = float(getattr(person, "present", (-math.inf, math.inf))[0])
+            if not math.isfinite(enter) or person.is_present(s0):
+                continue
+            t = (enter - s0) % d if d > 0 else enter - s0
+            if t > 0 and person.is_present(self.world.scene_time(t)):
+                times.append(t)
+        return times
 
     def counters(self) -> dict:
         """``skipped_behind_real_time``: frames not rendered because the simulator was more than a
