@@ -26,9 +26,6 @@ __all__ = ["thread_settings", "NUMBA_NUM_THREADS"]
 
 NUMBA_NUM_THREADS = NUM_THREADS       # the threads numba launched (numba.config.NUMBA_NUM_THREADS)
 
-_launch_threads()        # the layer's functions known to LLVM by name (a cached kernel is linked by them)
-
-
 def _layer_function(builder, name: str, ret, args):
     return cgutils.get_or_insert_function(builder.module, ir.FunctionType(ret, args), name)
 
@@ -83,4 +80,17 @@ def thread_settings(threads: int, chunksize: int) -> tuple[int, int]:
     chunk size (``chunksize`` >= 0; -1 leaves it), as ``numba.set_num_threads`` and
     ``numba.set_parallel_chunksize`` would; returns the ``(threads, chunksize)`` in force
     before, to hand back to restore them. ``threads`` above ``NUMBA_NUM_THREADS``: ``ValueError``."""
+    if not _launched:
+        _launch()
     return _settings(threads, chunksize, NUM_THREADS)
+
+
+_launched = False
+
+
+def _launch() -> None:
+    """numba's threading layer started, its functions known to LLVM by name: the cached
+    :func:`_settings` is linked by them (once, at the first call: not at import)."""
+    global _launched
+    _launch_threads()
+    _launched = True
