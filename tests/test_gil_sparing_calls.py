@@ -110,3 +110,26 @@ def test_copy_state_equals_numpy_copies():
     copy_state(out, free * 2, omin, pmin * 2, omax, pmax * 2, -1)         # -1: the image alone
     np.testing.assert_array_equal(out[:45, :61], free * 2)
     np.testing.assert_array_equal(omin[17:300], pmin[17:])
+
+
+def test_posed_render_vertices_equal_the_posed_meshes_and_a_short_buffer_is_refused():
+    """``render_link_vertices`` (one compiled posing) against ``p @ R.T + t`` of each link's pose
+    from forward kinematics (numpy, within rounding), the same bits as ``render_link_meshes``; an
+    output buffer too short, of another dtype or not C-contiguous is a ValueError, never a write
+    past its end."""
+    from depthguard.sim import load_cell
+
+    robot = load_cell("ur3-cell").rig.robot
+    q = np.random.default_rng(2).uniform(-1.0, 1.0, robot.dof)
+    topo = robot.render_link_topology(None)
+    n = sum(len(m.vertices) for m in topo)
+    got = robot.render_link_vertices(q, None, np.empty((n + 5, 3)))
+    assert got.shape == (n, 3)
+    poses = robot.link_poses(q)
+    want = np.concatenate([m.vertices @ poses[k, :3, :3].T + poses[k, :3, 3]
+                           for k, m in zip(robot._mesh_link, topo)])
+    np.testing.assert_allclose(got, want, rtol=0, atol=1e-12)
+    np.testing.assert_array_equal(got, np.concatenate([m.vertices for m in robot.render_link_meshes(q, None)]))
+    for bad in (np.empty((n - 1, 3)), np.empty((n, 3), np.float32), np.empty((3, n)).T):
+        with pytest.raises(ValueError, match="out must be"):
+            robot.render_link_vertices(q, None, bad)

@@ -339,6 +339,10 @@ class RobotModel:
         if local is None:                            # the links' vertices one after the other, once per cell
             local = self._render_local[cell] = np.ascontiguousarray(np.concatenate([m.vertices for m in meshes]),
                                                                     dtype=np.float64)
+        if not (isinstance(out, np.ndarray) and out.dtype == np.float64 and out.ndim == 2 and out.shape[1] == 3
+                and out.shape[0] >= len(local) and out.flags.c_contiguous):
+            raise ValueError(f"out must be a C-contiguous float64 ({len(local)}, 3) array or longer, got "
+                             f"{getattr(out, 'dtype', type(out).__name__)} {getattr(out, 'shape', '')}")
         _pose_vertices(out, poses, self._mesh_link, self._vertex_counts(cell, meshes), local)
         return out[:len(local)]
 

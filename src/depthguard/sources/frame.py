@@ -15,7 +15,8 @@ class RobotImage(NamedTuple):
     monitor's camera worker would render to remove the robot, handed over with the frame.
 
     q : (dof,) float64 rad, the joints it was drawn at (the frame's capture joints).
-    depth : (H, W) float32 m, 0 where no robot; the frame's own array (nothing writes it later).
+    depth : (H, W) float32 m, 0 where no robot; the simulator's pooled array, written again only
+        once nothing refers to it (:class:`~depthguard.frame_pool.BufferPool`): hold it, never write it.
     spans : (H, 2) int32, per row ``[a, b)`` outside which ``depth`` is 0.
     robot, camera : the robot model and the camera it was drawn with; the worker takes the image
         only for these very objects and these joints' bits, and only once its first images with
