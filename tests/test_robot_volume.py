@@ -80,3 +80,34 @@ def test_cached_poses_give_the_same_volume():
         np.testing.assert_array_equal(got[0], want[0])
         np.testing.assert_array_equal(got[1], want[1])
     assert len(cache) == 3          # qa, qb, the new array; qa and qb again at 0.05 replace their entries
+
+
+def test_unpadded_capsules_made_elsewhere_give_the_same_volume_without_kinematics():
+    """The camera worker's unpadded capsules at a pose (``unpadded``, issue 29) give the volume
+    bit for bit as the forward kinematics at that pose does, and the kinematics is not run for
+    that pose again (counted); a pose without them is computed as before."""
+    robot = load_cell("flacco-cell").rig.robot
+    rng = np.random.default_rng(11)
+    qa, qb, qc = (rng.uniform(robot.q_min, robot.q_max) for _ in range(3))
+    calls = []
+    real = robot.collision_segments
+
+    class Counting:
+        def __getattr__(self, name):
+            return getattr(robot, name)
+
+        def collision_segments(self, q, padding=0.0):
+            calls.append(padding)
+            return real(q, padding)
+
+    made = [real(qa, 0.0), None, real(qc, 0.0)]
+    for pad in (0.07, 0.05):
+        calls.clear()
+        cache: dict = {}
+        got = robot_volume(Counting(), [qa, qb, qc], pad, cache, unpadded=made)
+        want = robot_volume(robot, [qa, qb, qc], pad)
+        np.testing.assert_array_equal(got[0], want[0])
+        np.testing.assert_array_equal(got[1], want[1])
+        assert calls == [pad]           # only qb, which came without capsules
+        got = robot_volume(Counting(), [qa, qb, qc], pad, None, unpadded=made)
+        np.testing.assert_array_equal(got[1], want[1])

@@ -12,7 +12,8 @@ import numpy as np
 __all__ = ["robot_volume"]
 
 
-def robot_volume(robot, poses, padding: float, cache: dict | None = None) -> tuple[np.ndarray, np.ndarray]:
+def robot_volume(robot, poses, padding: float, cache: dict | None = None,
+                 unpadded=None) -> tuple[np.ndarray, np.ndarray]:
     """The robot's own volume for frames captured at several joint poses (R9, R12): its padded
     capsules at the first pose, each grown by how far that capsule's end points move to any
     other pose — ``(segments (C, 2, 3), radii (C,))`` metres, world.
@@ -34,19 +35,27 @@ def robot_volume(robot, poses, padding: float, cache: dict | None = None) -> tup
     ``padding`` reuses that call's capsules (a camera whose frame did not change keeps its
     capture joints' array); the arrays must not be written in between. At most 64 poses
     are kept.
+
+    ``unpadded``: optional, aligned with ``poses``: per pose ``None`` or the capsules
+    ``robot.collision_segments(q, 0.0)`` already made at it (the camera worker's, issue 29: made
+    on the camera's thread, not the fusion's); their radii plus ``padding`` are the padded
+    capsules bit for bit (``r + 0.0 == r``), so the forward kinematics is not done again.
     """
+    given = {} if unpadded is None else {id(q): s for q, s in zip(poses, unpadded) if s is not None}
     uniq = list({id(q): q for q in poses}.values())
-    if cache is None:
-        segs = [robot.collision_segments(q, padding) for q in uniq]
-    else:
-        segs = []
-        for q in uniq:
-            hit = cache.get(id(q))
-            if hit is None or hit[0] is not q or hit[1] != padding:
-                if len(cache) >= 64:
-                    cache.clear()
-                hit = cache[id(q)] = (q, padding, robot.collision_segments(q, padding))
-            segs.append(hit[2])
+    segs = []
+    for q in uniq:
+        hit = None if cache is None else cache.get(id(q))
+        if hit is None or hit[0] is not q or hit[1] != padding:
+            made = given.get(id(q))
+            made = robot.collision_segments(q, padding) if made is None else (made[0], made[1] + float(padding))
+            if cache is None:
+                segs.append(made)
+                continue
+            if len(cache) >= 64:
+                cache.clear()
+            hit = cache[id(q)] = (q, padding, made)
+        segs.append(hit[2])
     ab, r = segs[0]
     grow = np.zeros(len(r))
     for ab2, _ in segs[1:]:

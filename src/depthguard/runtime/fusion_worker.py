@@ -65,6 +65,7 @@ class FusionWorker:
         self._last_fused: dict[str, int] = {}
         self._volumes: dict = {}                  # robot_volume's capsules per capture-joints array
         self._cfg = None                          # the settings of the last build
+        self._rho, self._rho_of = 0.0, None       # _query_rho's
         self._threads_wanted = int(threads)       # numba threads (0: all; MonitorConfig.fusion_threads)
         self.threads = 1                          # the fusion's numba threads (set by its thread)
         self.build_seconds: list[float] = []
@@ -166,6 +167,13 @@ class FusionWorker:
             if all(b is None or b.camera_ids != ids for b in (self._back, self.front)):
                 self._prepared = buf          # (else a build made its own in the meantime)
 
+    def _query_rho(self, cfg) -> float:
+        """``cfg.query_rho`` (m), worked out once per settings object (a property that looks up the
+        policies' reaches, called per build)."""
+        if self._rho_of is not cfg:
+            self._rho, self._rho_of = float(cfg.query_rho), cfg
+        return self._rho
+
     def _grid_for(self, cams: tuple) -> GridBuffer:
         """The grid for cameras ``cams``: the prepared one if it is theirs, else a new one."""
         with self.swap_lock:
@@ -193,7 +201,10 @@ class FusionWorker:
                 return False
             depths = {c: products[c].depth for c in cams}
             rdepths = {c: products[c].robot_depth for c in cams}
-            caps = robot_volume(self.robot, [p.q for p in products.values()], cfg.robot_padding, self._volumes)
+            made = [p.capsules[1:] if p.capsules is not None and p.capsules[0] is self.robot else None
+                    for p in products.values()]
+            caps = robot_volume(self.robot, [p.q for p in products.values()], cfg.robot_padding, self._volumes,
+                                unpadded=made)
             back.loaded = False
             kw = {}
             states = {c: products[c].state for c in cams if products[c].state is not None}
@@ -204,11 +215,12 @@ class FusionWorker:
                                  changed=changed, silhouette_px=cfg.silhouette_px,
                                  gap_px=cfg.gap_px, **kw)
             answer, res = self.answer, None
+            rho = self._query_rho(cfg)
             if points is not None and len(points):
                 # classify ahead; with a distance worker the query is its own (the band beyond
                 # rho counts for the distance only) and its answer is published at once
-                res = back.grid.query(points, rho=cfg.query_rho + self.ahead_margin, method=cfg.method,
-                                      rho_core=cfg.query_rho if answer is not None else None)
+                res = back.grid.query(points, rho=rho + self.ahead_margin, method=cfg.method,
+                                      rho_core=rho if answer is not None else None)
                 if answer is not None:
                     res = (points, res.distance.copy(), res.direction.copy(), res.observed.copy())
             for c in cams:
@@ -223,7 +235,7 @@ class FusionWorker:
             back.loaded = True
             back.generation += 1
             if answer is not None and res is not None:
-                answer(back, *res, cfg.query_rho, self.ahead_margin, cfg.method)
+                answer(back, *res, rho, self.ahead_margin, cfg.method)
         with self.swap_lock:
             if self.single:
                 self._back = self.front = back

@@ -82,7 +82,10 @@ class CameraProduct:
     """One camera frame ready for fusion: depth and robot depth (H, W) float32 m, the capture
     stamp (s), the joints at capture (dof,), the wall time (``perf_counter``) of its push, and
     the camera's share of the depth grid build made on its worker
-    (:class:`~depthguard.fusion.depth_grid_state.CameraState`; None: the build works it out)."""
+    (:class:`~depthguard.fusion.depth_grid_state.CameraState`; None: the build works it out),
+    and ``capsules``: ``(robot model, segments (C, 2, 3), radii (C,))`` world m, the model's
+    unpadded collision capsules at ``q`` made on the worker (None: the build makes them; R9,
+    R12, :func:`~depthguard.robot.volume.robot_volume`'s ``unpadded``)."""
     depth: np.ndarray
     robot_depth: np.ndarray
     stamp: float
@@ -90,6 +93,7 @@ class CameraProduct:
     pushed_at: float
     version: int
     state: object = None
+    capsules: tuple | None = None
 
 
 class CameraWorker:
@@ -266,9 +270,12 @@ class CameraWorker:
             push(self.id, vs.centres(), vs.voxel_size, stamp)
         d = self._own_depth(depth)
         state = self._state(d, rd, wanted, bufs[2:], rspans)
+        model = self.expected.robot_model
+        # the capture joints' capsules on this thread, not the fusion's (issue 29)
+        caps = None if model is None or not model.capsules else (model, *model.collision_segments(q, 0.0))
         with self.lock:
             self._version += 1
-            self.product = CameraProduct(d, rd, stamp, q, pushed_at, self._version, state)
+            self.product = CameraProduct(d, rd, stamp, q, pushed_at, self._version, state, caps)
             self.frames += 1
         self.on_product(self.id)
 
