@@ -50,12 +50,13 @@ from depthguard.distance.gaps import GapBuffers, check_gap_px
 from depthguard.distance.silhouette import SilhouetteBuffers, check_silhouette_px
 from depthguard.fusion import depth_grid_capsules, depth_grid_eager, depth_grid_kernels, depth_grid_lookup
 from depthguard.fusion.depth_grid_memo import new_memo
+from depthguard.fusion.depth_grid_share import install_share, memo_request
 from depthguard.fusion.depth_grid_data import lazy_model
+from depthguard.fusion.depth_grid_load import GridLoad
 from depthguard.fusion.depth_grid_query import GridQuery
 from depthguard.fusion.depth_grid_robot import GridRobot
 from depthguard.fusion.depth_grid_offline import corner_rays, default_cache_dir, load_map, map_key, save_map
-from depthguard.fusion.depth_grid_state import (StateOptions, bin_state, copy_state, pyramid_layout, pyramid_levels,
-                                              state_into, state_pyramids)
+from depthguard.fusion.depth_grid_state import StateOptions, pyramid_layout, pyramid_levels, state_pyramids
 
 __all__ = ["DepthGridMap", "default_cache_dir"]
 
@@ -77,7 +78,7 @@ def touch_pages(a: np.ndarray) -> int:
     return int(a.nbytes)
 
 
-class DepthGridMap(GridRobot, GridQuery):
+class DepthGridMap(GridRobot, GridQuery, GridLoad):
     """Depth grid map of a rig (R10–R12): principal camera's pixels x depth slices.
 
     Parameters
@@ -246,6 +247,9 @@ class DepthGridMap(GridRobot, GridQuery):
         self._loaded_options_pending = None
         self.states_used = 0       # camera states copied in (set_frames(states=...))
         self.pyramids_used = 0     # ... and the other cameras' pyramids made with them
+        self.shares_used = 0       # ... and their clearing made off the build (set_frames(shares=...))
+        self.share_requests = False  # keep share_request's snapshots (the monitor's grids)
+        self._requests: dict = {}
         self._cap_lo = np.zeros(P.shape + (depth_grid_capsules.MAX_CAPS_PER_PIXEL,))
         self._cap_hi = np.zeros(P.shape + (depth_grid_capsules.MAX_CAPS_PER_PIXEL,))
         self._cap_n = np.zeros(P.shape, dtype=np.int64)
@@ -291,7 +295,7 @@ class DepthGridMap(GridRobot, GridQuery):
     def set_frames(self, depths: dict, robot_depths: dict | None = None,
                    robot_offset: float = PRODUCT_ROBOT_OFFSET, robot_capsules=None, invalid: str = PRODUCT_INVALID,
                    robot_in_others: str = PRODUCT_ROBOT_IN_OTHERS, reach=None, lazy: bool = True,
-                   changed=None, silhouette_px: int = 0, gap_px: int = 0, states=None) -> None:
+                   changed=None, silhouette_px: int = 0, gap_px: int = 0, states=None, shares=None) -> None:
         """Load one frame per camera (R9, R28, R32); call once per camera frame.
 
         depths : dict camera id -> (H, W) float metres (0 / NaN / inf / below
@@ -357,6 +361,11 @@ class DepthGridMap(GridRobot, GridQuery):
             worker thread, :class:`~depthguard.fusion.depth_grid_state.StateMaker`) from the same
             ``depths`` / ``robot_depths``; copied in where it was made with these options and
             role, worked out here otherwise. ``states_used`` counts the states copied in.
+        shares : optional dict camera id -> :class:`~depthguard.fusion.depth_grid_share.CameraShare`,
+            another camera's clearing of some columns made off the build from its state in
+            ``states`` (:mod:`~depthguard.fusion.depth_grid_share`): installed as that camera's
+            memo where it was made with this grid's tables and that very state (the same bits
+            the build would work out). ``shares_used`` counts them.
         gap_px : int >= 0 pixels (default 0: off, today's answers). With
             ``invalid="unknown"``, an invalid pixel (outside the silhouette rule) in a
             run of at most ``gap_px`` invalid pixels along its row or column, bounded
@@ -404,12 +413,12 @@ class DepthGridMap(GridRobot, GridQuery):
         self._loaded_options = None
         self._loaded_options_pending = options
         self._load_frames(fresh, depths, robot_depths, off, robot_in_others, reach, lazy, robot_capsules,
-                          states or {})
+                          states or {}, shares or {})
         self._loaded_options = options
         self._loaded_with_frame = {cid for cid in known if cid in depths}
 
     def _load_frames(self, fresh, depths, robot_depths, off, robot_in_others, reach, lazy, robot_capsules,
-                     states) -> None:
+                     states, shares) -> None:
         """The loading part of :meth:`set_frames` (arguments checked there)."""
         P = self.principal
         if P.id in fresh:
@@ -417,6 +426,9 @@ class DepthGridMap(GridRobot, GridQuery):
         for k, cam in enumerate(self.others):
             if cam.id not in fresh:
                 continue
+            if self.share_requests:               # what the builds asked of k during its old frame
+                self._requests[k] = memo_request(self._kmemo[1], self._kmemo[2], k, self._kmemo[0][k], self._stamp,
+                                                 self._frame, self._span)
             self._kmemo[0][k] += 1                # its memoised clearings belong to the old frame
             used = None
             if cam.id in depths:
@@ -426,6 +438,11 @@ class DepthGridMap(GridRobot, GridQuery):
                 self._kfree[k].fill(0.0)          # nothing seen: clears nothing
             if used is not None and self._pyramids_usable(used):
                 self.pyramids_used += 1           # the camera's pyramids, made with its state, copied with it
+                share = shares.get(cam.id)
+                if share is not None and share.state is used and share.key == (self.key, k, self._koff.shape[1]):
+                    install_share(self._kmemo[1], self._kmemo[2], self._kmemo[3], k, self._kmemo[0][k],
+                                  share.idx, share.done, share.clr, self.principal.width)
+                    self.shares_used += 1
                 continue
             # build_pyramids' arrays bit for bit, in vectorised row passes (0.5x its time, issue 29)
             state_pyramids(self._kfree[k], cam.height, cam.width, self._kpmin[k], self._kpmax[k],
@@ -442,64 +459,6 @@ class DepthGridMap(GridRobot, GridQuery):
                       self._cap_lo, self._cap_hi, self._cap_n, self._band, self._runs, self._nruns)
         depth_grid_lookup.tile_first_cells(self._runs, self._nruns, self._tile_first)
         self.has_frames = True
-
-    def _principal_state(self, depth, robot_depth, state) -> None:
-        """The principal's per-pixel state as ``_pfree`` / ``_pkind``: ``state``'s own arrays where
-        it was made with this build's options and bin (no copy: a state is never written after
-        it is made), else worked out here into the grid's buffers — binned with
-        ``principal_bin > 1`` (from a full-resolution ``state`` by
-        :func:`~depthguard.fusion.depth_grid_state.bin_state`, from the frame in one pass)."""
-        b = self.principal_bin
-        if (state is not None and state.bin == b and state.options == self._loaded_options_pending
-                and not state.robot_free and state.free.shape == self.principal.shape
-                and state.free.dtype == np.float64 and state.kind.dtype == np.int8
-                and state.free.flags.c_contiguous and state.kind.flags.c_contiguous):
-            self._pfree, self._pkind = state.free, state.kind        # used in place (read only)
-            self.states_used += 1
-            return
-        self._pfree, self._pkind = self._pfree_own, self._pkind_own
-        if b == 1:
-            self._state(self.principal, depth, robot_depth, None, self._pfree, self._pkind, False, None)
-            return
-        if state is not None and state.bin == 1 and state.options == self._loaded_options_pending \
-                and not state.robot_free and state.free.shape == self.principal_full.shape:
-            bin_state(state.free, state.kind, b, self._pfree, self._pkind)     # made at full resolution
-            self.states_used += 1
-            return
-        state_into(self.principal_full, depth, robot_depth, self._loaded_options_pending, False, self._silhouette,
-                   self._gaps, self._pfree, self._pkind, b)
-
-    def _state(self, cam, depth, robot_depth, off, out_free, out_kind, robot_free, state=None, k=None):
-        """Camera ``cam``'s per-pixel state into ``out_free`` / ``out_kind``: copied from ``state``
-        (a :class:`~depthguard.fusion.depth_grid_state.CameraState` made off the build, e.g. by the
-        camera's worker) when it was made with this build's options and role (returned), else
-        worked out here (None returned). ``k``: the index of another camera, whose pyramids are
-        copied in the same call when the state has them at the grid's levels."""
-        options = self._loaded_options_pending
-        if self._usable(state, cam, robot_free):
-            H, W = cam.shape
-            if k is not None and self._pyramids_usable(state):
-                # free depths and pyramids in one compiled call (level 0 of a pyramid is never read)
-                copy_state(out_free, state.free, self._kpmin[k], state.pmin, self._kpmax[k], state.pmax,
-                           self._koff[k, 1] if self._koff.shape[1] > 1 else 0)
-            else:
-                np.copyto(out_free[:H, :W], state.free)
-            if out_kind is not self._kkind:       # the other cameras' kind is scratch nothing reads
-                np.copyto(out_kind[:H, :W], state.kind)
-            self.states_used += 1
-            return state
-        state_into(cam, depth, robot_depth, options, robot_free, self._silhouette, self._gaps, out_free, out_kind)
-        return None
-
-    def _pyramids_usable(self, state) -> bool:
-        """``state`` holds min / max pyramids with the levels of this grid's others."""
-        return state.pmin is not None and state.levels == self._koff.shape[1]
-
-    def _usable(self, state, cam, robot_free) -> bool:
-        """``state`` (a :class:`~depthguard.fusion.depth_grid_state.CameraState` or None) was made
-        with this build's options and camera ``cam``'s role, at its full resolution."""
-        return (state is not None and state.options == self._loaded_options_pending
-                and state.robot_free == bool(robot_free) and state.bin == 1 and state.free.shape == cam.shape)
 
     def __repr__(self) -> str:
         H, W, nd = self.shape

@@ -210,6 +210,9 @@ class FusionWorker:
             states = {c: products[c].state for c in cams if products[c].state is not None}
             if states and hasattr(back.grid, "states_used"):
                 kw["states"] = states              # each camera's share, made on its worker
+                shares = {c: products[c].share for c in cams if products[c].share is not None}
+                if shares:
+                    kw["shares"] = shares          # ... with its clearing of the grid's cells
             back.grid.set_frames(depths, rdepths, robot_offset=cfg.robot_offset, robot_capsules=caps,
                                  invalid=cfg.invalid, robot_in_others=cfg.robot_in_others,
                                  changed=changed, silhouette_px=cfg.silhouette_px,

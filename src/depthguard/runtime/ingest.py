@@ -85,7 +85,9 @@ class CameraProduct:
     (:class:`~depthguard.fusion.depth_grid_state.CameraState`; None: the build works it out),
     and ``capsules``: ``(robot model, segments (C, 2, 3), radii (C,))`` world m, the model's
     unpadded collision capsules at ``q`` made on the worker (None: the build makes them; R9,
-    R12, :func:`~depthguard.robot.volume.robot_volume`'s ``unpadded``)."""
+    R12, :func:`~depthguard.robot.volume.robot_volume`'s ``unpadded``), and ``share``: the
+    camera's clearing of the grid's cells made from ``state``
+    (:class:`~depthguard.fusion.depth_grid_share.CameraShare`; None: the build works it out)."""
     depth: np.ndarray
     robot_depth: np.ndarray
     stamp: float
@@ -94,6 +96,7 @@ class CameraProduct:
     version: int
     state: object = None
     capsules: tuple | None = None
+    share: object = None
 
 
 class CameraWorker:
@@ -107,12 +110,15 @@ class CameraWorker:
 
     def __init__(self, cam, robot, static_meshes, joints: JointHistory, joint_wait_s: float,
                  on_product, name: str | None = None, drift: dict | None = None, state_options=None,
-                 learned=None, scene_change: dict | None = None, ssm_muted=None):
+                 learned=None, scene_change: dict | None = None, ssm_muted=None, share=None):
         self.camera = cam
         self._shape = tuple(cam.shape)      # (H, W): a frame of another shape gets the full check
         # the camera's share of the grid build (R36): state_options() -> (StateOptions, robot_free,
         # pyramids, bin) or None (no state made here; the build works it out)
         self.state_options = state_options
+        # share(state) -> CameraShare or None: the camera's clearing of the grid's cells, made here
+        # after the state (issue 29, runtime.camera_shares)
+        self.share = share
         self._state_maker = None
         # issue 29: the frame's arrays (robot depth, state) reused once nothing refers to them
         self.pool = BufferPool()
@@ -273,9 +279,10 @@ class CameraWorker:
         model = self.expected.robot_model
         # the capture joints' capsules on this thread, not the fusion's (issue 29)
         caps = None if model is None or not model.capsules else (model, *model.collision_segments(q, 0.0))
+        share = self.share(state) if self.share is not None and state is not None else None
         with self.lock:
             self._version += 1
-            self.product = CameraProduct(d, rd, stamp, q, pushed_at, self._version, state, caps)
+            self.product = CameraProduct(d, rd, stamp, q, pushed_at, self._version, state, caps, share)
             self.frames += 1
         self.on_product(self.id)
 

@@ -47,6 +47,7 @@ from depthguard.control.supervisor import SafetySupervisor, point_reasons, point
 from depthguard.runtime.monitor_distances import MonitorDistances
 from depthguard.runtime.monitor_paths import MonitorPaths
 from depthguard.runtime.monitor_watches import MonitorWatches
+from depthguard.runtime.camera_shares import CameraShares
 from depthguard.runtime.camera_supervision import camera_pass
 from depthguard.runtime.fusion_worker import FusionWorker
 from depthguard.runtime.ingest import CameraWorker
@@ -110,6 +111,7 @@ class Monitor(MonitorDistances, UnitStateInput, MonitorPaths, MonitorWatches):
             from depthguard.runtime.voxel_input import VoxelObstacles
             self._ssm_voxels = VoxelObstacles()
         self._workers: dict[str, CameraWorker] = {}
+        self._shares = CameraShares(self)          # the cameras' clearing, made on their workers
         self.fusion = FusionWorker(self._workers, self._make_grid, self._fusion_settings, self.robot,
                                    threads=cfg.fusion_threads)
         self.fusion.prepare(self._camera_ids)      # the grid made now, not by the first frames
@@ -186,6 +188,7 @@ class Monitor(MonitorDistances, UnitStateInput, MonitorPaths, MonitorWatches):
         self._workers[cid] = CameraWorker(self._cameras[cid], self.robot, self._static, self.joints,
                                           cfg.joint_wait_s, self.fusion.notify, drift=drift,
                                           state_options=lambda: self._state_options(cid),
+                                          share=self._shares.maker(cid),
                                           learned=getattr(self.rig, "learned", {}).get(cid),   # issue 31
                                           scene_change=cfg.scene_change_settings(),
                                           ssm_muted=self._ssm_muted(cid))
@@ -238,8 +241,10 @@ class Monitor(MonitorDistances, UnitStateInput, MonitorPaths, MonitorWatches):
             from depthguard.runtime.single import OneCameraMap
             return OneCameraMap(cameras[0])
         d_min, d_max = self.rig.workspace.depth_span(cameras[0])
-        return DepthGridMap(cameras, principal=cams[0], d_min=d_min, d_max=d_max, delta_d=self.config.delta_d,
+        grid = DepthGridMap(cameras, principal=cams[0], d_min=d_min, d_max=d_max, delta_d=self.config.delta_d,
                             principal_bin=self.config.principal_bin)
+        grid.share_requests = True               # the other cameras' workers clear its cells (issue 29)
+        return grid
 
     def _fusion_settings(self):
         """(config, camera ids, points whose cells to classify ahead) for the fusion worker."""

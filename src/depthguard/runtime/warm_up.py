@@ -101,11 +101,14 @@ def warm_up(rig, config=None, timeout: float = 600.0) -> float:
     with CompileActivity() as activity, Monitor(rig, config) as mon:
         mon.push_joints(0.0, q0)
         mon.push_joints(0.001, q0)
-        for cid in mon.camera_ids:
-            cam = rig.camera(cid)
-            mon.push_frame(Frame(cid, np.array(ExpectedDepth(cam, rig.robot, rig.static_meshes()).known(q0)),
-                                 0.0005))
-        wait_idle(mon, timeout, activity)
+        known = {cid: np.array(ExpectedDepth(rig.camera(cid), rig.robot, rig.static_meshes()).known(q0))
+                 for cid in mon.camera_ids}
+        # three rounds: the grid, then the other cameras' share requests (their second frames), then
+        # their shares made on the workers and installed by the builds (runtime.camera_shares)
+        for stamp in (0.0005, 0.0006, 0.0007):
+            for cid in mon.camera_ids:
+                mon.push_frame(Frame(cid, known[cid].copy(), stamp))
+            wait_idle(mon, timeout, activity)
         mon.step(0.001)
         # the distance thread's band query and the cycles' bound of its answer (real_time())
         from depthguard.runtime.distances import DistanceSnapshot, bound_distances, moved_beyond

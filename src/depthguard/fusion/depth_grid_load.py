@@ -1,0 +1,86 @@
+"""Loading a camera's per-pixel state into the depth grid (R9, R11, R12, R28, R32; issue 29).
+
+:class:`GridLoad` is the part of :class:`~depthguard.fusion.depth_grid.DepthGridMap` that takes
+each camera's :class:`~depthguard.fusion.depth_grid_state.CameraState` (made off the build, on
+the camera's worker) into the grid — the principal's used in place, another camera's copied with
+its pyramids — or works it out from the frame where none fits; and that keeps, per other
+camera, the request of its next :class:`~depthguard.fusion.depth_grid_share.CameraShare`.
+"""
+
+from __future__ import annotations
+
+import numpy as np
+
+from depthguard.fusion.depth_grid_state import bin_state, copy_state, state_into
+
+__all__ = ["GridLoad"]
+
+
+class GridLoad:
+    """The state loading of a :class:`~depthguard.fusion.depth_grid.DepthGridMap` (a mixin: the
+    grid's buffers are its own)."""
+
+    def share_request(self, k: int):
+        """``(idx, want)``: the cells the builds asked of other camera ``k`` (index in ``others``)
+        during an earlier frame of it (:func:`~depthguard.fusion.depth_grid_share.memo_request`,
+        taken when its next frame loaded, with ``share_requests`` on), or None; the request of
+        camera k's next :class:`~depthguard.fusion.depth_grid_share.CameraShare`."""
+        return self._requests.get(k)
+
+    def _principal_state(self, depth, robot_depth, state) -> None:
+        """The principal's per-pixel state as ``_pfree`` / ``_pkind``: ``state``'s own arrays where
+        it was made with this build's options and bin (no copy: a state is never written after
+        it is made), else worked out here into the grid's buffers — binned with
+        ``principal_bin > 1`` (from a full-resolution ``state`` by
+        :func:`~depthguard.fusion.depth_grid_state.bin_state`, from the frame in one pass)."""
+        b = self.principal_bin
+        if (state is not None and state.bin == b and state.options == self._loaded_options_pending
+                and not state.robot_free and state.free.shape == self.principal.shape
+                and state.free.dtype == np.float64 and state.kind.dtype == np.int8
+                and state.free.flags.c_contiguous and state.kind.flags.c_contiguous):
+            self._pfree, self._pkind = state.free, state.kind        # used in place (read only)
+            self.states_used += 1
+            return
+        self._pfree, self._pkind = self._pfree_own, self._pkind_own
+        if b == 1:
+            self._state(self.principal, depth, robot_depth, None, self._pfree, self._pkind, False, None)
+            return
+        if state is not None and state.bin == 1 and state.options == self._loaded_options_pending \
+                and not state.robot_free and state.free.shape == self.principal_full.shape:
+            bin_state(state.free, state.kind, b, self._pfree, self._pkind)     # made at full resolution
+            self.states_used += 1
+            return
+        state_into(self.principal_full, depth, robot_depth, self._loaded_options_pending, False, self._silhouette,
+                   self._gaps, self._pfree, self._pkind, b)
+
+    def _state(self, cam, depth, robot_depth, off, out_free, out_kind, robot_free, state=None, k=None):
+        """Camera ``cam``'s per-pixel state into ``out_free`` / ``out_kind``: copied from ``state``
+        (a :class:`~depthguard.fusion.depth_grid_state.CameraState` made off the build, e.g. by the
+        camera's worker) when it was made with this build's options and role (returned), else
+        worked out here (None returned). ``k``: the index of another camera, whose pyramids are
+        copied in the same call when the state has them at the grid's levels."""
+        options = self._loaded_options_pending
+        if self._usable(state, cam, robot_free):
+            H, W = cam.shape
+            if k is not None and self._pyramids_usable(state):
+                # free depths and pyramids in one compiled call (level 0 of a pyramid is never read)
+                copy_state(out_free, state.free, self._kpmin[k], state.pmin, self._kpmax[k], state.pmax,
+                           self._koff[k, 1] if self._koff.shape[1] > 1 else 0)
+            else:
+                np.copyto(out_free[:H, :W], state.free)
+            if out_kind is not self._kkind:       # the other cameras' kind is scratch nothing reads
+                np.copyto(out_kind[:H, :W], state.kind)
+            self.states_used += 1
+            return state
+        state_into(cam, depth, robot_depth, options, robot_free, self._silhouette, self._gaps, out_free, out_kind)
+        return None
+
+    def _pyramids_usable(self, state) -> bool:
+        """``state`` holds min / max pyramids with the levels of this grid's others."""
+        return state.pmin is not None and state.levels == self._koff.shape[1]
+
+    def _usable(self, state, cam, robot_free) -> bool:
+        """``state`` (a :class:`~depthguard.fusion.depth_grid_state.CameraState` or None) was made
+        with this build's options and camera ``cam``'s role, at its full resolution."""
+        return (state is not None and state.options == self._loaded_options_pending
+                and state.robot_free == bool(robot_free) and state.bin == 1 and state.free.shape == cam.shape)

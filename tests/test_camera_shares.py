@@ -1,0 +1,60 @@
+"""The cameras' workers make their clearing of the depth grid's cells and the fusion installs it
+(issue 29, :mod:`depthguard.runtime.camera_shares`).
+
+Truth: the same monitor with the shares turned off (no grid's tables handed to the workers), fed
+the same simulated frames and joints, cycle by cycle: the distances, directions and observed
+flags of every control point are the same bit for bit; and the shares are made and installed
+(not vacuous): every build after another camera's frame installs one.
+"""
+
+from __future__ import annotations
+
+import numpy as np
+import pytest
+
+
+def _run(cell: str, shares_on: bool, monkeypatch):
+    from depthguard.runtime.camera_shares import CameraShares
+    from depthguard.runtime.monitor import Monitor
+    from depthguard.sources.sim_source import SimFrames, SimWorld
+
+    if not shares_on:
+        monkeypatch.setattr(CameraShares, "spec", lambda self, camera_id: (None, None))
+    world = SimWorld(cell, seed=0)
+    frames = SimFrames(world).frames_until(0.8)
+    rig = world.rig
+    out = []
+    with Monitor(rig, rig.monitor) as mon, mon.replay():
+        states = list(world.states)
+        j = 0
+        for f in frames:
+            while j < len(states) and states[j][0] <= f.stamp + 0.004:
+                mon.push_joints(*states[j])
+                j += 1
+            mon.push_frame(f)
+            mon.flush(timeout=60.0)
+            r = mon.step(f.stamp + 0.004)
+            out.append((r.distance.copy(), r.direction.copy(), r.observed.copy()))
+        grid = mon.fusion.front.grid
+        used, made = grid.shares_used, mon._shares.made
+        principal = mon.camera_ids[0]
+        # each camera's frames but its first two (its request is what the builds asked of its
+        # frame before the last: none before its second frame is loaded)
+        others = sum(1 for f in frames if f.camera_id != principal) - 2 * (len(mon.camera_ids) - 1)
+        assert mon.fusion.errors == 0, mon.fusion.last_error
+    monkeypatch.undo()
+    return out, used, made, others
+
+
+@pytest.mark.parametrize("cell", ["flacco-cell", "ur3-cell"])
+def test_the_workers_shares_give_the_same_reactions(cell, monkeypatch):
+    on, used, made, others = _run(cell, True, monkeypatch)
+    off, used_off, made_off, _ = _run(cell, False, monkeypatch)
+    assert used_off == 0 and made_off == 0
+    assert made >= others and used >= others, (made, used, others)
+    assert len(on) == len(off) >= 20
+    for (d1, v1, o1), (d2, v2, o2) in zip(on, off):
+        np.testing.assert_array_equal(d1, d2)
+        np.testing.assert_array_equal(v1, v2)
+        np.testing.assert_array_equal(o1, o2)
+    assert any(np.isfinite(d).any() for d, _, _ in on)          # obstacles within reach: distances compared
