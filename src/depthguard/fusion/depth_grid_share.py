@@ -5,20 +5,22 @@ what camera ``k`` clears depends on camera ``k``'s frame alone
 (:mod:`~depthguard.fusion.depth_grid_memo`). So the cells ``k`` clears can be worked out
 where ``k``'s frame is, as soon as its per-pixel state is made — on the camera's worker
 thread (:class:`~depthguard.runtime.ingest.CameraWorker`), beside the other cameras' workers —
-rather than in the fusion's build that loads the frame: measured on flacco-cell's two
-cameras, a build that finds the new camera's clearing already worked out took 2.5 ms instead
-of 3.4 (median).
+rather than in the fusion's build that loads the frame. The work moves (about what the build
+saves, per frame: 0.78 ms on the worker against 0.81 ms less in the build on flacco-cell, 0.95
+against 1.1 on ur3-cell, one thread, 2026-11-27); the fusion's serial part, which every camera's
+frame waits for, shrinks (the bench's build p50 with 2 cameras 3.66 -> 2.84 ms).
 
 :func:`share_spec` takes from a :class:`~depthguard.fusion.depth_grid.DepthGridMap` what
 camera ``k``'s clearing needs (the principal's pose and intrinsics, the slices, ``k``'s corner
 rays and pyramid layout: read only, shared with the grid) as a :class:`ShareSpec`;
 :class:`CameraSharer` (one per camera, its scratch reused) makes a :class:`CameraShare` from
-``k``'s :class:`~depthguard.fusion.depth_grid_state.CameraState` for the principal columns
-around some points: the robot's control points at the frame's capture joints, the query
-radius grown by a margin for the robot's motion until the build. Which cells it covers is a
-guess of which ones the build will ask about (it reads the principal's newest state to leave
-out the columns free beyond a point's reach and the cells in front of a measured surface):
-a cell it did not cover is evaluated by the build as before.
+``k``'s :class:`~depthguard.fusion.depth_grid_state.CameraState` for the cells of a request:
+what the builds asked of camera ``k`` during an earlier frame of it (:func:`memo_request`,
+:meth:`~depthguard.fusion.depth_grid.DepthGridMap.share_request`; the robot moves a frame or
+two in between, the cells it needs hardly). A cell the share does not cover is evaluated by the
+build as before. Cells chosen by geometry on the worker instead (around the control points at
+the capture joints) were 2-3 times as many as the build asks for (the robot's own volume, the
+cells other cameras clear): the worker then spent twice what the build saved.
 
 Each bit is :func:`~depthguard.fusion.depth_grid_memo._camera_stretch`'s, the function the
 build runs, on the same arrays the build loads (the state's own ``free`` and pyramids), so
