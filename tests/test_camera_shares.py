@@ -10,6 +10,7 @@ flags of every control point are the same bit for bit; and the shares are made a
 from __future__ import annotations
 
 import numpy as np
+from sim_feed import fed_frames
 
 
 def _run(cell: str, shares_on: bool, monkeypatch):
@@ -24,14 +25,7 @@ def _run(cell: str, shares_on: bool, monkeypatch):
     rig = world.rig
     out = []
     with Monitor(rig, rig.monitor) as mon, mon.replay():
-        states = list(world.states)
-        j = 0
-        for f in frames:
-            while j < len(states) and states[j][0] <= f.stamp + 0.004:
-                mon.push_joints(*states[j])
-                j += 1
-            mon.push_frame(f)
-            mon.flush(timeout=60.0)
+        for f in fed_frames(mon, world, frames):
             r = mon.step(f.stamp + 0.004)
             out.append((r.distance.copy(), r.direction.copy(), r.observed.copy()))
         grid = mon.fusion.front.grid

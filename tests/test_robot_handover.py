@@ -15,6 +15,7 @@ import json
 
 import numpy as np
 import pytest
+from sim_feed import JointFeed
 
 CELL = "flacco-cell"
 
@@ -60,12 +61,9 @@ def _worker_products(world, frames, tamper=None):
     mon.fusion.close()
     out = {cid: [] for cid in mon.camera_ids}
     try:
-        states = list(world.states)                  # the world's joint ticks, as its joint source sends them
-        j = 0
+        joints = JointFeed(mon, world)               # the world's joint ticks, as its joint source sends them
         for f in frames:
-            while j < len(states) and states[j][0] <= f.stamp + 0.004:
-                mon.push_joints(*states[j])
-                j += 1
+            joints.until(f.stamp)
             w = mon._workers[f.camera_id]
             w._process(tamper(f) if tamper is not None else f, 0.0)
             p = w.product

@@ -11,6 +11,7 @@ from __future__ import annotations
 import threading
 
 import numpy as np
+from sim_feed import fed_frames
 
 CELL = "flacco-cell"
 
@@ -36,14 +37,8 @@ def test_products_carry_the_capture_joints_capsules_and_builds_run_no_kinematics
 
     monkeypatch.setattr(model_class, "collision_segments", counted)
     with Monitor(rig, rig.monitor) as mon, mon.replay():
-        states = list(world.states)
-        j, checked, builds = 0, 0, []
-        for f in frames:
-            while j < len(states) and states[j][0] <= f.stamp + 0.004:
-                mon.push_joints(*states[j])
-                j += 1
-            mon.push_frame(f)
-            mon.flush(timeout=60.0)
+        checked, builds = 0, []
+        for f in fed_frames(mon, world, frames):
             p = mon._workers[f.camera_id].product
             assert p is not None and p.capsules is not None and p.capsules[0] is robot
             ab, r = real(p.q, 0.0)

@@ -169,7 +169,7 @@ def memo_request(kstamp, kdone, k, ver, stamp, frame, span):
                 if any_:
                     idx[j] = v * W + u
                     j += 1
-    return idx[:j].copy(), want[:j].copy()
+    return idx[:j], want[:j]
 
 
 @njit(cache=True)   # microseconds: keeps the GIL
