@@ -24,7 +24,7 @@ def _cleared_by(grid, k, u, v, g):
     """The rule (``cell_cleared`` for camera ``k`` alone) on cell ``g`` of column ``(u, v)``,
     its depths ``d_min + [g, g + 1] * delta_d``."""
     sl = slice(k, k + 1)
-    return K.cell_cleared(grid._kfree[sl], grid.rays[sl], grid.origins[sl], grid._kint[sl], 1, u, v,
+    return K.cell_cleared(grid._views.free[sl], grid.rays[sl], grid.origins[sl], grid._kint[sl], 1, u, v,
                           grid.d_min + g * grid.delta_d, grid.d_min + (g + 1) * grid.delta_d)
 
 
@@ -46,8 +46,8 @@ def test_camera_stretch_equals_the_cell_rule():
     for u, v in _columns(rng, grid, 40):
         g0 = int(rng.integers(0, nd // 2))
         for k in range(nk):
-            M._camera_stretch(grid._kfree, grid._kpmin, grid._kpmax, grid._koff, grid._kdims, grid.rays,
-                              grid.origins, grid._kint, nk, k, u, v, g0, nd - 1, grid.d_min, grid.delta_d,
+            M._camera_stretch(grid._views.free, grid._views.pmin, grid._views.pmax, grid._koff, grid._kdims,
+                              grid.rays, grid.origins, grid._kint, nk, k, u, v, g0, nd - 1, grid.d_min, grid.delta_d,
                               kdone, kclr)
             done = np.unpackbits(kdone[k, v, u].view(np.uint8), bitorder="little")[:nd].astype(bool)
             got = np.unpackbits(kclr[k, v, u].view(np.uint8), bitorder="little")[:nd].astype(bool)
@@ -68,7 +68,7 @@ def test_centre_shortcut_only_on_cells_the_camera_does_not_clear():
     for u, v in _columns(rng, grid, 60):
         for k in range(len(grid.others)):
             for g in range(nd):
-                blocked = M._centre_blocks(grid._kfree, grid.rays, grid.origins, grid._kint, k, u, v,
+                blocked = M._centre_blocks(grid._views.free, grid.rays, grid.origins, grid._kint, k, u, v,
                                            grid.d_min + (g + 0.5) * grid.delta_d)
                 cleared = _cleared_by(grid, k, u, v, g)
                 assert not (blocked and cleared), (u, v, k, g)
@@ -99,8 +99,8 @@ def test_gray_stretch_asks_a_new_frame_only_what_no_valid_memo_clears():
     n_skipped = n_obst = 0
     for u, v in _columns(rng, grid, 40):
         g0 = int(rng.integers(0, nd // 2))
-        args = (grid._kfree, grid._kpmin, grid._kpmax, grid._koff, grid._kdims, grid.rays, grid.origins,
-                grid._kint, nk, grid.d_min, grid.delta_d, kmemo, obits, cbits)
+        args = (grid._views.free, grid._views.pmin, grid._views.pmax, grid._koff, grid._kdims, grid.rays,
+                grid.origins, grid._kint, nk, grid.d_min, grid.delta_d, kmemo, obits, cbits)
         M.gray_stretch(u, v, g0, nd - 1, *args)        # both cameras' bits for their frames
         kver[0] += 1                                    # camera 0 loads a new frame
         obits[v, u] = 0

@@ -92,7 +92,7 @@ def test_states_made_off_the_build_give_the_same_answers():
 
 def test_pyramids_made_with_the_state_are_the_grids():
     """The other cameras' min / max pyramids made with their state (``pyramids=True``) are the ones
-    the grid builds itself, level for level, and are copied in instead of built."""
+    the grid builds itself, level for level, and are read in place instead of built."""
     rng = np.random.default_rng(3)
     prims, cams, depths = _scene(rng, 3)
     _a, _b, _c, depths, rdepths, caps = _with_robot(prims, cams)
@@ -105,8 +105,14 @@ def test_pyramids_made_with_the_state_are_the_grids():
     own.set_frames(depths, rdepths, robot_capsules=caps, **kw)
     shared.set_frames(depths, rdepths, robot_capsules=caps, states=states, **kw)
     assert shared.pyramids_used == 2 and own.pyramids_used == 0
-    np.testing.assert_array_equal(own._kpmin, shared._kpmin)
-    np.testing.assert_array_equal(own._kpmax, shared._kpmax)
+    for k, c in enumerate(shared.others):        # what the kernels read: the states' own pyramids
+        _f, pmin, pmax = shared._views.arrays(k)
+        assert pmin is states[c.id].pmin and pmax is states[c.id].pmax
+        n = len(pmin)
+        lo = shared._koff[k, 1]                   # level 0 is never read
+        np.testing.assert_array_equal(own._kpmin[k, lo:n], pmin[lo:])
+        np.testing.assert_array_equal(own._kpmax[k, lo:n], pmax[lo:])
+        assert own._views.arrays(k)[1].base is own._kpmin
     # level 1 is the 2x2 block minimum of the state's free depth (an independent check of the layout)
     free = states["c1"].free
     h, w = free.shape

@@ -93,25 +93,6 @@ def test_new_pixel_memo_equals_numpy_twin():
         np.testing.assert_array_equal(tmin, padded.reshape(ty, TILE, tx, TILE).min(axis=(1, 3)))
 
 
-def test_copy_state_equals_numpy_copies():
-    from depthguard.fusion.depth_grid_state import copy_state
-
-    rng = np.random.default_rng(4)
-    free = rng.uniform(0.1, 6.0, (45, 61))
-    pmin, pmax = rng.uniform(0, 6, 300), rng.uniform(0, 6, 300)
-    out = np.full((48, 64), -1.0)
-    omin, omax = np.full(320, -2.0), np.full(320, -3.0)
-    copy_state(out, free, omin, pmin, omax, pmax, 17)
-    np.testing.assert_array_equal(out[:45, :61], free)
-    assert (out[45:] == -1).all() and (out[:, 61:] == -1).all()           # outside the camera: untouched
-    np.testing.assert_array_equal(omin[17:300], pmin[17:])
-    np.testing.assert_array_equal(omax[17:300], pmax[17:])
-    assert (omin[:17] == -2).all() and (omin[300:] == -2).all() and (omax[:17] == -3).all()
-    copy_state(out, free * 2, omin, pmin * 2, omax, pmax * 2, -1)         # -1: the image alone
-    np.testing.assert_array_equal(out[:45, :61], free * 2)
-    np.testing.assert_array_equal(omin[17:300], pmin[17:])
-
-
 def test_posed_render_vertices_equal_the_posed_meshes_and_a_short_buffer_is_refused():
     """``render_link_vertices`` (one compiled posing) against ``p @ R.T + t`` of each link's pose
     from forward kinematics (numpy, within rounding), the same bits as ``render_link_meshes``; an

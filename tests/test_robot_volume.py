@@ -111,3 +111,33 @@ def test_unpadded_capsules_made_elsewhere_give_the_same_volume_without_kinematic
         assert calls == [pad]           # only qb, which came without capsules
         got = robot_volume(Counting(), [qa, qb, qc], pad, None, unpadded=made)
         np.testing.assert_array_equal(got[1], want[1])
+
+
+def test_grid_takes_the_volume_in_the_principal_frame_and_refuses_a_bad_one():
+    """``DepthGridMap.set_robot_capsules``: the capsules of ``robot_volume`` (arrays, the compiled
+    path) land in the principal camera's frame as ``R a + t`` computed here with numpy, give the
+    same per-pixel intervals as the same capsules handed as ``Capsule`` objects (the other path),
+    and a capsule with a non-finite end point or a negative radius is refused with a clear error."""
+    from depthguard.fusion.depth_grid import DepthGridMap
+    from depthguard.geometry import Capsule
+
+    cell = load_cell("flacco-cell")
+    robot, cams = cell.rig.robot, cell.rig.cameras
+    segs, radii = robot_volume(robot, [np.zeros(robot.dof)], 0.05)
+    grid = DepthGridMap(cams, cams[0].id, 0.5, 4.0, 0.05, cache=False)
+    grid.set_robot_capsules((segs, radii))
+    P = cams[0]
+    R, t = np.linalg.inv(P.world_from_camera)[:3, :3], np.linalg.inv(P.world_from_camera)[:3, 3]
+    want = np.concatenate([segs[:, 0] @ R.T + t, segs[:, 1] @ R.T + t, radii[:, None]], axis=1)
+    np.testing.assert_allclose(grid._caps, want, rtol=0, atol=1e-12)
+    assert grid._ncaps == len(radii)
+    n_in, lo, hi = grid._cap_n.copy(), grid._cap_lo.copy(), grid._cap_hi.copy()
+    assert n_in.sum() > 100                        # the robot is in the principal's view
+    grid.set_robot_capsules([Capsule.between(a, b, r) for (a, b), r in zip(segs, radii)])
+    np.testing.assert_array_equal(grid._cap_n, n_in)
+    np.testing.assert_allclose(grid._cap_lo[n_in > 0], lo[n_in > 0], rtol=0, atol=1e-9)
+    np.testing.assert_allclose(grid._cap_hi[n_in > 0], hi[n_in > 0], rtol=0, atol=1e-9)
+    for bad_seg, bad_r in ((segs.copy(), -radii), (np.where(np.arange(segs.size).reshape(segs.shape) == 4, np.nan,
+                                                               segs), radii)):
+        with pytest.raises(ValueError, match="finite end points and radii >= 0"):
+            grid.set_robot_capsules((bad_seg, bad_r))

@@ -10,9 +10,9 @@ camera other than the principal faults in about 620 new pages (the 2.4 MB ``free
 on a worker thread, 2 of its 6 ms per frame. :class:`BufferPool` keeps a few sets of these
 arrays per camera and gives a set out again only when **nothing else refers to any array of
 it**: not the worker's newest product, not a product a reader still holds (the fusion's build,
-the free-space map, the live view), not a depth grid that uses a principal's state in place
-until its next build (:meth:`~depthguard.fusion.depth_grid.DepthGridMap.set_frames`), nor a
-view of one of them. The test is CPython's reference count of each array (``sys.getrefcount``):
+the free-space map, the live view), not a depth grid that reads a camera's state in place
+until that camera's next frame (:meth:`~depthguard.fusion.depth_grid.DepthGridMap.set_frames`,
+:mod:`~depthguard.fusion.camera_views`), nor a view of one of them. The test is CPython's reference count of each array (``sys.getrefcount``):
 every holder of an array or of a view of it counts, and a reference can only be made from
 another, so a set seen unreferenced on the worker's thread cannot be taken up by another
 thread before the worker writes into it. No release call is needed from the readers.
@@ -20,8 +20,7 @@ thread before the worker writes into it. No release call is needed from the read
 A set in use by others is skipped; when every set is held, a new one is made (the pool keeps
 up to ``cap`` sets, beyond that a set is made for the one frame and left to the garbage
 collector: the behaviour before the pool). Steady state with two grids: the front and back
-grids' principal states, the newest product, the frame being made — four sets for the
-principal, two or three for the other cameras.
+grids' states of the camera, the newest product, the frame being made — four sets per camera.
 """
 
 from __future__ import annotations

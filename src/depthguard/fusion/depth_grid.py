@@ -49,6 +49,7 @@ from depthguard.camera import Camera
 from depthguard.distance.gaps import GapBuffers, check_gap_px
 from depthguard.distance.silhouette import SilhouetteBuffers, check_silhouette_px
 from depthguard.fusion import depth_grid_capsules, depth_grid_eager, depth_grid_kernels, depth_grid_lookup
+from depthguard.fusion.camera_views import CameraViews
 from depthguard.fusion.depth_grid_memo import new_memo
 from depthguard.fusion.depth_grid_share import install_share, memo_request
 from depthguard.fusion.depth_grid_data import lazy_model
@@ -177,7 +178,7 @@ class DepthGridMap(GridRobot, GridQuery, GridLoad):
         self.build_seconds = time.perf_counter() - t0
         self._alloc_frames()
         self._caps = np.zeros((0, 7))
-        self._caps_world = np.zeros((0, 7))
+        self._caps_buf = np.zeros((32, 7))    # the capsules in the principal's frame (grown if needed)
         self._alloc_points(16)
         self.has_frames = False
         self._loaded_options = None           # (robot_offset, invalid, robot_in_others, silhouette_px, gap_px) of the last frames
@@ -241,6 +242,11 @@ class DepthGridMap(GridRobot, GridQuery, GridLoad):
             size = max(size, n)
         self._kpmin = np.zeros((max(nk, 1), size))
         self._kpmax = np.zeros((max(nk, 1), size))
+        # what the kernels read of each other camera: these buffers where the build works its
+        # state out, else the state's own arrays (camera_views: no copy)
+        self._views = CameraViews(nk)
+        for k in range(max(nk, 1)):
+            self._views.point(k, self._kfree[k], self._kpmin[k], self._kpmax[k])
         F = self.principal_full
         self._silhouette = SilhouetteBuffers((max(F.height, Hk), max(F.width, Wk)))
         self._gaps = GapBuffers((max(F.height, Hk), max(F.width, Wk)))
@@ -432,12 +438,13 @@ class DepthGridMap(GridRobot, GridQuery, GridLoad):
             self._kmemo[0][k] += 1                # its memoised clearings belong to the old frame
             used = None
             if cam.id in depths:
-                used = self._state(cam, depths[cam.id], robot_depths.get(cam.id), off,
-                                   self._kfree[k], self._kkind, robot_in_others == "free", states.get(cam.id), k)
+                used = self._other_state(k, cam, depths[cam.id], robot_depths.get(cam.id),
+                                         robot_in_others == "free", states.get(cam.id))
             else:
                 self._kfree[k].fill(0.0)          # nothing seen: clears nothing
+                self._views.point(k, self._kfree[k], self._kpmin[k], self._kpmax[k])
             if used is not None and self._pyramids_usable(used):
-                self.pyramids_used += 1           # the camera's pyramids, made with its state, copied with it
+                self.pyramids_used += 1           # the camera's pyramids, made with its state, read in place
                 share = shares.get(cam.id)
                 if share is not None and share.state is used and share.key == (self.key, k, self._koff.shape[1]):
                     install_share(self._kmemo[1], self._kmemo[2], self._kmemo[3], k, self._kmemo[0][k],
@@ -445,8 +452,9 @@ class DepthGridMap(GridRobot, GridQuery, GridLoad):
                     self.shares_used += 1
                 continue
             # build_pyramids' arrays bit for bit, in vectorised row passes (0.5x its time, issue 29)
-            state_pyramids(self._kfree[k], cam.height, cam.width, self._kpmin[k], self._kpmax[k],
-                           self._koff[k], self._kdims[k])
+            free = self._views.arrays(k)[0]
+            state_pyramids(free, cam.height, cam.width, self._kpmin[k], self._kpmax[k], self._koff[k], self._kdims[k])
+            self._views.point(k, free, self._kpmin[k], self._kpmax[k])
         self._set_band(reach)
         self.lazy = bool(lazy)
         self.set_robot_capsules(robot_capsules)
@@ -454,7 +462,7 @@ class DepthGridMap(GridRobot, GridQuery, GridLoad):
             self.has_frames = True
             return
         depth_grid_eager.column_runs(self._pfree, self._pkind, self._pint, self.d_min, self.delta_d, self.n_d,
-                      self._kfree, self._kpmin, self._kpmax, self._koff, self._kdims, self._rays_arg,
+                      self._views.free, self._views.pmin, self._views.pmax, self._koff, self._kdims, self._rays_arg,
                       self._orig_arg, self._kint_arg, len(self.others), self._caps, self._ncaps,
                       self._cap_lo, self._cap_hi, self._cap_n, self._band, self._runs, self._nruns)
         depth_grid_lookup.tile_first_cells(self._runs, self._nruns, self._tile_first)

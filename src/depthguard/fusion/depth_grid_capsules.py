@@ -22,7 +22,7 @@ from numba import njit
 
 from depthguard.distance.window import grow_pixel_box
 
-__all__ = ["MAX_CAPS_PER_PIXEL", "capsule_intervals", "capsule_boxes", "cell_in_capsules"]
+__all__ = ["MAX_CAPS_PER_PIXEL", "capsule_intervals", "capsule_boxes", "cell_in_capsules", "principal_capsules"]
 
 
 @njit(cache=True, nogil=True)
@@ -221,6 +221,30 @@ def capsule_intervals(caps, ncaps, boxes, fx, fy, cx, cy, H, W, out_lo, out_hi, 
                     out_lo[v, u, n] = lo
                     out_hi[v, u, n] = hi
                 out_n[v, u] = min(n + 1, MAX_CAPS_PER_PIXEL + 1)
+
+
+@njit(cache=True)      # microseconds: keeps the GIL (a release costs a retake behind the other threads)
+def principal_capsules(seg, rad, Rp, tp, out):
+    """The robot's capsules in the principal camera's frame, checked on the way (R12): ``seg``
+    (C, 2, 3) float64 world end points and ``rad`` (C,) float64 radii (m) into ``out`` (>= C, 7)
+    float64 rows ``a, b, radius`` with ``a = Rp a_w + tp`` (``Rp`` (3, 3), ``tp`` (3,): world ->
+    principal). Returns False, with ``out`` partly written, at the first end point that is not
+    finite or radius that is not a finite number >= 0. One call where the numpy steps took
+    ~0.15 ms of the fusion's serial path per build (issue 29)."""
+    for c in range(seg.shape[0]):
+        r = rad[c]
+        if not (math.isfinite(r) and r >= 0.0):
+            return False
+        for e in range(2):
+            x = seg[c, e, 0]
+            y = seg[c, e, 1]
+            z = seg[c, e, 2]
+            if not (math.isfinite(x) and math.isfinite(y) and math.isfinite(z)):
+                return False
+            for i in range(3):
+                out[c, 3 * e + i] = Rp[i, 0] * x + Rp[i, 1] * y + Rp[i, 2] * z + tp[i]
+        out[c, 6] = r
+    return True
 
 
 @njit(cache=True)      # microseconds: keeps the GIL (a release costs a retake behind the other threads)

@@ -4,7 +4,7 @@
 and intrinsics, the slices, the other cameras' corner rays and pyramid layout.
 :class:`LazyFrame` is what one set of frames gives (remade with every set of frames): the
 principal's free depths and kinds, their tile minima, the other cameras' free depths and
-pyramids, the robot's capsules and their intervals per principal pixel, the band of slices
+pyramids (tables of where they lie, :mod:`~depthguard.fusion.camera_views`), the robot's capsules and their intervals per principal pixel, the band of slices
 the other cameras can judge. :class:`LazyMemo` is the per-frame memo the kernels fill in place:
 the frame's number, the classified / obstacle bits per principal pixel, the free stretch per
 pixel, and the other cameras' clearing memo (:mod:`depthguard.fusion.depth_grid_memo`).
@@ -46,9 +46,9 @@ class LazyFrame(NamedTuple):
     pfree: np.ndarray    # (H, W) float64 principal free depth per pixel, m
     pkind: np.ndarray    # (H, W) int8 its kind (surface, robot, invalid, ...)
     tmin: np.ndarray     # (H/TILE, W/TILE) float64 tile minima of pfree, m
-    kfree: np.ndarray    # (K, Hk, Wk) float64 other cameras' free depths, m
-    kpmin: np.ndarray    # (K, size) float64 their min pyramids, m
-    kpmax: np.ndarray    # (K, size) float64 their max pyramids, m
+    kfree: np.ndarray    # (K, 3) int64 the other cameras' free depths (H_k, W_k) float64 m, where they lie
+    kpmin: np.ndarray    # (K, 2) int64 their min pyramids (flat float64 m), where they lie
+    kpmax: np.ndarray    # (K, 2) int64 their max pyramids (camera_views.CameraViews' tables)
     caps: np.ndarray     # (C, 7) float64 robot capsules in the principal frame (a, b, r), m
     ncaps: int           # capsules in use
     cap_lo: np.ndarray   # (H, W, MAX_CAPS_PER_PIXEL) float64 capsule intervals' near depth, m
@@ -76,7 +76,8 @@ def lazy_model(grid) -> LazyModel:
 
 def lazy_frame(grid) -> LazyFrame:
     """The grid's current :class:`LazyFrame` (views of its buffers)."""
-    return LazyFrame(grid._pfree, grid._pkind, grid._tmin, grid._kfree, grid._kpmin, grid._kpmax, grid._caps,
+    views = grid._views
+    return LazyFrame(grid._pfree, grid._pkind, grid._tmin, views.free, views.pmin, views.pmax, grid._caps,
                      int(grid._ncaps), grid._cap_lo, grid._cap_hi, grid._cap_n, grid._band)
 
 

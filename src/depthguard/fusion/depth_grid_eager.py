@@ -36,6 +36,8 @@ def column_runs(pfree, pkind, pint, dmin, dd, nd, kfree, kpmin, kpmax, koff, kdi
     prove them all cleared / all confirmed (exact shortcuts), otherwise cell
     by cell.
 
+    kfree, kpmin, kpmax : the other cameras' free depths and pyramids where they lie
+        (:class:`~depthguard.fusion.camera_views.CameraViews`' tables, (K, 3) / (K, 2) int64).
     band : (H, W, 2) int32: only gray cells ``band[v, u, 0] <= gd <= band[v, u, 1]``
         are evaluated (:func:`reach_band`); gray cells outside count as obstacles
         unseen (safe). A full band evaluates the whole column.

@@ -54,6 +54,7 @@ from numba import njit, prange
 
 from depthguard.camera import RETURN_LIMIT_FACTOR
 from depthguard.distance.window import grow_pixel_box
+from depthguard.fusion.camera_views import camera_free, camera_pyramid
 
 __all__ = [
     "D_ZERO", "KIND_SURFACE", "KIND_ROBOT", "KIND_UNKNOWN", "METHOD_MIN", "METHOD_MEAN", "METHOD_HYBRID",
@@ -304,9 +305,10 @@ def cell_cleared(kfree, rays, origins, kint, nk, gx, gy, d1, d2):
         if not seen:
             continue
         ok = True
+        free = camera_free(kfree, k)
         for v in range(v0, v1 + 1):
             for u in range(u0, u1 + 1):
-                if not (kfree[k, v, u] > zmax):
+                if not (free[v, u] > zmax):
                     ok = False
                     break
             if not ok:
@@ -325,7 +327,7 @@ def _range_cleared(kpyr, koff, kdims, rays, origins, kint, nk, gx, gy, d1, d2):
         seen, u0, u1, v0, v1, zmin, zmax = cell_footprint(rays, origins, kint, k, gx, gy, d1, d2)
         if not seen:
             continue
-        if _box_min(kpyr[k], koff[k], kdims[k], u0, u1, v0, v1) > zmax:
+        if _box_min(camera_pyramid(kpyr, k), koff[k], kdims[k], u0, u1, v0, v1) > zmax:
             return True
     return False
 
@@ -340,7 +342,7 @@ def _range_confirmed(kpmax, koff, kdims, rays, origins, kint, nk, gx, gy, d1, d2
         seen, u0, u1, v0, v1, zmin, zmax = cell_footprint(rays, origins, kint, k, gx, gy, d1, d2)
         if not seen:
             return False
-        if not (_box_max(kpmax[k], koff[k], kdims[k], u0, u1, v0, v1) < zmin):
+        if not (_box_max(camera_pyramid(kpmax, k), koff[k], kdims[k], u0, u1, v0, v1) < zmin):
             return False
     return True
 
@@ -355,9 +357,9 @@ def _range_settled(kpmin, kpmax, koff, kdims, rays, origins, kint, nk, gx, gy, d
         if not seen:
             conf = False
             continue
-        if _box_min(kpmin[k], koff[k], kdims[k], u0, u1, v0, v1) > zmax:
+        if _box_min(camera_pyramid(kpmin, k), koff[k], kdims[k], u0, u1, v0, v1) > zmax:
             return 1
-        if conf and not (_box_max(kpmax[k], koff[k], kdims[k], u0, u1, v0, v1) < zmin):
+        if conf and not (_box_max(camera_pyramid(kpmax, k), koff[k], kdims[k], u0, u1, v0, v1) < zmin):
             conf = False
     return 2 if conf else 0
 
@@ -418,9 +420,10 @@ def _cleared_by_sections(kfree, kint, k, s1, s2):
     u1 = int(math.floor(pumax + 0.5))
     v0 = int(math.floor(pvmin + 0.5))
     v1 = int(math.floor(pvmax + 0.5))
+    free = camera_free(kfree, k)
     for v in range(v0, v1 + 1):
         for u in range(u0, u1 + 1):
-            if not (kfree[k, v, u] > zmax):
+            if not (free[v, u] > zmax):
                 return False
     return True
 

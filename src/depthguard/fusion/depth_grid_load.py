@@ -2,18 +2,23 @@
 
 :class:`GridLoad` is the part of :class:`~depthguard.fusion.depth_grid.DepthGridMap` that takes
 each camera's :class:`~depthguard.fusion.depth_grid_state.CameraState` (made off the build, on
-the camera's worker) into the grid — the principal's used in place, another camera's copied with
-its pyramids — or works it out from the frame where none fits; and that keeps, per other
-camera, the request of its next :class:`~depthguard.fusion.depth_grid_share.CameraShare`.
+the camera's worker) into the grid — the principal's and the other cameras' used in place, with
+their pyramids (:mod:`~depthguard.fusion.camera_views`) — or works it out from the frame where
+none fits; and that keeps, per other camera, the request of its next :class:`~depthguard.fusion.depth_grid_share.CameraShare`.
 """
 
 from __future__ import annotations
 
 import numpy as np
 
-from depthguard.fusion.depth_grid_state import bin_state, copy_state, state_into
+from depthguard.fusion.depth_grid_state import bin_state, state_into
 
 __all__ = ["GridLoad"]
+
+
+def _readable(a) -> bool:
+    """``a`` is an array the kernels can read in place (C-contiguous float64)."""
+    return type(a) is np.ndarray and a.dtype == np.float64 and a.flags.c_contiguous
 
 
 class GridLoad:
@@ -43,7 +48,8 @@ class GridLoad:
             return
         self._pfree, self._pkind = self._pfree_own, self._pkind_own
         if b == 1:
-            self._state(self.principal, depth, robot_depth, None, self._pfree, self._pkind, False, None)
+            state_into(self.principal, depth, robot_depth, self._loaded_options_pending, False, self._silhouette,
+                       self._gaps, self._pfree, self._pkind)
             return
         if state is not None and state.bin == 1 and state.options == self._loaded_options_pending \
                 and not state.robot_free and state.free.shape == self.principal_full.shape:
@@ -53,31 +59,29 @@ class GridLoad:
         state_into(self.principal_full, depth, robot_depth, self._loaded_options_pending, False, self._silhouette,
                    self._gaps, self._pfree, self._pkind, b)
 
-    def _state(self, cam, depth, robot_depth, off, out_free, out_kind, robot_free, state=None, k=None):
-        """Camera ``cam``'s per-pixel state into ``out_free`` / ``out_kind``: copied from ``state``
-        (a :class:`~depthguard.fusion.depth_grid_state.CameraState` made off the build, e.g. by the
-        camera's worker) when it was made with this build's options and role (returned), else
-        worked out here (None returned). ``k``: the index of another camera, whose pyramids are
-        copied in the same call when the state has them at the grid's levels."""
-        options = self._loaded_options_pending
-        if self._usable(state, cam, robot_free):
-            H, W = cam.shape
-            if k is not None and self._pyramids_usable(state):
-                # free depths and pyramids in one compiled call (level 0 of a pyramid is never read)
-                copy_state(out_free, state.free, self._kpmin[k], state.pmin, self._kpmax[k], state.pmax,
-                           self._koff[k, 1] if self._koff.shape[1] > 1 else 0)
+    def _other_state(self, k, cam, depth, robot_depth, robot_free, state=None):
+        """Other camera ``k``'s per-pixel state as its views read it
+        (:class:`~depthguard.fusion.camera_views.CameraViews`): ``state``'s own arrays, not copied,
+        when it was made with this build's options and role (returned; its pyramids too when it
+        has them at the grid's levels), else worked out here into the grid's buffers (None
+        returned). A state is never written after it is made, and the views hold it until
+        camera k's next frame, so its worker's pool does not give its arrays out meanwhile."""
+        if self._usable(state, cam, robot_free) and _readable(state.free):
+            if self._pyramids_usable(state):
+                self._views.point(k, state.free, state.pmin, state.pmax)
             else:
-                np.copyto(out_free[:H, :W], state.free)
-            if out_kind is not self._kkind:       # the other cameras' kind is scratch nothing reads
-                np.copyto(out_kind[:H, :W], state.kind)
+                self._views.point(k, state.free, self._kpmin[k], self._kpmax[k])
             self.states_used += 1
             return state
-        state_into(cam, depth, robot_depth, options, robot_free, self._silhouette, self._gaps, out_free, out_kind)
+        state_into(cam, depth, robot_depth, self._loaded_options_pending, robot_free, self._silhouette,
+                   self._gaps, self._kfree[k], self._kkind)
+        self._views.point(k, self._kfree[k], self._kpmin[k], self._kpmax[k])
         return None
 
     def _pyramids_usable(self, state) -> bool:
-        """``state`` holds min / max pyramids with the levels of this grid's others."""
-        return state.pmin is not None and state.levels == self._koff.shape[1]
+        """``state`` holds min / max pyramids with the levels of this grid's others, readable in place."""
+        return (state.pmin is not None and state.levels == self._koff.shape[1] and _readable(state.pmin)
+                and _readable(state.pmax))
 
     def _usable(self, state, cam, robot_free) -> bool:
         """``state`` (a :class:`~depthguard.fusion.depth_grid_state.CameraState` or None) was made

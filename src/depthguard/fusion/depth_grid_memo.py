@@ -34,6 +34,7 @@ import math
 import numpy as np
 from numba import njit
 
+from depthguard.fusion.camera_views import camera_free, camera_pyramid
 from depthguard.fusion.depth_grid_kernels import (_CX, _CY, _FX, _FY, _H, _W, _box_max, _box_min,
                                                   _cleared_by_sections, _section)
 
@@ -126,9 +127,9 @@ def _range_sections(kpmin, kpmax, koff, kdims, kint, k, s1, s2):
     u1 = int(math.floor(pumax + 0.5))
     v0 = int(math.floor(pvmin + 0.5))
     v1 = int(math.floor(pvmax + 0.5))
-    if _box_min(kpmin[k], koff[k], kdims[k], u0, u1, v0, v1) > max(s1[6], s2[6]):
+    if _box_min(camera_pyramid(kpmin, k), koff[k], kdims[k], u0, u1, v0, v1) > max(s1[6], s2[6]):
         return 1
-    if _box_max(kpmax[k], koff[k], kdims[k], u0, u1, v0, v1) < min(s1[5], s2[5]):
+    if _box_max(camera_pyramid(kpmax, k), koff[k], kdims[k], u0, u1, v0, v1) < min(s1[5], s2[5]):
         return 2
     return 0
 
@@ -164,14 +165,14 @@ def _centre_blocks_ray(kfree, origins, kint, k, rx, ry, rz, dc):
         return False
     if abs(pu - fu) > 0.5 - _PX_MARGIN or abs(pv - fv) > 0.5 - _PX_MARGIN:
         return False
-    return kfree[k, int(fv), int(fu)] <= Z - _Z_MARGIN
+    return camera_free(kfree, k)[int(fv), int(fu)] <= Z - _Z_MARGIN
 
 
 @njit(cache=True, inline="always")
 def _centre_blocks(kfree, rays, origins, kint, k, u, v, dc):
     """Exact shortcut for a cell camera ``k`` does not clear (R12): the cell's centre (principal
     pixel ``(u, v)``'s centre ray at depth ``dc``, the mean of its 4 corner rays) projects into
-    pixel ``(iu, iv)`` of ``k`` with depth ``zc``; when ``kfree[k, iv, iu] <= zc``, that pixel —
+    pixel ``(iu, iv)`` of ``k`` with depth ``zc``; when camera k's free depth there is <= ``zc``, that pixel —
     inside the cell's footprint, the centre being inside the cell — is not free beyond
     ``dend_k >= zc``, so :func:`~depthguard.fusion.depth_grid_kernels.cell_cleared` is False for
     ``k`` whether or not ``k`` sees the cell whole. One point projected instead of the cell's

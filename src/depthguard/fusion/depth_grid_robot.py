@@ -39,6 +39,20 @@ def _capsule_array(capsules) -> np.ndarray:
     return out
 
 
+def _segments_radii(capsules) -> tuple[np.ndarray, np.ndarray]:
+    """``(segments (C, 2, 3), radii (C,))`` C-contiguous float64 (world, m) of the robot's
+    capsules: :func:`~depthguard.robot.volume.robot_volume`'s arrays as they are, any other form
+    through :func:`_capsule_array` (its checks and errors)."""
+    if (isinstance(capsules, tuple) and len(capsules) == 2 and type(capsules[0]) is np.ndarray
+            and type(capsules[1]) is np.ndarray and capsules[0].dtype == np.float64
+            and capsules[1].dtype == np.float64 and capsules[0].ndim == 3 and capsules[0].shape[1:] == (2, 3)
+            and capsules[1].shape == (capsules[0].shape[0],) and capsules[0].flags.c_contiguous
+            and capsules[1].flags.c_contiguous):
+        return capsules
+    caps = _capsule_array(capsules)
+    return np.ascontiguousarray(caps[:, :6].reshape(-1, 2, 3)), np.ascontiguousarray(caps[:, 6])
+
+
 class GridRobot:
     """The robot's volume and reach of a :class:`~depthguard.fusion.depth_grid.DepthGridMap`
     (a mixin: the grid's buffers are its own)."""
@@ -84,19 +98,24 @@ class GridRobot:
         return caps[:, :6].reshape(-1, 2, 3).copy(), caps[:, 6] + float(rho) + float(margin)
 
     def set_robot_capsules(self, robot_capsules) -> None:
-        """Set the robot's padded volume (world capsules); part of :meth:`set_frames`."""
-        caps = _capsule_array(robot_capsules)
-        self._caps_world = caps
-        if len(caps):
-            a = caps[:, 0:3] @ self._Rp.T + self._tp
-            b = caps[:, 3:6] @ self._Rp.T + self._tp
-            self._caps = np.ascontiguousarray(np.concatenate([a, b, caps[:, 6:7]], axis=1))
+        """Set the robot's padded volume (world capsules); part of :meth:`set_frames`. The
+        ``(segments (C, 2, 3), radii (C,))`` float64 arrays of
+        :func:`~depthguard.robot.volume.robot_volume` go to the principal's frame in one
+        compiled call that checks them; other forms go through :func:`_capsule_array` first."""
+        seg, rad = _segments_radii(robot_capsules)
+        n = len(rad)
+        if n > len(self._caps_buf):
+            self._caps_buf = np.zeros((n, 7))
+        if n and not depth_grid_capsules.principal_capsules(seg, rad, self._Rp, self._tp, self._caps_buf):
+            raise ValueError("robot_capsules must have finite end points and radii >= 0")
+        if n:
+            self._caps = self._caps_buf[:n]
             P = self.principal
-            depth_grid_capsules.capsule_intervals(self._caps, len(caps), self._capsule_boxes(self._caps), P.fx, P.fy,
+            depth_grid_capsules.capsule_intervals(self._caps, n, self._capsule_boxes(self._caps), P.fx, P.fy,
                                 P.cx, P.cy, P.height, P.width, self._cap_lo, self._cap_hi, self._cap_n)
         else:
             self._caps = np.zeros((1, 7))
-        self._ncaps = len(caps)
+        self._ncaps = n
         self._frame += 1          # memoised cells (lazy) were classified with the old volume
         depth_grid_lazy.new_pixel_memo(self._pfree, self._free_to, self._clear, self._tmin)
 

@@ -39,6 +39,7 @@ from typing import NamedTuple
 import numpy as np
 from numba import njit
 
+from depthguard.fusion.camera_views import CameraViews
 from depthguard.fusion.depth_grid_memo import _camera_stretch, mask_range, msb
 
 __all__ = ["ShareSpec", "CameraShare", "CameraSharer", "share_spec", "camera_share", "install_share",
@@ -46,6 +47,7 @@ __all__ = ["ShareSpec", "CameraShare", "CameraSharer", "share_spec", "camera_sha
 
 _ZERO = np.uint64(0)
 _ALL = np.uint64(0xFFFFFFFFFFFFFFFF)
+_NOTHING = (np.zeros((1, 1)), np.zeros(1), np.zeros(1))     # what a sharer's views hold between shares
 
 
 class ShareSpec(NamedTuple):
@@ -111,10 +113,11 @@ def camera_share(idx, want, W, dmin, dd, kfree, kpmin, kpmax, koff, kdims, rays,
     """Camera ``k``'s clearing (the build's own :func:`_camera_stretch`, run by run) of the cells
     ``want`` (M, nw) uint64 of the principal columns ``idx`` (M,) int64 (``v * W + u``): the
     returned ``(done, clr)`` (M, nw) uint64 hold, for every wanted cell, ``done`` set and ``clr``
-    = cleared by camera k. ``kfree`` (1, Hk, Wk), ``kpmin`` / ``kpmax`` (1, size): camera k's
-    state; ``koff``, ``kdims``, ``rays``, ``origins``, ``kint``: its rows of the grid's tables
-    (:class:`ShareSpec`). Scratch: ``kdone`` / ``kclr`` (1, H, W, nw) uint64, zero on entry and
-    on return. Without the GIL: about a millisecond, beside the other threads."""
+    = cleared by camera k. ``kfree`` (1, 3), ``kpmin`` / ``kpmax`` (1, 2) int64: camera k's
+    state's arrays (:class:`~depthguard.fusion.camera_views.CameraViews`' tables); ``koff``,
+    ``kdims``, ``rays``, ``origins``, ``kint``: its rows of the grid's tables (:class:`ShareSpec`).
+    Scratch: ``kdone`` / ``kclr`` (1, H, W, nw) uint64, zero on entry and on return. Without the
+    GIL: about a millisecond, beside the other threads."""
     m = idx.shape[0]
     nw = want.shape[1]
     done = np.empty((m, nw), dtype=np.uint64)
@@ -192,6 +195,7 @@ class CameraSharer:
     def __init__(self):
         self._scratch_key = None
         self._kdone = self._kclr = None
+        self._views = CameraViews(1)   # the state's arrays as the kernels read them
         self.made = 0             # shares made
 
     def make(self, spec: ShareSpec, state, request) -> CameraShare | None:
@@ -209,8 +213,13 @@ class CameraSharer:
             self._kclr = np.zeros((1, H, W, spec.nw), dtype=np.uint64)
             self._scratch_key = (H, W, spec.nw)
         idx, want = request
-        done, clr = camera_share(idx, want, W, spec.dmin, spec.dd, state.free[None], state.pmin[None],
-                                 state.pmax[None], spec.koff, spec.kdims, spec.rays, spec.origins, spec.kint,
-                                 self._kdone, self._kclr)
+        views = self._views
+        views.point(0, state.free, state.pmin, state.pmax)
+        try:
+            done, clr = camera_share(idx, want, W, spec.dmin, spec.dd, views.free, views.pmin, views.pmax,
+                                     spec.koff, spec.kdims, spec.rays, spec.origins, spec.kint,
+                                     self._kdone, self._kclr)
+        finally:
+            views.point(0, *_NOTHING)     # the state is not held beyond its share
         self.made += 1
         return CameraShare(spec.key, state, idx, done, clr)

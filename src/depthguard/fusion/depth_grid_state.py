@@ -32,7 +32,7 @@ from depthguard.distance.silhouette import SilhouetteBuffers, check_silhouette_p
 from depthguard.fusion.depth_grid_kernels import build_pyramids, frame_state, pixel_state
 from depthguard.fusion.depth_grid_state_fused import frame_state_fused
 
-__all__ = ["copy_state", "StateOptions", "CameraState", "StateMaker", "state_into", "pyramid_levels", "pyramid_layout",
+__all__ = ["StateOptions", "CameraState", "StateMaker", "state_into", "pyramid_levels", "pyramid_layout",
            "bin_state", "bin_state_numpy", "state_pyramids", "frame_state_binned", "frame_state_fused",
            "state_into_unfused"]
 
@@ -133,24 +133,6 @@ def bin_state(free, kind, b, out_free, out_kind):
                         k = kind[v, u]
             out_free[j, i] = m
             out_kind[j, i] = k
-
-
-@njit(cache=True, nogil=True)
-def copy_state(out_free, free, pmin_out, pmin, pmax_out, pmax, start):
-    """Another camera's state copied into the grid's buffers in one call (R36, issue 29):
-    ``out_free[:H, :W] = free`` (H, W) float64 m, and, with ``start`` >= 0, its pyramids'
-    ``pmin_out[start:n] = pmin[start:]`` and ``pmax_out`` alike (``n = len(pmin)``; level 0,
-    below ``start``, is never read). Three numpy copies each gave the GIL away and waited to
-    take it back on the fusion thread."""
-    H = free.shape[0]
-    W = free.shape[1]
-    for v in range(H):
-        for u in range(W):
-            out_free[v, u] = free[v, u]
-    if start >= 0:
-        for i in range(start, pmin.shape[0]):
-            pmin_out[i] = pmin[i]
-            pmax_out[i] = pmax[i]
 
 
 @njit(cache=True, nogil=True)

@@ -221,8 +221,8 @@ class Monitor(MonitorDistances, UnitStateInput, MonitorPaths, MonitorWatches):
             return None
         other = cid != ids[0]
         # another camera's min / max pyramids are made on its worker, into the worker's pooled
-        # buffers (frame_pool: no page faults, never one a reader holds), and the build copies
-        # them: 0.36-0.45 ms of the build after that camera's frame becomes a ~0.1 ms copy. Only
+        # buffers (frame_pool: no page faults, never one a reader holds), and the build reads
+        # them in place with the state (fusion/camera_views): 0.36-0.45 ms of the build. Only
         # where the grid's levels (from the largest other camera) are the camera's own: else
         # the grid makes them (DepthGridMap._load_frames) and the worker's would go unread
         pyramids = False

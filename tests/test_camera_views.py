@@ -1,0 +1,79 @@
+"""The other cameras' arrays as the depth grid's kernels read them (issue 29, R36):
+:class:`~depthguard.fusion.camera_views.CameraViews` points a kernel at an array without copying
+it, holds what it points at, and refuses what a kernel could not read in place.
+
+Truth: numpy's own reading of the same arrays (sums and single elements), and reference counts /
+weak references for what is held.
+"""
+
+from __future__ import annotations
+
+import gc
+import weakref
+
+import numpy as np
+import pytest
+from numba import njit
+
+from depthguard.fusion.camera_views import CameraViews, camera_free, camera_pyramid
+
+
+@njit(cache=True)
+def _read(free, pmin, pmax, k, v, u, i):
+    f = camera_free(free, k)
+    s = 0.0
+    for r in range(f.shape[0]):
+        for c in range(f.shape[1]):
+            s += f[r, c]
+    return s, f[v, u], camera_pyramid(pmin, k)[i], camera_pyramid(pmax, k)[i], f.shape[0], f.shape[1]
+
+
+def test_kernels_read_each_camera_where_it_lies():
+    rng = np.random.default_rng(2)
+    views = CameraViews(3)
+    shapes = [(48, 64), (30, 41), (5, 7)]
+    arrays = [(rng.uniform(0, 5, s), rng.uniform(0, 5, 200 + k), rng.uniform(0, 5, 200 + k))
+              for k, s in enumerate(shapes)]
+    for k, (f, a, b) in enumerate(arrays):
+        views.point(k, f, a, b)
+    for k, (f, a, b) in enumerate(arrays):
+        v, u, i = f.shape[0] - 1, f.shape[1] - 2, 199 + k
+        s, x, lo, hi, h, w = _read(views.free, views.pmin, views.pmax, k, v, u, i)
+        assert s == pytest.approx(f.sum(), rel=1e-12) and x == f[v, u] and (h, w) == f.shape
+        assert lo == a[i] and hi == b[i]
+    big = np.zeros((60, 80))               # a grid's buffer larger than the camera: its rows are 80 long
+    big[:30, :41] = arrays[1][0]
+    views.point(1, big, *arrays[1][1:])
+    assert _read(views.free, views.pmin, views.pmax, 1, 29, 40, 0)[1] == arrays[1][0][29, 40]
+
+
+def test_views_hold_what_they_point_at_until_pointed_elsewhere():
+    views = CameraViews(1)
+    f, a, b = np.ones((4, 4)), np.ones(10), np.ones(10)
+    refs = [weakref.ref(x) for x in (f, a, b)]
+    views.point(0, f, a, b)
+    del f, a, b
+    gc.collect()
+    assert all(r() is not None for r in refs)            # a worker's pool cannot give them out again
+    views.point(0, np.zeros((2, 2)), np.zeros(3), np.zeros(3))
+    gc.collect()
+    assert all(r() is None for r in refs)
+
+
+@pytest.mark.parametrize("free, pmin, why", [
+    (np.ones((4, 4), np.float32), np.ones(8), "float32 free"),
+    (np.ones((4, 8))[:, ::2], np.ones(8), "a strided view"),
+    (np.ones(16), np.ones(8), "1-D free"),
+    (np.ones((4, 4)), np.ones((2, 4)), "2-D pyramid"),
+])
+def test_what_a_kernel_cannot_read_in_place_is_refused(free, pmin, why):
+    views = CameraViews(2)
+    before = views.free.copy()
+    with pytest.raises(ValueError, match="C-contiguous"):
+        views.point(1, free, pmin, np.ones_like(pmin))
+    assert np.array_equal(views.free, before), why          # nothing pointed at
+
+
+def test_pyramids_of_two_lengths_are_refused():
+    with pytest.raises(ValueError, match="differ in length"):
+        CameraViews(1).point(0, np.ones((2, 2)), np.ones(5), np.ones(6))
