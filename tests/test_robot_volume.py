@@ -137,7 +137,13 @@ def test_grid_takes_the_volume_in_the_principal_frame_and_refuses_a_bad_one():
     np.testing.assert_array_equal(grid._cap_n, n_in)
     np.testing.assert_allclose(grid._cap_lo[n_in > 0], lo[n_in > 0], rtol=0, atol=1e-9)
     np.testing.assert_allclose(grid._cap_hi[n_in > 0], hi[n_in > 0], rtol=0, atol=1e-9)
-    for bad_seg, bad_r in ((segs.copy(), -radii), (np.where(np.arange(segs.size).reshape(segs.shape) == 4, np.nan,
-                                                               segs), radii)):
+    caps_before = grid._caps.copy()
+    moved = segs + 0.1                             # a valid first capsule, then a bad last one
+    nan_last = moved.copy()
+    nan_last[-1, 1, 2] = np.nan
+    neg_last = radii.copy()
+    neg_last[-1] = -0.01
+    for bad_seg, bad_r in ((moved, neg_last), (nan_last, radii)):
         with pytest.raises(ValueError, match="finite end points and radii >= 0"):
             grid.set_robot_capsules((bad_seg, bad_r))
+        np.testing.assert_array_equal(grid._caps, caps_before)       # nothing stored is lost
