@@ -8,7 +8,9 @@ weak references for what is held.
 
 from __future__ import annotations
 
+import copy
 import gc
+import pickle
 import weakref
 
 import numpy as np
@@ -77,3 +79,44 @@ def test_what_a_kernel_cannot_read_in_place_is_refused(free, pmin, why):
 def test_pyramids_of_two_lengths_are_refused():
     with pytest.raises(ValueError, match="differ in length"):
         CameraViews(1).point(0, np.ones((2, 2)), np.ones(5), np.ones(6))
+
+
+def test_a_copy_points_at_what_it_holds_itself():
+    """A copy, deep copy or pickle of the views (a grid copied by a user) reads the arrays it holds,
+    never the original's memory by its old address."""
+    views = CameraViews(2)
+    f, a, b = np.arange(12.0).reshape(3, 4), np.arange(5.0), np.arange(5.0) + 1
+    views.point(0, f, a, b)
+    for other in (copy.copy(views), copy.deepcopy(views), pickle.loads(pickle.dumps(views))):
+        g, ga, gb = other.arrays(0)
+        assert other.free[0, 0] == g.__array_interface__["data"][0]
+        assert other.pmin[0, 0] == ga.__array_interface__["data"][0]
+        assert other.pmax[0, 0] == gb.__array_interface__["data"][0]
+        assert other.arrays(1) is None
+        s, x, lo, hi, h, w = _read(other.free, other.pmin, other.pmax, 0, 2, 3, 4)
+        assert (s, x, lo, hi, h, w) == (f.sum(), f[2, 3], a[4], b[4], 3, 4)
+    assert copy.deepcopy(views).free[0, 0] != views.free[0, 0]      # its own arrays, not the original's
+
+
+def test_a_deep_copied_grid_answers_like_the_original_whatever_becomes_of_its_memory():
+    """A user's deep copy of a loaded depth grid (states read in place) answers the same queries
+    bit for bit after the original's states are written over (as a worker's pool would reuse
+    them): the copy reads its own arrays."""
+    from depthguard.cli.warm_up import _flat_grid
+
+    grid, points, cfg = _flat_grid("flacco-cell")
+    assert grid.states_used == 1 + len(grid.others)            # the others' states are read in place
+    rng = np.random.default_rng(5)
+    q = np.concatenate([points, points[:1] + rng.normal(0.0, 0.25, (200, 3))])
+    twin, probe = copy.deepcopy(grid), copy.deepcopy(grid)     # before any query: nothing memoised
+    want = grid.query(q, rho=cfg.query_rho, method=cfg.method, threads=1).copy()
+    for g in (grid, probe):                                     # the original's memory reused
+        for k in range(len(g.others)):
+            for a in g._views.arrays(k):
+                a.fill(0.0)
+    assert not np.array_equal(probe.query(q, rho=cfg.query_rho, method=cfg.method, threads=1).distance,
+                              want.distance)                    # (the other camera's arrays matter)
+    got = twin.query(q, rho=cfg.query_rho, method=cfg.method, threads=1)
+    assert np.isfinite(want.distance).any()
+    assert np.array_equal(got.distance, want.distance) and np.array_equal(got.direction, want.direction)
+    assert np.array_equal(got.observed, want.observed)

@@ -97,3 +97,24 @@ class CameraViews:
     def arrays(self, k: int) -> tuple:
         """``(free, pmin, pmax)``: the arrays row ``k`` reads (None before :meth:`point`)."""
         return self._held[k]
+
+    # an address is only valid for the arrays this object holds: a copy, deep copy or pickle
+    # points its rows at the arrays it holds itself, never at the original's memory
+    def __copy__(self) -> "CameraViews":
+        return CameraViews._of(list(self._held))
+
+    def __deepcopy__(self, memo) -> "CameraViews":
+        import copy
+
+        return CameraViews._of(copy.deepcopy(self._held, memo))
+
+    def __reduce__(self):
+        return CameraViews._of, (list(self._held),)
+
+    @staticmethod
+    def _of(held: list) -> "CameraViews":
+        out = CameraViews(len(held))
+        for k, arrays in enumerate(held):
+            if arrays is not None:
+                out.point(k, *arrays)
+        return out
