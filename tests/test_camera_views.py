@@ -120,3 +120,42 @@ def test_a_deep_copied_grid_answers_like_the_original_whatever_becomes_of_its_me
     assert np.isfinite(want.distance).any()
     assert np.array_equal(got.distance, want.distance) and np.array_equal(got.direction, want.direction)
     assert np.array_equal(got.observed, want.observed)
+
+
+def test_a_state_not_readable_in_place_is_worked_out_by_the_grid_and_gets_no_share():
+    """Another camera's state in arrays a kernel cannot read in place (Fortran order, a strided
+    pyramid): the grid works that camera's state out itself (the same answers as a grid given no
+    states), and its worker's sharer makes no share rather than failing the frame."""
+    from depthguard.cli.warm_up import _flat_grid, _flat_states
+    from depthguard.fusion.depth_grid_share import CameraSharer, share_spec
+    from depthguard.fusion.depth_grid_state import StateMaker, StateOptions
+
+    own, points, cfg = _flat_grid("flacco-cell", states=False)
+    grid, _, _ = _flat_grid("flacco-cell", states=False)
+    d = float(np.float32(0.5 * (grid.d_min + grid.d_max)))
+    states = _flat_states(grid, d, StateOptions.of(cfg))
+    other = grid.others[0].id
+    st = StateMaker(grid.others[0]).make(np.full(grid.others[0].shape, d, np.float32), None, StateOptions.of(cfg),
+                                         pyramids=True)
+    assert st.pmin is not None
+    odd = st._replace(free=np.asfortranarray(st.free), pmin=np.repeat(st.pmin, 2)[::2],
+                      pmax=np.repeat(st.pmax, 2)[::2])
+    assert not odd.free.flags.c_contiguous and not odd.pmin.flags.c_contiguous
+    states[other] = odd
+    before = grid.states_used
+    depths = {c.id: np.full((c.height, c.width), d, np.float32) for c in [grid.principal_full, *grid.others]}
+    o = StateOptions.of(cfg)
+    grid.set_frames(depths, robot_capsules=None, robot_offset=o.robot_offset, invalid=o.invalid,
+                    robot_in_others=o.robot_in_others, silhouette_px=o.silhouette_px, gap_px=o.gap_px,
+                    states=states)
+    assert grid.states_used - before == 1                      # the principal's only
+    assert grid._views.arrays(0)[0].base is grid._kfree        # worked out into the grid's own buffer
+    spec = share_spec(grid, other)
+    ask = (np.zeros(1, np.int64), np.full((1, spec.nw), np.uint64(1)))
+    assert CameraSharer().make(spec, odd, ask) is None
+    assert CameraSharer().make(spec, st, ask) is not None      # (the same state in place: a share)
+    own.set_frames(depths, robot_capsules=None, robot_offset=o.robot_offset, invalid=o.invalid,
+                   robot_in_others=o.robot_in_others, silhouette_px=o.silhouette_px, gap_px=o.gap_px)
+    a = grid.query(points, rho=cfg.query_rho, method=cfg.method, threads=1).copy()
+    b = own.query(points, rho=cfg.query_rho, method=cfg.method, threads=1)
+    assert np.array_equal(a.distance, b.distance) and np.array_equal(a.observed, b.observed)

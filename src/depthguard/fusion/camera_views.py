@@ -28,7 +28,7 @@ from numba import carray, njit, types
 from numba.core import cgutils
 from numba.extending import intrinsic
 
-__all__ = ["CameraViews", "camera_free", "camera_pyramid"]
+__all__ = ["CameraViews", "camera_free", "camera_pyramid", "readable"]
 
 
 @intrinsic
@@ -57,6 +57,12 @@ def camera_pyramid(table, k):
     return carray(_address(table[k, 0]), (table[k, 1],), np.float64)
 
 
+def readable(a) -> bool:
+    """``a`` is an array a kernel can read in place through :class:`CameraViews` (C-contiguous
+    float64); :meth:`CameraViews.point` refuses anything else."""
+    return type(a) is np.ndarray and a.dtype == np.float64 and a.flags.c_contiguous
+
+
 def _address_of(a: np.ndarray) -> int:
     return a.__array_interface__["data"][0]
 
@@ -80,7 +86,7 @@ class CameraViews:
         C-contiguous float64 (``ValueError`` otherwise); they are held until the row is pointed
         elsewhere. The caller must not write into them while a kernel may read them."""
         for name, a, nd in (("free", free, 2), ("pmin", pmin, 1), ("pmax", pmax, 1)):
-            if not (type(a) is np.ndarray and a.ndim == nd and a.dtype == np.float64 and a.flags.c_contiguous):
+            if not (readable(a) and a.ndim == nd):
                 raise ValueError(f"camera {k}'s {name} must be a C-contiguous {nd}-D float64 array "
                                  f"(got {getattr(a, 'shape', a)!r} {getattr(a, 'dtype', '')})")
         if pmin.shape != pmax.shape:

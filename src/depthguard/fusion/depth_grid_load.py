@@ -11,14 +11,10 @@ from __future__ import annotations
 
 import numpy as np
 
+from depthguard.fusion.camera_views import readable
 from depthguard.fusion.depth_grid_state import bin_state, state_into
 
 __all__ = ["GridLoad"]
-
-
-def _readable(a) -> bool:
-    """``a`` is an array the kernels can read in place (C-contiguous float64)."""
-    return type(a) is np.ndarray and a.dtype == np.float64 and a.flags.c_contiguous
 
 
 class GridLoad:
@@ -66,7 +62,7 @@ class GridLoad:
         has them at the grid's levels), else worked out here into the grid's buffers (None
         returned). A state is never written after it is made, and the views hold it until
         camera k's next frame, so its worker's pool does not give its arrays out meanwhile."""
-        if self._usable(state, cam, robot_free) and _readable(state.free):
+        if self._usable(state, cam, robot_free) and readable(state.free):
             if self._pyramids_usable(state):
                 self._views.point(k, state.free, state.pmin, state.pmax)
             else:
@@ -80,8 +76,8 @@ class GridLoad:
 
     def _pyramids_usable(self, state) -> bool:
         """``state`` holds min / max pyramids with the levels of this grid's others, readable in place."""
-        return (state.pmin is not None and state.levels == self._koff.shape[1] and _readable(state.pmin)
-                and _readable(state.pmax))
+        return (state.pmin is not None and state.levels == self._koff.shape[1] and readable(state.pmin)
+                and readable(state.pmax))
 
     def _usable(self, state, cam, robot_free) -> bool:
         """``state`` (a :class:`~depthguard.fusion.depth_grid_state.CameraState` or None) was made

@@ -39,7 +39,7 @@ from typing import NamedTuple
 import numpy as np
 from numba import njit
 
-from depthguard.fusion.camera_views import CameraViews
+from depthguard.fusion.camera_views import CameraViews, readable
 from depthguard.fusion.depth_grid_memo import _camera_stretch, mask_range, msb
 
 __all__ = ["ShareSpec", "CameraShare", "CameraSharer", "share_spec", "camera_share", "install_share",
@@ -202,10 +202,11 @@ class CameraSharer:
         """Camera k's share from its ``state`` (a CameraState with pyramids at ``spec.levels``) for
         the cells ``request`` = ``(idx (M,), want (M, nw))`` (the grid's
         :meth:`~depthguard.fusion.depth_grid.DepthGridMap.share_request`: what the builds asked
-        of camera k during an earlier frame of it). None when the state does not fit the spec or
-        nothing is asked."""
+        of camera k during an earlier frame of it). None when the state does not fit the spec, its
+        arrays cannot be read in place (then the build works its clearing out) or nothing is asked."""
         if (state is None or state.pmin is None or state.levels != spec.levels or state.bin != 1
-                or request is None or not len(request[0])):
+                or request is None or not len(request[0])
+                or not (readable(state.free) and readable(state.pmin) and readable(state.pmax))):
             return None
         H, W = spec.shape
         if self._scratch_key != (H, W, spec.nw):
