@@ -39,6 +39,7 @@ def test_fast_run_writes_a_log_line_per_cycle_and_a_summary_that_agrees(tmp_path
             assert (p["distance"] is None) == (p["direction"] is None)
     assert summary["sources"] == {"frames": ["sim:flacco-cell:reach"], "joints": "sim"}
     assert summary["interrupted"] is False and summary["sinks_dropped"] == 0
+    assert summary["frame_lag_at_push_ms"] == {}                 # no clock to be late on in a fast run
 
 
 @pytest.mark.slow
@@ -69,6 +70,13 @@ def test_monitor_alone_runs_in_real_time_and_stops_cleanly_on_ctrl_c(tmp_path, m
     # the control thread ran under SCHED_FIFO 50 (the default), or the summary says why not
     assert summary["control_scheduling"] == "SCHED_FIFO 50" or "not permitted" in summary["control_scheduling"]
     assert all(c["fused"] > 0 for c in summary["stats"]["cameras"].values()), summary["stats"]
+    # each camera's frames were handed over after their capture (causality), within the run, and
+    # every frame a worker processed was counted when its source pushed it
+    lag = summary["frame_lag_at_push_ms"]
+    assert set(lag) == set(summary["stats"]["cameras"]), lag
+    for cid, c in summary["stats"]["cameras"].items():
+        assert 0.0 <= lag[cid]["p50"] <= lag[cid]["p99"] <= lag[cid]["max"] < 1e3 * summary["wall_s"], lag
+        assert lag[cid]["frames"] >= c["frames"] > 0, (lag, c)
     assert "interrupted" in stdout
 
 

@@ -98,6 +98,8 @@ class RunStats:
         self.control_scheduling = "not paced (fast run)"   # real time: runtime.realtime's status
         self.cpu_since = (thread_cpu_seconds(), time.process_time())   # the run's CPU from here
         self.cpu: dict[str, float] = {}   # CPU s per part of the run (runtime.thread_cpu), at its end
+        # real time: per camera, each frame's age when its source handed it over (run clock - stamp, s)
+        self.lag_at_push: dict[str, list[float]] = {}
 
     def note_cpu(self) -> None:
         """CPU seconds per part since the run started (:func:`~depthguard.runtime.thread_cpu.cpu_by_part`),
@@ -158,6 +160,12 @@ def summarise(monitor, stats: RunStats, wall_s: float, sources: dict, extra: dic
                                  "p99": pct(monitor.frame_to_reaction_s, 99)},
         "fusion_build_ms": {"p50": pct(monitor.fusion.build_seconds, 50),
                             "p99": pct(monitor.fusion.build_seconds, 99)},
+        # real time: how old each camera's frames were when their source delivered them (the
+        # source's part of a frame's age; the monitor's is frame_to_reaction_ms), so that a stop
+        # for stale frames (R27) says whose lateness it was; {} in a fast run
+        "frame_lag_at_push_ms": {cid: {"p50": pct(lags, 50), "p99": pct(lags, 99), "max": pct(lags, 100),
+                                       "frames": len(lags)}
+                                 for cid, lags in sorted(stats.lag_at_push.items())},
         "stats": st,
         "config": monitor.config.model_dump(mode="json"),
     }
@@ -331,6 +339,21 @@ def _run_threads(monitor, frame_sources, joint_source, duration, stop, emit, all
     next_status = 0.0
     start = time.monotonic() - t0
     clock = lambda: time.monotonic() - start          # noqa: E731 - the run's clock, from t0
+    lags = stats.lag_at_push
+
+    def push_frame(frame) -> None:
+        """``monitor.push_frame``, the frame's age at hand-over noted first (run clock - stamp:
+        the stamps of every real-time source are on the run's clock, module docstring)."""
+        try:
+            age = clock() - float(frame.stamp)
+        except (TypeError, ValueError, AttributeError):
+            age = math.nan               # the monitor's worker refuses the frame, with its reason
+        if math.isfinite(age):
+            lag = lags.get(frame.camera_id)
+            if lag is None:
+                lag = lags[frame.camera_id] = []
+            lag.append(age)
+        monitor.push_frame(frame)
 
     def pump(fn, push, stamped: bool = False):
         from depthguard.runtime.ingest import background_thread
@@ -385,11 +408,11 @@ def _run_threads(monitor, frame_sources, joint_source, duration, stop, emit, all
     for i, s in enumerate(frame_sources):
         streams = s.camera_streams() if hasattr(s, "camera_streams") else None
         if streams:
-            threads += [threading.Thread(target=camera_pump, args=(st, monitor.push_frame), daemon=True,
+            threads += [threading.Thread(target=camera_pump, args=(st, push_frame), daemon=True,
                                          name=f"depthguard-source-{i}-{st.camera_id}") for st in streams]
         else:
             threads.append(threading.Thread(target=pump, args=(getattr(s, "frames_each", s.frames_until),
-                                                               monitor.push_frame),
+                                                               push_frame),
                                             daemon=True, name=f"depthguard-source-{i}"))
     threads += [threading.Thread(target=pump, args=(s.voxels_until, lambda v: monitor.push_voxels(*v)),
                                  daemon=True, name=f"depthguard-units-{i}")
