@@ -283,10 +283,14 @@ def frame_state_fused(depth, robot_depth, use_robot, min_range, max_range, robot
         for v in prange(H):
             # chunks of a row: every pixel by the rule of a measured one (branch-free, vectorised),
             # then the chunk's invalid pixels, if any (between the first and the last), by the whole rule
+            ra, rb = _row_span(robot_spans, v, W, use_robot)
             for u0 in range(0, W, _CHUNK):
                 u1 = min(u0 + _CHUNK, W)
-                first, last = _valid_row(depth[v, u0:u1], robot_depth[v, u0:u1] if use_robot else depth[v, u0:u1],
-                                         use_robot, min_range, max_range, robot_offset, robot_free, beyond_free,
+                # a chunk outside the row's robot span reads no robot depth (0 there): its depth
+                # stands in, ruled without the robot (the same bits, 1.2 MB less read a frame)
+                rob = u0 < rb and ra < u1
+                first, last = _valid_row(depth[v, u0:u1], robot_depth[v, u0:u1] if rob else depth[v, u0:u1],
+                                         rob, min_range, max_range, robot_offset, robot_free, beyond_free,
                                          limit, out_free[v, u0:u1], out_kind[v, u0:u1])
                 for u in range(u0 + first, u0 + last + 1):
                     m = np.float64(depth[v, u])
@@ -302,11 +306,16 @@ def frame_state_fused(depth, robot_depth, use_robot, min_range, max_range, robot
     wb = -(-W // b)
     if b == 2 and H % 2 == 0 and W % 2 == 0:
         for j in prange(hb):               # the common case: blocks of measured pixels branch-free
+            ra0, rb0 = _row_span(robot_spans, 2 * j, W, use_robot)
+            ra1, rb1 = _row_span(robot_spans, 2 * j + 1, W, use_robot)
+            ra = min(ra0, ra1)
+            rb = max(rb0, rb1)
             for i0 in range(0, wb, _CHUNK // 2):
                 i1 = min(i0 + _CHUNK // 2, wb)
-                rr = robot_depth if use_robot else depth
+                rob = 2 * i0 < rb and ra < 2 * i1          # (as in the b == 1 loop)
+                rr = robot_depth if rob else depth
                 first, last = _valid_row_pairs(depth[2 * j, 2 * i0:2 * i1], depth[2 * j + 1, 2 * i0:2 * i1],
-                                               rr[2 * j, 2 * i0:2 * i1], rr[2 * j + 1, 2 * i0:2 * i1], use_robot,
+                                               rr[2 * j, 2 * i0:2 * i1], rr[2 * j + 1, 2 * i0:2 * i1], rob,
                                                min_range, max_range, robot_offset, robot_free, beyond_free, limit,
                                                out_free[j, i0:i1], out_kind[j, i0:i1])
                 for i in range(i0 + first, i0 + last + 1):   # blocks with an invalid pixel: by the whole rule
@@ -345,12 +354,15 @@ def frame_state_fused(depth, robot_depth, use_robot, min_range, max_range, robot
             frow[i] = np.inf
             krow[i] = np.int8(127)
         for v in range(va, vb):
+            ra, rb = _row_span(robot_spans, v, W, use_robot)
+            rob = ra < rb                      # a row without robot pixels reads no robot depth
+            rv = rr if rob else depth
             if b == 4:
-                _fold_row4(depth[v, :nfull * b], rr[v, :nfull * b], use_robot, min_range, max_range,
+                _fold_row4(depth[v, :nfull * b], rv[v, :nfull * b], rob, min_range, max_range,
                           robot_offset, robot_free, beyond_free, limit, frow, krow)
                 continue
             for c in range(b):
-                _fold_phase(depth[v, c:nfull * b:b], rr[v, c:nfull * b:b], use_robot, min_range, max_range,
+                _fold_phase(depth[v, c:nfull * b:b], rv[v, c:nfull * b:b], rob, min_range, max_range,
                             robot_offset, robot_free, beyond_free, limit, frow, krow)
         for i in range(wb):
             if i < nfull and out_free[j, i] != -np.inf:
@@ -360,6 +372,16 @@ def frame_state_fused(depth, robot_depth, use_robot, min_range, max_range, robot
                                min(W, i * b + b))
             out_free[j, i] = m
             out_kind[j, i] = k
+
+
+@njit(cache=True, nogil=True, inline="always")
+def _row_span(spans, v, W, use_robot):
+    """``(a, b)``: row ``v``'s robot span ``[a, b)`` of ``spans`` (>= H, 2) int32 clipped to
+    ``0..W`` (``b <= a``: no robot pixel in the row, nor anywhere without ``use_robot``)."""
+    if not use_robot:
+        return 0, 0
+    a = max(min(np.int64(spans[v, 0]), W), 0)
+    return a, max(min(np.int64(spans[v, 1]), W), a)
 
 
 @njit(cache=True, nogil=True, inline="always")
