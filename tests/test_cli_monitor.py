@@ -154,3 +154,19 @@ def test_a_recording_replays_from_its_first_stamp_with_the_robot_removed_at_capt
     ee = [r["points"][0] for r in late]
     assert all(p["observed"] for p in ee)
     assert min((p["distance"] for p in ee if p["distance"] is not None), default=np.inf) > 0.05
+
+
+def test_the_frame_age_split_names_the_slowest_camera_and_the_monitors_part():
+    """The closing line of a real-time run that stopped the robot for stale frames says whose
+    lateness it was (R27): the slowest camera's age at delivery beside the monitor's part; a
+    fast run (no delivery ages) or a run that used no frame gets no line."""
+    from depthguard.cli.monitor import frame_age_split
+
+    summary = {"frame_lag_at_push_ms": {"camA": {"p50": 9.0, "p99": 41.2, "max": 60.0, "frames": 230},
+                                        "camB": {"p50": 12.0, "p99": 87.6, "max": 95.0, "frames": 228}},
+               "frame_to_reaction_ms": {"p50": 20.0, "p99": 55.4}}
+    line = frame_age_split(summary, 0.1)
+    assert "stale limit of 100 ms" in line and "88 ms when the source delivered them (camera camB" in line
+    assert "then 55 ms in the monitor" in line
+    assert frame_age_split({**summary, "frame_lag_at_push_ms": {}}, 0.1) is None
+    assert frame_age_split({**summary, "frame_to_reaction_ms": {"p50": None, "p99": None}}, 0.1) is None

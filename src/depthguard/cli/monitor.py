@@ -104,6 +104,21 @@ def never_accepted(stats: dict) -> str | None:
     return "; ".join(bad) or None
 
 
+def frame_age_split(summary: dict, stale_limit_s: float) -> str | None:
+    """Whose lateness a real-time run's stale-camera stops were (R27), from its summary: the
+    slowest camera's frame age when its source delivered (``frame_lag_at_push_ms``, p99) beside
+    the monitor's own part, delivery to reaction (``frame_to_reaction_ms``, p99), against the
+    stale limit; None without those figures (a fast run, no frame)."""
+    lags = {c: v["p99"] for c, v in summary.get("frame_lag_at_push_ms", {}).items() if v.get("p99") is not None}
+    f2r = summary.get("frame_to_reaction_ms", {}).get("p99")
+    if not lags or f2r is None:
+        return None
+    slow = max(lags, key=lags.get)
+    return (f"frames' age p99 against the stale limit of {stale_limit_s * 1e3:.0f} ms: {lags[slow]:.0f} ms when the "
+            f"source delivered them (camera {slow}, the slowest), then {f2r:.0f} ms in the monitor to a reaction "
+            f"(summary.json frame_lag_at_push_ms, frame_to_reaction_ms)")
+
+
 def never_delivered(stats: dict) -> str | None:
     """One line naming every monitored camera that delivered no frame at all in the run (none
     accepted, none refused): the robot was stopped for it throughout (R27); None when there is none."""
@@ -314,6 +329,9 @@ def monitor(
 
         typer.echo(f"monitor: cores used ({summary['cpu_s']['process'] / max(summary['wall_s'], 1e-9):.2f} in all, "
                    f"summary.json cpu_s): {top_parts(summary['cpu_s'], summary['wall_s'])}")
+    ages = frame_age_split(summary, mon.config.camera_stale_limit) if not fast and summary["stopped_s"] > 0 else None
+    if ages:
+        typer.echo(f"monitor: {ages}")
 
 
 @app.command("safe-defaults")
