@@ -61,3 +61,10 @@ def test_the_rig_file_of_a_run_is_the_cells_with_the_setting_changed(tmp_path):
     assert rig.monitor.with_changes(fusion_duty=shipped.monitor.fusion_duty) == shipped.monitor
     assert [c.id for c in rig.cameras] == [c.id for c in shipped.cameras]
     assert len(rig.static_meshes()) == len(shipped.static_meshes())      # the STL found through the link
+
+
+def test_the_runs_text_gives_every_run_and_how_many_met_the_goal():
+    from depthguard.evaluation.bench.availability import GOAL_S, _runs_text
+
+    assert GOAL_S == 0.3
+    assert _runs_text([0.0, 2.786, 0.3, 0.301]) == "runs 0.00, 2.79, 0.30, 0.30 s (2 of 4 <= 0.3 s)"

@@ -13,6 +13,11 @@ the machine's speed.
   duty; the cell's own setting otherwise).
 * ``availability.stale_s.<cell>.busy`` — the same with one other process keeping a core busy.
 
+Each row's note gives every run's stale seconds and how many met the goal (on a 2-core machine
+a run is ~0 s or seconds, by the moment it runs in: :data:`RUNS` runs per version), and the
+slowest camera's frame age (p99) when the simulator delivered it — the source's part of a late
+frame (``summary.json`` ``frame_lag_at_push_ms``).
+
 Each run is its own process (``python -m depthguard monitor``, a rig file written from the
 built-in cell's with the ``monitor:`` setting changed), so that the runs do not share threads or
 a warm cache beyond numba's on-disk one. The first stamps of a run are excluded up to the
@@ -33,6 +38,11 @@ from depthguard.evaluation.bench import BenchContext, BenchRow, group
 
 #: (cell, with a busy core too)
 CASES = (("flacco-cell", True), ("ur3-cell", False))
+#: runs per case and version (full bench): on a 2-core machine a run is ~0 s or seconds stale by
+#: the moment it runs in, so each run is given in the note beside the median
+RUNS = 5
+#: the issue's goal: stale seconds of an 8 s run
+GOAL_S = 0.3
 
 
 def stale_seconds(log_path: Path) -> float:
@@ -74,8 +84,10 @@ def _rig_file(cell: str, folder: Path, **monitor) -> Path:
     return out
 
 
-def run_once(cell: str, seconds: float, busy: bool, folder: Path, **monitor) -> float:
-    """Stale seconds of one real-time run (module docstring)."""
+def run_once(cell: str, seconds: float, busy: bool, folder: Path, **monitor) -> tuple[float, float | None]:
+    """``(stale seconds, the slowest camera's frame age p99 at delivery, ms)`` of one real-time
+    run (module docstring; the second from the run's ``summary.json`` ``frame_lag_at_push_ms``,
+    None where it has none)."""
     rig = _rig_file(cell, folder, **monitor)
     out = Path(tempfile.mkdtemp(dir=folder))
     hog = subprocess.Popen([sys.executable, "-c", "while True: pass"]) if busy else None
@@ -89,7 +101,16 @@ def run_once(cell: str, seconds: float, busy: bool, folder: Path, **monitor) -> 
             hog.wait()
     if res.returncode != 0:
         raise RuntimeError(f"monitor on {cell} failed ({res.returncode}): {res.stderr.strip()[-400:]}")
-    return stale_seconds(out / "run" / "log.jsonl")
+    summary = json.loads((out / "run" / "summary.json").read_text())
+    lags = [v["p99"] for v in summary.get("frame_lag_at_push_ms", {}).values() if v.get("p99") is not None]
+    return stale_seconds(out / "run" / "log.jsonl"), (max(lags) if lags else None)
+
+
+def _runs_text(values: list) -> str:
+    """The runs' stale seconds, in order, and how many met the goal (a run here is either ~0 s or
+    seconds: a median alone hides which)."""
+    met = sum(1 for v in values if v <= GOAL_S)
+    return f"runs {', '.join(f'{v:.2f}' for v in values)} s ({met} of {len(values)} <= {GOAL_S:g} s)"
 
 
 @group("availability")
@@ -97,22 +118,27 @@ def bench_availability(ctx: BenchContext) -> list[BenchRow]:
     from depthguard.sim.cells import load_cell
 
     seconds = 3.0 if ctx.quick else 8.0
-    runs = 1 if ctx.quick else 3
+    runs = 1 if ctx.quick else RUNS
     rows: list[BenchRow] = []
     with tempfile.TemporaryDirectory() as tmp:
         folder = Path(tmp)
         for cell, with_busy in CASES:
             duty = load_cell(cell).rig.monitor.fusion_duty
             for busy in ((False, True) if with_busy else (False,)):
-                ours, peer = [], []
+                ours, peer, lags = [], [], []
                 for _ in range(runs):                  # alternated: the machine's load hits both
                     ctx.log(f"availability: {cell}{' busy' if busy else ''} fusion_duty {duty}")
-                    ours.append(run_once(cell, seconds, busy, folder, fusion_duty=duty))
-                    peer.append(run_once(cell, seconds, busy, folder, fusion_duty=1.0))
+                    stale, lag = run_once(cell, seconds, busy, folder, fusion_duty=duty)
+                    ours.append(stale)
+                    lags += [] if lag is None else [lag]
+                    peer.append(run_once(cell, seconds, busy, folder, fusion_duty=1.0)[0])
+                lag_text = (f"; the slowest camera's frames were {np.median(lags):.0f} ms old (p99, median of the "
+                            f"runs) when the simulator delivered them" if lags else "")
                 rows.append(BenchRow(f"availability.stale_s.{cell}{'.busy' if busy else ''}", float(np.median(ours)),
                                      "s", peer="the fusion building after every frame (fusion_duty 1)",
                                      peer_value=float(np.median(peer)),
                                      note=f"depthguard monitor, real time {seconds:g} s, the simulator rendering "
                                           f"every camera in the process{', one other process busy' if busy else ''}; "
-                                          f"seconds with a stale: reason, median of {runs}; goal <= 0.3 s"))
+                                          f"seconds with a stale: reason, median of {runs}: {_runs_text(ours)}; "
+                                          f"peer {_runs_text(peer)}{lag_text}; goal <= {GOAL_S:g} s"))
     return rows
