@@ -92,6 +92,8 @@ class MonitorDistances:
             if self._seen.get(c) != v:
                 self._seen[c] = v
                 self.frame_to_reaction_s.append(now - pushed_at[c])
+                if len(self.frame_to_reaction_s) > 100_000:     # a long run keeps the newest (as step_s)
+                    del self.frame_to_reaction_s[:50_000]
 
     @contextmanager
     def real_time(self):

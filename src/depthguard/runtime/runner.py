@@ -77,6 +77,11 @@ def open_run_sinks(specs, rig, context: dict, fast: bool):
     return direct, [s for s in opened if not getattr(s, "direct", False)]
 
 
+#: timing samples a long run keeps per list (the newest; the summary's percentiles are of those):
+#: a day at 30 Hz would otherwise hold millions of floats
+TIMING_KEEP = 100_000
+
+
 class RunStats:
     """What a run accumulates beside the log: a sink called with every reaction."""
 
@@ -353,6 +358,8 @@ def _run_threads(monitor, frame_sources, joint_source, duration, stop, emit, all
             if lag is None:
                 lag = lags[frame.camera_id] = []
             lag.append(age)
+            if len(lag) > TIMING_KEEP:           # a long run keeps its newest ages, not all of them
+                del lag[:TIMING_KEEP // 2]
         monitor.push_frame(frame)
 
     def pump(fn, push, stamped: bool = False):
