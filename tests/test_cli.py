@@ -56,6 +56,26 @@ def test_bench_only_picks_the_group_that_owns_a_prefix():
     assert selected_groups(["nosuchgroup"], names) == []
 
 
+def test_bench_names_its_machine():
+    """The table says what it was measured on (the same code's figures differ by machine): the CPU
+    as /proc/cpuinfo names it, the cores this process may use, Python's and numba's versions."""
+    import os
+    import platform
+
+    import numba
+
+    from depthguard.evaluation.bench import machine
+
+    line = machine()
+    cores = len(os.sched_getaffinity(0)) if hasattr(os, "sched_getaffinity") else os.cpu_count()
+    assert f", {cores} cores," in line
+    assert f"Python {platform.python_version()}" in line and f"numba {numba.__version__}" in line
+    if os.path.exists("/proc/cpuinfo"):
+        with open("/proc/cpuinfo") as fh:
+            name = next((ln.split(":", 1)[1].strip() for ln in fh if ln.startswith("model name")), None)
+        assert name is None or line.startswith(name)
+
+
 def test_run_rejects_bad_camera_latency_and_records_the_latency(tmp_path):
     runner = CliRunner()
     res = runner.invoke(app, ["run", "-s", "empty", "-o", str(tmp_path / "x"), "--camera-latency", "-0.1"])

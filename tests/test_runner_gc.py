@@ -11,7 +11,8 @@ import threading
 import numpy as np
 
 from depthguard.runtime.monitor import Monitor, warm_up
-from depthguard.runtime.runner import frozen_heap, run
+from depthguard.runtime.realtime import frozen_heap
+from depthguard.runtime.runner import run
 from depthguard.sim import load_cell
 
 
@@ -91,3 +92,26 @@ def test_a_real_time_run_is_frozen_while_it_runs():
     frozen_during, marker_walked = seen[0]
     assert frozen_during > frozen0 + 10_000 and not marker_walked
     assert gc.get_freeze_count() == frozen0 and _tracked(marker)
+
+
+def test_a_program_that_drives_the_monitor_itself_is_frozen_in_real_time():
+    """``Monitor.real_time()`` (a program's own control loop, the monitor bench) freezes the heap as
+    :func:`run` does; nested in a run, only the outermost freezes and unfreezes."""
+    rig = load_cell("flacco-cell").rig
+    cfg = rig.monitor.with_changes(invalid="free")
+    marker = ["made before the loop"]
+    frozen0 = gc.get_freeze_count()
+    with Monitor(rig, cfg) as mon:
+        with mon.real_time():
+            assert gc.get_freeze_count() > frozen0 + 10_000 and not _tracked(marker)
+            inner = gc.get_freeze_count()
+            with frozen_heap():                      # a run around it would nest the same way
+                assert gc.get_freeze_count() == inner
+            assert gc.get_freeze_count() == inner and not _tracked(marker)
+        assert gc.get_freeze_count() == frozen0 and _tracked(marker)
+        with frozen_heap():
+            outer = gc.get_freeze_count()
+            with mon.real_time():
+                assert gc.get_freeze_count() == outer
+            assert gc.get_freeze_count() == outer        # the run's freeze holds until its end
+        assert gc.get_freeze_count() == frozen0

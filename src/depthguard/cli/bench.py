@@ -39,7 +39,7 @@ def bench(
         if not bench_harness.selected_groups([o], known):
             raise typer.BadParameter(f"no benchmark group matches {o!r}; groups: {', '.join(known)}", param_hint="--only")
     rows = bench_harness.run(only=only, ctx=ctx)
-    table = Table(title="depthguard bench")
+    table = Table(title="depthguard bench", caption=f"measured on {bench_harness.machine()}")
     for col in ("name", "value", "unit", "paper", "peer", "peer value", "note"):
         table.add_column(col, overflow="fold")
 

@@ -21,10 +21,12 @@ monitor's own (the live view's web server) the workers' lower priority.
 
 from __future__ import annotations
 
+import gc
 import os
 import threading
+from contextlib import contextmanager
 
-__all__ = ["RealtimeControl", "realtime_control", "normal_scheduling", "background_priority"]
+__all__ = ["RealtimeControl", "realtime_control", "normal_scheduling", "background_priority", "frozen_heap"]
 
 
 class RealtimeControl:
@@ -105,3 +107,34 @@ def background_priority(native_id: int | None) -> bool:
     except (AttributeError, OSError):
         return False
     return True
+
+
+_frozen_lock = threading.Lock()
+_frozen_runs = 0
+
+
+@contextmanager
+def frozen_heap():
+    """The objects made before a real-time run (modules, numba's dispatchers, the rig, the monitor's
+    state: ~155k on flacco-cell) left out of the cyclic garbage collector for the run's length
+    (``gc.collect()`` then ``gc.freeze()``; ``gc.unfreeze()`` when the last such run ends), R29.
+
+    Issue 29: without it, a full (generation 2) collection during the run walked all of them —
+    40-115 ms of CPU holding the GIL, on whichever thread allocated (often the joints pump at
+    the workers' low priority), collecting under 200 objects — and every thread, the control
+    thread too, waited: the joints went stale (``stale:joints``, > 50 ms). Frozen, a full
+    collection walks only what the run itself keeps. Garbage made of frozen objects is still
+    freed by reference counting; only frozen reference cycles wait for the unfreeze."""
+    global _frozen_runs
+    with _frozen_lock:
+        if _frozen_runs == 0:
+            gc.collect()
+            gc.freeze()
+        _frozen_runs += 1
+    try:
+        yield
+    finally:
+        with _frozen_lock:
+            _frozen_runs -= 1
+            if _frozen_runs == 0:
+                gc.unfreeze()

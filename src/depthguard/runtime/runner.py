@@ -26,15 +26,14 @@ Returns the run's summary (:func:`summarise`), which ``--out DIR`` writes to
 
 from __future__ import annotations
 
-import gc
 import math
 import threading
 import time
-from contextlib import contextmanager
 from typing import Callable
 
 import numpy as np
 
+from depthguard.runtime.realtime import frozen_heap
 from depthguard.runtime.thread_cpu import cpu_by_part, thread_cpu_seconds
 
 __all__ = ["run", "summarise", "RunStats", "reaction_subscribers", "open_run_sinks", "frozen_heap"]
@@ -293,37 +292,6 @@ def _run_real_time(monitor, frame_sources, joint_source, duration, stop, emit, a
         return _run_paced(monitor, frame_sources, joint_source, duration, stop, emit, all_done, stats, wall0, t0)
     finally:
         sys.setswitchinterval(old)
-
-
-_frozen_lock = threading.Lock()
-_frozen_runs = 0
-
-
-@contextmanager
-def frozen_heap():
-    """The objects made before a real-time run (modules, numba's dispatchers, the rig, the monitor's
-    state: ~155k on flacco-cell) left out of the cyclic garbage collector for the run's length
-    (``gc.collect()`` then ``gc.freeze()``; ``gc.unfreeze()`` when the last such run ends), R29.
-
-    Issue 29: without it, a full (generation 2) collection during the run walked all of them —
-    40-115 ms of CPU holding the GIL, on whichever thread allocated (often the joints pump at
-    the workers' low priority), collecting under 200 objects — and every thread, the control
-    thread too, waited: the joints went stale (``stale:joints``, > 50 ms). Frozen, a full
-    collection walks only what the run itself keeps. Garbage made of frozen objects is still
-    freed by reference counting; only frozen reference cycles wait for the unfreeze."""
-    global _frozen_runs
-    with _frozen_lock:
-        if _frozen_runs == 0:
-            gc.collect()
-            gc.freeze()
-        _frozen_runs += 1
-    try:
-        yield
-    finally:
-        with _frozen_lock:
-            _frozen_runs -= 1
-            if _frozen_runs == 0:
-                gc.unfreeze()
 
 
 def _run_paced(monitor, frame_sources, joint_source, duration, stop, emit, all_done, stats, wall0, t0=0.0):

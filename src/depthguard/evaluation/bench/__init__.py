@@ -131,3 +131,32 @@ def time_call(fn: Callable[[], object], repeats: int, warmup: int = 2) -> np.nda
         fn()
         out[i] = time.perf_counter() - t0
     return out
+
+
+def machine() -> str:
+    """The machine the figures were measured on, in one line: the CPU's model name (Linux
+    ``/proc/cpuinfo``; the platform's processor elsewhere), the cores this process may use, and
+    Python's and numba's versions. The same code's figures move with the machine — the fusion's
+    build p50 with 2 cameras was 2.4-2.7 ms on one 2-core VM of this project and 1.3-1.5 ms on
+    another (issue 29) — so a figure is quoted with its machine."""
+    import os
+    import platform
+
+    import numba
+
+    info: dict[str, str] = {}
+    try:
+        with open("/proc/cpuinfo") as fh:
+            for ln in fh:
+                if not ln.strip():
+                    break                                 # the first processor's block
+                key, _, value = ln.partition(":")
+                info.setdefault(key.strip(), value.strip())
+    except OSError:
+        pass
+    model = info.get("model name") or platform.processor() or platform.machine() or "unknown CPU"
+    if "cpu family" in info and "model" in info:          # a VM's model name is often generic
+        model += f" (family {info['cpu family']} model {info['model']}"
+        model += f", {info['cpu MHz']} MHz)" if "cpu MHz" in info else ")"
+    cores = len(os.sched_getaffinity(0)) if hasattr(os, "sched_getaffinity") else os.cpu_count()
+    return f"{model}, {cores} cores, Python {platform.python_version()}, numba {numba.__version__}"

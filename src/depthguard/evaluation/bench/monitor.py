@@ -15,7 +15,8 @@ seconds (quick 1 s, full 10 s):
   (``t`` the cycle's scheduled time; the joints are the newest received).
   It runs under the rig's ``monitor: control_priority`` (SCHED_FIFO 50 where
   the system permits it, as ros2_control runs its loop; the row's note says
-  which), and so does today's code in the same run.
+  which), with the heap frozen as a real-time run has it
+  (:func:`~depthguard.runtime.realtime.frozen_heap`), and so does today's code.
 
 Rows:
 
@@ -74,7 +75,7 @@ import time
 import numpy as np
 
 from depthguard.evaluation.bench import BenchContext, BenchRow, group
-from depthguard.runtime.realtime import realtime_control
+from depthguard.runtime.realtime import frozen_heap, realtime_control
 
 CAMERA_HZ = 30.0
 CONTROL_HZ = 500.0
@@ -218,7 +219,8 @@ def _run_monitor(script: _Script, rig, feeds, cfg, duration: float, attach=None)
 
     dt = 1.0 / CONTROL_HZ
     stop = threading.Event()
-    with Monitor(rig, cfg) as mon:
+    # the heap frozen before the clock starts, as runtime.runner.run has it (real_time() then nests)
+    with Monitor(rig, cfg) as mon, frozen_heap():
         finish = attach(mon) if attach is not None else None
         step0 = len(mon.step_s)                # steps taken by ``attach`` are not the run's
         t0 = time.perf_counter() + 0.05
@@ -316,9 +318,9 @@ def _run_today(script: _Script, rig, feeds, cfg, duration: float) -> dict:
     n_cycles = int(duration * CONTROL_HZ)
     cycle_s, f2r_s, load_s = [], [], []
     j = 0
-    t0 = time.perf_counter() + 0.05
     rt = realtime_control(cfg.control_priority)
-    with rt:
+    with frozen_heap(), rt:                          # as the monitor's run (_run_monitor)
+        t0 = time.perf_counter() + 0.05
         cpu0, w0 = time.thread_time(), time.perf_counter()
         for i in range(n_cycles):
             t = i * dt

@@ -1,7 +1,7 @@
 """Bench group ``stalls``: what the monitor's process spends outside its own work (R29; issue 29).
 
 - ``stalls.gc_full_ms`` — the CPU of one full garbage collection (``gc.collect()``) once a
-  ``flacco-cell`` monitor is built, inside a real-time run's :func:`~depthguard.runtime.runner.frozen_heap`
+  ``flacco-cell`` monitor is built, inside a real-time run's :func:`~depthguard.runtime.realtime.frozen_heap`
   (the objects made before the run frozen: the collection walks what the run made); the peer is
   the same collection with nothing frozen, as before issue 29 (it walked every module, numba
   dispatcher and array of the process, holding the GIL), alternated, median of the repeats.
@@ -38,7 +38,7 @@ def _poll_wait(h, stamp: float, timeout: float, poll_s: float = 0.0005):
 
 def _gc_rows(ctx: BenchContext) -> BenchRow:
     from depthguard.runtime.monitor import Monitor, warm_up
-    from depthguard.runtime.runner import frozen_heap
+    from depthguard.runtime.realtime import frozen_heap
     from depthguard.sim import load_cell
 
     rig = load_cell("flacco-cell").rig
