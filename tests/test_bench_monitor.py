@@ -38,6 +38,42 @@ def test_monitor_bench_quick_rows():
     assert math.isfinite(cpu.peer_value) and cpu.peer_value > 0, cpu
 
 
+def test_the_monitor_bench_robot_moves_between_any_two_frames():
+    """The bench's path is one of robot motion (its rows claim robot removal at every frame's joints):
+    the capture joints differ between any two consecutive frames of a camera, in full and quick
+    runs, and the arm travels. Truth: the cell's own scripted joints (the simulator's)."""
+    import numpy as np
+
+    from depthguard.evaluation.bench import monitor as bench_monitor
+    from depthguard.sim import load_cell
+
+    scene = load_cell("flacco-cell").scene
+    for n in (bench_monitor.PATH_FRAMES, 10):
+        t = bench_monitor.PATH_END - np.arange(n)[::-1] / bench_monitor.CAMERA_HZ
+        q = np.array([scene.robot_q(x) for x in t])
+        steps = np.abs(np.diff(q, axis=0)).max(axis=1)
+        assert steps.min() > 0.0, (n, steps)
+        assert np.abs(q[-1] - q[0]).max() > 0.05 or n == 10, (n, q[0], q[-1])
+
+
+def test_every_built_in_cell_window_is_one_of_robot_motion():
+    """The per-cell rows (``monitor.build``) and the ``share`` group's worker and build rows are of a
+    moving robot: on each built-in cell's window the scripted joints differ between any two frames
+    1/30 s apart, over its second (the robot's image rendered at every frame, its capsules moving)."""
+    import numpy as np
+
+    from depthguard.evaluation.bench import fusion_cells
+    from depthguard.sim import load_cell
+
+    from depthguard.evaluation.bench import camera_share
+
+    windows = [(name, start) for name, start, _ in fusion_cells.BUILTIN_WINDOWS + fusion_cells.FULL_ONLY_WINDOWS]
+    for name, start in windows + list(camera_share.CELLS):        # and the share group's frames
+        scene = load_cell(name).scene
+        q = np.array([scene.robot_q(start + k / 30.0) for k in range(31)])
+        assert np.abs(np.diff(q, axis=0)).max(axis=1).min() > 0.0, (name, start)
+
+
 def test_build_per_cell_quick_rows():
     """A p50 and a p99 row per cell with a robot, without and with a person; each measured, with its peer."""
     rows = GROUPS["monitor.build"](BenchContext(quick=True))

@@ -40,7 +40,7 @@ import numpy as np
 
 from depthguard.evaluation.bench import BenchContext, BenchRow, group
 
-CELLS = (("flacco-cell", 8.5), ("ur3-cell", 2.0))      # (cell, scene time of the first frame)
+CELLS = (("flacco-cell", 10.0), ("ur3-cell", 2.0))     # (cell, scene time of the first frame; the robot moving)
 
 
 def _frames(cell_name: str, t0: float, n: int):

@@ -3,9 +3,14 @@
 On the ``flacco-cell`` (two Kinect v1 640x480, noisy simulated frames with
 the person of situation ``reach``), frames are rendered **before** the clock
 starts (a real camera's driver costs nothing here): the scripted robot path
-over one second before ``reach`` is played forth and back (a continuous
-path), each camera's frames at its capture times along it. Then, for ``N``
-seconds (quick 1 s, full 10 s):
+over scene time 10-11 s (the robot swinging off from where it stood, by the
+person's hand; the per-cell row ``monitor.build_p50_ms.flacco-cell`` takes the
+same second) is played forth and back (a continuous path), each camera's
+frames at its capture times along it; the robot moves between any two
+frames, so every frame's robot is rendered and its capsules move (until
+2026-11-27 the second ended at 9.5 s, where the robot stands still: the
+workers rendered its image once, 0.3 ms a frame less than a moving robot
+costs them). Then, for ``N`` seconds (quick 1 s, full 10 s):
 
 * one thread per camera pushes a frame every 1/30 s, ``CAPTURE_LATENCY`` after
   its capture stamp (cameras not synchronised: every other camera half a
@@ -81,7 +86,7 @@ CAMERA_HZ = 30.0
 CONTROL_HZ = 500.0
 CAPTURE_LATENCY = 0.005          # s from capture stamp to push
 PATH_FRAMES = 31                 # frames per camera along the path (one second), forth and back
-PATH_END = 9.5                   # scene time of the path's end (situation "reach")
+PATH_END = 11.0                  # scene time of the path's end (the robot moves all along it)
 SKIP_S = 0.25                    # the first cycles (no frame yet) are not counted in the step figures
 STEP_GOAL_MS = 1.0
 COUNTS_QUICK = (2, 4)
