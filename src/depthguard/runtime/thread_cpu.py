@@ -16,14 +16,14 @@ import re
 import threading
 import time
 
-__all__ = ["thread_cpu_seconds", "cpu_by_part", "top_parts"]
+__all__ = ["thread_cpu_seconds", "cpu_by_part", "top_parts", "task_seconds"]
 
 _TICKS = os.sysconf("SC_CLK_TCK") if hasattr(os, "sysconf") else 100
 #: threads of which a run has one per camera or source: grouped under the prefix
 _PER_ITEM = re.compile(r"^(depthguard-(?:camera|source|units|unit-states))-.+$")
 
 
-def _task_seconds(tid: int) -> float | None:
+def task_seconds(tid: int) -> float | None:
     """User + system CPU seconds of thread ``tid`` of this process, None when unreadable."""
     try:
         with open(f"/proc/self/task/{tid}/stat") as fh:
@@ -39,7 +39,7 @@ def thread_cpu_seconds() -> dict[str, float]:
     out: dict[str, float] = {}
     for th in threading.enumerate():
         tid = getattr(th, "native_id", None)
-        s = None if tid is None else _task_seconds(tid)
+        s = None if tid is None else task_seconds(tid)
         if s is not None:
             out[th.name] = out.get(th.name, 0.0) + s
     return out

@@ -80,6 +80,7 @@ import time
 import numpy as np
 
 from depthguard.evaluation.bench import BenchContext, BenchRow, group
+from depthguard.evaluation.bench.monitor_cores import cpu_shares, parts_text, per_camera, thread_cpu
 from depthguard.runtime.realtime import frozen_heap, realtime_control
 
 CAMERA_HZ = 30.0
@@ -160,47 +161,6 @@ def _rig_with(rig, n: int):
     return dataclasses.replace(rig, cameras=cams), feeds
 
 
-def _thread_cpu() -> dict[int, tuple[str | None, float]]:
-    """Per thread (Linux ``/proc/self/task``): id -> (Python thread name, None for a native thread
-    such as numba's pool; CPU s user + system). Empty where ``/proc`` is missing."""
-    import os
-
-    names = {t.native_id: t.name for t in threading.enumerate()}
-    tick = os.sysconf("SC_CLK_TCK") if hasattr(os, "sysconf") else 100
-    out = {}
-    try:
-        tids = os.listdir("/proc/self/task")
-    except OSError:
-        return out
-    for tid in tids:
-        try:
-            with open(f"/proc/self/task/{tid}/stat") as fh:
-                fields = fh.read().rsplit(")", 1)[1].split()
-        except (OSError, IndexError):
-            continue                               # the thread ended meanwhile
-        # after the name: state, ppid, ... utime and stime are the 14th and 15th fields (index 11, 12 here)
-        out[int(tid)] = (names.get(int(tid)), (int(fields[11]) + int(fields[12])) / tick)
-    return out
-
-
-def _cpu_shares(before: dict, after: dict, wall: float, control_tid: int) -> dict:
-    """Cores used over ``wall`` s between two :func:`_thread_cpu` snapshots: ``monitor`` (threads
-    named ``depthguard-*`` and native threads), ``control`` (the control thread), ``bench`` (the
-    other Python threads: feeders). NaN each when ``/proc`` was missing."""
-    if not after or wall <= 0:
-        return {"monitor": math.nan, "control": math.nan, "bench": math.nan}
-    used = {"monitor": 0.0, "control": 0.0, "bench": 0.0}
-    for tid, (name, cpu) in after.items():
-        d = cpu - before.get(tid, (None, 0.0))[1]
-        if tid == control_tid:
-            used["control"] += d
-        elif name is None or name.startswith("depthguard-"):
-            used["monitor"] += d
-        else:
-            used["bench"] += d
-    return {k: v / wall for k, v in used.items()}
-
-
 def _sleep_until(t_wall: float, stop: threading.Event | None = None) -> None:
     while True:
         dt = t_wall - time.perf_counter()
@@ -259,14 +219,14 @@ def _run_monitor(script: _Script, rig, feeds, cfg, duration: float, attach=None)
         late, n_cycles = 0, int(duration * CONTROL_HZ)
         try:
             with realtime_control(cfg.control_priority) as rt, mon.real_time():
-                cpu0, w0 = _thread_cpu(), time.perf_counter()
+                cpu0, w0 = thread_cpu(), time.perf_counter()
                 for i in range(n_cycles):
                     t = i * dt
                     _sleep_until(t0 + t)
                     if time.perf_counter() - (t0 + t) > dt:
                         late += 1
                     mon.step(t)
-                cpu = _cpu_shares(cpu0, _thread_cpu(), time.perf_counter() - w0, threading.get_native_id())
+                cpu = cpu_shares(cpu0, thread_cpu(), time.perf_counter() - w0, threading.get_native_id())
         finally:
             stop.set()
             for th in threads:
@@ -479,7 +439,7 @@ def _bench_monitor(ctx: BenchContext) -> list[BenchRow]:
                         f"dropped {m['dropped']}, refused {m['refused']}, used {len(m['f2r_s'])}/{m['frames']}"
                         f"{'' if ok else ' (failed)'}")
             best, trying = (n, True) if ok else (best, False)
-            per_cam.append(f"{n}: {_per_camera(m):.3g}")
+            per_cam.append(f"{n}: {per_camera(m):.3g}")
         if p is not None:
             ok_today = _held(p)
             best_today, trying_today = (n, True) if ok_today else (best_today, False)
@@ -490,18 +450,14 @@ def _bench_monitor(ctx: BenchContext) -> list[BenchRow]:
                                f"period); tried {', '.join(map(str, counts))} up to the first failure (extra "
                                f"cameras = copies of cam1); {'; '.join(seen)}; {cfg_note}; goal >= 10")))
     cpu = mon["cpu"]
-    rows.append(BenchRow("monitor.cpu_per_camera", _per_camera(mon), "cores",
+    rows.append(BenchRow("monitor.cpu_per_camera", per_camera(mon), "cores",
                          peer="today: its control thread's CPU per camera (robot depths rendered before the clock)",
                          peer_value=peer["cores"] / peer["cameras"],
                          note=(f"CPU time of the monitor's threads (depthguard-*: camera workers with the robot's "
                                f"rendering, fusion, distances; and numba's pool) / wall / cameras, "
                                f"{duration:g} s with 2 cameras at 30 Hz: {cpu['monitor']:.3g} cores in all; not "
                                f"counted: the control thread (step at {CONTROL_HZ:g} Hz and the bench's pacing) "
-                               f"{cpu['control']:.3g} cores, the bench's feeder threads {cpu['bench']:.3g}; per "
+                               f"{cpu['control']:.3g} cores, the bench's feeder threads {cpu['bench']:.3g}; the "
+                               f"monitor's by threads: {parts_text(cpu)}; per "
                                f"camera at each count tried: {', '.join(per_cam)}; goal <= 0.1")))
     return rows
-
-
-def _per_camera(r: dict) -> float:
-    """Cores of the monitor's threads per camera in the run ``r`` (module docstring)."""
-    return r["cpu"]["monitor"] / r["cameras"]
