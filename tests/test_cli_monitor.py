@@ -156,6 +156,29 @@ def test_a_recording_replays_from_its_first_stamp_with_the_robot_removed_at_capt
     assert min((p["distance"] for p in ee if p["distance"] is not None), default=np.inf) > 0.05
 
 
+def test_the_age_line_is_for_late_frames_not_for_the_starts_wait():
+    """The age line explains a stop for late frames; a run whose only stale stop was the start's
+    wait for each camera's first frame (as every real-time run begins) gets none, nor does a stop
+    of the joints or of an unobserved point. Episodes as ``summary.json`` gives them, with the
+    supervisor's own reasons (``control.supervisor.stale_reason``)."""
+    from depthguard.cli.monitor import late_frame_stop
+    from depthguard.control.supervisor import stale_reason
+
+    def episode(key, reason, t0):
+        return {"reason": reason, "key": key, "t_start": t0, "t_end": t0 + 0.05, "t_stopped": t0}
+
+    start = [episode(*stale_reason(c, 0.1, True), 0.0087) for c in ("camA", "camB")]
+    start.append(episode("unobserved:ee", "control point ee is not observed by any camera (R26)", 0.0087))
+    summary = {"cameras": ["camA", "camB"], "episodes": start}
+    assert not late_frame_stop(summary)
+    joints = episode("stale:joints", "joint states: none for more than 50 ms - stale data (R27)", 3.0)
+    assert not late_frame_stop({**summary, "episodes": start + [joints]})
+    late = episode(*stale_reason("camB", 0.1, False), 4.2)
+    assert late_frame_stop({**summary, "episodes": start + [late]})
+    assert not late_frame_stop({"cameras": ["camA"], "episodes": [late]})      # not a camera of this run
+    assert not late_frame_stop({})
+
+
 def test_the_frame_age_split_names_the_slowest_camera_and_the_monitors_part():
     """The closing line of a real-time run that stopped the robot for stale frames says whose
     lateness it was (R27): the slowest camera's age at delivery beside the monitor's part; a

@@ -119,6 +119,15 @@ def frame_age_split(summary: dict, stale_limit_s: float) -> str | None:
             f"(summary.json frame_lag_at_push_ms, frame_to_reaction_ms)")
 
 
+def late_frame_stop(summary: dict) -> bool:
+    """A camera's frames went stale during the run (R27): an episode of a ``stale:<camera>`` reason
+    other than the start's wait for a camera's first frame ("no frame yet", a stop but not a late
+    frame). What :func:`frame_age_split`'s line explains."""
+    cams = set(summary.get("cameras") or ())
+    return any(str(e.get("key", "")).startswith("stale:") and str(e["key"])[len("stale:"):] in cams
+               and "no frame yet" not in str(e.get("reason", "")) for e in summary.get("episodes") or ())
+
+
 def never_delivered(stats: dict) -> str | None:
     """One line naming every monitored camera that delivered no frame at all in the run (none
     accepted, none refused): the robot was stopped for it throughout (R27); None when there is none."""
@@ -329,7 +338,7 @@ def monitor(
 
         typer.echo(f"monitor: cores used ({summary['cpu_s']['process'] / max(summary['wall_s'], 1e-9):.2f} in all, "
                    f"summary.json cpu_s): {top_parts(summary['cpu_s'], summary['wall_s'])}")
-    ages = frame_age_split(summary, mon.config.camera_stale_limit) if not fast and summary["stopped_s"] > 0 else None
+    ages = frame_age_split(summary, mon.config.camera_stale_limit) if not fast and late_frame_stop(summary) else None
     if ages:
         typer.echo(f"monitor: {ages}")
 
