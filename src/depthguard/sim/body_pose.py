@@ -8,8 +8,10 @@ arms' two-link IK in numpy) — a simulated camera frame asks for it at every ca
 stacked ``R @ v`` (per point numpy's gemv, the call ``R @ v`` makes: the same bits), then
 :func:`_pose_parts` — the arms' IK, each capsule's frame (``_frame_along``), the box and the
 spheres — in plain float arithmetic in the order of the numpy code (a 3-vector's dot product
-is the left-to-right sum: what numpy's ``ddot`` gives for 3 terms; the tests compare every part
-to the bit over the built-in cells' scripts).
+is the left-to-right sum: what numpy's ``ddot`` gives for 3 terms). The tests compare every part
+over the built-in cells' scripts: the same bits on the machines before 2026-11-27; to the
+rounding (1.4e-15 at most) on an AVX-512 Xeon, whose BLAS fuses multiply-adds where this
+arithmetic does not.
 """
 
 from __future__ import annotations
@@ -33,7 +35,8 @@ class PartPoses(NamedTuple):
     """The parts of ``Person.primitives_at`` as arrays (R16, issue 29): ``kinds`` the
     parts' shapes, a tuple of ``("capsule", radius, segments)`` (spheres too, ``length`` 0) and
     ``("box", size)``; ``T`` (K, 4, 4) float64 their ``world_from_local``; ``length`` (K,)
-    float64 m a capsule's length (0 otherwise). The same bits as the primitives' (read-only)."""
+    float64 m a capsule's length (0 otherwise). The primitives' own, to the rounding (module
+    docstring; read-only)."""
     kinds: tuple
     T: np.ndarray
     length: np.ndarray

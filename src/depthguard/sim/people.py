@@ -298,7 +298,7 @@ class Person:
 
     def part_poses(self, t: float) -> PartPoses | None:
         """The body at time ``t`` as arrays (:class:`PartPoses`: the parts of :meth:`primitives`,
-        in order, their poses and lengths to the bit), None when not present; the last pose's
+        in order, their poses and lengths, to the rounding), None when not present; the last pose's
         answer is kept (a person who stands still: the same object). The posing of a frame in
         one pass (:func:`_pose_parts`) instead of a solid per part (issue 29)."""
         if not self.is_present(t):

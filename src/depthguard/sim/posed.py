@@ -13,7 +13,9 @@ instead keeps, per scene:
 - the world vertices (V, 3) float64 m of every part, written in place into one preallocated
   buffer from each part's template (a capsule's or sphere's vertices from
   :func:`~depthguard.geometry.primitives._capsule_template`, a box's corners made once per size)
-  by the same ``p @ R.T + t`` as ``Primitive.mesh()``: the same bits;
+  by the same ``p @ R.T + t`` as ``Primitive.mesh()``: the same bits, or the same to the
+  rounding where the CPU's BLAS fuses multiply-adds in one product and not the other (last
+  bits of some coordinates on an AVX-512 Xeon, 2026-11-27);
 - the answer of the last time asked: the cameras of one time step (a closed loop's, or
   :class:`~depthguard.sources.simulated.SimSource`'s) pose the scene once, not once per camera.
 
@@ -152,7 +154,7 @@ class _GroupPacker(_Packer):
     after the other (``local``, ``out`` (N, 3) float64: each part's local / posed vertices;
     ``gT`` (P, 4, 4) their poses); a posing is :func:`_lift` (the poses gathered, the capsules'
     caps apart), per group one stacked ``np.matmul`` (per part the same BLAS call as
-    ``Mesh.transformed``: the same bits) and :func:`_place` (``+ t``, into the packed vertices):
+    ``Mesh.transformed``: the same arithmetic) and :func:`_place` (``+ t``, into the packed vertices):
     a handful of calls, not a few per part (issue 29)."""
 
     def topology(self, key: tuple, parts: list[_Part]) -> None:
@@ -187,7 +189,7 @@ class _GroupPacker(_Packer):
     def pose(self, T: np.ndarray, length: np.ndarray) -> None:
         """Write the packed vertices of the parts posed at ``T`` (P, 4, 4) with ``length`` (P,) m:
         per part ``_capsule_mesh``'s lift of the caps and ``p @ R.T + t`` (``pack_primitives``'
-        arithmetic, the same bits)."""
+        arithmetic)."""
         _lift(T, length, self.src, self.is_cap, self.gT, self.vslot, self.base_z, self.zsign, self.local)
         matmul = np.matmul
         for local, RT, out in self.groups:
@@ -224,8 +226,9 @@ class PosedMeshes:
     A :class:`~depthguard.sim.scene.Scene` whose people are :class:`~depthguard.sim.people.Person` s
     (not subclassed) is posed from arrays: each person's parts in one pass
     (``Person.part_poses``), the parts' vertices a few stacked numpy calls
-    (:class:`_GroupPacker`), and nothing again while no part moves (issue 29); the same bits as
-    :func:`pack_primitives` of ``scene.dynamic_at(t)``, which any other scene takes."""
+    (:class:`_GroupPacker`), and nothing again while no part moves (issue 29); the vertices of
+    :func:`pack_primitives` of ``scene.dynamic_at(t)`` (to the rounding: module docstring), which
+    any other scene takes."""
 
     def __init__(self, scene, alone: bool = False):
         from depthguard.sim.people import Person
