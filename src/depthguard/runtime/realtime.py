@@ -17,6 +17,10 @@ so a control thread that never sleeps cannot lock the machine up.
 
 The other way round, :func:`background_priority` gives a thread that is not the
 monitor's own (the live view's web server) the workers' lower priority.
+
+:func:`frozen_heap` leaves what exists before a real-time run out of Python's cyclic garbage
+collector for the run's length, so that no full collection holds every thread for tens of
+milliseconds in it (:func:`~depthguard.runtime.runner.run` and ``Monitor.real_time()`` enter it).
 """
 
 from __future__ import annotations
