@@ -54,6 +54,7 @@ from depthguard.runtime.ingest import CameraWorker
 from depthguard.robot.joint_history import JointHistory
 from depthguard.runtime.result import Reaction
 from depthguard.runtime.refusals import explain_stale
+from depthguard.runtime.realtime import TIMING_KEEP
 from depthguard.runtime.unit_states import UnitStateInput, UnitWorker
 from depthguard.runtime.warm_up import warm_up
 
@@ -419,8 +420,8 @@ class Monitor(MonitorDistances, UnitStateInput, MonitorPaths, MonitorWatches):
         step_s = time.perf_counter() - t_wall
         self.cycles += 1
         self.step_s.append(step_s)
-        if len(self.step_s) > 100_000:
-            del self.step_s[:50_000]
+        if len(self.step_s) > TIMING_KEEP:
+            del self.step_s[:TIMING_KEEP // 2]
         r = Reaction.made(dict(t=float(t), override=float(k), repulsion=rep, qd_min=lo, qd_max=hi,
                                names=self._names, distance=D, direction=V, observed=obs, is_watch=self._is_watch,
                                reasons=reasons, cameras=cams, joints_age_s=float(joints_age), q=q.copy(),

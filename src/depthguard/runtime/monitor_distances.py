@@ -12,7 +12,7 @@ from contextlib import contextmanager
 import numpy as np
 
 from depthguard.runtime.distances import DistanceWorker, bound_distances
-from depthguard.runtime.realtime import frozen_heap
+from depthguard.runtime.realtime import TIMING_KEEP, frozen_heap
 
 __all__ = ["MonitorDistances"]
 
@@ -93,8 +93,8 @@ class MonitorDistances:
             if self._seen.get(c) != v:
                 self._seen[c] = v
                 self.frame_to_reaction_s.append(now - pushed_at[c])
-                if len(self.frame_to_reaction_s) > 100_000:     # a long run keeps the newest (as step_s)
-                    del self.frame_to_reaction_s[:50_000]
+                if len(self.frame_to_reaction_s) > TIMING_KEEP:     # a long run keeps the newest
+                    del self.frame_to_reaction_s[:TIMING_KEEP // 2]
 
     @contextmanager
     def real_time(self):

@@ -30,7 +30,13 @@ import os
 import threading
 from contextlib import contextmanager
 
-__all__ = ["RealtimeControl", "realtime_control", "normal_scheduling", "background_priority", "frozen_heap"]
+__all__ = ["RealtimeControl", "realtime_control", "normal_scheduling", "background_priority", "frozen_heap",
+           "TIMING_KEEP"]
+
+#: timing samples a long run keeps per list (the monitor's step and frame-to-reaction times, the
+#: runner's frame ages at hand-over): past it the oldest half goes, so the percentiles are of the
+#: newest; a day at 30 Hz or 500 Hz would otherwise hold millions of floats
+TIMING_KEEP = 100_000
 
 
 class RealtimeControl:

@@ -33,7 +33,7 @@ from typing import Callable
 
 import numpy as np
 
-from depthguard.runtime.realtime import frozen_heap
+from depthguard.runtime.realtime import TIMING_KEEP, frozen_heap
 from depthguard.runtime.thread_cpu import cpu_by_part, thread_cpu_seconds
 
 __all__ = ["run", "summarise", "RunStats", "reaction_subscribers", "open_run_sinks", "frozen_heap"]
@@ -74,11 +74,6 @@ def open_run_sinks(specs, rig, context: dict, fast: bool):
         raise
     direct = [s for s in opened if getattr(s, "direct", False)]
     return direct, [s for s in opened if not getattr(s, "direct", False)]
-
-
-#: timing samples a long run keeps per list (the newest; the summary's percentiles are of those):
-#: a day at 30 Hz would otherwise hold millions of floats
-TIMING_KEEP = 100_000
 
 
 class RunStats:
