@@ -224,7 +224,7 @@ def test_robot_spans_leave_the_state_unchanged():
     whole = np.zeros((H, 2), np.int32)
     whole[:, 1] = W
     opts = StateOptions(0.03, "unknown", "unknown", 4, 3)
-    for b in (1, 2, 4):                              # every pass reads the robot within the spans alone
+    for b in (1, 2, 3, 4):                           # every pass reads the robot within the spans alone
         hb, wb = -(-H // b), -(-W // b)
         want_f, want_k = np.empty((hb, wb)), np.empty((hb, wb), np.int8)
         state_into_unfused(cam, depth, robot, opts, False, sil, gaps, want_f, want_k, b)
