@@ -180,14 +180,14 @@ def test_units_check_tells_metres_from_millimetres(lo, hi, data):
     """Depth inside the camera's range passes; the same depth in millimetres, or metres in a
     millimetre PNG (divided by 1000), is refused with the numbers (R28)."""
     from depthguard.camera import Camera
-    from depthguard.depth_io import depth_units_problem
+    from depthguard.depth_io import UNITS_STEP, depth_units_problem
 
     cam = Camera(id="c", width=16, height=12, fx=10.0, fy=10.0, cx=7.5, cy=5.5, world_from_camera=np.eye(4),
                  min_range=lo, max_range=hi)
     depth = data.draw(arrays(np.float32, (12, 16), elements=st.floats(lo, hi, width=32)))
     holes = data.draw(arrays(np.bool_, (12, 16)))
     depth[holes] = 0.0
-    assume((depth[::4, ::4] > 0).any())
+    assume((depth[::UNITS_STEP, ::UNITS_STEP] > 0).any())     # the check's sample holds a measurement
     assert depth_units_problem(depth, cam) is None
     assert "millimetres" in depth_units_problem(depth * 1000.0, cam)
     assert "metres" in depth_units_problem(depth / 1000.0, cam)

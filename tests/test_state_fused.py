@@ -161,18 +161,19 @@ def test_state_pyramids_equal_build_pyramids_and_the_blocks(shape):
         np.testing.assert_array_equal(st.pmax[offs[1]:], ref_max[offs[1]:])
 
 
-@pytest.mark.parametrize("dtype,shape", [(np.float32, (48, 64)), (np.float64, (48, 64)), (np.float32, (45, 61))])
+@pytest.mark.parametrize("dtype,shape", [(np.float32, (48, 64)), (np.float64, (48, 64)), (np.float32, (45, 61)), (np.float32, (97, 129))])
 def test_units_counts_equal_numpy_twin_at_the_limits(dtype, shape):
     """The worker's units check counts in one compiled loop what numpy counted on the sample
-    (every 4th pixel), including pixels exactly at and one float step around both limits (numpy
+    (every ``UNITS_STEP``-th pixel), including pixels exactly at and one float step around both limits (numpy
     compares a float32 image with the limit rounded to float32), NaN, inf and negative values."""
     from depthguard.camera import RETURN_LIMIT_FACTOR
-    from depthguard.depth_io import NEAR_LIMIT_M, _units_counts, _units_counts_numpy, depth_units_problem
+    from depthguard.depth_io import NEAR_LIMIT_M, UNITS_STEP, _units_counts, _units_counts_numpy, depth_units_problem
 
     H, W = shape                  # (45, 61): the sample's last row and column on the image's edge
     cam = dg.Camera(id="c", width=W, height=H, fx=50.0, fy=50.0, cx=31.5, cy=23.5, min_range=0.3,
                     max_range=8.0)
-    sample = (-(-H // 4), -(-W // 4))
+    s = UNITS_STEP
+    sample = (-(-H // s), -(-W // s))
     far, near = RETURN_LIMIT_FACTOR * 8.0, min(0.3, NEAR_LIMIT_M)
     rng = np.random.default_rng(5)
     for share_far in (0.0, 0.3, 0.7):
@@ -182,14 +183,14 @@ def test_units_counts_equal_numpy_twin_at_the_limits(dtype, shape):
         for lim in (far, near):
             x = dtype(lim)
             edge += [x, np.nextafter(x, dtype(0)), np.nextafter(x, dtype(np.inf)), lim]
-        d[::4, ::4].flat[:len(edge)] = edge              # in the sample
-        d[::4, ::4][rng.random(sample) < 0.1] = np.nan
-        d[::4, ::4][rng.random(sample) < 0.05] = np.inf
-        d[::4, ::4][rng.random(sample) < 0.05] = -1.0
-        d[-1, -1] = 1000.0 if (H - 1) % 4 == 0 and (W - 1) % 4 == 0 else d[-1, -1]   # the last sampled pixel
+        d[::s, ::s].flat[:len(edge)] = edge              # in the sample
+        d[::s, ::s][rng.random(sample) < 0.1] = np.nan
+        d[::s, ::s][rng.random(sample) < 0.05] = np.inf
+        d[::s, ::s][rng.random(sample) < 0.05] = -1.0
+        d[-1, -1] = 1000.0 if (H - 1) % s == 0 and (W - 1) % s == 0 else d[-1, -1]   # the last sampled pixel
         d = d.astype(dtype)
-        got = _units_counts(d, 4, dtype(far), dtype(near))
-        want = _units_counts_numpy(d[::4, ::4], far, near)
+        got = _units_counts(d, s, dtype(far), dtype(near))
+        want = _units_counts_numpy(d[::s, ::s], far, near)
         assert tuple(int(x) for x in got) == want
         assert (depth_units_problem(d, cam) is None) == (share_far < 0.5)
 

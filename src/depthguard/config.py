@@ -73,7 +73,14 @@ class MonitorConfig(BaseModel):
     seconds on n numba threads rests b (n / duty - 1) before the next, frames that come
     meanwhile going into that one, so the fusion cannot starve the cameras' workers however
     many frames come (1: build whenever a frame comes); ``fusion_threads`` its numba threads
-    (0: all).
+    (0: all). ``camera_shares``: each other camera's worker also works out which of the grid's
+    cells its frame clears, for the fusion's build to install
+    (:mod:`~depthguard.runtime.camera_shares`; the same distances, bit for bit). Off by
+    default: it takes 0.2-0.5 ms off the fusion's serial build, but costs more CPU on the
+    workers than it saves in the build — on the project's 2-core machine 0.004-0.009 of a core
+    more per camera at every count from 2 to 16 cameras, with the same frame-to-reaction p99
+    (``depthguard bench --only monitor``, issue 29). On for a machine with cores to spare
+    whose fusion thread is what holds the frames back.
 
     Self removal (R9, R30): ``robot_offset`` a pixel is the robot's where
     ``measured >= robot_depth - robot_offset`` (covers the sensor's noise and
@@ -182,6 +189,7 @@ class MonitorConfig(BaseModel):
     principal_bin: int = Field(2, ge=1, le=8)
     fusion_duty: float = Field(1.0, gt=0.0, le=1.0)
     fusion_threads: int = Field(0, ge=0, le=256)
+    camera_shares: bool = False
     cameras: Optional[tuple[str, ...]] = None
     robot_offset: float = Field(PRODUCT_ROBOT_OFFSET, ge=0.0, le=1.0)
     robot_padding: float = Field(0.07, ge=0.0, le=0.5)

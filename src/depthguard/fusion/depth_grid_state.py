@@ -29,6 +29,7 @@ from numba import njit, prange
 from depthguard.camera import check_depth_image
 from depthguard.distance.gaps import GapBuffers, check_gap_px
 from depthguard.distance.silhouette import SilhouetteBuffers, check_silhouette_px
+from depthguard.fusion.camera_views import readable
 from depthguard.fusion.depth_grid_kernels import build_pyramids, frame_state, pixel_state
 from depthguard.fusion.depth_grid_state_fused import frame_state_fused
 
@@ -136,7 +137,7 @@ def bin_state(free, kind, b, out_free, out_kind):
 
 
 @njit(cache=True, nogil=True)
-def state_pyramids(free, H, W, pmin, pmax, offsets, dims):
+def state_pyramids(free, H, W, pmin, pmax, offsets, dims, first=1):
     """:func:`~depthguard.fusion.depth_grid_kernels.build_pyramids` (the same arrays, bit for bit:
     level ``l`` >= 1 of ``pmin`` / ``pmax`` the min / max of the aligned ``2^l x 2^l`` blocks of
     ``free`` (H, W) float64 m, flat at ``offsets`` (levels,) with ``dims`` (levels, 2),
@@ -145,12 +146,14 @@ def state_pyramids(free, H, W, pmin, pmax, offsets, dims):
     (LLVM vectorises it), the last column of an odd width after it. A min / max selects, and a
     state's free depth is never NaN: the order of the pairs does not change a bit. On the
     calling thread: a parallel loop per level (8-9 fork-joins) took 1.0-2.0 ms of wall time on
-    two threads against 0.36-0.45 ms on one (ur3-cell builds, 2026-11-27)."""
+    two threads against 0.36-0.45 ms on one (ur3-cell builds, 2026-11-27). ``first`` (>= 1): the
+    first level written (2: level 1 is there already, written with the state by
+    :func:`~depthguard.fusion.depth_grid_state_fused.frame_state_fused`)."""
     nl = offsets.shape[0]
     if nl == 1:
         build_pyramids(free, H, W, pmin, pmax, offsets, dims)
         return
-    for lv in range(1, nl):
+    for lv in range(max(first, 1), nl):
         hp = H if lv == 1 else dims[lv - 1, 0]
         wp = W if lv == 1 else dims[lv - 1, 1]
         hl = dims[lv, 0]
@@ -241,7 +244,7 @@ def frame_state_binned(depth, robot_depth, use_robot, min_range, max_range, robo
 
 def state_into(cam, depth, robot_depth, options: StateOptions, robot_free: bool, silhouette: SilhouetteBuffers,
                gaps: GapBuffers, out_free: np.ndarray, out_kind: np.ndarray, bin: int = 1,
-               robot_spans: np.ndarray | None = None) -> None:
+               robot_spans: np.ndarray | None = None, level1=None) -> None:
     """Write the state of ``depth`` (H, W) m with the robot rendered as ``robot_depth`` (H, W) m
     (None: no robot) into ``out_free`` / ``out_kind`` (>= H, >= W; the top-left (H, W) is
     written; with ``bin > 1`` the binned state, :func:`frame_state_binned`, into the top-left
@@ -253,7 +256,9 @@ def state_into(cam, depth, robot_depth, options: StateOptions, robot_free: bool,
     unfused passes bit for bit, in about a third of their CPU on a 640x480 frame). ``robot_spans``
     (H, 2) int32 or None: per row ``[a, b)`` outside which ``robot_depth`` is 0 (the renderer's
     spans, as the camera worker keeps them): the robot's pixels are looked for there alone (the
-    same arrays)."""
+    same arrays). ``level1``: ``(pmin, pmax, offset)`` flat float64 pyramids of the layout
+    :func:`pyramid_layout` and where their level 1 starts: written with the state (``bin`` 1
+    only; :func:`state_pyramids` with ``first=2`` then makes the levels above), or None."""
     d = check_depth_image(cam, depth)
     if d.dtype not in (np.float32, np.float64):
         d = d.astype(np.float64)
@@ -273,9 +278,18 @@ def state_into(cam, depth, robot_depth, options: StateOptions, robot_free: bool,
               and robot_spans.dtype == np.int32):
         raise ValueError(f"robot_spans must be ({d.shape[0]}, 2) int32 with a robot depth, "
                          f"got {getattr(robot_spans, 'shape', robot_spans)}")
+    b = max(int(bin), 1)
+    pmin, pmax, p1 = _NO_LEVEL1 if level1 is None else level1
+    if level1 is not None and not (b == 1 and 0 <= p1 and p1 + -(-d.shape[0] // 2) * -(-d.shape[1] // 2) <= pmin.size
+                                   and pmin.shape == pmax.shape and readable(pmin) and readable(pmax)):
+        raise ValueError("level1 must be (pmin, pmax, offset) of a pyramid layout of the image, at bin 1")
     frame_state_fused(d, rd, use, cam.min_range, cam.max_range, float(options.robot_offset),
-                      options.invalid == "free", bool(robot_free), n_sil, n_gap, max(int(bin), 1), tmp, masked, rows,
-                      out_free, out_kind, robot_spans)
+                      options.invalid == "free", bool(robot_free), n_sil, n_gap, b, tmp, masked, rows,
+                      out_free, out_kind, robot_spans, pmin, pmax, int(p1))
+
+
+#: ``level1`` of :func:`state_into` when no pyramid is written with the state
+_NO_LEVEL1 = (np.zeros(0), np.zeros(0), -1)
 
 
 #: (H, 2) int32 spans ``(0, W)`` per image shape: the whole of every row (one compiled signature
@@ -385,14 +399,17 @@ class StateMaker:
             state_into(cam, depth, robot_depth, options, robot_free, self._silhouette, self._gaps, free, kind, b,
                        robot_spans)
             return CameraState(free, kind, options, bool(robot_free), bin=b)
-        state_into(cam, depth, robot_depth, options, robot_free, self._silhouette, self._gaps, free, kind, 1,
-                   robot_spans)
         if not pyramids:
+            state_into(cam, depth, robot_depth, options, robot_free, self._silhouette, self._gaps, free, kind, 1,
+                       robot_spans)
             return CameraState(free, kind, options, bool(robot_free))
         levels = pyramid_levels(cam.height, cam.width)
         offs, dims, _size = self._pyramid_layout()
         pmin, pmax = out[2], out[3]
-        state_pyramids(free, cam.height, cam.width, pmin, pmax, offs, dims)
+        # level 1 with the state, from each pair of rows as it is made; the levels above from it
+        state_into(cam, depth, robot_depth, options, robot_free, self._silhouette, self._gaps, free, kind, 1,
+                   robot_spans, level1=(pmin, pmax, int(offs[1])) if levels > 1 else None)
+        state_pyramids(free, cam.height, cam.width, pmin, pmax, offs, dims, 2 if levels > 1 else 1)
         return CameraState(free, kind, options, bool(robot_free), pmin, pmax, levels)
 
     def _pyramid_layout(self):

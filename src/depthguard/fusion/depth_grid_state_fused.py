@@ -244,7 +244,7 @@ def _lexmin(f0, k0, f1, k1):
 @njit(cache=True, parallel=True)  # no nogil: numba's launcher takes the GIL to start each prange region
 # (numba/np/ufunc/parallel.py): called without the GIL, a call with k regions took it back 1 + 2k times, not k
 def frame_state_fused(depth, robot_depth, use_robot, min_range, max_range, robot_offset, invalid_free, robot_free,
-                      n_sil, n_gap, b, tmp, masked, rows, out_free, out_kind, robot_spans):
+                      n_sil, n_gap, b, tmp, masked, rows, out_free, out_kind, robot_spans, pmin, pmax, p1):
     """A frame's per-pixel state in one pass over the image (R9, R28, R32): exactly
     :func:`~depthguard.fusion.depth_grid_kernels.frame_state` (``b = 1``) or
     :func:`frame_state_binned` (``b > 1``) fed with
@@ -260,7 +260,12 @@ def frame_state_fused(depth, robot_depth, use_robot, min_range, max_range, robot
     tmp, masked : (>= H, >= W) scratch of ``robot_depth``'s dtype; rows : (>= H, 2) int64 scratch;
     out_free (float64 m) / out_kind (int8) : (>= ceil(H / b), >= ceil(W / b)), the top-left
     written; robot_spans : (>= H, 2) int32, per row ``[a, b)`` outside which ``robot_depth`` is 0
-    (a renderer's spans, or ``(0, W)``: the robot's pixels are looked for there alone, :func:`_robot_rows`).
+    (a renderer's spans, or ``(0, W)``: the robot's pixels are looked for there alone, :func:`_robot_rows`);
+    pmin, pmax : flat float64 pyramids (:func:`~depthguard.fusion.depth_grid_state.pyramid_layout`)
+    whose level 1 is written with the state when ``p1`` (its offset) >= 0 and ``b = 1``, from each
+    pair of rows as it is made (:func:`_level1_row`: the bits of
+    :func:`~depthguard.fusion.depth_grid_state.state_pyramids`, without reading the state
+    again — 2.5 MB of a 640x480 frame, issue 29); ``p1 < 0``: not written (empty arrays will do).
     No allocation.
     """
     H, W = depth.shape
@@ -280,27 +285,32 @@ def frame_state_fused(depth, robot_depth, use_robot, min_range, max_range, robot
             ua = max(u0 - n_sil, 0)
             ub = min(u1 + n_sil, W - 1)
     if b == 1:
-        for v in prange(H):
-            # chunks of a row: every pixel by the rule of a measured one (branch-free, vectorised),
-            # then the chunk's invalid pixels, if any (between the first and the last), by the whole rule
-            ra, rb = _row_span(robot_spans, v, W, use_robot)
-            for u0 in range(0, W, _CHUNK):
-                u1 = min(u0 + _CHUNK, W)
-                # a chunk outside the row's robot span reads no robot depth (0 there): its depth
-                # stands in, ruled without the robot (the same bits, 1.2 MB less read a frame)
-                rob = u0 < rb and ra < u1
-                first, last = _valid_row(depth[v, u0:u1], robot_depth[v, u0:u1] if rob else depth[v, u0:u1],
-                                         rob, min_range, max_range, robot_offset, robot_free, beyond_free,
-                                         limit, out_free[v, u0:u1], out_kind[v, u0:u1])
-                for u in range(u0 + first, u0 + last + 1):
-                    m = np.float64(depth[v, u])
-                    if not (((m == m) and m > 0.0 and m >= min_range and m <= max_range) or
-                            (m > max_range and m <= limit)):
-                        f, k = _fused_pixel(depth, robot_depth, use_robot, min_range, max_range, robot_offset,
-                                            invalid_free, robot_free, tmp, v0, v1, ga, gb, ua, ub, n_sil, n_gap,
-                                            v, u)
-                        out_free[v, u] = f
-                        out_kind[v, u] = k
+        for j in prange((H + 1) // 2):      # pairs of rows: level 1 of the pyramids from each pair
+            for v in range(2 * j, min(2 * j + 2, H)):
+                # chunks of a row: every pixel by the rule of a measured one (branch-free, vectorised),
+                # then the chunk's invalid pixels, if any (between the first and the last), by the whole rule
+                ra, rb = _row_span(robot_spans, v, W, use_robot)
+                for u0 in range(0, W, _CHUNK):
+                    u1 = min(u0 + _CHUNK, W)
+                    # a chunk outside the row's robot span reads no robot depth (0 there): its depth
+                    # stands in, ruled without the robot (the same bits, 1.2 MB less read a frame)
+                    rob = u0 < rb and ra < u1
+                    first, last = _valid_row(depth[v, u0:u1], robot_depth[v, u0:u1] if rob else depth[v, u0:u1],
+                                             rob, min_range, max_range, robot_offset, robot_free, beyond_free,
+                                             limit, out_free[v, u0:u1], out_kind[v, u0:u1])
+                    for u in range(u0 + first, u0 + last + 1):
+                        m = np.float64(depth[v, u])
+                        if not (((m == m) and m > 0.0 and m >= min_range and m <= max_range) or
+                                (m > max_range and m <= limit)):
+                            f, k = _fused_pixel(depth, robot_depth, use_robot, min_range, max_range, robot_offset,
+                                                invalid_free, robot_free, tmp, v0, v1, ga, gb, ua, ub, n_sil,
+                                                n_gap, v, u)
+                            out_free[v, u] = f
+                            out_kind[v, u] = k
+            if p1 >= 0:
+                wl = (W + 1) // 2
+                _level1_row(out_free[2 * j, :W], out_free[min(2 * j + 1, H - 1), :W],
+                            pmin[p1 + j * wl:p1 + j * wl + wl], pmax[p1 + j * wl:p1 + j * wl + wl])
         return
     hb = -(-H // b)
     wb = -(-W // b)
@@ -372,6 +382,23 @@ def frame_state_fused(depth, robot_depth, use_robot, min_range, max_range, robot
                                min(W, i * b + b))
             out_free[j, i] = m
             out_kind[j, i] = k
+
+
+@njit(cache=True, nogil=True, inline="always")
+def _level1_row(a, b, omin, omax):
+    """One row of the pyramids' level 1 from two rows ``a``, ``b`` (W,) of free depths (the same row
+    twice at an odd height's last): ``omin`` / ``omax`` (ceil(W / 2),) the min / max of each 2 x 2
+    block, the last column of an odd width repeating itself — the level-1 loop of
+    :func:`~depthguard.fusion.depth_grid_state.state_pyramids`, the same bits (a min / max selects,
+    and a free depth is never NaN)."""
+    W = a.shape[0]
+    half = W // 2
+    for u in range(half):
+        omin[u] = min(min(a[2 * u], a[2 * u + 1]), min(b[2 * u], b[2 * u + 1]))
+        omax[u] = max(max(a[2 * u], a[2 * u + 1]), max(b[2 * u], b[2 * u + 1]))
+    if omin.shape[0] > half:
+        omin[half] = min(a[W - 1], b[W - 1])
+        omax[half] = max(a[W - 1], b[W - 1])
 
 
 @njit(cache=True, nogil=True, inline="always")

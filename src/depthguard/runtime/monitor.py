@@ -189,7 +189,7 @@ class Monitor(MonitorDistances, UnitStateInput, MonitorPaths, MonitorWatches):
         self._workers[cid] = CameraWorker(self._cameras[cid], self.robot, self._static, self.joints,
                                           cfg.joint_wait_s, self.fusion.notify, drift=drift,
                                           state_options=lambda: self._state_options(cid),
-                                          share=self._shares.maker(cid),
+                                          share=self._shares.maker(cid) if cfg.camera_shares else None,
                                           learned=getattr(self.rig, "learned", {}).get(cid),   # issue 31
                                           scene_change=cfg.scene_change_settings(),
                                           ssm_muted=self._ssm_muted(cid))
@@ -244,7 +244,8 @@ class Monitor(MonitorDistances, UnitStateInput, MonitorPaths, MonitorWatches):
         d_min, d_max = self.rig.workspace.depth_span(cameras[0])
         grid = DepthGridMap(cameras, principal=cams[0], d_min=d_min, d_max=d_max, delta_d=self.config.delta_d,
                             principal_bin=self.config.principal_bin)
-        grid.share_requests = True               # the other cameras' workers clear its cells (issue 29)
+        # the other cameras' workers clear its cells (issue 29), when the rig asks for it
+        grid.share_requests = bool(self.config.camera_shares)
         return grid
 
     def _fusion_settings(self):
