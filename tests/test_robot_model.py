@@ -119,6 +119,26 @@ def test_collision_capsules_padding_and_base(ur3):
         ur3.collision_capsules(q, padding=-0.1)
 
 
+@pytest.mark.parametrize("which", ["ur3", "lwr"])
+def test_collision_segments_are_the_link_poses_applied_to_the_capsules(which, ur3, lwr, rng):
+    """The capsules' world end points (one compiled posing, issue 29) are each capsule's link-frame
+    end points under its link's pose, by numpy here (``link_pose``), and the arrays are the
+    caller's: writing into one changes nothing the model returns next."""
+    robot = {"ur3": ur3, "lwr": lwr}[which]
+    for _ in range(5):
+        q = rng.uniform(-np.pi, np.pi, robot.dof)
+        ab, r = robot.collision_segments(q, 0.02)
+        for k, c in enumerate(robot.capsules):
+            T = robot.link_pose(q, c.link)
+            for n, p in enumerate((c.a, c.b)):
+                np.testing.assert_allclose(ab[k, n], T[:3, :3] @ np.asarray(p) + T[:3, 3], rtol=0, atol=1e-12)
+            assert r[k] == c.radius + 0.02
+        ab[:] = np.nan
+        r[:] = np.nan
+        ab2, r2 = robot.collision_segments(q, 0.02)
+        assert np.isfinite(ab2).all() and np.isfinite(r2).all()
+
+
 def test_fit_capsule_contains_random_clouds(rng):
     for _ in range(20):
         pts = rng.normal(size=(200, 3)) * rng.uniform(0.01, 0.3, 3) + rng.uniform(-1, 1, 3)

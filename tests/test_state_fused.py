@@ -136,7 +136,7 @@ def test_state_pyramids_equal_build_pyramids_and_the_blocks(shape):
     offs, dims, size = pyramid_layout(H, W, levels)
     got = [np.full(size, -9.0) for _ in range(2)]
     want = [np.full(size, -9.0) for _ in range(2)]
-    state_pyramids(free, H, W, got[0], got[1], offs, dims)
+    state_pyramids(free, H, W, got[0], got[1], offs, dims, 1)
     build_pyramids(free, H, W, want[0], want[1], offs, dims)
     np.testing.assert_array_equal(got[0].view(np.int64), want[0].view(np.int64))
     np.testing.assert_array_equal(got[1].view(np.int64), want[1].view(np.int64))
@@ -159,6 +159,34 @@ def test_state_pyramids_equal_build_pyramids_and_the_blocks(shape):
         build_pyramids(st.free, H, W, ref_min, ref_max, offs, dims)
         np.testing.assert_array_equal(st.pmin[offs[1]:], ref_min[offs[1]:])
         np.testing.assert_array_equal(st.pmax[offs[1]:], ref_max[offs[1]:])
+
+
+def test_level1_with_the_state_checks_its_arrays():
+    """``state_into``'s ``level1`` (the pyramids' level 1 written with the state) is refused, with a
+    sentence and nothing written, when it is not at bin 1 or its arrays cannot hold level 1;
+    given right, level 1 is the blocks' min / max of the state it wrote (numpy here)."""
+    H, W = 31, 45
+    cam = _cam(W, H)
+    depth, robot = _images(np.random.default_rng(3), H, W, np.float32)
+    opts = StateOptions(0.03, "unknown", "unknown", 4, 3)
+    offs, dims, size = pyramid_layout(H, W, pyramid_levels(H, W))
+    free, kind = np.full((H, W), -5.0), np.zeros((H, W), np.int8)
+    bufs = (SilhouetteBuffers((H, W)), GapBuffers((H, W)))
+    for bad in [dict(level1=(np.zeros(size), np.zeros(size), int(offs[1])), bin=2),
+                dict(level1=(np.zeros(int(offs[1]) + 10), np.zeros(int(offs[1]) + 10), int(offs[1]))),
+                dict(level1=(np.zeros(size), np.zeros(size - 1), int(offs[1]))),
+                dict(level1=(np.zeros(size, np.float32), np.zeros(size, np.float32), int(offs[1])))]:
+        with pytest.raises(ValueError, match="level1"):
+            state_into(cam, depth, robot, opts, False, *bufs, free, kind, **bad)
+        assert (free == -5.0).all()
+    pmin, pmax = np.full(size, -9.0), np.full(size, -9.0)
+    state_into(cam, depth, robot, opts, False, *bufs, free, kind, level1=(pmin, pmax, int(offs[1])))
+    h, w = dims[1]
+    pad = np.pad(free, ((0, 2 * h - H), (0, 2 * w - W)), mode="edge")
+    blocks = pad.reshape(h, 2, w, 2)
+    np.testing.assert_array_equal(pmin[offs[1]:offs[1] + h * w].reshape(h, w), blocks.min(axis=(1, 3)))
+    np.testing.assert_array_equal(pmax[offs[1]:offs[1] + h * w].reshape(h, w), blocks.max(axis=(1, 3)))
+    assert (pmin[:offs[1]] == -9.0).all() and (pmin[offs[1] + h * w:] == -9.0).all()
 
 
 @pytest.mark.parametrize("dtype,shape", [(np.float32, (48, 64)), (np.float64, (48, 64)), (np.float32, (45, 61)), (np.float32, (97, 129))])

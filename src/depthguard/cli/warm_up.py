@@ -48,7 +48,9 @@ def _monitor(cell: str) -> None:
     if rig.robot is not None:                    # a cell without a robot has no monitor
         # its fusion may wait for a kernel another process compiles (measured: 14 min for the two
         # grid kernels at load 10 on 2 cores, past the monitor's own 600 s)
-        warm_up(rig, rig.monitor, timeout=3600.0)
+        # with the cameras' shares on (off by default): their kernels too, for a rig that turns
+        # them on; the build's own kernels are the same either way
+        warm_up(rig, rig.monitor.with_changes(camera_shares=True), timeout=3600.0)
 
 
 def _flat_states(grid, depth: float, options) -> dict:

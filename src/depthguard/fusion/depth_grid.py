@@ -453,7 +453,8 @@ class DepthGridMap(GridRobot, GridQuery, GridLoad):
                 continue
             # build_pyramids' arrays bit for bit, in vectorised row passes (0.5x its time, issue 29)
             free = self._views.arrays(k)[0]
-            state_pyramids(free, cam.height, cam.width, self._kpmin[k], self._kpmax[k], self._koff[k], self._kdims[k])
+            state_pyramids(free, cam.height, cam.width, self._kpmin[k], self._kpmax[k], self._koff[k], self._kdims[k],
+                           1)
             self._views.point(k, free, self._kpmin[k], self._kpmax[k])
         self._set_band(reach)
         self.lazy = bool(lazy)

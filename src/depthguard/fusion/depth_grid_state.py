@@ -137,7 +137,7 @@ def bin_state(free, kind, b, out_free, out_kind):
 
 
 @njit(cache=True, nogil=True)
-def state_pyramids(free, H, W, pmin, pmax, offsets, dims, first=1):
+def state_pyramids(free, H, W, pmin, pmax, offsets, dims, first):
     """:func:`~depthguard.fusion.depth_grid_kernels.build_pyramids` (the same arrays, bit for bit:
     level ``l`` >= 1 of ``pmin`` / ``pmax`` the min / max of the aligned ``2^l x 2^l`` blocks of
     ``free`` (H, W) float64 m, flat at ``offsets`` (levels,) with ``dims`` (levels, 2),
@@ -147,8 +147,9 @@ def state_pyramids(free, H, W, pmin, pmax, offsets, dims, first=1):
     state's free depth is never NaN: the order of the pairs does not change a bit. On the
     calling thread: a parallel loop per level (8-9 fork-joins) took 1.0-2.0 ms of wall time on
     two threads against 0.36-0.45 ms on one (ur3-cell builds, 2026-11-27). ``first`` (>= 1): the
-    first level written (2: level 1 is there already, written with the state by
-    :func:`~depthguard.fusion.depth_grid_state_fused.frame_state_fused`)."""
+    first level written: 1, or 2 where level 1 is there already, written with the state by
+    :func:`~depthguard.fusion.depth_grid_state_fused.frame_state_fused` (no default: numba's disk
+    cache crashed on a kernel with an omitted argument)."""
     nl = offsets.shape[0]
     if nl == 1:
         build_pyramids(free, H, W, pmin, pmax, offsets, dims)

@@ -103,8 +103,8 @@ def warm_up(rig, config=None, timeout: float = 600.0) -> float:
         mon.push_joints(0.001, q0)
         known = {cid: np.array(ExpectedDepth(rig.camera(cid), rig.robot, rig.static_meshes()).known(q0))
                  for cid in mon.camera_ids}
-        # three rounds: the grid, then the other cameras' share requests (their second frames), then
-        # their shares made on the workers and installed by the builds (runtime.camera_shares)
+        # three rounds: the grid, then (with ``camera_shares``) the other cameras' share requests
+        # (their second frames), then their shares made on the workers and installed by the builds
         for stamp in (0.0005, 0.0006, 0.0007):
             for cid in mon.camera_ids:
                 mon.push_frame(Frame(cid, known[cid].copy(), stamp))
