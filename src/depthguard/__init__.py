@@ -27,6 +27,21 @@ import os
 # work. Read by libgomp when numba first runs a parallel kernel; a value the user set is kept.
 os.environ.setdefault("OMP_WAIT_POLICY", "PASSIVE")
 
+
+def _keep_kernel_cache() -> None:
+    """numba's cached kernels deleted where the package's sources changed since they were cached
+    (:mod:`depthguard.kernel_cache`: numba itself checks a kernel's own file only). Never fails
+    the import: a cache that cannot be checked is numba's as before."""
+    try:
+        from depthguard.kernel_cache import keep_cache_to_sources
+
+        keep_cache_to_sources()
+    except Exception:
+        pass
+
+
+_keep_kernel_cache()
+
 __version__ = "0.1.0"
 
 _EXPORTS = {

@@ -23,6 +23,7 @@ __all__ = ["LAYERS"]
 #: bottom first; the package root (``depthguard/__init__.py``: lazy re-exports) is no room
 LAYERS: tuple[str, ...] = (
     "layers",         # this order; imports nothing
+    "kernel_cache",   # numba's disk cache kept to the package's sources (run by the package root's import)
     "progress",       # log lines and progress bars; imports nothing of the package
     "numba_threads",  # numba's per-thread settings made without giving the GIL away (issue 29)
     "frame_pool",     # frame-sized buffers reused once nobody holds them (the camera workers, the simulator)
