@@ -3,8 +3,8 @@
 numba checks a cached kernel against its **own** source file only (its modification time and
 size). A kernel that inlines a function of another module — ``inline="always"``, an
 ``@overload``, a ``carray`` view of another camera's arrays — keeps its cached machine code
-when that other module changes, and runs with the old one: after a change of
-:mod:`~depthguard.fusion.camera_views`' dtype (issue 29) a grid kernel cached before it read
+when that other module changes, and runs with the old one: when an experiment of issue 29 made
+:mod:`~depthguard.fusion.camera_views` read float32, a grid kernel cached before it read the
 float32 arrays as float64 and crashed the process — and it could as well have answered wrong
 distances without a crash.
 
@@ -12,7 +12,7 @@ distances without a crash.
 kernels (next to the sources, under ``NUMBA_CACHE_DIR``, or in the user's cache directory), a
 digest of all the package's sources; where it differs from the sources', every cached kernel of
 the package there is deleted before any is loaded (numba compiles them again: ``depthguard
-warm-up``). ``import depthguard`` calls it once per process (about 10 ms).
+warm-up``). ``import depthguard`` calls it once per process (3 ms with the sources unchanged).
 """
 
 from __future__ import annotations
