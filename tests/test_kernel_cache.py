@@ -75,7 +75,7 @@ def test_a_change_of_an_inlined_module_reaches_the_cached_kernel(tmp_path, cache
     root = _package(tmp_path, 1)
     assert _run(tmp_path, False, env) == 1
     if cache_dir:
-        assert any(_mirrored((tmp_path / "numba-cache").resolve(), root).glob("kernel.kernel-*.nbi"))
+        assert any(_mirrored(Path(os.path.abspath(tmp_path / "numba-cache")), root).glob("kernel.kernel-*.nbi"))
     else:
         assert any((root / "__pycache__").glob("kernel.kernel-*.nbi"))
     _package(tmp_path, 25)                              # the helper changes; kernel.py does not
@@ -100,3 +100,14 @@ def test_unchanged_sources_keep_their_cache_and_a_touch_reads_them_once(tmp_path
     assert keep_cache_to_sources(root) == 0 and (cache / STAMP).read_text() != stamp
     (root / "helper.py").write_text(_HELPER.format(value=3))
     assert keep_cache_to_sources(root) == 1 and not (cache / "kernel.kernel-5.py311.nbi").exists()
+
+
+def test_the_package_is_kept_where_numba_names_it():
+    """numba names a kernel's cache directory after its module's file as imported (``abspath``,
+    symbolic links kept): the package's own place is worked out from that path."""
+    import depthguard
+    from depthguard import kernel_cache
+
+    here = Path(os.path.dirname(os.path.abspath(depthguard.__file__)))
+    assert kernel_cache.PACKAGE == here
+    assert kernel_cache.cache_places()[0][0] == here / "__pycache__"

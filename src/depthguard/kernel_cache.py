@@ -26,7 +26,9 @@ __all__ = ["sources_digest", "cache_places", "keep_cache_to_sources", "STAMP"]
 #: the digest file's name in each place
 STAMP = "depthguard-sources.sha256"
 
-PACKAGE = Path(__file__).resolve().parent
+#: the package's directory as numba sees it (``os.path.abspath`` of the modules' files, symbolic
+#: links kept: numba names its cache directories after that path, not the resolved one)
+PACKAGE = Path(os.path.abspath(os.path.dirname(__file__)))
 
 
 def _sources(root: Path) -> list[Path]:
@@ -89,7 +91,7 @@ def cache_places(root: Path = PACKAGE, files: list[Path] | None = None) -> list[
     places = [(root / "__pycache__", [d / "__pycache__" for d in dirs])]
     bases = []
     if os.environ.get("NUMBA_CACHE_DIR"):
-        bases.append(Path(os.environ["NUMBA_CACHE_DIR"]).resolve())
+        bases.append(Path(os.path.abspath(os.environ["NUMBA_CACHE_DIR"])))     # (numba: abspath, too)
     try:
         bases.append(_user_cache_dir())
     except (RuntimeError, KeyError):           # (no home directory: that place is not kept)
