@@ -148,7 +148,7 @@ def test_walker_sees_a_lazy_import_of_the_real_tree():
     path = PACKAGE / "runtime" / "ingest.py"
     module, is_init = _module_name(path)
     names = [name for name, _ in imported_modules(path.read_text(encoding="utf-8"), module, is_init)]
-    assert "depthguard.depth_io" in names          # in _wrong_units, not at module level
+    assert "depthguard.runtime.scene_change" in names    # in CameraWorker.__init__, not at module level
     assert module == "depthguard.runtime.ingest" and not is_init
 
 

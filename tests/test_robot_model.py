@@ -139,6 +139,33 @@ def test_collision_segments_are_the_link_poses_applied_to_the_capsules(which, ur
         assert np.isfinite(ab2).all() and np.isfinite(r2).all()
 
 
+@pytest.mark.parametrize("which", ["ur3", "lwr"])
+def test_posed_once_the_render_and_the_capsules_are_the_same_bits(which, ur3, lwr, rng):
+    """A camera worker poses the links once a frame (``forward`` into its data) and hands the poses
+    to the render's vertices and the capsules (issue 29): ``render_vertices_at`` and
+    ``segments_at`` give, bit for bit, what ``render_link_vertices`` and ``collision_segments``
+    give from the joints; poses that are not the model's (L, 4, 4) float64 are refused."""
+    robot = {"ur3": ur3, "lwr": lwr}[which]
+    data = robot.create_data()
+    n = sum(len(m.vertices) for m in robot.render_link_topology(None))
+    for _ in range(4):
+        q = rng.uniform(-np.pi, np.pi, robot.dof)
+        robot.forward(q, data)
+        want = robot.render_link_vertices(q, None, np.empty((n, 3))).copy()
+        np.testing.assert_array_equal(robot.render_vertices_at(data.link_poses, None, np.empty((n, 3))), want)
+        ab, r = robot.collision_segments(q, 0.01)
+        ab2, r2 = robot.segments_at(data.link_poses, 0.01)
+        np.testing.assert_array_equal(ab2, ab)
+        np.testing.assert_array_equal(r2, r)
+    L = len(robot.link_names)
+    for bad in (data.link_poses[:-1], data.link_poses.astype(np.float32), np.zeros((L, 4, 4, 1)),
+                np.asfortranarray(np.zeros((L, 4, 4)))[:, ::1], data.link_poses.tolist()):
+        with pytest.raises(ValueError, match="poses"):
+            robot.segments_at(bad)
+        with pytest.raises(ValueError, match="poses"):
+            robot.render_vertices_at(bad, None, np.empty((n, 3)))
+
+
 def test_fit_capsule_contains_random_clouds(rng):
     for _ in range(20):
         pts = rng.normal(size=(200, 3)) * rng.uniform(0.01, 0.3, 3) + rng.uniform(-1, 1, 3)

@@ -195,7 +195,8 @@ def test_units_counts_equal_numpy_twin_at_the_limits(dtype, shape):
     (every ``UNITS_STEP``-th pixel), including pixels exactly at and one float step around both limits (numpy
     compares a float32 image with the limit rounded to float32), NaN, inf and negative values."""
     from depthguard.camera import RETURN_LIMIT_FACTOR
-    from depthguard.depth_io import NEAR_LIMIT_M, UNITS_STEP, _units_counts, _units_counts_numpy, depth_units_problem
+    from depthguard.depth_io import (NEAR_LIMIT_M, UNITS_STEP, UnitsCheck, _units_counts, _units_counts_numpy,
+                                     depth_units_problem)
 
     H, W = shape                  # (45, 61): the sample's last row and column on the image's edge
     cam = dg.Camera(id="c", width=W, height=H, fx=50.0, fy=50.0, cx=31.5, cy=23.5, min_range=0.3,
@@ -221,6 +222,27 @@ def test_units_counts_equal_numpy_twin_at_the_limits(dtype, shape):
         want = _units_counts_numpy(d[::s, ::s], far, near)
         assert tuple(int(x) for x in got) == want
         assert (depth_units_problem(d, cam) is None) == (share_far < 0.5)
+        assert UnitsCheck(cam)(d) == depth_units_problem(d, cam)    # the worker's, limits made once
+
+
+def test_units_check_says_what_depth_units_problem_says():
+    """:class:`~depthguard.depth_io.UnitsCheck` (a camera worker's, its limits worked out once) gives
+    :func:`~depthguard.depth_io.depth_units_problem`'s sentence or None on every kind of frame:
+    metres, millimetres read as metres, metres in a millimetre PNG, no return at all, and frames it
+    does not count itself (integer millimetres, a nested list)."""
+    from depthguard.depth_io import UnitsCheck, depth_units_problem
+
+    cam = dg.Camera(id="c", width=64, height=48, fx=50.0, fy=50.0, cx=31.5, cy=23.5, min_range=0.3,
+                    max_range=8.0)
+    rng = np.random.default_rng(3)
+    metres = rng.uniform(0.5, 7.0, cam.shape)
+    frames = [metres.astype(np.float32), metres, (metres * 1000).astype(np.float32), (metres / 1000),
+              np.zeros(cam.shape, np.float32), (metres * 1000).astype(np.uint16), metres.tolist()]
+    check = UnitsCheck(cam)
+    said = [check(f) for f in frames]
+    assert said == [depth_units_problem(f, cam) for f in frames]
+    assert said[0] is None and said[1] is None and said[4] is None
+    assert "millimetres" in said[2] and "hold metres" in said[3] and said[5] is not None
 
 
 def test_robot_spans_leave_the_state_unchanged():
@@ -270,3 +292,48 @@ def test_robot_spans_leave_the_state_unchanged():
         assert not (np.array_equal(f, want_f) and np.array_equal(k, want_k))
     with pytest.raises(ValueError, match="robot_spans"):
         state_into(cam, depth, robot, opts, False, sil, gaps, f, k, 4, robot_spans=tight[:-1])
+
+
+def test_maker_with_the_renderers_spans_is_state_into_for_every_role():
+    """A camera worker's :meth:`StateMaker.make` (float32 frames, the renderer's spans, pooled
+    buffers: ``state_into``'s checks and constants worked out once per options and role, issue 29)
+    writes, bit for bit, :func:`state_into`'s state — principal binned, another camera with and
+    without its pyramids (those :func:`build_pyramids`'), options changing from frame to frame
+    (the constants follow them); and a frame of another shape is refused as before."""
+    rng = np.random.default_rng(9)
+    H, W = 90, 120
+    cam = _cam(W, H)
+    depth, robot = _images(rng, H, W, np.float32)
+    spans = np.zeros((H, 2), np.int32)
+    for v in range(H):
+        cols = np.flatnonzero(robot[v] != 0)
+        if cols.size:
+            spans[v] = (cols[0], cols[-1] + 1)
+    robot = np.where(spans[:, :1] <= np.arange(W), robot, 0).astype(np.float32)   # 0 outside the spans
+    robot = np.where(np.arange(W) < spans[:, 1:], robot, 0).astype(np.float32)
+    maker, sil, gaps = StateMaker(cam), SilhouetteBuffers(cam.shape), GapBuffers(cam.shape)
+    levels = pyramid_levels(H, W)
+    offs, dims, size = pyramid_layout(H, W, levels)
+    checked = 0
+    for opts in (StateOptions(0.03, "unknown", "unknown", 4, 3), StateOptions(0.05, "free", "unknown", 0, 0),
+                 StateOptions(0.03, "unknown", "unknown", 2, 0), StateOptions(0.03, "unknown", "unknown", 4, 3)):
+        for robot_free in (False, True):
+            for pyramids, b in ((False, 2), (True, 1), (False, 1), (False, 3)):
+                out = [np.full(sh, -7, dt) for sh, dt in maker.layout(pyramids, b)]
+                st = maker.make(depth, robot, opts, robot_free, pyramids, b, out=out, robot_spans=spans)
+                hb, wb = -(-H // b), -(-W // b)
+                f, k = np.full((hb, wb), -7.0), np.full((hb, wb), 9, np.int8)
+                state_into(cam, depth, robot, opts, robot_free, sil, gaps, f, k, b, robot_spans=spans)
+                np.testing.assert_array_equal(st.free, f)
+                np.testing.assert_array_equal(st.kind, k)
+                assert st.free is out[0] and st.bin == b and st.options == opts
+                if pyramids:
+                    pmin, pmax = np.full(size, -9.0), np.full(size, -9.0)
+                    build_pyramids(f, H, W, pmin, pmax, offs, dims)
+                    np.testing.assert_array_equal(st.pmin[offs[1]:], pmin[offs[1]:])
+                    np.testing.assert_array_equal(st.pmax[offs[1]:], pmax[offs[1]:])
+                    assert st.levels == levels
+                checked += 1
+    assert checked == 4 * 2 * 4 and len(maker._constants) == 3 * 2 * 3
+    with pytest.raises(ValueError, match="shape"):
+        maker.make(depth[:-1], robot[:-1], opts, False, False, 2, robot_spans=spans[:-1])

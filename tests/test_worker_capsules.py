@@ -26,16 +26,22 @@ def test_products_carry_the_capture_joints_capsules_and_builds_run_no_kinematics
     robot = rig.robot
     model_class = type(robot)
     unwrapped = model_class.collision_segments
+    unwrapped_at = model_class.segments_at      # (the worker's: from the links it posed for its render)
     threads = []
 
     def counted(self, q, padding=0.0):
         threads.append((threading.current_thread().name, padding))
         return unwrapped(self, q, padding)
 
+    def counted_at(self, poses, padding=0.0):
+        threads.append((threading.current_thread().name, padding))
+        return unwrapped_at(self, poses, padding)
+
     def real(q, padding):
         return unwrapped(robot, q, padding)
 
     monkeypatch.setattr(model_class, "collision_segments", counted)
+    monkeypatch.setattr(model_class, "segments_at", counted_at)
     with Monitor(rig, rig.monitor) as mon, mon.replay():
         checked, builds = 0, []
         for f in fed_frames(mon, world, frames):

@@ -18,7 +18,7 @@ from pathlib import Path
 import numpy as np
 from numba import njit
 
-__all__ = ["read_depth", "write_depth", "DepthFileError", "depth_units_problem", "UNITS_SHARE", "NEAR_LIMIT_M"]
+__all__ = ["read_depth", "write_depth", "DepthFileError", "depth_units_problem", "UnitsCheck", "UNITS_SHARE", "NEAR_LIMIT_M"]
 
 _MAX_MM = 65535
 
@@ -131,6 +131,33 @@ def depth_units_problem(depth: np.ndarray, cam) -> str | None:
                 f"{near_limit:g} m (median {median:g} m): a depth PNG holds millimetres - does this image "
                 f"hold metres?")
     return None
+
+
+class UnitsCheck:
+    """:func:`depth_units_problem` for the frames of one camera ``cam``, its limits worked out
+    once: ``check(depth)`` is the same sentence or None. A float32 / float64 (H, W) frame goes
+    straight to the compiled count (a camera worker's every frame, issue 29: the function's
+    conversions, import and limits cost more thread CPU than its count); another frame, or one
+    whose counts call for a sentence, goes through :func:`depth_units_problem` itself."""
+
+    def __init__(self, cam):
+        from depthguard.camera import RETURN_LIMIT_FACTOR
+
+        self.camera = cam
+        far = RETURN_LIMIT_FACTOR * float(cam.max_range)
+        near = min(float(cam.min_range), NEAR_LIMIT_M)
+        # the limits in the image's dtype, as depth_units_problem passes them
+        self._limits = {np.dtype(np.float32): (np.float32(far), np.float32(near)),
+                        np.dtype(np.float64): (np.float64(far), np.float64(near))}
+
+    def __call__(self, depth) -> str | None:
+        limits = self._limits.get(depth.dtype) if type(depth) is np.ndarray and depth.ndim == 2 else None
+        if limits is None:
+            return depth_units_problem(depth, self.camera)
+        n, far, near = _units_counts(depth, UNITS_STEP, limits[0], limits[1])
+        if n == 0 or (far <= UNITS_SHARE * n and near <= UNITS_SHARE * n):
+            return None
+        return depth_units_problem(depth, self.camera)
 
 
 @njit(cache=True)      # ~35 us a 640x480 frame: keeps the GIL (a release costs a retake behind the other threads)

@@ -64,6 +64,7 @@ class BufferPool:
             raise ValueError(f"a buffer pool keeps at least one set (got cap={cap!r})")
         self.cap = int(cap)
         self._layout: tuple | None = None
+        self._given = None                # the layout object last given, whose key is _layout
         self._sets: list[list[np.ndarray]] = []
         self.made = 0
         self.reused = 0
@@ -80,9 +81,14 @@ class BufferPool:
         """Arrays of ``layout`` (a tuple of ``(shape, dtype)``) that nothing outside the pool
         refers to; the returned list is the caller's (its arrays stay the pool's, for reuse
         once the caller and everyone it gave them to dropped them)."""
-        key = tuple((tuple(int(n) for n in shape), np.dtype(dt)) for shape, dt in layout)
-        if key != self._layout:
-            self._layout, self._sets = key, []
+        if layout is self._given:          # a caller's one tuple per role, frame after frame
+            key = self._layout
+        else:
+            key = tuple((tuple(int(n) for n in shape), np.dtype(dt)) for shape, dt in layout)
+            if key != self._layout:
+                self._layout, self._sets = key, []
+            # (kept only for a tuple of tuples: nothing in it can change while the pool holds it)
+            self._given = layout if isinstance(layout, tuple) and all(type(sh) is tuple for sh, _ in layout) else None
         for arrays in self._sets:
             if self._unheld(arrays):
                 self.reused += 1

@@ -70,25 +70,35 @@ class ExpectedDepth:
         if robot is not None and hasattr(robot, "render_link_vertices"):
             self._vertices = self._renderer.bind(robot.render_link_topology(robot_cell))
 
-    def robot(self, q) -> np.ndarray:
+    def robot(self, q, poses: np.ndarray | None = None) -> np.ndarray:
         """(H, W) float32 m: the robot's link meshes at joints ``q`` (clustered to ``robot_cell``;
         0 where no robot). A **read-only view of the renderer's buffer**, overwritten by the next
         call (copy it to keep it); the renderer reads out only the pixels the robot can cover
-        now or covered last time, so nothing may write into it (R9, R16, R30)."""
+        now or covered last time, so nothing may write into it (R9, R16, R30). ``poses``: the
+        links' world poses (L, 4, 4) at ``q`` the caller worked out already
+        (:meth:`~depthguard.robot.RobotModel.forward`; a camera worker poses once a frame for
+        this render and its capsules, issue 29), or None."""
         if self.robot_model is None:
             return self._no_robot
-        qa = np.asarray(q, dtype=np.float64).reshape(-1)
-        if qa.shape[0] != self.robot_model.dof or not np.all(np.isfinite(qa)):
-            raise ValueError(f"expected {self.robot_model.dof} finite joint values, got {qa.tolist()}")
+        model = self.robot_model
+        if type(q) is np.ndarray and q.dtype == np.float64 and q.shape == (model.dof,):
+            qa = q                             # (a worker's joints: no conversion)
+        else:
+            qa = np.asarray(q, dtype=np.float64).reshape(-1)
+        if qa.shape[0] != model.dof or not np.isfinite(qa).all():
+            raise ValueError(f"expected {model.dof} finite joint values, got {qa.tolist()}")
         if self._vertices is not None:
-            if self._last_q is not None and np.array_equal(qa, self._last_q):
+            if self._last_q is not None and (qa == self._last_q).all():
                 return self._renderer.depth      # a robot at rest: the image is still there
             self._last_q = None
-            self.robot_model.render_link_vertices(qa, self.robot_cell, self._vertices)
+            if poses is None:
+                model.render_link_vertices(qa, self.robot_cell, self._vertices)
+            else:
+                model.render_vertices_at(poses, self.robot_cell, self._vertices)
             depth = self._renderer.render_bound()[0]
             self._last_q = qa.copy()
             return depth
-        return self._renderer.render(self.robot_model.render_link_meshes(qa, self.robot_cell))[0]
+        return self._renderer.render(model.render_link_meshes(qa, self.robot_cell))[0]
 
     @property
     def robot_spans(self) -> np.ndarray:

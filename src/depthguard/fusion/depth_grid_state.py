@@ -270,24 +270,43 @@ def state_into(cam, depth, robot_depth, options: StateOptions, robot_free: bool,
             rd = rd.astype(np.float64)
     else:
         rd = d                         # never read as a robot (one compiled signature per image dtype)
-    n_sil = check_silhouette_px(options.silhouette_px)
-    n_gap = check_gap_px(options.gap_px)
-    tmp, masked, rows = silhouette.scratch(rd.dtype, d.shape)
+    consts = fused_constants(cam, options, robot_free, silhouette, rd.dtype, bin)
     if robot_spans is None:
         robot_spans = _whole_rows(d.shape)
     elif not (use and isinstance(robot_spans, np.ndarray) and robot_spans.shape == (d.shape[0], 2)
               and robot_spans.dtype == np.int32):
         raise ValueError(f"robot_spans must be ({d.shape[0]}, 2) int32 with a robot depth, "
                          f"got {getattr(robot_spans, 'shape', robot_spans)}")
-    b = max(int(bin), 1)
     pmin, pmax, p1 = _NO_LEVEL1 if level1 is None else level1
-    if level1 is not None and not (b == 1 and 0 <= p1 and p1 + -(-d.shape[0] // 2) * -(-d.shape[1] // 2) <= pmin.size
+    if level1 is not None and not (consts[7] == 1 and 0 <= p1 and p1 + -(-d.shape[0] // 2) * -(-d.shape[1] // 2) <= pmin.size
                                    and pmin.shape == pmax.shape and readable(pmin) and readable(pmax)):
         raise ValueError("level1 must be (pmin, pmax, offset) of a pyramid layout of the image, at bin 1")
-    frame_state_fused(d, rd, use, cam.min_range, cam.max_range, float(options.robot_offset),
-                      options.invalid == "free", bool(robot_free), n_sil, n_gap, b, tmp, masked, rows,
-                      out_free, out_kind, robot_spans, pmin, pmax, int(p1))
+    run_fused(d, rd, use, consts, out_free, out_kind, robot_spans, pmin, pmax, int(p1))
 
+
+def fused_constants(cam, options: StateOptions, robot_free: bool, silhouette: SilhouetteBuffers, dtype,
+                    bin: int) -> tuple:
+    """The arguments of :func:`frame_state_fused` that stay the same from frame to frame of one
+    camera with one role: ``(min_range, max_range, robot_offset, invalid_free, robot_free,
+    n_sil, n_gap, bin, tmp, masked, rows)`` — the options checked, the scratch ``silhouette``'s
+    for a robot depth of ``dtype``. :func:`state_into` works them out per call;
+    :class:`StateMaker` once per options and role (issue 29: per frame on the camera worker)."""
+    n_sil = check_silhouette_px(options.silhouette_px)
+    n_gap = check_gap_px(options.gap_px)
+    tmp, masked, rows = silhouette.scratch(dtype, cam.shape)
+    return (cam.min_range, cam.max_range, float(options.robot_offset), options.invalid == "free",
+            bool(robot_free), n_sil, n_gap, max(int(bin), 1), tmp, masked, rows)
+
+
+def run_fused(d, rd, use: bool, consts: tuple, out_free, out_kind, robot_spans, pmin, pmax, p1: int) -> None:
+    """:func:`frame_state_fused` with :func:`fused_constants`' ``consts`` (arguments checked by the caller)."""
+    mn, mx, offset, invalid_free, robot_free, n_sil, n_gap, b, tmp, masked, rows = consts
+    frame_state_fused(d, rd, use, mn, mx, offset, invalid_free, robot_free, n_sil, n_gap, b, tmp, masked, rows,
+                      out_free, out_kind, robot_spans, pmin, pmax, p1)
+
+
+#: the image dtypes :class:`StateMaker` hands to the fused pass as they are
+_FLOAT_DTYPES = (np.dtype(np.float32), np.dtype(np.float64))
 
 #: ``level1`` of :func:`state_into` when no pyramid is written with the state
 _NO_LEVEL1 = (np.zeros(0), np.zeros(0), -1)
@@ -358,6 +377,10 @@ class StateMaker:
         self._silhouette = SilhouetteBuffers(cam.shape)
         self._gaps = GapBuffers(cam.shape)
         self._pyr = None                   # pyramid_layout of the camera, made once
+        self._shape = tuple(cam.shape)
+        self._spans_shape = (self._shape[0], 2)
+        self._levels = pyramid_levels(cam.height, cam.width)
+        self._constants: dict = {}         # fused_constants by (options, robot_free, bin, robot depth dtype)
         self._layouts: dict = {}           # layout() by (pyramids, bin)
 
     def layout(self, pyramids: bool = False, bin: int = 1) -> tuple:
@@ -396,22 +419,45 @@ class StateMaker:
                                              for a, (shape, dt) in zip(out, want)):
                 raise ValueError(f"out must be C-contiguous arrays of {want}")
         free, kind = out[0], out[1]
-        if b > 1:
+        pyr = pyramids and b == 1
+        levels = self._levels if pyr else 0
+        if self._checked(depth, robot_depth, robot_spans):
+            # a worker's frame (float arrays of the camera's shape, the renderer's spans): the
+            # checks of state_into hold, its constants are made once per options and role
+            key = (options, bool(robot_free), b, robot_depth.dtype)
+            consts = self._constants.get(key)
+            if consts is None:
+                consts = self._constants[key] = fused_constants(cam, options, robot_free, self._silhouette,
+                                                                robot_depth.dtype, b)
+            if pyr and levels > 1:
+                run_fused(depth, robot_depth, True, consts, free, kind, robot_spans, out[2], out[3],
+                          int(self._pyramid_layout()[0][1]))
+            else:
+                run_fused(depth, robot_depth, True, consts, free, kind, robot_spans, *_NO_LEVEL1)
+        elif pyr:
+            # level 1 with the state, from each pair of rows as it is made; the levels above from it
+            state_into(cam, depth, robot_depth, options, robot_free, self._silhouette, self._gaps, free, kind, 1,
+                       robot_spans, level1=(out[2], out[3], int(self._pyramid_layout()[0][1])) if levels > 1 else None)
+        else:
             state_into(cam, depth, robot_depth, options, robot_free, self._silhouette, self._gaps, free, kind, b,
                        robot_spans)
+        if b > 1:
             return CameraState(free, kind, options, bool(robot_free), bin=b)
         if not pyramids:
-            state_into(cam, depth, robot_depth, options, robot_free, self._silhouette, self._gaps, free, kind, 1,
-                       robot_spans)
             return CameraState(free, kind, options, bool(robot_free))
-        levels = pyramid_levels(cam.height, cam.width)
         offs, dims, _size = self._pyramid_layout()
         pmin, pmax = out[2], out[3]
-        # level 1 with the state, from each pair of rows as it is made; the levels above from it
-        state_into(cam, depth, robot_depth, options, robot_free, self._silhouette, self._gaps, free, kind, 1,
-                   robot_spans, level1=(pmin, pmax, int(offs[1])) if levels > 1 else None)
         state_pyramids(free, cam.height, cam.width, pmin, pmax, offs, dims, 2 if levels > 1 else 1)
         return CameraState(free, kind, options, bool(robot_free), pmin, pmax, levels)
+
+    def _checked(self, depth, robot_depth, robot_spans) -> bool:
+        """``depth`` and ``robot_depth`` are float32 / float64 arrays of the camera's shape and
+        ``robot_spans`` (H, 2) int32: what :func:`state_into` checks, in a few comparisons."""
+        shape = self._shape
+        return (type(depth) is np.ndarray and type(robot_depth) is np.ndarray and type(robot_spans) is np.ndarray
+                and depth.shape == shape and robot_depth.shape == shape and depth.dtype in _FLOAT_DTYPES
+                and robot_depth.dtype in _FLOAT_DTYPES and robot_spans.dtype == np.int32
+                and robot_spans.shape == self._spans_shape)
 
     def _pyramid_layout(self):
         if self._pyr is None:

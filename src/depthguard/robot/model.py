@@ -334,17 +334,25 @@ class RobotModel:
         """The world vertices of :meth:`render_link_meshes` ``(q, cell)``, all links one after the
         other, written into ``out`` (V, 3) float64 C-contiguous (the same bits: both posed by
         :func:`_pose_vertices`, into ``out`` instead of new arrays); returns ``out[:V]`` (R16)."""
-        meshes = self._clustered(cell)
-        poses = self.link_poses(q)
+        return self.render_vertices_at(self.link_poses(q), cell, out)
+
+    def render_vertices_at(self, poses: np.ndarray, cell: float | None, out: np.ndarray) -> np.ndarray:
+        """:meth:`render_link_vertices` from the links' world ``poses`` (L, 4, 4) float64 at the
+        joints (:meth:`forward`'s ``data.link_poses``): a camera worker poses the links once a
+        frame for its render and its capsules (issue 29; :meth:`segments_at`)."""
+        _check_poses(poses, self.chain.n_links)
         local = self._render_local.get(cell)
         if local is None:                            # the links' vertices one after the other, once per cell
-            local = self._render_local[cell] = np.ascontiguousarray(np.concatenate([m.vertices for m in meshes]),
-                                                                    dtype=np.float64)
-        if not (isinstance(out, np.ndarray) and out.dtype == np.float64 and out.ndim == 2 and out.shape[1] == 3
+            local = self._render_local[cell] = np.ascontiguousarray(
+                np.concatenate([m.vertices for m in self._clustered(cell)]), dtype=np.float64)
+        if not (type(out) is np.ndarray and out.dtype == np.float64 and out.ndim == 2 and out.shape[1] == 3
                 and out.shape[0] >= len(local) and out.flags.c_contiguous):
             raise ValueError(f"out must be a C-contiguous float64 ({len(local)}, 3) array or longer, got "
                              f"{getattr(out, 'dtype', type(out).__name__)} {getattr(out, 'shape', '')}")
-        _pose_vertices(out, poses, self._mesh_link, self._vertex_counts(cell, meshes), local)
+        counts = self._render_counts.get(cell)
+        if counts is None:
+            counts = self._vertex_counts(cell, self._clustered(cell))
+        _pose_vertices(out, poses, self._mesh_link, counts, local)
         return out[:len(local)]
 
     def _vertex_counts(self, cell: float | None, meshes) -> np.ndarray:
@@ -364,7 +372,12 @@ class RobotModel:
         (Per camera frame on its worker, issue 29: one compiled posing, :func:`_capsule_ends`,
         instead of numpy's fancy index and einsum: 0.11 ms of thread CPU a frame in a real-time
         run, where each numpy call is taxed by the other threads.)"""
-        poses = self.link_poses(q)
+        return self.segments_at(self.link_poses(q), padding)
+
+    def segments_at(self, poses: np.ndarray, padding: float = 0.0) -> tuple[np.ndarray, np.ndarray]:
+        """:meth:`collision_segments` from the links' world ``poses`` (L, 4, 4) float64 at the
+        joints (:meth:`render_vertices_at`'s)."""
+        _check_poses(poses, self.chain.n_links)
         ab = np.empty(self._cap_ab.shape)
         _capsule_ends(poses, self._cap_link, self._cap_ab, ab)
         return ab, self._cap_r + float(padding)
@@ -379,6 +392,14 @@ class RobotModel:
         ab, r = self.collision_segments(q, padding)
         return [Capsule.between(ab[i, 0], ab[i, 1], float(r[i]), name=c.name or c.link)
                 for i, c in enumerate(self.capsules)]
+
+
+def _check_poses(poses, n_links: int) -> None:
+    """``poses`` must be the (L, 4, 4) float64 C-contiguous link poses a kernel reads in place."""
+    if not (type(poses) is np.ndarray and poses.dtype == np.float64 and poses.shape == (n_links, 4, 4)
+            and poses.flags.c_contiguous):
+        raise ValueError(f"poses must be a C-contiguous float64 ({n_links}, 4, 4) array of the links' world "
+                         f"poses, got {getattr(poses, 'dtype', type(poses).__name__)} {getattr(poses, 'shape', '')}")
 
 
 @njit(cache=True)      # microseconds: keeps the GIL

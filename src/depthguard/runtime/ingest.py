@@ -44,7 +44,7 @@ from dataclasses import dataclass
 import numpy as np
 
 from depthguard.camera import check_depth_image
-from depthguard.depth_io import depth_units_problem
+from depthguard.depth_io import UnitsCheck
 from depthguard.filtering.expected import ExpectedDepth
 from depthguard.render.composite import copy_depth_rows
 from depthguard.runtime.drift import DriftWatch
@@ -126,11 +126,19 @@ class CameraWorker:
         self._rd_layout = ((tuple(cam.shape), np.float32),)
         self._spans_layout = (((cam.shape[0], 2), np.int32),)
         self.id = cam.id
+        self._units = UnitsCheck(cam)             # depth_units_problem, its limits worked out once
+        self._layouts: dict = {}                  # _buffers' layout by the state's (pyramids, bin)
         # the known static scene: the CAD and the learned scene (issue 31: a LearnedScene or None), nearer wins
         self.expected = ExpectedDepth(cam, robot, static_meshes,
                                       learned=None if learned is None else learned.depth)
         # the source's robot image instead of this render, once checked (handed_robot, issue 29)
         self.handover: bool | None = None
+        # the capture joints' forward kinematics into this worker's data (a RobotModel's; else None)
+        model = self.expected.robot_model
+        self._robot_data = self._fk = None
+        if model is not None and hasattr(model, "forward_into"):
+            self._robot_data = model.create_data()
+            self._fk = model.forward_into(self._robot_data)
         self.handover_off: str | None = None
         self._handover_checked = 0
         self.robot_handed = 0
@@ -229,7 +237,7 @@ class CameraWorker:
             except ValueError as exc:
                 self._refuse("bad_image", str(exc))
                 return
-        units = _wrong_units(depth, self.camera)
+        units = self._units(depth)
         if units:
             self._refuse("bad_units", units)
             return
@@ -257,6 +265,12 @@ class CameraWorker:
             return
         wanted = self.state_options() if self.state_options is not None else None
         bufs = self._buffers(wanted)
+        # the links posed once at the capture joints, for the render and the capsules (issue 29)
+        poses = None
+        if self._fk is not None:
+            if not self._fk(q):
+                raise ValueError(f"the joints at the frame are not finite: {q.tolist()}")
+            poses = self._robot_data.link_poses
         handed = self.handed_robot(frame, q)
         if handed is not None:                    # the source drew this very image (issue 29)
             rd, rspans = handed.depth, handed.spans
@@ -264,7 +278,7 @@ class CameraWorker:
             rd, rspans = bufs[0], bufs[1]
             # the renderer's buffer is overwritten by its next call: copied, over the rows' spans of
             # the robot now and of what the pooled buffer held (issue 29: not the whole image)
-            copy_depth_rows(rd, rspans, self.expected.robot(q), self.expected.robot_spans)
+            copy_depth_rows(rd, rspans, self.expected.robot(q, poses), self.expected.robot_spans)
         if self.scene_change is not None:
             self.scene_change.update(depth, rd, stamp)
         if self.ssm_muted is not None:            # R17's filter: the known scene and the robot removed
@@ -278,7 +292,9 @@ class CameraWorker:
         state = self._state(d, rd, wanted, bufs[2:], rspans)
         model = self.expected.robot_model
         # the capture joints' capsules on this thread, not the fusion's (issue 29)
-        caps = None if model is None or not model.capsules else (model, *model.collision_segments(q, 0.0))
+        caps = None
+        if model is not None and model.capsules:
+            caps = (model, *(model.collision_segments(q, 0.0) if poses is None else model.segments_at(poses)))
         share = self.share(state) if self.share is not None and state is not None else None
         with self.lock:
             self._version += 1
@@ -324,9 +340,13 @@ class CameraWorker:
         depth is 0 outside, :func:`~depthguard.render.composite.copy_depth_rows`; a new set's
         span is the whole row, its content unknown), then the state's (:meth:`StateMaker.layout
         <depthguard.fusion.depth_grid_state.StateMaker.layout>`) when ``wanted``."""
-        layout = self._rd_layout + self._spans_layout
-        if wanted is not None:
-            layout = layout + self._maker().layout(wanted[2], wanted[3])
+        key = None if wanted is None else (wanted[2], wanted[3])
+        layout = self._layouts.get(key)
+        if layout is None:          # made once per role (the same tuple each frame: BufferPool.take)
+            layout = self._rd_layout + self._spans_layout
+            if wanted is not None:
+                layout = layout + self._maker().layout(wanted[2], wanted[3])
+            self._layouts[key] = layout
         made = self.pool.made
         bufs = self.pool.take(layout)
         if self.pool.made != made:          # new arrays (np.empty): every pixel is to be written
@@ -374,9 +394,3 @@ HANDOVER_CHECKS = 3
 #: camera's, checked per frame without it (issue 29: ``numpy.issubdtype`` for every frame)
 _FLOAT_IMAGES = (np.dtype(np.float32), np.dtype(np.float64))
 
-
-def _wrong_units(depth: np.ndarray, cam) -> str | None:
-    """A sentence when most measured pixels of ``depth`` lie outside what any sensor returns
-    (millimetres read as metres, or metres in a millimetre PNG); the one check of
-    :func:`depthguard.depth_io.depth_units_problem`. None otherwise."""
-    return depth_units_problem(depth, cam)

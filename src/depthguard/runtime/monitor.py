@@ -102,6 +102,8 @@ class Monitor(MonitorDistances, UnitStateInput, MonitorPaths, MonitorWatches):
         self.config = cfg
         self._settings_lock = threading.Lock()
         self._camera_ids = self._ordered(ids, cfg.principal)
+        self._state_options_memo: tuple = (None, None, {})   # _state_options by (settings, cameras)
+        self._settings_data = self._settings_fk = None           # _fusion_settings' kinematics
         self.joints = JointHistory(self.robot.dof, cfg.joint_history_s, q_min=self.robot.q_min,
                                    q_max=self.robot.q_max, max_gap_s=cfg.joints_stale_s)
         self._static = rig.static_meshes()
@@ -214,10 +216,20 @@ class Monitor(MonitorDistances, UnitStateInput, MonitorPaths, MonitorWatches):
         """``(StateOptions, robot_free, pyramids, bin)`` for camera ``cid``'s frames as the depth grid will
         load them (its role: the principal, or another camera whose pyramids the grid reads), or
         None with one camera (no grid, R36)."""
-        from depthguard.fusion.depth_grid_state import StateOptions, pyramid_levels
-
         with self._settings_lock:
             cfg, ids = self.config, self._camera_ids
+        memo = self._state_options_memo           # per frame of every camera (issue 29): worked out
+        if memo[0] is cfg and memo[1] is ids and cid in memo[2]:   # once per settings and camera set
+            return memo[2][cid]
+        if memo[0] is not cfg or memo[1] is not ids:
+            memo = self._state_options_memo = (cfg, ids, {})
+        memo[2][cid] = out = self._work_out_state_options(cfg, ids, cid)
+        return out
+
+    def _work_out_state_options(self, cfg, ids: tuple, cid: str):
+        """:meth:`_state_options` for the settings ``cfg`` and cameras ``ids``."""
+        from depthguard.fusion.depth_grid_state import StateOptions, pyramid_levels
+
         if len(ids) < 2 or cid not in ids:
             return None
         other = cid != ids[0]
@@ -255,9 +267,16 @@ class Monitor(MonitorDistances, UnitStateInput, MonitorPaths, MonitorWatches):
         latest = self.joints.latest()
         pts = None
         if latest is not None:
-            data = self.robot.create_data()
-            self.robot.forward(latest[1], data)
-            pts = np.concatenate([data.cp_positions, self._watch]) if len(self._watch) else data.cp_positions
+            # on the fusion thread alone (its one caller): its own data, the kinematics bound once
+            if self._settings_fk is None:
+                self._settings_data = self.robot.create_data()
+                self._settings_fk = self.robot.forward_into(self._settings_data)
+            q = latest[1]                  # (a copy of the history's float64 (dof,) state: checked there)
+            if not self._settings_fk(q):
+                self.robot.check_q(q)      # raises, naming the bad value
+            cp = self._settings_data.cp_positions
+            # new arrays: the build hands its points on with its answer (the distance worker keeps them)
+            pts = np.concatenate([cp, self._watch]) if len(self._watch) else cp.copy()
         return cfg, ids, pts
 
     # ------------------------------------------------------------ inputs (any thread)
