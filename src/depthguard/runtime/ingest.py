@@ -138,7 +138,8 @@ class CameraWorker:
         self._robot_data = self._fk = None
         if model is not None and hasattr(model, "forward_into"):
             self._robot_data = model.create_data()
-            self._fk = model.forward_into(self._robot_data)
+            self._fk = model.forward_into(self._robot_data)      # (reads q as float64 (dof,): checked)
+            self._q_shape = (model.dof,)
         self.handover_off: str | None = None
         self._handover_checked = 0
         self.robot_handed = 0
@@ -267,7 +268,7 @@ class CameraWorker:
         bufs = self._buffers(wanted)
         # the links posed once at the capture joints, for the render and the capsules (issue 29)
         poses = None
-        if self._fk is not None:
+        if self._fk is not None and type(q) is np.ndarray and q.dtype == np.float64 and q.shape == self._q_shape:
             if not self._fk(q):
                 raise ValueError(f"the joints at the frame are not finite: {q.tolist()}")
             poses = self._robot_data.link_poses
