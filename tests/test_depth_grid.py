@@ -167,7 +167,8 @@ def test_capsule_intervals_match_centre_test(rng):
         lo = np.zeros((30, 40, depth_grid_capsules.MAX_CAPS_PER_PIXEL))
         hi = np.zeros_like(lo)
         n = np.zeros((30, 40), dtype=np.int64)
-        depth_grid_capsules.capsule_intervals(cc, 1, np.array([[0, 39, 0, 29]]), cam.fx, cam.fy, cam.cx, cam.cy, 30, 40, lo, hi, n)
+        depth_grid_capsules.capsule_intervals(cc, 1, np.array([[0, 39, 0, 29]]), cam.fx, cam.fy, cam.cx, cam.cy, 30, 40, lo, hi, n,
+                                              np.array([0, 29, 0, 39]))
         for v in range(0, 30, 2):
             for u in range(0, 40, 2):
                 d1 = g * dd
@@ -211,7 +212,8 @@ def test_capsule_intervals_keep_every_pixel(rng):
     M = depth_grid_capsules.MAX_CAPS_PER_PIXEL
     lo, hi = np.zeros((36, 48, M)), np.zeros((36, 48, M))
     n = np.zeros((36, 48), dtype=np.int64)
-    depth_grid_capsules.capsule_intervals(cc, nc, boxes, cam.fx, cam.fy, cam.cx, cam.cy, 36, 48, lo, hi, n)
+    depth_grid_capsules.capsule_intervals(cc, nc, boxes, cam.fx, cam.fy, cam.cx, cam.cy, 36, 48, lo, hi, n,
+                                          np.array([0, 35, 0, 47]))
     hits = 0
     for v in range(36):
         for u in range(48):
@@ -224,6 +226,40 @@ def test_capsule_intervals_keep_every_pixel(rng):
             np.testing.assert_array_equal(hi[v, u, :k], [w[1] for w in want[:k]])
             hits += len(want)
     assert hits > 500
+
+
+def test_capsule_intervals_in_turn_equal_each_call_on_a_cleared_image(rng):
+    """:func:`capsule_intervals` called again and again on the same buffers (a monitor's builds:
+    only the last call's box is cleared) leaves every pixel's count as a call on a cleared image
+    does, while the robot moves from one side of the image to the other, leaves it and has no
+    capsule in view; the box it keeps is the union of the call's boxes (R12)."""
+    cam = _cam("c0", (2.5, 0, 1), w=48, h=36, f=40.0)
+    M = depth_grid_capsules.MAX_CAPS_PER_PIXEL
+    lo, hi = np.zeros((36, 48, M)), np.zeros((36, 48, M))
+    n = np.zeros((36, 48), dtype=np.int64)
+    written = np.array([0, 35, 0, 47])
+    seen = set()
+    for centre in ((-0.5, -0.4, 0.0), (0.5, 0.4, 0.2), (0.0, 0.0, 0.0), (0.0, 9.0, 0.0), (0.3, -0.5, 0.1)):
+        c = np.array(centre)
+        caps = [Capsule.between(c + rng.uniform(-0.2, 0.2, 3), c + rng.uniform(-0.2, 0.2, 3), rng.uniform(0.03, 0.15))
+                for _ in range(3)]
+        cc = np.ascontiguousarray([np.r_[k.segment()[0] @ cam.R.T + cam.t, k.segment()[1] @ cam.R.T + cam.t, k.radius]
+                                   for k in caps])
+        boxes = np.zeros((3, 4), dtype=np.int64)
+        depth_grid_capsules.capsule_boxes(cc, 3, cam.fx, cam.fy, cam.cx, cam.cy, 36, 48, boxes)
+        depth_grid_capsules.capsule_intervals(cc, 3, boxes, cam.fx, cam.fy, cam.cx, cam.cy, 36, 48, lo, hi, n, written)
+        n_fresh = np.zeros_like(n)
+        depth_grid_capsules.capsule_intervals(cc, 3, boxes, cam.fx, cam.fy, cam.cx, cam.cy, 36, 48, lo.copy(),
+                                              hi.copy(), n_fresh, np.array([0, 35, 0, 47]))
+        np.testing.assert_array_equal(n, n_fresh)
+        inside = (boxes[:, 0] <= boxes[:, 1]) & (boxes[:, 2] <= boxes[:, 3])
+        if inside.any():
+            b = boxes[inside]
+            assert list(written) == [b[:, 2].min(), b[:, 3].max(), b[:, 0].min(), b[:, 1].max()]
+        else:
+            assert written[1] < written[0]
+        seen.add(bool((n > 0).any()))
+    assert seen == {True, False}
 
 
 # ------------------------------------------------------------------ compact vs explicit map

@@ -13,7 +13,7 @@ import numpy as np
 import pytest
 
 from depthguard.fusion.depth_grid import DepthGridMap
-from depthguard.fusion.depth_grid_lazy import new_pixel_memo
+from depthguard.fusion.depth_grid_lazy import tile_min
 from depthguard.fusion.depth_grid_kernels import TILE
 from depthguard.numba_threads import NUMBA_NUM_THREADS, thread_settings
 from tests.test_depth_grid import _scene, _with_robot
@@ -76,18 +76,14 @@ def test_the_grid_query_makes_no_ctypes_call_into_numbas_layer(monkeypatch):
     assert (numba.get_num_threads(), numba.get_parallel_chunksize()) == before
 
 
-def test_new_pixel_memo_equals_numpy_twin():
+def test_tile_min_equals_numpy_twin():
     rng = np.random.default_rng(3)
     for H, W in ((48, 64), (45, 61), (1, 1)):
         pfree = rng.uniform(0.2, 5.0, (H, W))
         pfree[rng.random((H, W)) < 0.1] = np.inf
-        free_to = np.full((H, W), -7.0)
-        clear = np.full((H, W), 9, dtype=np.int32)
         ty, tx = -(-H // TILE), -(-W // TILE)
         tmin = np.full((ty, tx), -1.0)
-        new_pixel_memo(pfree, free_to, clear, tmin)
-        np.testing.assert_array_equal(free_to, pfree)
-        assert (clear == -1).all()
+        tile_min(pfree, tmin)
         padded = np.full((ty * TILE, tx * TILE), np.inf)
         padded[:H, :W] = pfree
         np.testing.assert_array_equal(tmin, padded.reshape(ty, TILE, tx, TILE).min(axis=(1, 3)))

@@ -48,7 +48,8 @@ from depthguard.config import PRODUCT_INVALID, PRODUCT_ROBOT_IN_OTHERS, PRODUCT_
 from depthguard.camera import Camera
 from depthguard.distance.gaps import GapBuffers, check_gap_px
 from depthguard.distance.silhouette import SilhouetteBuffers, check_silhouette_px
-from depthguard.fusion import depth_grid_capsules, depth_grid_eager, depth_grid_kernels, depth_grid_lookup
+from depthguard.fusion import (depth_grid_capsules, depth_grid_eager, depth_grid_kernels, depth_grid_lazy,
+                               depth_grid_lookup)
 from depthguard.fusion.camera_views import CameraViews
 from depthguard.fusion.depth_grid_memo import new_memo
 from depthguard.fusion.depth_grid_share import install_share, memo_request
@@ -259,6 +260,7 @@ class DepthGridMap(GridRobot, GridQuery, GridLoad):
         self._cap_lo = np.zeros(P.shape + (depth_grid_capsules.MAX_CAPS_PER_PIXEL,))
         self._cap_hi = np.zeros(P.shape + (depth_grid_capsules.MAX_CAPS_PER_PIXEL,))
         self._cap_n = np.zeros(P.shape, dtype=np.int64)
+        self._cap_written = np.array([0, P.height - 1, 0, P.width - 1], dtype=np.int64)   # capsule_intervals'
         # lazy per-frame work: memoised cell classes per principal pixel (bits), frame stamps
         nw = (self.n_d + 63) // 64
         self._obits = np.zeros(P.shape + (nw,), dtype=np.uint64)
@@ -429,6 +431,7 @@ class DepthGridMap(GridRobot, GridQuery, GridLoad):
         P = self.principal
         if P.id in fresh:
             self._principal_state(depths[P.id], robot_depths.get(P.id), states.get(P.id))
+            depth_grid_lazy.tile_min(self._pfree, self._tmin)     # what a new frame needs of the lazy memo
         for k, cam in enumerate(self.others):
             if cam.id not in fresh:
                 continue
@@ -459,7 +462,7 @@ class DepthGridMap(GridRobot, GridQuery, GridLoad):
         self._set_band(reach)
         self.lazy = bool(lazy)
         self.set_robot_capsules(robot_capsules)
-        if self.lazy:                             # (the tiles' free depths: set_robot_capsules)
+        if self.lazy:
             self.has_frames = True
             return
         depth_grid_eager.column_runs(self._pfree, self._pkind, self._pint, self.d_min, self.delta_d, self.n_d,

@@ -5,10 +5,12 @@ over the slices a query needs, and memoised as bits (the eager form, every
 column's obstacle runs at once, is :func:`depthguard.fusion.depth_grid_eager.column_runs`).
 ``obits[v, u, w]`` / ``cbits[v, u, w]`` (uint64) hold bit
 ``g & 63`` of word ``g >> 6`` for slice ``g`` in ``0..n_d-1``: obstacle /
-already classified. ``stamp[v, u]`` is the frame number the pixel's bits
-belong to; a pixel with an older stamp is reset on first touch, so a new
-frame costs no work on the bits, only two fills of (H, W) arrays (``free_to``
-and ``clear``, the per-pixel free stretch). Each cell gets exactly the class
+already classified. ``stamp[v, u]`` is the frame number the pixel's bits and
+free stretch (``free_to``, ``clear``) belong to; a pixel with an older stamp
+reads as not yet touched (free to its free depth, nothing cleared) and is reset
+on first touch, so a new frame costs no work on the memo, only the tiles' least
+free depths (:func:`tile_min`; it filled two (H, W) arrays before, 0.9 MB of a
+binned 640x480 principal a build: issue 29). Each cell gets exactly the class
 that :func:`~depthguard.fusion.depth_grid_eager.column_runs` gives it (same
 rule, same exact stretch shortcuts), so the answers equal the eager runs'
 (without their run-overflow merging).
@@ -35,20 +37,19 @@ from depthguard.fusion.depth_grid_memo import gray_stretch
 from depthguard.fusion.depth_grid_memo import mask_range as _mask_range
 from depthguard.fusion.depth_grid_memo import msb as _msb
 
-__all__ = ["new_pixel_memo", "ensure_cells"]
+__all__ = ["tile_min", "ensure_cells"]
 
 _ONE = np.uint64(1)
 _ALL = np.uint64(0xFFFFFFFFFFFFFFFF)
 
 
 @njit(cache=True, nogil=True)
-def new_pixel_memo(pfree, free_to, clear, tmin):
-    """A new frame's per-pixel memo (module docstring), in one pass over the principal's free
-    depths ``pfree`` (H, W) float64 m: ``free_to`` (H, W) float64 = ``pfree``, ``clear`` (H, W)
-    int32 = -1, and ``tmin`` (ceil(H/TILE), ceil(W/TILE)) float64 per tile the smallest free
-    depth (a point with ``dp + rho`` below it has every pixel of the tile in case 1, R12). One
-    call: two numpy calls and a kernel each gave the GIL away and waited to take it back in a
-    real-time run (issue 29)."""
+def tile_min(pfree, tmin):
+    """What a new frame needs of the memo (module docstring): ``tmin`` (ceil(H/TILE),
+    ceil(W/TILE)) float64 per tile of the principal's free depths ``pfree`` (H, W) float64 m the
+    smallest (a point with ``dp + rho`` below it has every pixel of the tile in case 1, R12).
+    Compiled: numpy's calls each gave the GIL away and waited to take it back in a real-time run
+    (issue 29)."""
     H = pfree.shape[0]
     W = pfree.shape[1]
     for ty in range(tmin.shape[0]):
@@ -58,11 +59,23 @@ def new_pixel_memo(pfree, free_to, clear, tmin):
         ty = v // TILE
         for u in range(W):
             x = pfree[v, u]
-            free_to[v, u] = x
-            clear[v, u] = -1
             tx = u // TILE
             if x < tmin[ty, tx]:
                 tmin[ty, tx] = x
+
+
+@njit(cache=True, inline="always")
+def pixel_free_to(stamp, free_to, pfree, frame, v, u):
+    """``free_to[v, u]`` of this ``frame`` (module docstring): the pixel's free depth until it is
+    touched in this frame."""
+    return free_to[v, u] if stamp[v, u] == frame else pfree[v, u]
+
+
+@njit(cache=True, inline="always")
+def pixel_clear(stamp, clear, frame, v, u):
+    """``clear[v, u]`` of this ``frame`` (module docstring): -1 until the pixel is touched in
+    this frame."""
+    return clear[v, u] if stamp[v, u] == frame else -1
 
 
 @njit(cache=True, inline="always")
@@ -248,13 +261,13 @@ def _ensure_pixel(u, v, ga, gb, gs, direct, ncp, pint, dmin, dd, kfree, kpmin, k
     """Classify the not yet classified slices of ``ga..gb`` (inside the grid, ``>= gs``) of
     column ``(u, v)`` in this ``frame`` (resetting the pixel's bits on its first touch).
     ``clear[v, u]``: the largest ``h`` with every slice ``max(gs, 0)..h`` classified free
-    (-1 for a pixel not yet touched in this frame: every frame starts with -1);
+    (-1 for a pixel not yet touched in this frame: every frame starts with -1, :func:`pixel_clear`);
     ``free_to[v, u]``: the principal depth up to which the column is known free —
-    its free depth ``df`` (R12 case 1; what every frame starts with), raised here to
-    ``d_min + (clear + 1) delta_d`` when ``r(df)`` lies inside the grid.
-    ``pmemo = (stamp, clear, free_to)``; ``pint`` the principal's intrinsics. (At most 30
+    its free depth ``df`` (R12 case 1; what every frame starts with, :func:`pixel_free_to`),
+    raised here to ``d_min + (clear + 1) delta_d`` when ``r(df)`` lies inside the grid.
+    ``pmemo = (stamp, clear, free_to, pfree)``; ``pint`` the principal's intrinsics. (At most 30
     parameters: CPython packs a longer call into ``*args``, which numba cannot inline.)"""
-    stamp, clear, free_to = pmemo
+    stamp, clear, free_to, pfree = pmemo
     fx = pint[0]
     fy = pint[1]
     cx = pint[2]
@@ -266,6 +279,7 @@ def _ensure_pixel(u, v, ga, gb, gs, direct, ncp, pint, dmin, dd, kfree, kpmin, k
             cbits[v, u, w] = np.uint64(0)
         stamp[v, u] = frame
         clear[v, u] = max(gs, 0) - 1
+        free_to[v, u] = pfree[v, u]
     elif _all_set(cbits, v, u, ga, gb):
         g = gb + 1                      # every slice classified already: only the free stretch below
     while g <= gb:
@@ -401,10 +415,10 @@ def ensure_cells(model, fr, memo, points, n_points, rho, ws, span):
                 if tmin[ty, tx] > far:
                     continue
                 for u in range(max(u0, tx * TILE), min(u1, tx * TILE + TILE - 1) + 1):
-                    if free_to[v, u] > far:
+                    if pixel_free_to(stamp, free_to, pfree, frame, v, u) > far:
                         continue                                       # case 1 / known free
                     ga, gb = _needed_slices(_ray_x(px, u, cx, fx), ay, bx, by, dp, rho2, dmin, dd, g_lo, g_hi)
-                    if ga > gb or (ga >= 0 and clear[v, u] >= gb):
+                    if ga > gb or (ga >= 0 and pixel_clear(stamp, clear, frame, v, u) >= gb):
                         continue                                       # too far / known free
                     gs, ncp = _col_setup(u, v, pfree, dmin, dd, nd, cap_n, ncaps)
                     gb = _surface_first(pkind[v, u] == KIND_SURFACE, gs, ncp, ga, min(gb, nd - 1),
@@ -426,7 +440,7 @@ def _ensure_row_cells(v, ulo, uhi, span, pfree, pkind, pint, dmin, dd, nd, kfree
     One call per row (a prange body of its own): :func:`_ensure_pixel` is inlined here — a
     call per pixel passing some twenty arrays cost ~300 ns, more than a pixel whose cells
     are all memoised."""
-    pmemo = (stamp, clear, free_to)
+    pmemo = (stamp, clear, free_to, pfree)
     for u in range(ulo, uhi + 1):
         ga = span[0, v, u]
         gb = span[1, v, u]

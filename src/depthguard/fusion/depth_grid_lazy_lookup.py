@@ -18,7 +18,8 @@ from depthguard.distance.window import start_point, surveillance_window
 from depthguard.fusion.depth_grid_capsules import _in_caps
 from depthguard.fusion.depth_grid_kernels import KIND_SURFACE, METHOD_MIN, TILE
 from depthguard.fusion.depth_grid_lazy import (_all_set, _bit, _col_setup, _ensure_one, _highest_bit, _lowest_bit,
-                                               _needed_slices, _point_terms, _ray_x, _surface_first)
+                                               _needed_slices, _point_terms, _ray_x, _surface_first, pixel_clear,
+                                               pixel_free_to)
 from depthguard.fusion.depth_grid_lookup import _f2, _finish_point, _fold_pixel
 
 __all__ = ["grid_distances_lazy"]
@@ -199,11 +200,11 @@ def grid_distances_lazy(model, fr, memo, points, n_points, rho, method, out, fil
                 if tmin[ty, tx] > far:                            # every pixel in case 1
                     continue
                 for u in range(max(u0, tx * TILE), min(u1, tx * TILE + TILE - 1) + 1):
-                    if free_to[v, u] > far:
+                    if pixel_free_to(stamp, free_to, pfree, frame, v, u) > far:
                         continue                                   # case 1 / known free to r(dp + rho)
                     ax = axbuf[i, u]
                     ga, gb = _needed_slices(ax, ay, bx_, by_, dp, rho2, dmin, dd, g_lo, g_hi)
-                    if ga > gb or (ga >= 0 and clear[v, u] >= gb):
+                    if ga > gb or (ga >= 0 and pixel_clear(stamp, clear, frame, v, u) >= gb):
                         continue                                   # too far from the point / known free
                     gs, ncp = _col_setup(u, v, pfree, dmin, dd, nd, cap_n, ncaps)
                     direct = pkind[v, u] == KIND_SURFACE
@@ -214,7 +215,7 @@ def grid_distances_lazy(model, fr, memo, points, n_points, rho, method, out, fil
                             and (stamp[v, u] != frame or not _all_set(cbits, v, u, max(ga, gs, 0), gn))):
                         _ensure_one(u, v, max(ga, gs, 0), gn, gs, direct,
                                     ncp, pint, dmin, dd, kfree, kpmin, kpmax, koff, kdims, rays, origins, kint,
-                                    nk, kmemo, caps, ncaps, cap_lo, cap_hi, band, frame, (stamp, clear, free_to),
+                                    nk, kmemo, caps, ncaps, cap_lo, cap_hi, band, frame, (stamp, clear, free_to, pfree),
                                     obits, cbits)
                     a = max(ga, gs)
                     if a > gb:

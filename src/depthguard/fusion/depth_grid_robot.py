@@ -10,7 +10,7 @@ from __future__ import annotations
 
 import numpy as np
 
-from depthguard.fusion import depth_grid_capsules, depth_grid_lazy, depth_grid_reach
+from depthguard.fusion import depth_grid_capsules, depth_grid_reach
 
 __all__ = ["GridRobot"]
 
@@ -112,12 +112,12 @@ class GridRobot:
             self._caps = self._caps_buf[:n]
             P = self.principal
             depth_grid_capsules.capsule_intervals(self._caps, n, self._capsule_boxes(self._caps), P.fx, P.fy,
-                                P.cx, P.cy, P.height, P.width, self._cap_lo, self._cap_hi, self._cap_n)
+                                P.cx, P.cy, P.height, P.width, self._cap_lo, self._cap_hi, self._cap_n,
+                                self._cap_written)
         else:
             self._caps = np.zeros((1, 7))
         self._ncaps = n
         self._frame += 1          # memoised cells (lazy) were classified with the old volume
-        depth_grid_lazy.new_pixel_memo(self._pfree, self._free_to, self._clear, self._tmin)
 
     def _capsule_boxes(self, caps: np.ndarray) -> np.ndarray:
         """(C, 4) inclusive pixel boxes holding each capsule's projection (principal frame
