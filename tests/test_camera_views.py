@@ -34,16 +34,16 @@ def test_kernels_read_each_camera_where_it_lies():
     rng = np.random.default_rng(2)
     views = CameraViews(3)
     shapes = [(48, 64), (30, 41), (5, 7)]
-    arrays = [(rng.uniform(0, 5, s), rng.uniform(0, 5, 200 + k), rng.uniform(0, 5, 200 + k))
+    arrays = [tuple(rng.uniform(0, 5, n).astype(np.float32) for n in (s, 200 + k, 200 + k))
               for k, s in enumerate(shapes)]
     for k, (f, a, b) in enumerate(arrays):
         views.point(k, f, a, b)
     for k, (f, a, b) in enumerate(arrays):
         v, u, i = f.shape[0] - 1, f.shape[1] - 2, 199 + k
         s, x, lo, hi, h, w = _read(views.free, views.pmin, views.pmax, k, v, u, i)
-        assert s == pytest.approx(f.sum(), rel=1e-12) and x == f[v, u] and (h, w) == f.shape
+        assert s == pytest.approx(f.astype(np.float64).sum(), rel=1e-12) and x == f[v, u] and (h, w) == f.shape
         assert lo == a[i] and hi == b[i]
-    big = np.zeros((60, 80))               # a grid's buffer larger than the camera: its rows are 80 long
+    big = np.zeros((60, 80), np.float32)   # a grid's buffer larger than the camera: its rows are 80 long
     big[:30, :41] = arrays[1][0]
     views.point(1, big, *arrays[1][1:])
     assert _read(views.free, views.pmin, views.pmax, 1, 29, 40, 0)[1] == arrays[1][0][29, 40]
@@ -51,22 +51,26 @@ def test_kernels_read_each_camera_where_it_lies():
 
 def test_views_hold_what_they_point_at_until_pointed_elsewhere():
     views = CameraViews(1)
-    f, a, b = np.ones((4, 4)), np.ones(10), np.ones(10)
+    f, a, b = (np.ones(n, np.float32) for n in ((4, 4), 10, 10))
     refs = [weakref.ref(x) for x in (f, a, b)]
     views.point(0, f, a, b)
     del f, a, b
     gc.collect()
     assert all(r() is not None for r in refs)            # a worker's pool cannot give them out again
-    views.point(0, np.zeros((2, 2)), np.zeros(3), np.zeros(3))
+    views.point(0, *(np.zeros(n, np.float32) for n in ((2, 2), 3, 3)))
     gc.collect()
     assert all(r() is None for r in refs)
 
 
+_F32 = np.float32
+
+
 @pytest.mark.parametrize("free, pmin, why", [
-    (np.ones((4, 4), np.float32), np.ones(8), "float32 free"),
-    (np.ones((4, 8))[:, ::2], np.ones(8), "a strided view"),
-    (np.ones(16), np.ones(8), "1-D free"),
-    (np.ones((4, 4)), np.ones((2, 4)), "2-D pyramid"),
+    (np.ones((4, 4)), np.ones(8, _F32), "float64 free (another camera's free depths are float32)"),
+    (np.ones((4, 4), _F32), np.ones(8), "float64 pyramid"),
+    (np.ones((4, 8), _F32)[:, ::2], np.ones(8, _F32), "a strided view"),
+    (np.ones(16, _F32), np.ones(8, _F32), "1-D free"),
+    (np.ones((4, 4), _F32), np.ones((2, 4), _F32), "2-D pyramid"),
 ])
 def test_what_a_kernel_cannot_read_in_place_is_refused(free, pmin, why):
     views = CameraViews(2)
@@ -78,14 +82,14 @@ def test_what_a_kernel_cannot_read_in_place_is_refused(free, pmin, why):
 
 def test_pyramids_of_two_lengths_are_refused():
     with pytest.raises(ValueError, match="differ in length"):
-        CameraViews(1).point(0, np.ones((2, 2)), np.ones(5), np.ones(6))
+        CameraViews(1).point(0, np.ones((2, 2), _F32), np.ones(5, _F32), np.ones(6, _F32))
 
 
 def test_a_copy_points_at_what_it_holds_itself():
     """A copy, deep copy or pickle of the views (a grid copied by a user) reads the arrays it holds,
     never the original's memory by its old address."""
     views = CameraViews(2)
-    f, a, b = np.arange(12.0).reshape(3, 4), np.arange(5.0), np.arange(5.0) + 1
+    f, a, b = np.arange(12.0, dtype=_F32).reshape(3, 4), np.arange(5.0, dtype=_F32), np.arange(5.0, dtype=_F32) + 1
     views.point(0, f, a, b)
     for other in (copy.copy(views), copy.deepcopy(views), pickle.loads(pickle.dumps(views))):
         g, ga, gb = other.arrays(0)

@@ -170,16 +170,22 @@ def test_level1_with_the_state_checks_its_arrays():
     depth, robot = _images(np.random.default_rng(3), H, W, np.float32)
     opts = StateOptions(0.03, "unknown", "unknown", 4, 3)
     offs, dims, size = pyramid_layout(H, W, pyramid_levels(H, W))
-    free, kind = np.full((H, W), -5.0), np.zeros((H, W), np.int8)
+    f32 = np.float32                       # (another camera's state and pyramids: free32)
+    free, kind = np.full((H, W), -5.0, f32), np.zeros((H, W), np.int8)
+    free64 = np.full((H, W), -5.0)
     bufs = (SilhouetteBuffers((H, W)), GapBuffers((H, W)))
-    for bad in [dict(level1=(np.zeros(size), np.zeros(size), int(offs[1])), bin=2),
-                dict(level1=(np.zeros(int(offs[1]) + 10), np.zeros(int(offs[1]) + 10), int(offs[1]))),
-                dict(level1=(np.zeros(size), np.zeros(size - 1), int(offs[1]))),
-                dict(level1=(np.zeros(size, np.float32), np.zeros(size, np.float32), int(offs[1])))]:
+    for out, bad in [(free, dict(level1=(np.zeros(size, f32), np.zeros(size, f32), int(offs[1])), bin=2)),
+                     (free, dict(level1=(np.zeros(int(offs[1]) + 10, f32), np.zeros(int(offs[1]) + 10, f32),
+                                         int(offs[1])))),
+                     (free, dict(level1=(np.zeros(size, f32), np.zeros(size - 1, f32), int(offs[1])))),
+                     (free, dict(level1=(np.zeros(size), np.zeros(size), int(offs[1])))),          # float64 pyramids
+                     (free64, dict(level1=(np.zeros(size, f32), np.zeros(size, f32), int(offs[1]))))]:  # float64 state
         with pytest.raises(ValueError, match="level1"):
-            state_into(cam, depth, robot, opts, False, *bufs, free, kind, **bad)
-        assert (free == -5.0).all()
-    pmin, pmax = np.full(size, -9.0), np.full(size, -9.0)
+            state_into(cam, depth, robot, opts, False, *bufs, out, kind, **bad)
+        assert (out == -5.0).all()
+    with pytest.raises(ValueError, match="out_free"):
+        state_into(cam, depth, robot, opts, False, *bufs, np.zeros((H, W), np.float16), kind)
+    pmin, pmax = np.full(size, -9.0, f32), np.full(size, -9.0, f32)
     state_into(cam, depth, robot, opts, False, *bufs, free, kind, level1=(pmin, pmax, int(offs[1])))
     h, w = dims[1]
     pad = np.pad(free, ((0, 2 * h - H), (0, 2 * w - W)), mode="edge")
@@ -322,13 +328,14 @@ def test_maker_with_the_renderers_spans_is_state_into_for_every_role():
                 out = [np.full(sh, -7, dt) for sh, dt in maker.layout(pyramids, b)]
                 st = maker.make(depth, robot, opts, robot_free, pyramids, b, out=out, robot_spans=spans)
                 hb, wb = -(-H // b), -(-W // b)
-                f, k = np.full((hb, wb), -7.0), np.full((hb, wb), 9, np.int8)
+                # (another camera's with its pyramids in float32, rounded down: the layout's dtype)
+                f, k = np.full((hb, wb), -7.0, out[0].dtype), np.full((hb, wb), 9, np.int8)
                 state_into(cam, depth, robot, opts, robot_free, sil, gaps, f, k, b, robot_spans=spans)
                 np.testing.assert_array_equal(st.free, f)
                 np.testing.assert_array_equal(st.kind, k)
                 assert st.free is out[0] and st.bin == b and st.options == opts
                 if pyramids:
-                    pmin, pmax = np.full(size, -9.0), np.full(size, -9.0)
+                    pmin, pmax = np.full(size, -9.0, out[2].dtype), np.full(size, -9.0, out[3].dtype)
                     build_pyramids(f, H, W, pmin, pmax, offs, dims)
                     np.testing.assert_array_equal(st.pmin[offs[1]:], pmin[offs[1]:])
                     np.testing.assert_array_equal(st.pmax[offs[1]:], pmax[offs[1]:])

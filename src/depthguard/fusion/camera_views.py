@@ -1,9 +1,9 @@
 """The other cameras' per-pixel states read where they lie, not copied (R11, R12, R36; issue 29).
 
 The depth grid's kernels read, for every other camera ``k``, its free depths ``(H_k, W_k)``
-float64 m (:func:`~depthguard.fusion.depth_grid_kernels.cell_cleared` and the memo's runs) and
-its min / max pyramids, flat at the grid's level offsets
-(:func:`~depthguard.fusion.depth_grid_state.pyramid_layout`). A camera's state is made on its
+float32 m, rounded down (:mod:`~depthguard.fusion.free32`;
+:func:`~depthguard.fusion.depth_grid_kernels.cell_cleared` and the memo's runs) and its min / max
+pyramids, flat at the grid's level offsets (:func:`~depthguard.fusion.depth_grid_state.pyramid_layout`). A camera's state is made on its
 worker (:class:`~depthguard.fusion.depth_grid_state.CameraState`) and never written again; the
 build used to copy it into one ``(K, Hk, Wk)`` array and two ``(K, size)`` arrays — 3.3 MB of a
 640x480 camera, 0.47 ms per frame of another camera on the fusion's serial path (the bench's
@@ -17,7 +17,7 @@ theirs: a worker's pool (:mod:`depthguard.frame_pool`) gives a set out again onl
 refers to it. The kernels turn a row into an array view with :func:`camera_free` /
 :func:`camera_pyramid` (numba's ``carray`` at that address: no copy, no allocation, one
 compiled signature for any number of cameras, as the ``(K, …)`` arrays had). Only a
-:class:`CameraViews` makes the rows, from arrays it checks (C-contiguous float64 of the
+:class:`CameraViews` makes the rows, from arrays it checks (C-contiguous float32 of the
 shapes it records), so a kernel never reads outside memory it holds.
 """
 
@@ -25,6 +25,8 @@ from __future__ import annotations
 
 import numpy as np
 from numba import carray, njit, types
+
+from depthguard.fusion.free32 import FREE_DTYPE
 from numba.core import cgutils
 from numba.extending import intrinsic
 
@@ -45,22 +47,22 @@ def _address(typingctx, addr):
 
 @njit(cache=True, inline="always")
 def camera_free(table, k):
-    """Camera ``k``'s free depths: the ``(rows, row length)`` float64 array (m) row ``k`` of
+    """Camera ``k``'s free depths: the ``(rows, row length)`` float32 array (m) row ``k`` of
     ``table`` (a :attr:`CameraViews.free`, (K, 3) int64) points at."""
-    return carray(_address(table[k, 0]), (table[k, 1], table[k, 2]), np.float64)
+    return carray(_address(table[k, 0]), (table[k, 1], table[k, 2]), np.float32)
 
 
 @njit(cache=True, inline="always")
 def camera_pyramid(table, k):
-    """Camera ``k``'s flat pyramid (``(length,)`` float64 m) row ``k`` of ``table`` (a
+    """Camera ``k``'s flat pyramid (``(length,)`` float32 m) row ``k`` of ``table`` (a
     :attr:`CameraViews.pmin` / ``pmax``, (K, 2) int64) points at."""
-    return carray(_address(table[k, 0]), (table[k, 1],), np.float64)
+    return carray(_address(table[k, 0]), (table[k, 1],), np.float32)
 
 
 def readable(a) -> bool:
     """``a`` is an array a kernel can read in place through :class:`CameraViews` (C-contiguous
-    float64); :meth:`CameraViews.point` refuses anything else."""
-    return type(a) is np.ndarray and a.dtype == np.float64 and a.flags.c_contiguous
+    float32, :data:`~depthguard.fusion.free32.FREE_DTYPE`); :meth:`CameraViews.point` refuses anything else."""
+    return type(a) is np.ndarray and a.dtype == FREE_DTYPE and a.flags.c_contiguous
 
 
 def _address_of(a: np.ndarray) -> int:
@@ -83,11 +85,11 @@ class CameraViews:
 
     def point(self, k: int, free: np.ndarray, pmin: np.ndarray, pmax: np.ndarray) -> None:
         """Row ``k`` reads ``free`` (rows, row length) and ``pmin`` / ``pmax`` (length,), all
-        C-contiguous float64 (``ValueError`` otherwise); they are held until the row is pointed
+        C-contiguous float32 (``ValueError`` otherwise); they are held until the row is pointed
         elsewhere. The caller must not write into them while a kernel may read them."""
         for name, a, nd in (("free", free, 2), ("pmin", pmin, 1), ("pmax", pmax, 1)):
             if not (readable(a) and a.ndim == nd):
-                raise ValueError(f"camera {k}'s {name} must be a C-contiguous {nd}-D float64 array "
+                raise ValueError(f"camera {k}'s {name} must be a C-contiguous {nd}-D float32 array "
                                  f"(got {getattr(a, 'shape', a)!r} {getattr(a, 'dtype', '')})")
         if pmin.shape != pmax.shape:
             raise ValueError(f"camera {k}'s pyramids differ in length ({pmin.shape[0]}, {pmax.shape[0]})")

@@ -51,6 +51,7 @@ from depthguard.distance.silhouette import SilhouetteBuffers, check_silhouette_p
 from depthguard.fusion import (depth_grid_capsules, depth_grid_eager, depth_grid_kernels, depth_grid_lazy,
                                depth_grid_lookup)
 from depthguard.fusion.camera_views import CameraViews
+from depthguard.fusion.free32 import FREE_DTYPE
 from depthguard.fusion.depth_grid_memo import new_memo
 from depthguard.fusion.depth_grid_share import install_share, memo_request
 from depthguard.fusion.depth_grid_data import lazy_model
@@ -225,7 +226,7 @@ class DepthGridMap(GridRobot, GridQuery, GridLoad):
         nk = len(self.others)
         Hk = max([c.height for c in self.others], default=1)
         Wk = max([c.width for c in self.others], default=1)
-        self._kfree = np.zeros((max(nk, 1), Hk, Wk))
+        self._kfree = np.zeros((max(nk, 1), Hk, Wk), dtype=FREE_DTYPE)   # (free32: rounded down)
         self._kkind = np.empty((Hk, Wk), dtype=np.int8)
         levels = pyramid_levels(Hk, Wk)
         self._runs = np.zeros(P.shape + (RUNS_PER_COLUMN, 2), dtype=np.int32)
@@ -241,8 +242,8 @@ class DepthGridMap(GridRobot, GridQuery, GridLoad):
             offs, dims, n = pyramid_layout(c.height, c.width, levels)
             self._koff[k], self._kdims[k] = offs, dims
             size = max(size, n)
-        self._kpmin = np.zeros((max(nk, 1), size))
-        self._kpmax = np.zeros((max(nk, 1), size))
+        self._kpmin = np.zeros((max(nk, 1), size), dtype=FREE_DTYPE)
+        self._kpmax = np.zeros((max(nk, 1), size), dtype=FREE_DTYPE)
         # what the kernels read of each other camera: these buffers where the build works its
         # state out, else the state's own arrays (camera_views: no copy)
         self._views = CameraViews(nk)

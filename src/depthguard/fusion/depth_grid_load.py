@@ -13,6 +13,7 @@ import numpy as np
 
 from depthguard.fusion.camera_views import readable
 from depthguard.fusion.depth_grid_state import bin_state, state_into
+from depthguard.fusion.free32 import round_down_into
 
 __all__ = ["GridLoad"]
 
@@ -61,14 +62,23 @@ class GridLoad:
         when it was made with this build's options and role (returned; its pyramids too when it
         has them at the grid's levels), else worked out here into the grid's buffers (None
         returned). A state is never written after it is made, and the views hold it until
-        camera k's next frame, so its worker's pool does not give its arrays out meanwhile."""
-        if self._usable(state, cam, robot_free) and readable(state.free):
-            if self._pyramids_usable(state):
-                self._views.point(k, state.free, state.pmin, state.pmax)
-            else:
-                self._views.point(k, state.free, self._kpmin[k], self._kpmax[k])
-            self.states_used += 1
-            return state
+        camera k's next frame, so its worker's pool does not give its arrays out meanwhile.
+        A usable state in float64 (a camera unit's, decoded from the network, or a caller's) is
+        rounded down into the grid's float32 buffer (:mod:`~depthguard.fusion.free32`; its
+        pyramids are then made by the build)."""
+        if self._usable(state, cam, robot_free):
+            if readable(state.free):
+                if self._pyramids_usable(state):
+                    self._views.point(k, state.free, state.pmin, state.pmax)
+                else:
+                    self._views.point(k, state.free, self._kpmin[k], self._kpmax[k])
+                self.states_used += 1
+                return state
+            if state.free.dtype == np.float64:
+                round_down_into(state.free, self._kfree[k])     # (its top-left: the camera's pixels)
+                self._views.point(k, self._kfree[k], self._kpmin[k], self._kpmax[k])
+                self.states_used += 1
+                return None
         state_into(cam, depth, robot_depth, self._loaded_options_pending, robot_free, self._silhouette,
                    self._gaps, self._kfree[k], self._kkind)
         self._views.point(k, self._kfree[k], self._kpmin[k], self._kpmax[k])

@@ -41,13 +41,15 @@ from numba import njit
 
 from depthguard.fusion.camera_views import CameraViews, readable
 from depthguard.fusion.depth_grid_memo import _camera_stretch, mask_range, msb
+from depthguard.fusion.free32 import FREE_DTYPE
 
 __all__ = ["ShareSpec", "CameraShare", "CameraSharer", "share_spec", "camera_share", "install_share",
            "memo_request"]
 
 _ZERO = np.uint64(0)
 _ALL = np.uint64(0xFFFFFFFFFFFFFFFF)
-_NOTHING = (np.zeros((1, 1)), np.zeros(1), np.zeros(1))     # what a sharer's views hold between shares
+# what a sharer's views hold between shares
+_NOTHING = (np.zeros((1, 1), FREE_DTYPE), np.zeros(1, FREE_DTYPE), np.zeros(1, FREE_DTYPE))
 
 
 class ShareSpec(NamedTuple):

@@ -32,6 +32,7 @@ from depthguard.distance.silhouette import SilhouetteBuffers, check_silhouette_p
 from depthguard.fusion.camera_views import readable
 from depthguard.fusion.depth_grid_kernels import build_pyramids, frame_state, pixel_state
 from depthguard.fusion.depth_grid_state_fused import frame_state_fused
+from depthguard.fusion.free32 import FREE_DTYPE
 
 __all__ = ["StateOptions", "CameraState", "StateMaker", "state_into", "pyramid_levels", "pyramid_layout",
            "bin_state", "bin_state_numpy", "state_pyramids", "frame_state_binned", "frame_state_fused",
@@ -77,11 +78,13 @@ class StateOptions(NamedTuple):
 
 class CameraState(NamedTuple):
     """A frame's per-pixel state (:func:`~depthguard.fusion.depth_grid_kernels.frame_state`):
-    ``free`` (H, W) float64 m, the depth up to which each ray is free; ``kind`` (H, W) int8,
-    ``KIND_SURFACE`` / ``KIND_ROBOT`` / ``KIND_UNKNOWN``; ``options`` and ``robot_free`` (a
-    robot pixel confirms nothing: a non-principal camera with ``robot_in_others="free"``) as
-    it was made with; for a camera that confirms the principal's cells, the min / max pyramids
-    of ``free`` (flat float64, :func:`pyramid_layout` with ``levels``), else None."""
+    ``free`` (H, W) m, the depth up to which each ray is free (float64; float32 rounded down in a
+    camera other than the principal made by :class:`StateMaker`, :mod:`~depthguard.fusion.free32`);
+    ``kind`` (H, W) int8, ``KIND_SURFACE`` / ``KIND_ROBOT`` / ``KIND_UNKNOWN``; ``options`` and
+    ``robot_free`` (a robot pixel confirms nothing: a non-principal camera with
+    ``robot_in_others="free"``) as it was made with; for a camera that confirms the principal's
+    cells, the min / max pyramids of ``free`` (flat, its dtype, :func:`pyramid_layout` with
+    ``levels``), else None."""
     free: np.ndarray
     kind: np.ndarray
     options: StateOptions
@@ -249,7 +252,8 @@ def state_into(cam, depth, robot_depth, options: StateOptions, robot_free: bool,
     """Write the state of ``depth`` (H, W) m with the robot rendered as ``robot_depth`` (H, W) m
     (None: no robot) into ``out_free`` / ``out_kind`` (>= H, >= W; the top-left (H, W) is
     written; with ``bin > 1`` the binned state, :func:`frame_state_binned`, into the top-left
-    ``(ceil(H / bin), ceil(W / bin))``). ``silhouette`` and ``gaps`` are scratch buffers of the
+    ``(ceil(H / bin), ceil(W / bin))``); ``out_free`` float64, or float32 rounded down
+    (:mod:`~depthguard.fusion.free32`). ``silhouette`` and ``gaps`` are scratch buffers of the
     calling thread (the fused pass uses the first's; the second is kept for
     :func:`state_into_unfused`). The one place that turns a frame into its state: the grid's own
     build and :class:`StateMaker` both call it (R9, R28, R32), in one pass over the image
@@ -257,7 +261,7 @@ def state_into(cam, depth, robot_depth, options: StateOptions, robot_free: bool,
     unfused passes bit for bit, in about a third of their CPU on a 640x480 frame). ``robot_spans``
     (H, 2) int32 or None: per row ``[a, b)`` outside which ``robot_depth`` is 0 (the renderer's
     spans, as the camera worker keeps them): the robot's pixels are looked for there alone (the
-    same arrays). ``level1``: ``(pmin, pmax, offset)`` flat float64 pyramids of the layout
+    same arrays). ``level1``: ``(pmin, pmax, offset)`` flat float32 pyramids of the layout
     :func:`pyramid_layout` and where their level 1 starts: written with the state (``bin`` 1
     only; :func:`state_pyramids` with ``first=2`` then makes the levels above), or None."""
     d = check_depth_image(cam, depth)
@@ -277,10 +281,14 @@ def state_into(cam, depth, robot_depth, options: StateOptions, robot_free: bool,
               and robot_spans.dtype == np.int32):
         raise ValueError(f"robot_spans must be ({d.shape[0]}, 2) int32 with a robot depth, "
                          f"got {getattr(robot_spans, 'shape', robot_spans)}")
-    pmin, pmax, p1 = _NO_LEVEL1 if level1 is None else level1
+    if out_free.dtype not in (np.float64, FREE_DTYPE):
+        raise ValueError(f"out_free must be float64 or float32, got {out_free.dtype}")
+    pmin, pmax, p1 = _NO_LEVEL1[int(out_free.dtype == FREE_DTYPE)] if level1 is None else level1
     if level1 is not None and not (consts[7] == 1 and 0 <= p1 and p1 + -(-d.shape[0] // 2) * -(-d.shape[1] // 2) <= pmin.size
-                                   and pmin.shape == pmax.shape and readable(pmin) and readable(pmax)):
-        raise ValueError("level1 must be (pmin, pmax, offset) of a pyramid layout of the image, at bin 1")
+                                   and pmin.shape == pmax.shape and readable(pmin) and readable(pmax)
+                                   and out_free.dtype == FREE_DTYPE):
+        raise ValueError("level1 must be (pmin, pmax, offset) of a float32 pyramid layout of the image, with a "
+                         "float32 state at bin 1")
     run_fused(d, rd, use, consts, out_free, out_kind, robot_spans, pmin, pmax, int(p1))
 
 
@@ -309,7 +317,8 @@ def run_fused(d, rd, use: bool, consts: tuple, out_free, out_kind, robot_spans, 
 _FLOAT_DTYPES = (np.dtype(np.float32), np.dtype(np.float64))
 
 #: ``level1`` of :func:`state_into` when no pyramid is written with the state
-_NO_LEVEL1 = (np.zeros(0), np.zeros(0), -1)
+_NO_LEVEL1 = ((np.zeros(0), np.zeros(0), -1),                                       # a float64 state's
+              (np.zeros(0, FREE_DTYPE), np.zeros(0, FREE_DTYPE), -1))                 # a float32 one's
 
 
 #: (H, 2) int32 spans ``(0, W)`` per image shape: the whole of every row (one compiled signature
@@ -386,18 +395,20 @@ class StateMaker:
     def layout(self, pyramids: bool = False, bin: int = 1) -> tuple:
         """``((shape, dtype), ...)`` of the arrays :meth:`make` writes with these arguments:
         ``free`` float64 and ``kind`` int8 at the camera's pixel (or, ``bin > 1``, the binned
-        one), then with ``pyramids`` the flat ``pmin`` and ``pmax`` float64
-        (:func:`pyramid_layout`) — the ``out`` a caller that reuses buffers passes in."""
+        one); with ``pyramids`` (a camera other than the principal) ``free`` float32 (rounded
+        down, :mod:`~depthguard.fusion.free32`), ``kind`` and the flat ``pmin`` and ``pmax``
+        float32 (:func:`pyramid_layout`) — the ``out`` a caller that reuses buffers passes in."""
         key = (bool(pyramids), max(int(bin), 1))
         out = self._layouts.get(key)            # made once per key (issue 29: asked twice a frame)
         if out is None:
             cam = self.camera
             b = key[1]
             shape = (-(-cam.height // b), -(-cam.width // b)) if b > 1 else tuple(cam.shape)
-            out = ((shape, np.float64), (shape, np.int8))
-            if pyramids and b == 1:
+            if pyramids and b == 1:         # another camera's: float32, rounded down (free32)
                 size = pyramid_layout(cam.height, cam.width, pyramid_levels(cam.height, cam.width))[2]
-                out += (((size,), np.float64), ((size,), np.float64))
+                out = ((shape, FREE_DTYPE), (shape, np.int8), ((size,), FREE_DTYPE), ((size,), FREE_DTYPE))
+            else:
+                out = ((shape, np.float64), (shape, np.int8))
             self._layouts[key] = out
         return out
 
@@ -433,7 +444,8 @@ class StateMaker:
                 run_fused(depth, robot_depth, True, consts, free, kind, robot_spans, out[2], out[3],
                           int(self._pyramid_layout()[0][1]))
             else:
-                run_fused(depth, robot_depth, True, consts, free, kind, robot_spans, *_NO_LEVEL1)
+                run_fused(depth, robot_depth, True, consts, free, kind, robot_spans,
+                          *_NO_LEVEL1[int(free.dtype == FREE_DTYPE)])
         elif pyr:
             # level 1 with the state, from each pair of rows as it is made; the levels above from it
             state_into(cam, depth, robot_depth, options, robot_free, self._silhouette, self._gaps, free, kind, 1,

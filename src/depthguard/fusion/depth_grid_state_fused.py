@@ -28,6 +28,7 @@ from numba import njit, prange
 from depthguard.camera import RETURN_LIMIT_FACTOR
 from depthguard.distance.gaps import gap_at
 from depthguard.fusion.depth_grid_kernels import KIND_ROBOT, KIND_SURFACE, KIND_UNKNOWN
+from depthguard.fusion.free32 import as_free
 
 __all__ = ["frame_state_fused"]
 
@@ -188,7 +189,7 @@ def _valid_row(drow, rrow, use_robot, min_range, max_range, robot_offset, robot_
         dr = np.float64(rrow[u])
         f, k, ok = _measured(np.float64(drow[u]), dr, use_robot, min_range, max_range, robot_offset, robot_free,
                              beyond_free, limit)
-        frow[u] = f
+        frow[u] = as_free(f, frow)
         krow[u] = k
         uu = np.int32(u)
         first = min(first, np.int32(n) if ok else uu)
@@ -224,7 +225,7 @@ def _valid_row_pairs(d0, d1, r0, r1, use_robot, min_range, max_range, robot_offs
         fa, ka = _lexmin(f0, k0, f1, k1)
         fb, kb = _lexmin(f2, k2, f3, k3)
         m, k = _lexmin(fa, ka, fb, kb)
-        frow[i] = m
+        frow[i] = as_free(m, frow)
         krow[i] = k
         ok = ok0 & ok1 & ok2 & ok3
         ii = np.int32(i)
@@ -258,10 +259,10 @@ def frame_state_fused(depth, robot_depth, use_robot, min_range, max_range, robot
 
     depth, robot_depth : (H, W) float m (``robot_depth`` read only when ``use_robot``);
     tmp, masked : (>= H, >= W) scratch of ``robot_depth``'s dtype; rows : (>= H, 2) int64 scratch;
-    out_free (float64 m) / out_kind (int8) : (>= ceil(H / b), >= ceil(W / b)), the top-left
-    written; robot_spans : (>= H, 2) int32, per row ``[a, b)`` outside which ``robot_depth`` is 0
+    out_free (float64 m, or float32 rounded down: :func:`~depthguard.fusion.free32.as_free`) /
+    out_kind (int8) : (>= ceil(H / b), >= ceil(W / b)), the top-left written; robot_spans : (>= H, 2) int32, per row ``[a, b)`` outside which ``robot_depth`` is 0
     (a renderer's spans, or ``(0, W)``: the robot's pixels are looked for there alone, :func:`_robot_rows`);
-    pmin, pmax : flat float64 pyramids (:func:`~depthguard.fusion.depth_grid_state.pyramid_layout`)
+    pmin, pmax : flat pyramids of ``out_free``'s dtype (:func:`~depthguard.fusion.depth_grid_state.pyramid_layout`)
     whose level 1 is written with the state when ``p1`` (its offset) >= 0 and ``b = 1``, from each
     pair of rows as it is made (:func:`_level1_row`: the bits of
     :func:`~depthguard.fusion.depth_grid_state.state_pyramids`, without reading the state
@@ -305,7 +306,7 @@ def frame_state_fused(depth, robot_depth, use_robot, min_range, max_range, robot
                             f, k = _fused_pixel(depth, robot_depth, use_robot, min_range, max_range, robot_offset,
                                                 invalid_free, robot_free, tmp, v0, v1, ga, gb, ua, ub, n_sil,
                                                 n_gap, v, u)
-                            out_free[v, u] = f
+                            out_free[v, u] = as_free(f, out_free)
                             out_kind[v, u] = k
             if p1 >= 0:
                 wl = (W + 1) // 2
@@ -346,7 +347,7 @@ def frame_state_fused(depth, robot_depth, use_robot, min_range, max_range, robot
                         if f < m or (f == m and kk < k):
                             m = f
                             k = kk
-                    out_free[j, i] = m
+                    out_free[j, i] = as_free(m, out_free)
                     out_kind[j, i] = k
         return
     # b > 2 (``principal_bin`` 3, 4 today) or an odd image: per row of blocks, each of its ``b``
@@ -380,7 +381,7 @@ def frame_state_fused(depth, robot_depth, use_robot, min_range, max_range, robot
             m, k = _block_rule(depth, robot_depth, use_robot, min_range, max_range, robot_offset, invalid_free,
                                robot_free, tmp, v0, v1, ga, gb, ua, ub, n_sil, n_gap, va, vb, i * b,
                                min(W, i * b + b))
-            out_free[j, i] = m
+            out_free[j, i] = as_free(m, out_free)
             out_kind[j, i] = k
 
 
@@ -424,7 +425,7 @@ def _fold_phase(drow, rrow, use_robot, min_range, max_range, robot_offset, robot
                              robot_offset, robot_free, beyond_free, limit)
         f = f if ok else -np.inf
         fm, km = _lexmin(frow[i], krow[i], f, k)
-        frow[i] = fm
+        frow[i] = as_free(fm, frow)
         krow[i] = km
 
 
@@ -448,7 +449,7 @@ def _fold_row4(drow, rrow, use_robot, min_range, max_range, robot_offset, robot_
         fb, kb = _lexmin(f2, k2, f3, k3)
         fa, ka = _lexmin(fa, ka, fb, kb)
         fm, km = _lexmin(frow[i], np.float64(krow[i]), fa, ka)
-        frow[i] = fm
+        frow[i] = as_free(fm, frow)
         krow[i] = np.int8(km)
 
 
