@@ -61,14 +61,15 @@ def _flat_states(grid, depth: float, options) -> dict:
     no pixel, so this job does not compile the frame classification (R29)."""
     from depthguard.fusion.depth_grid_kernels import KIND_SURFACE
     from depthguard.fusion.depth_grid_state import CameraState
+    from depthguard.fusion.free32 import FREE_DTYPE
 
-    def state(cam, b: int, robot_free: bool) -> CameraState:
-        return CameraState(np.full(cam.shape, depth, np.float64), np.full(cam.shape, KIND_SURFACE, np.int8),
+    def state(cam, b: int, robot_free: bool, dtype) -> CameraState:
+        return CameraState(np.full(cam.shape, depth, dtype), np.full(cam.shape, KIND_SURFACE, np.int8),
                            options, robot_free, bin=b)
 
-    states = {grid.principal.id: state(grid.principal, grid.principal_bin, False)}
-    for cam in grid.others:
-        states[cam.id] = state(cam, 1, options.robot_in_others == "free")
+    states = {grid.principal.id: state(grid.principal, grid.principal_bin, False, np.float64)}
+    for cam in grid.others:            # another camera's free depths: float32, as its worker makes them
+        states[cam.id] = state(cam, 1, options.robot_in_others == "free", FREE_DTYPE)
     return states
 
 
